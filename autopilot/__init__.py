@@ -1,0 +1,1 @@
+"""Autopilot process: IVFM adaptive controller, MAVLink vehicle side, offline identification."""

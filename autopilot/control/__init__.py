@@ -1,0 +1,1 @@
+"""Controllers: the indirect adaptive fuzzy sliding-mode cascade and its baselines (pure)."""

@@ -1,0 +1,235 @@
+"""The sliding-mode cascade: altitude and position loops feeding the attitude loop, then
+the mixer. One compiled function per control period (``cascade_step``) so a step costs
+microseconds; the ``SlidingModeCascade`` class around it holds the state.
+
+Flavours share this code: IVFC (interval type-2 basis), T1FC (type-1 basis) and SMC
+(nominal model, no adaptation). Channel order everywhere: phi, theta, psi, z, x, y.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from autopilot.control.command_filter import command_filter_step
+from autopilot.control.mixer import mix
+from autopilot.control.parameters import ChannelGains, channel_gains, validate_parameters
+from autopilot.control.sliding_mode import TELEMETRY_FIELDS, adaptive_channel_step
+from autopilot.identification.ts_model import it2_regressor, t1_regressor
+from autopilot.reference import REF_ACC, REF_EULER, REF_EULER_ACC, REF_EULER_RATE, REF_POS, REF_VEL
+from contracts.airframe import Airframe, attitude_coefficients, paper_attitude_drift
+
+CHANNELS = ("phi", "theta", "psi", "z", "x", "y")
+CH_PHI, CH_THETA, CH_PSI, CH_Z, CH_X, CH_Y = range(6)
+BASIS_IT2, BASIS_T1, BASIS_NOMINAL = 0, 1, 2
+
+# Measurement layout (sitl.plant.MEASUREMENT_SIZE): position, velocity, Euler, Euler rates.
+M_POS, M_VEL, M_EULER, M_RATE = 0, 3, 6, 9
+
+MIN_TILT_COSINE = 0.3  # altitude loop: c.phi c.theta is bounded away from 0
+MIN_THRUST_FRACTION = 0.1  # position loop: U_z floor (fraction of weight) in u = -v / U_z
+
+
+@njit(cache=True)
+def attitude_regressor_inputs(meas: np.ndarray, w_r: float, channel: int) -> np.ndarray:
+    """The regressors of SPEC section 4: f_phi(theta', psi', W_r), f_theta(phi', psi', W_r),
+    f_psi(phi', theta')."""
+    rates = meas[M_RATE:M_RATE + 3]
+    if channel == CH_PHI:
+        return np.array([rates[1], rates[2], w_r])
+    if channel == CH_THETA:
+        return np.array([rates[0], rates[2], w_r])
+    return np.array([rates[0], rates[1]])
+
+
+@njit(cache=True)
+def desired_angles(u_x: float, u_y: float, psi_d: float, max_tilt: float) -> tuple[float, float]:
+    """phi_d, theta_d that point the thrust along (u_x, u_y) (SPEC section 5)."""
+    s, c = math.sin(psi_d), math.cos(psi_d)
+    phi_d = math.asin(max(-1.0, min(1.0, u_x * s - u_y * c)))
+    theta_d = math.asin(max(-1.0, min(1.0, (u_x * c + u_y * s) / math.cos(phi_d))))
+    return max(-max_tilt, min(max_tilt, phi_d)), max(-max_tilt, min(max_tilt, theta_d))
+
+
+@njit(cache=True)
+def cascade_step(
+    meas: np.ndarray,
+    ref: np.ndarray,
+    position_mode: bool,
+    kick: np.ndarray,
+    basis_kind: int,
+    mf_lower: tuple,
+    mf_upper: tuple,
+    theta_f: tuple,
+    theta_min: tuple,
+    theta_max: tuple,
+    theta_g: np.ndarray,
+    gains: tuple,
+    af: Airframe,
+    filter_state: np.ndarray,
+    filter_limits: np.ndarray,
+    max_tilt: float,
+    w_r: float,
+    period_s: float,
+    telemetry: np.ndarray,
+) -> np.ndarray:
+    """One control period: altitude, position (if active), attitude, mixer -> c_i."""
+    one = np.ones(1)
+    phi, theta = meas[M_EULER], meas[M_EULER + 1]
+    # Altitude: z'' = f_z + g_z v with v = -c.phi c.theta U_z.
+    v_z, theta_g[CH_Z] = adaptive_channel_step(
+        meas[M_POS + 2], meas[M_VEL + 2], ref[REF_POS + 2], ref[REF_VEL + 2], ref[REF_ACC + 2],
+        one, theta_f[CH_Z], theta_min[CH_Z], theta_max[CH_Z], 0.0, theta_g[CH_Z],
+        gains[CH_Z], period_s, telemetry[CH_Z],
+    )
+    tilt = max(math.cos(phi) * math.cos(theta), MIN_TILT_COSINE)
+    max_thrust = 4.0 * af.thrust_coeff_ns2 * af.rotor_max_rps**2
+    u_z = min(max(-v_z / tilt, 0.0), max_thrust)
+
+    yd = np.empty(3)
+    yd_dot = np.empty(3)
+    yd_ddot = np.empty(3)
+    for k in range(3):
+        yd[k] = ref[REF_EULER + k]
+        yd_dot[k] = ref[REF_EULER_RATE + k]
+        yd_ddot[k] = ref[REF_EULER_ACC + k]
+    if position_mode:
+        # Position: x'' = g_x v_x with v_x = -U_z u_x (likewise y), f = theta_f (0 by default).
+        u_xy = np.empty(2)
+        thrust_floor = max(u_z, MIN_THRUST_FRACTION * af.mass_kg * af.gravity_mps2)
+        for k, ch in ((0, CH_X), (1, CH_Y)):
+            v, theta_g[ch] = adaptive_channel_step(
+                meas[M_POS + k], meas[M_VEL + k], ref[REF_POS + k], ref[REF_VEL + k],
+                ref[REF_ACC + k], one, theta_f[ch], theta_min[ch], theta_max[ch], 0.0,
+                theta_g[ch], gains[ch], period_s, telemetry[ch],
+            )
+            u_xy[k] = -v / thrust_floor
+        phi_c, theta_c = desired_angles(u_xy[0], u_xy[1], ref[REF_EULER + 2], max_tilt)
+        omega, zeta, rate_max, acc_max = filter_limits
+        yd[0], yd_dot[0], yd_ddot[0] = command_filter_step(
+            filter_state[0], phi_c, period_s, omega, zeta, rate_max, acc_max)
+        yd[1], yd_dot[1], yd_ddot[1] = command_filter_step(
+            filter_state[1], theta_c, period_s, omega, zeta, rate_max, acc_max)
+    else:
+        for ch in (CH_X, CH_Y):
+            telemetry[ch, :] = np.nan
+        # Keep the filter on the current reference so switching modes is bumpless.
+        for k in range(2):
+            filter_state[k, 0] = yd[k]
+            filter_state[k, 1] = yd_dot[k]
+    yd[0] += kick[0]
+    yd[1] += kick[1]
+
+    # Attitude: y'' = f(x) + g U.
+    rates = meas[M_RATE:M_RATE + 3]
+    f_nominal = paper_attitude_drift(rates[0], rates[1], rates[2], w_r, af)
+    u_att = np.empty(3)
+    for ch in range(3):
+        if basis_kind == BASIS_IT2:
+            phi_f = it2_regressor(attitude_regressor_inputs(meas, w_r, ch), mf_lower[ch],
+                                  mf_upper[ch])
+            offset = 0.0
+        elif basis_kind == BASIS_T1:
+            phi_f = t1_regressor(attitude_regressor_inputs(meas, w_r, ch), mf_lower[ch])
+            offset = 0.0
+        else:
+            phi_f = np.empty(0)
+            offset = f_nominal[ch]
+        u_att[ch], theta_g[ch] = adaptive_channel_step(
+            meas[M_EULER + ch], rates[ch], yd[ch], yd_dot[ch], yd_ddot[ch], phi_f,
+            theta_f[ch], theta_min[ch], theta_max[ch], offset, theta_g[ch], gains[ch],
+            period_s, telemetry[ch],
+        )
+    return mix(u_z, u_att[0], u_att[1], u_att[2], af)
+
+
+@dataclass
+class AttitudeModel:
+    """What the attitude loop starts from: per channel MFs, consequents and g."""
+
+    basis_kind: int
+    mf_lower: tuple[np.ndarray, np.ndarray, np.ndarray]
+    mf_upper: tuple[np.ndarray, np.ndarray, np.ndarray]
+    theta_f: tuple[np.ndarray, np.ndarray, np.ndarray]
+    g: tuple[float, float, float]
+
+
+def nominal_attitude_model(af: Airframe) -> AttitudeModel:
+    """SMC baseline: the paper's model with the nominal airframe, nothing to adapt."""
+    co = attitude_coefficients(af)
+    empty = np.zeros((0, 0, 3))
+    return AttitudeModel(
+        BASIS_NOMINAL, (empty,) * 3, (empty,) * 3, (np.zeros(0),) * 3, (co.b1, co.b2, co.b3)
+    )
+
+
+class SlidingModeCascade:
+    """IVFC / T1FC / SMC: the adaptive sliding-mode cascade with its state."""
+
+    def __init__(
+        self,
+        model: AttitudeModel,
+        airframe: Airframe,
+        period_s: float = 0.01,
+        parameters: dict[str, float] | None = None,
+        adaptive: bool = True,
+        initial_euler_rad: tuple[float, float] = (0.0, 0.0),
+    ) -> None:
+        self.model = model
+        self.airframe = airframe
+        self.period_s = period_s
+        self.adaptive = adaptive
+        self.parameters = validate_parameters(parameters or {})
+        self.telemetry = np.zeros((6, len(TELEMETRY_FIELDS)))
+        self._theta_f = tuple(np.array(t, dtype=float) for t in model.theta_f) + (
+            np.array([airframe.gravity_mps2]), np.zeros(1), np.zeros(1))
+        self._theta_f_initial = tuple(t.copy() for t in self._theta_f)
+        self.theta_g = np.array([*model.g, 1.0 / airframe.mass_kg, 1.0 / airframe.mass_kg,
+                                 1.0 / airframe.mass_kg])
+        self._theta_g_initial = self.theta_g.copy()
+        self._filter_state = np.zeros((2, 2))
+        self._filter_state[:, 0] = initial_euler_rad
+        self.apply_parameters(self.parameters)
+        self._last_commands = np.zeros(4)
+
+    def apply_parameters(self, parameters: dict[str, float]) -> None:
+        """Take new gains (validated), e.g. from a ground station, without a restart."""
+        self.parameters = validate_parameters(parameters)
+        p = self.parameters
+        groups = ("ATT", "ATT", "YAW", "ALT", "POS", "POS")
+        self._gains = tuple(
+            channel_gains(p, group, float(g), self.adaptive)
+            for group, g in zip(groups, self._theta_g_initial, strict=True)
+        )
+        self._theta_min = tuple(t - p[f"{g}_BOX"] for t, g in zip(self._theta_f_initial, groups,
+                                                                  strict=True))
+        self._theta_max = tuple(t + p[f"{g}_BOX"] for t, g in zip(self._theta_f_initial, groups,
+                                                                  strict=True))
+        self._filter_limits = np.array(
+            [p["CMDF_OMEGA"], p["CMDF_ZETA"], p["CMDF_RATE_MAX"], p["CMDF_ACC_MAX"]])
+        self._max_tilt = p["MAX_TILT"]
+
+    @property
+    def theta_f(self) -> tuple[np.ndarray, ...]:
+        return self._theta_f
+
+    def residual_rotor_speed(self) -> float:
+        """W_r = W1 - W2 + W3 - W4 of the last command (the controller knows what it sent)."""
+        w = self._last_commands * self.airframe.rotor_max_rps
+        return float(w[0] - w[1] + w[2] - w[3])
+
+    def step(self, meas: np.ndarray, ref: np.ndarray, position_mode: bool,
+             kick: np.ndarray | None = None) -> np.ndarray:
+        """Motor commands c_i in [0, 1] for this control period."""
+        commands = cascade_step(
+            meas, ref, position_mode, np.zeros(2) if kick is None else kick,
+            self.model.basis_kind, self.model.mf_lower, self.model.mf_upper, self._theta_f,
+            self._theta_min, self._theta_max, self.theta_g, self._gains, self.airframe,
+            self._filter_state, self._filter_limits, self._max_tilt, self.residual_rotor_speed(), self.period_s,
+            self.telemetry,
+        )
+        self._last_commands = commands
+        return commands

@@ -1,0 +1,63 @@
+"""Build a controller by name: ivfc, t1fc, smc or pid."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from autopilot.control.cascade import (
+    BASIS_IT2,
+    BASIS_T1,
+    AttitudeModel,
+    SlidingModeCascade,
+    nominal_attitude_model,
+)
+from autopilot.control.pid import PidCascade
+from autopilot.identification.ts_model import FuzzyModelSet
+from contracts.airframe import Airframe, attitude_coefficients
+
+CONTROLLERS = ("ivfc", "t1fc", "smc", "pid")
+ATTITUDE_CHANNELS = ("phi", "theta", "psi")
+
+
+def attitude_model_from_fuzzy(models: FuzzyModelSet, kind: str, af: Airframe) -> AttitudeModel:
+    """IVFC takes the interval type-2 model, T1FC the type-1 model of the same clusters.
+
+    g starts from identification where the data allowed it, else from the airframe.
+    """
+    nominal_g = attitude_coefficients(af)
+    nominal = {"phi": nominal_g.b1, "theta": nominal_g.b2, "psi": nominal_g.b3}
+    lower, upper, theta, g = [], [], [], []
+    for name in ATTITUDE_CHANNELS:
+        ch = models.channels[name]
+        if kind == "ivfc":
+            lower.append(np.ascontiguousarray(ch.ivfm.lower, dtype=float))
+            upper.append(np.ascontiguousarray(ch.ivfm.upper, dtype=float))
+            theta.append(np.array(ch.ivfm.theta_f, dtype=float))
+        else:
+            lower.append(np.ascontiguousarray(ch.t1fm.mfs, dtype=float))
+            upper.append(np.ascontiguousarray(ch.t1fm.mfs, dtype=float))
+            theta.append(np.array(ch.t1fm.theta_f, dtype=float))
+        identified_g = ch.ivfm.g if kind == "ivfc" else ch.t1fm.g
+        g.append(float(identified_g) if identified_g is not None else nominal[name])
+    return AttitudeModel(BASIS_IT2 if kind == "ivfc" else BASIS_T1, tuple(lower), tuple(upper),
+                         tuple(theta), tuple(g))
+
+
+def make_controller(
+    kind: str,
+    airframe: Airframe,
+    period_s: float = 0.01,
+    models: FuzzyModelSet | None = None,
+    parameters: dict[str, float] | None = None,
+) -> SlidingModeCascade | PidCascade:
+    if kind not in CONTROLLERS:
+        raise ValueError(f"unknown controller {kind!r}; known: {', '.join(CONTROLLERS)}")
+    if kind == "pid":
+        return PidCascade(airframe, period_s, parameters)
+    if kind == "smc":
+        return SlidingModeCascade(nominal_attitude_model(airframe), airframe, period_s,
+                                  parameters, adaptive=False)
+    if models is None:
+        raise ValueError(f"controller {kind} needs an identified fuzzy model")
+    return SlidingModeCascade(attitude_model_from_fuzzy(models, kind, airframe), airframe,
+                              period_s, parameters, adaptive=True)

@@ -1,0 +1,130 @@
+"""The controller's named parameters: one table, used by the code, the CLI and (later)
+the MAVLink parameter protocol. Names fit MAVLink's 16-character param_id.
+
+Sliding-mode groups: ATT (roll and pitch), YAW, ALT (altitude), POS (x and y). Each has
+LAM (surface slope lambda, 1/s), GAM (reaching gain gamma, 1/s), EPS (boundary layer),
+ETA_F and ETA_G (adaptation rates), WF and WG (switching gains W_f, W_g), G0 (lower bound
+of g as a fraction of its initial value) and BOX (projection half-width of theta_f).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    name: str
+    default: float
+    minimum: float
+    maximum: float
+    unit: str
+    description: str
+
+
+_SMC_GAINS = {
+    # gain: (ATT, YAW, ALT, POS defaults), (min, max), unit, description
+    "LAM": ((8.0, 4.0, 2.0, 5.0), (0.01, 100.0), "1/s", "sliding surface slope lambda"),
+    "GAM": ((10.0, 10.0, 10.0, 2.0), (0.0, 200.0), "1/s", "reaching gain gamma"),
+    "EPS": ((0.02, 0.02, 0.05, 0.3), (1e-4, 10.0), "", "boundary layer width epsilon"),
+    "ETA_F": ((2.0, 2.0, 0.5, 0.0), (0.0, 1e3), "", "adaptation rate of theta_f"),
+    "ETA_G": ((0.05, 0.05, 0.0005, 0.0005), (0.0, 1e3), "", "adaptation rate of theta_g"),
+    "WF": ((0.1, 0.1, 0.1, 0.1), (0.0, 100.0), "", "switching gain W_f"),
+    "WG": ((0.1, 0.1, 0.1, 0.1), (0.0, 100.0), "", "switching gain W_g"),
+    "G0": ((0.5, 0.5, 0.5, 0.5), (0.01, 1.0), "", "g lower bound / initial g"),
+    "BOX": ((50.0, 50.0, 50.0, 50.0), (0.0, 1e6), "", "theta_f projection half-width"),
+}
+SMC_GROUPS = ("ATT", "YAW", "ALT", "POS")
+
+
+def _smc_specs() -> list[ParamSpec]:
+    specs = []
+    for group_index, group in enumerate(SMC_GROUPS):
+        for gain, (defaults, (low, high), unit, text) in _SMC_GAINS.items():
+            specs.append(
+                ParamSpec(f"{group}_{gain}", defaults[group_index], low, high, unit,
+                          f"{group} {text}")
+            )
+    return specs
+
+
+PARAMETERS: tuple[ParamSpec, ...] = (
+    *_smc_specs(),
+    ParamSpec("MAX_TILT", 0.35, 0.05, 1.4, "rad", "largest desired roll/pitch from position"),
+    ParamSpec("CMDF_OMEGA", 10.0, 1.0, 200.0, "rad/s", "command filter natural frequency"),
+    ParamSpec("CMDF_ZETA", 1.0, 0.3, 2.0, "", "command filter damping ratio"),
+    ParamSpec("CMDF_RATE_MAX", 2.0, 0.1, 20.0, "rad/s", "command filter angle rate limit"),
+    ParamSpec("CMDF_ACC_MAX", 8.0, 0.5, 500.0, "rad/s^2", "command filter angle acc. limit"),
+    # PID baseline, PX4 multicopter defaults in physical units.
+    ParamSpec("PID_ATT_P", 6.5, 0.0, 50.0, "1/s", "attitude P (rate setpoint per rad)"),
+    ParamSpec("PID_RATE_P", 20.0, 0.0, 500.0, "1/s", "rate P (rad/s^2 per rad/s)"),
+    ParamSpec("PID_RATE_I", 10.0, 0.0, 500.0, "1/s^2", "rate I"),
+    ParamSpec("PID_RATE_D", 0.3, 0.0, 10.0, "", "rate D (on measurement)"),
+    ParamSpec("PID_YAW_P", 2.8, 0.0, 50.0, "1/s", "yaw P"),
+    ParamSpec("PID_YAWRATE_P", 8.0, 0.0, 500.0, "1/s", "yaw rate P"),
+    ParamSpec("PID_XY_P", 0.95, 0.0, 20.0, "1/s", "position P (velocity per m)"),
+    ParamSpec("PID_XY_VEL_P", 1.8, 0.0, 50.0, "1/s", "horizontal velocity P"),
+    ParamSpec("PID_XY_VEL_I", 0.4, 0.0, 50.0, "1/s^2", "horizontal velocity I"),
+    ParamSpec("PID_XY_VEL_D", 0.2, 0.0, 10.0, "", "horizontal velocity D"),
+    ParamSpec("PID_Z_P", 1.0, 0.0, 20.0, "1/s", "altitude P"),
+    ParamSpec("PID_Z_VEL_P", 4.0, 0.0, 50.0, "1/s", "vertical velocity P"),
+    ParamSpec("PID_Z_VEL_I", 2.0, 0.0, 50.0, "1/s^2", "vertical velocity I"),
+)
+PARAMETER_SPECS: dict[str, ParamSpec] = {spec.name: spec for spec in PARAMETERS}
+assert all(len(name) <= 16 for name in PARAMETER_SPECS)
+
+
+def default_parameters() -> dict[str, float]:
+    return {spec.name: spec.default for spec in PARAMETERS}
+
+
+def validate_parameters(overrides: dict[str, float]) -> dict[str, float]:
+    """Defaults updated with ``overrides``; unknown names, NaN or out-of-range values raise."""
+    params = default_parameters()
+    for name, value in overrides.items():
+        spec = PARAMETER_SPECS.get(name)
+        if spec is None:
+            raise ValueError(f"unknown controller parameter {name!r}")
+        try:
+            number = float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"controller parameter {name} must be a number, got {value!r}") from None
+        if not math.isfinite(number) or not spec.minimum <= number <= spec.maximum:
+            raise ValueError(
+                f"controller parameter {name} must be finite and in "
+                f"[{spec.minimum}, {spec.maximum}], got {value!r}"
+            )
+        params[name] = number
+    return params
+
+
+class ChannelGains(NamedTuple):
+    """One sliding-mode channel's gains, in the form the compiled law takes."""
+
+    lam: float
+    gam: float
+    eps: float
+    eta_f: float
+    eta_g: float
+    w_f: float
+    w_g: float
+    g0: float  # absolute lower bound of theta_g
+    g_max: float  # absolute upper bound of theta_g
+
+
+def channel_gains(params: dict[str, float], group: str, g_initial: float,
+                  adaptive: bool = True) -> ChannelGains:
+    """Gains of one channel; a non-adaptive controller sets both adaptation rates to 0."""
+    return ChannelGains(
+        lam=params[f"{group}_LAM"],
+        gam=params[f"{group}_GAM"],
+        eps=params[f"{group}_EPS"],
+        eta_f=params[f"{group}_ETA_F"] if adaptive else 0.0,
+        eta_g=params[f"{group}_ETA_G"] if adaptive else 0.0,
+        w_f=params[f"{group}_WF"],
+        w_g=params[f"{group}_WG"],
+        g0=params[f"{group}_G0"] * g_initial,
+        g_max=g_initial / params[f"{group}_G0"],
+    )

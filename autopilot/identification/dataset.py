@@ -1,0 +1,232 @@
+"""Input-output data for identification: the CSV file format and its validation.
+
+Format: a CSV file (comma separated, "." decimal point) with one header row naming the
+columns, then one row per sample. Units SI, frames NED / FRD (SPEC section 2):
+
+    time_s                                   sample time [s], strictly increasing
+    phi_rad, theta_rad, psi_rad              Euler angles [rad]
+    phi_rate_rps, theta_rate_rps, psi_rate_rps   Euler angle rates [rad/s]
+    w_r_rps                                  residual rotor speed W1 - W2 + W3 - W4 [rad/s]
+    u_phi_n, u_theta_n                       roll / pitch force pairs U_phi, U_theta [N]
+    u_psi_nm                                 yaw torque U_psi [N m]
+    phi_acc_rps2, theta_acc_rps2, psi_acc_rps2   angular accelerations [rad/s^2]
+    f_phi, f_theta, f_psi                    optional: the unknown functions f_i(x)
+                                             [rad/s^2], when a simulator hands them over
+
+Columns may come in any order; every required column must be there and no other. Every
+value must be a finite number. A file that breaks any rule raises DatasetError naming
+the file, line and column, and no Dataset is built from it.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+REQUIRED_COLUMNS: tuple[str, ...] = (
+    "time_s",
+    "phi_rad",
+    "theta_rad",
+    "psi_rad",
+    "phi_rate_rps",
+    "theta_rate_rps",
+    "psi_rate_rps",
+    "w_r_rps",
+    "u_phi_n",
+    "u_theta_n",
+    "u_psi_nm",
+    "phi_acc_rps2",
+    "theta_acc_rps2",
+    "psi_acc_rps2",
+)
+OPTIONAL_COLUMNS: tuple[str, ...] = ("f_phi", "f_theta", "f_psi")
+ALL_COLUMNS: tuple[str, ...] = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
+
+CHANNELS: tuple[str, ...] = ("phi", "theta", "psi")
+# The one place that says which regressors each channel's f uses (SPEC section 4).
+CHANNEL_REGRESSORS: dict[str, tuple[str, ...]] = {
+    "phi": ("theta_rate_rps", "psi_rate_rps", "w_r_rps"),
+    "theta": ("phi_rate_rps", "psi_rate_rps", "w_r_rps"),
+    "psi": ("phi_rate_rps", "theta_rate_rps"),
+}
+CHANNEL_INPUT: dict[str, str] = {"phi": "u_phi_n", "theta": "u_theta_n", "psi": "u_psi_nm"}
+CHANNEL_ACCELERATION: dict[str, str] = {
+    "phi": "phi_acc_rps2",
+    "theta": "theta_acc_rps2",
+    "psi": "psi_acc_rps2",
+}
+CHANNEL_FUNCTION: dict[str, str] = {"phi": "f_phi", "theta": "f_theta", "psi": "f_psi"}
+
+MIN_ROWS = 10  # fewer samples cannot describe any excitation flight
+
+
+class DatasetError(ValueError):
+    """A dataset file or Dataset that breaks the format; the message says where."""
+
+
+def _first_bad_row(values: np.ndarray) -> int | None:
+    bad = np.flatnonzero(~np.isfinite(values))
+    return int(bad[0]) if bad.size else None
+
+
+def _check_columns(columns: dict[str, np.ndarray], where: str) -> dict[str, np.ndarray]:
+    """Validate a column mapping; returns float64 copies in canonical order.
+
+    Data row k (0-based) is line k + 2 of a file (line 1 is the header).
+    """
+    unknown = [name for name in columns if name not in ALL_COLUMNS]
+    if unknown:
+        raise DatasetError(f"{where}: unknown column {unknown[0]!r}")
+    missing = [name for name in REQUIRED_COLUMNS if name not in columns]
+    if missing:
+        raise DatasetError(f"{where}: missing required column {missing[0]!r}")
+    out: dict[str, np.ndarray] = {}
+    n_rows = None
+    for name in ALL_COLUMNS:
+        if name not in columns:
+            continue
+        try:
+            values = np.array(columns[name], dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise DatasetError(f"{where}: column {name!r} is not numeric ({exc})") from None
+        if values.ndim != 1:
+            raise DatasetError(f"{where}: column {name!r} must be 1-D, got {values.ndim}-D")
+        if n_rows is None:
+            n_rows = values.shape[0]
+        elif values.shape[0] != n_rows:
+            raise DatasetError(
+                f"{where}: column {name!r} has {values.shape[0]} rows, expected {n_rows}"
+            )
+        bad = _first_bad_row(values)
+        if bad is not None:
+            raise DatasetError(
+                f"{where}: line {bad + 2} (data row {bad + 1}), column {name!r}: "
+                f"value {values[bad]} is not finite"
+            )
+        out[name] = values
+    assert n_rows is not None
+    if n_rows < MIN_ROWS:
+        raise DatasetError(f"{where}: too few rows: {n_rows} (at least {MIN_ROWS})")
+    step = np.diff(out["time_s"])
+    bad_steps = np.flatnonzero(step <= 0.0)
+    if bad_steps.size:
+        k = int(bad_steps[0]) + 1
+        raise DatasetError(
+            f"{where}: line {k + 2} (data row {k + 1}), column 'time_s': time "
+            f"{out['time_s'][k]!r} does not increase (previous {out['time_s'][k - 1]!r})"
+        )
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Dataset:
+    """Validated input-output samples, one float64 array per column.
+
+    Building one validates it, so every Dataset in the program is well formed.
+    """
+
+    columns: dict[str, np.ndarray]
+    source: str = field(default="<memory>")
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "columns", _check_columns(dict(self.columns), self.source))
+
+    @property
+    def n_rows(self) -> int:
+        return int(self.columns["time_s"].shape[0])
+
+    def has(self, name: str) -> bool:
+        return name in self.columns
+
+    def column(self, name: str) -> np.ndarray:
+        """One column; KeyError names it when absent."""
+        if name not in self.columns:
+            raise KeyError(f"dataset {self.source} has no column {name!r}")
+        return self.columns[name]
+
+    def matrix(self, names: tuple[str, ...] | list[str]) -> np.ndarray:
+        """Columns stacked side by side, (N, len(names))."""
+        return np.column_stack([self.column(name) for name in names])
+
+
+def read_dataset(path: str | os.PathLike[str]) -> Dataset:
+    """Read and validate a dataset CSV file; DatasetError names file, line and column."""
+    where = str(path)
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            rows = list(csv.reader(fh))
+    except OSError as exc:
+        raise DatasetError(f"{where}: cannot read file ({exc.strerror or exc})") from None
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise DatasetError(f"{where}: not a text CSV file ({exc})") from None
+    if not rows:
+        raise DatasetError(f"{where}: empty file, expected a header row")
+    header = [name.strip() for name in rows[0]]
+    seen: set[str] = set()
+    for name in header:
+        if name in seen:
+            raise DatasetError(f"{where}: line 1: duplicate column {name!r}")
+        seen.add(name)
+    for name in header:
+        if name not in ALL_COLUMNS:
+            raise DatasetError(f"{where}: line 1: unknown column {name!r}")
+    for name in REQUIRED_COLUMNS:
+        if name not in seen:
+            raise DatasetError(f"{where}: line 1: missing required column {name!r}")
+
+    data = np.empty((len(rows) - 1, len(header)))
+    for k, row in enumerate(rows[1:]):
+        line = k + 2
+        if len(row) != len(header):
+            raise DatasetError(
+                f"{where}: line {line}: {len(row)} fields, header has {len(header)}"
+            )
+        for j, text in enumerate(row):
+            try:
+                value = float(text)
+            except ValueError:
+                raise DatasetError(
+                    f"{where}: line {line}, column {header[j]!r}: {text!r} is not a number"
+                ) from None
+            if not math.isfinite(value):
+                raise DatasetError(
+                    f"{where}: line {line}, column {header[j]!r}: {text!r} is not finite"
+                )
+            data[k, j] = value
+    return Dataset(columns={name: data[:, j] for j, name in enumerate(header)}, source=where)
+
+
+def _format(value: float) -> str:
+    return repr(float(value))  # shortest text that reads back bit for bit
+
+
+def write_dataset(path: str | os.PathLike[str], dataset: Dataset) -> None:
+    """Write a dataset CSV (canonical column order, exact round trip).
+
+    Written to a temporary file beside the target and renamed over it, so a failure
+    never leaves a half-written file.
+    """
+    columns = _check_columns(dict(dataset.columns), str(path))
+    names = [name for name in ALL_COLUMNS if name in columns]
+    target = Path(path)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
+    try:
+        with os.fdopen(fd, "w", newline="", encoding="utf-8") as fh:
+            writer = csv.writer(fh, lineterminator="\n")
+            writer.writerow(names)
+            table = np.column_stack([columns[name] for name in names])
+            for row in table:
+                writer.writerow([_format(v) for v in row])
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, target)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise

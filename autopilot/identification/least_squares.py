@@ -1,0 +1,77 @@
+"""Consequent parameters by global (ridge-regularised) least squares, SPEC section 4 step 4.
+
+Why a ridge: the IT2 regressor is 1/2 [xi_l (x) [x;1] ; xi_r (x) [x;1]] and the lower and
+upper normalised firings xi_l, xi_r are usually close to each other, so the two halves of
+the regressor matrix are nearly collinear. Plain least squares then finds huge, opposite
+w_l and w_r whose difference fits noise; they predict well on the identification data but
+extrapolate badly, and they are a poor starting point for the controller's adaptation. A
+tiny ridge (1e-8 of the regressor scale by default) picks, among the almost equally good
+solutions, the one of small norm and changes the fit itself negligibly.
+
+The ridge is relative to the regressor scale: every column is first divided by its RMS
+value, so the penalty means the same whatever the units of the regressors (rad/s against
+rotor rad/s against newtons).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg
+
+
+def fit_consequents(
+    regressor_matrix: np.ndarray,
+    y: np.ndarray,
+    ridge: float = 1e-8,
+    *,
+    extra_columns: np.ndarray | None = None,
+) -> np.ndarray:
+    """theta minimising |Phi theta - y|^2 + ridge N |S theta|^2 (S = column RMS scales).
+
+    extra_columns (N,) or (N, k): plain regressors appended after the fuzzy ones, e.g. the
+    control input U when the output is a measured acceleration y'' = f(x) + g U; their
+    coefficients (g) come last in theta.
+    """
+    phi = np.asarray(regressor_matrix, dtype=float)
+    target = np.asarray(y, dtype=float).ravel()
+    if phi.ndim != 2:
+        raise ValueError(f"regressor_matrix must be 2-D, got {phi.ndim}-D")
+    if extra_columns is not None:
+        extra = np.asarray(extra_columns, dtype=float)
+        extra = extra.reshape(extra.shape[0], -1)
+        if extra.shape[0] != phi.shape[0]:
+            raise ValueError(
+                f"extra_columns has {extra.shape[0]} rows, regressor_matrix {phi.shape[0]}"
+            )
+        phi = np.hstack([phi, extra])
+    n_rows, n_params = phi.shape
+    if target.shape[0] != n_rows:
+        raise ValueError(f"y has {target.shape[0]} samples, regressor_matrix {n_rows} rows")
+    if not (np.all(np.isfinite(phi)) and np.all(np.isfinite(target))):
+        raise ValueError("regressors or output contain NaN or infinite values")
+    if not np.isfinite(ridge) or ridge < 0.0:
+        raise ValueError(f"ridge must be a finite number >= 0, got {ridge}")
+
+    import os
+    mode = os.environ.get("LSMODE", "col")
+    if mode == "col":
+        scale = np.sqrt(np.mean(phi * phi, axis=0))
+        scale[scale == 0.0] = 1.0  # an all-zero column gets coefficient 0 (minimum norm)
+    else:
+        scale = np.full(n_params, np.sqrt(np.mean(phi * phi)))
+    phi_s = phi / scale
+    if ridge > 0.0:
+        # augmented system [Phi_s; sqrt(ridge N) I] theta_s = [y; 0]: ridge without forming
+        # the squared-conditioned normal equations
+        a = np.vstack([phi_s, np.sqrt(ridge * n_rows) * np.eye(n_params)])
+        b = np.concatenate([target, np.zeros(n_params)])
+    else:
+        a, b = phi_s, target
+    theta_s, *_ = scipy.linalg.lstsq(a, b)
+    return theta_s / scale
+
+
+def rmse(prediction: np.ndarray, target: np.ndarray) -> float:
+    """Root mean square error."""
+    err = np.asarray(prediction, dtype=float) - np.asarray(target, dtype=float)
+    return float(np.sqrt(np.mean(err * err)))

@@ -1,0 +1,68 @@
+"""Reference trajectories in sim time (SPEC section 6), with analytic derivatives.
+
+The autopilot generates these itself so that a lockstep scenario is deterministic.
+A reference is a flat array (see ``REF_*``) plus whether the position loop is active.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+
+# Layout of the reference vector: position NED, its two derivatives, then Euler angles
+# and their two derivatives (the latter ignored for roll/pitch in position mode).
+REF_POS, REF_VEL, REF_ACC = 0, 3, 6
+REF_EULER, REF_EULER_RATE, REF_EULER_ACC = 9, 12, 15
+REF_SIZE = 18
+
+REFERENCE_KINDS = ("attitude-sine", "attitude-hold", "position-sine", "hover")
+
+
+@dataclass(frozen=True)
+class Reference:
+    """A reference kind with its parameters (the paper's values by default)."""
+
+    kind: str
+    altitude_m: float = 1.0
+    yaw_rad: float = 0.2
+    amplitude: float = 1.0  # rad for attitude, m for position
+    hold_start_s: float = 10.0
+    hold_end_s: float = 12.0
+
+    def __post_init__(self) -> None:
+        if self.kind not in REFERENCE_KINDS:
+            raise ValueError(
+                f"unknown reference kind {self.kind!r}; known: {', '.join(REFERENCE_KINDS)}"
+            )
+        for name in ("altitude_m", "yaw_rad", "amplitude", "hold_start_s", "hold_end_s"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"reference {name} must be finite")
+
+    @property
+    def position_mode(self) -> bool:
+        """True when roll and pitch come from the position loop."""
+        return self.kind in ("position-sine", "hover")
+
+    def at(self, t_s: float) -> np.ndarray:
+        """The reference vector at sim time ``t_s``."""
+        ref = np.zeros(REF_SIZE)
+        ref[REF_POS + 2] = -self.altitude_m
+        ref[REF_EULER + 2] = self.yaw_rad
+        a = self.amplitude
+        s, c = math.sin(t_s), math.cos(t_s)
+        if self.kind == "position-sine":
+            # x_d = a sin t, y_d = a sin(t + pi) = -a sin t.
+            ref[REF_POS], ref[REF_POS + 1] = a * s, -a * s
+            ref[REF_VEL], ref[REF_VEL + 1] = a * c, -a * c
+            ref[REF_ACC], ref[REF_ACC + 1] = -a * s, a * s
+        elif self.kind in ("attitude-sine", "attitude-hold"):
+            holding = self.kind == "attitude-hold" and self.hold_start_s <= t_s < self.hold_end_s
+            if not holding:
+                # theta_d = a sin t, phi_d = a sin(t + pi) = -a sin t.
+                ref[REF_EULER], ref[REF_EULER + 1] = -a * s, a * s
+                ref[REF_EULER_RATE], ref[REF_EULER_RATE + 1] = -a * c, a * c
+                ref[REF_EULER_ACC], ref[REF_EULER_ACC + 1] = a * s, -a * s
+        return ref

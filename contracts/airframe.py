@@ -1,0 +1,149 @@
+"""Airframe description shared by the simulator (truth) and the autopilot (nominal model).
+
+Like PX4's airframe files, one definition is loaded by both sides: the plant integrates
+it, the controller's mixer and nominal model read it. Fields carry their units.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from contracts.frames import GRAVITY_MPS2
+
+
+class Airframe(NamedTuple):
+    """Quadrotor "+" airframe (SPEC section 3). Numba-friendly: floats only."""
+
+    mass_kg: float
+    ixx_kgm2: float
+    iyy_kgm2: float
+    izz_kgm2: float
+    arm_m: float
+    thrust_coeff_ns2: float  # b: rotor thrust = b W^2
+    drag_coeff_nms2: float  # d: rotor drag torque = d W^2
+    rotor_inertia_kgm2: float  # Jr
+    rotor_max_rps: float  # W_max [rad/s]
+    motor_tau_s: float  # first-order rotor lag, 0 = ideal (the paper)
+    linear_drag_nspm: float  # airframe drag against air-relative velocity [N/(m/s)]
+    gravity_mps2: float = GRAVITY_MPS2
+
+
+# Paper Table 1, with the rotor limit of SPEC section 3 (thrust-to-weight 4.6).
+PAPER = Airframe(
+    mass_kg=1.2,
+    ixx_kgm2=0.18,
+    iyy_kgm2=0.18,
+    izz_kgm2=0.09,
+    arm_m=0.23,
+    thrust_coeff_ns2=54.2e-6,
+    drag_coeff_nms2=1.1e-6,
+    rotor_inertia_kgm2=1.32e-3,
+    rotor_max_rps=500.0,
+    motor_tau_s=0.0,
+    linear_drag_nspm=0.0,
+)
+
+# A 450-class quadrotor with measured-looking numbers: lighter inertia, a real motor lag
+# and airframe drag, so the paper-tuned controller is tested off its design point.
+REALISTIC = Airframe(
+    mass_kg=1.5,
+    ixx_kgm2=0.0215,
+    iyy_kgm2=0.0215,
+    izz_kgm2=0.0380,
+    arm_m=0.225,
+    thrust_coeff_ns2=1.22e-5,
+    drag_coeff_nms2=1.9e-7,
+    rotor_inertia_kgm2=6.0e-5,
+    rotor_max_rps=1100.0,
+    motor_tau_s=0.02,
+    linear_drag_nspm=0.25,
+)
+
+AIRFRAMES: dict[str, Airframe] = {"paper": PAPER, "realistic": REALISTIC}
+
+
+def airframe_by_name(name: str) -> Airframe:
+    """Look an airframe up by name, with an error that lists the known ones."""
+    try:
+        return AIRFRAMES[name]
+    except KeyError:
+        known = ", ".join(sorted(AIRFRAMES))
+        raise ValueError(f"unknown airframe {name!r}; known airframes: {known}") from None
+
+
+class AttitudeCoefficients(NamedTuple):
+    """The paper's a1..a5, b1..b3 (SPEC section 3)."""
+
+    a1: float
+    a2: float
+    a3: float
+    a4: float
+    a5: float
+    b1: float
+    b2: float
+    b3: float
+
+
+def attitude_coefficients(af: Airframe) -> AttitudeCoefficients:
+    return AttitudeCoefficients(
+        a1=(af.iyy_kgm2 - af.izz_kgm2) / af.ixx_kgm2,
+        a2=af.rotor_inertia_kgm2 / af.ixx_kgm2,
+        a3=(af.izz_kgm2 - af.ixx_kgm2) / af.iyy_kgm2,
+        a4=af.rotor_inertia_kgm2 / af.iyy_kgm2,
+        a5=(af.ixx_kgm2 - af.iyy_kgm2) / af.izz_kgm2,
+        b1=af.arm_m / af.ixx_kgm2,
+        b2=af.arm_m / af.iyy_kgm2,
+        b3=1.0 / af.izz_kgm2,
+    )
+
+
+def hover_rotor_speed_rps(af: Airframe) -> float:
+    """Rotor speed at which four rotors carry the weight: sqrt(m g / 4b)."""
+    return math.sqrt(af.mass_kg * af.gravity_mps2 / (4.0 * af.thrust_coeff_ns2))
+
+
+@njit(cache=True)
+def rotor_forces(
+    rotor_rps: np.ndarray, efficiency: np.ndarray, af: Airframe
+) -> tuple[float, float, float, float, float]:
+    """SPEC section 3's rotor map: (U_z, U_phi, U_theta, U_psi, W_r) from rotor speeds.
+
+    ``efficiency`` scales each rotor's thrust and drag (1 = healthy, 0 = failed).
+    """
+    t1 = efficiency[0] * af.thrust_coeff_ns2 * rotor_rps[0] ** 2
+    t2 = efficiency[1] * af.thrust_coeff_ns2 * rotor_rps[1] ** 2
+    t3 = efficiency[2] * af.thrust_coeff_ns2 * rotor_rps[2] ** 2
+    t4 = efficiency[3] * af.thrust_coeff_ns2 * rotor_rps[3] ** 2
+    u_z = t1 + t2 + t3 + t4
+    u_phi = t4 - t2
+    u_theta = t1 - t3
+    d = af.drag_coeff_nms2
+    u_psi = d * (
+        efficiency[1] * rotor_rps[1] ** 2
+        + efficiency[3] * rotor_rps[3] ** 2
+        - efficiency[0] * rotor_rps[0] ** 2
+        - efficiency[2] * rotor_rps[2] ** 2
+    )
+    w_r = rotor_rps[0] - rotor_rps[1] + rotor_rps[2] - rotor_rps[3]
+    return u_z, u_phi, u_theta, u_psi, w_r
+
+
+@njit(cache=True)
+def paper_attitude_drift(
+    phi_dot: float, theta_dot: float, psi_dot: float, w_r: float, af: Airframe
+) -> tuple[float, float, float]:
+    """The unknown parts f_phi, f_theta, f_psi of the paper's attitude model (SPEC 3, 4).
+
+    phi'' = f_phi + b1 U_phi etc. The gyroscopic terms have opposite signs on roll and
+    pitch (tau_gyro = -omega x Jr W_r e_z).
+    """
+    ixx, iyy, izz = af.ixx_kgm2, af.iyy_kgm2, af.izz_kgm2
+    jr = af.rotor_inertia_kgm2
+    f_phi = (iyy - izz) / ixx * theta_dot * psi_dot - jr / ixx * theta_dot * w_r
+    f_theta = (izz - ixx) / iyy * phi_dot * psi_dot + jr / iyy * phi_dot * w_r
+    f_psi = (ixx - iyy) / izz * phi_dot * theta_dot
+    return f_phi, f_theta, f_psi

@@ -1,0 +1,97 @@
+"""Frames and attitude conventions: world NED, body FRD, ZYX Euler angles, radians.
+
+Quaternions are scalar-first ``[w, x, y, z]`` and rotate body vectors into the world
+(``v_ned = R(q) v_frd``), as PX4 and MAVLink's ATTITUDE_QUATERNION use them.
+All functions are numba-compiled so the plant and the controller can call them in
+their inner loops; they also work from plain Python.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+GRAVITY_MPS2 = 9.81
+
+
+@njit(cache=True)
+def quat_from_euler(phi: float, theta: float, psi: float) -> np.ndarray:
+    """Unit quaternion of the ZYX (yaw, pitch, roll) rotation body FRD -> world NED."""
+    cr, sr = math.cos(0.5 * phi), math.sin(0.5 * phi)
+    cp, sp = math.cos(0.5 * theta), math.sin(0.5 * theta)
+    cy, sy = math.cos(0.5 * psi), math.sin(0.5 * psi)
+    q = np.empty(4)
+    q[0] = cr * cp * cy + sr * sp * sy
+    q[1] = sr * cp * cy - cr * sp * sy
+    q[2] = cr * sp * cy + sr * cp * sy
+    q[3] = cr * cp * sy - sr * sp * cy
+    return q
+
+
+@njit(cache=True)
+def euler_from_quat(q: np.ndarray) -> np.ndarray:
+    """ZYX Euler angles [phi, theta, psi] of a unit quaternion (pitch clipped at +-pi/2)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    out = np.empty(3)
+    out[0] = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    s = 2.0 * (w * y - z * x)
+    out[1] = math.asin(min(1.0, max(-1.0, s)))
+    out[2] = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return out
+
+
+@njit(cache=True)
+def rotation_from_quat(q: np.ndarray) -> np.ndarray:
+    """Rotation matrix R with v_ned = R v_frd."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    r = np.empty((3, 3))
+    r[0, 0] = 1.0 - 2.0 * (y * y + z * z)
+    r[0, 1] = 2.0 * (x * y - w * z)
+    r[0, 2] = 2.0 * (x * z + w * y)
+    r[1, 0] = 2.0 * (x * y + w * z)
+    r[1, 1] = 1.0 - 2.0 * (x * x + z * z)
+    r[1, 2] = 2.0 * (y * z - w * x)
+    r[2, 0] = 2.0 * (x * z - w * y)
+    r[2, 1] = 2.0 * (y * z + w * x)
+    r[2, 2] = 1.0 - 2.0 * (x * x + y * y)
+    return r
+
+
+@njit(cache=True)
+def euler_rates_from_body_rates(
+    phi: float, theta: float, p: float, q: float, r: float
+) -> np.ndarray:
+    """[phi', theta', psi'] from body rates [p, q, r] (exact ZYX kinematics).
+
+    The paper's small-angle model takes these equal; the rigid-body plant does not.
+    """
+    cphi, sphi = math.cos(phi), math.sin(phi)
+    ctheta = math.cos(theta)
+    ctheta = math.copysign(max(abs(ctheta), 1e-6), ctheta)
+    ttheta = math.sin(theta) / ctheta
+    out = np.empty(3)
+    out[0] = p + (q * sphi + r * cphi) * ttheta
+    out[1] = q * cphi - r * sphi
+    out[2] = (q * sphi + r * cphi) / ctheta
+    return out
+
+
+@njit(cache=True)
+def body_rates_from_euler_rates(
+    phi: float, theta: float, phi_dot: float, theta_dot: float, psi_dot: float
+) -> np.ndarray:
+    """Inverse of :func:`euler_rates_from_body_rates`."""
+    cphi, sphi = math.cos(phi), math.sin(phi)
+    ctheta, stheta = math.cos(theta), math.sin(theta)
+    out = np.empty(3)
+    out[0] = phi_dot - stheta * psi_dot
+    out[1] = cphi * theta_dot + sphi * ctheta * psi_dot
+    out[2] = -sphi * theta_dot + cphi * ctheta * psi_dot
+    return out
+
+
+def altitude_m(z_ned_m: float) -> float:
+    """Altitude shown to people: up is positive, NED z is down."""
+    return -z_ned_m

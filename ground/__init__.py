@@ -1,0 +1,1 @@
+"""Ground-station side: scenarios, runs, metrics, reports and the ``ivfm`` command."""

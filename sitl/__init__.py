@@ -1,0 +1,1 @@
+"""The plant: quadrotor dynamics integrated at a fixed step (pure core + process shell)."""

@@ -1,0 +1,164 @@
+"""Quadrotor equations of motion and the fixed-step RK4 integrator (pure, numba-compiled).
+
+Two fidelities (SPEC section 3):
+
+* ``paper``: the paper's Eq. (sys), small-angle (Euler rates = body rates).
+  State: position NED (0:3), velocity NED (3:6), Euler angles (6:9), Euler rates (9:12),
+  rotor speeds (12:16).
+* ``rigid-body``: Newton-Euler with a unit quaternion.
+  State: position NED (0:3), velocity NED (3:6), quaternion body->NED (6:10),
+  body rates FRD (10:13), rotor speeds (13:17).
+
+Disturbance vector (both): external force NED [N] (0:3), external torque FRD [N m]
+(3:6), wind NED [m/s] (6:9), rotor efficiency (9:13).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from contracts.airframe import Airframe, paper_attitude_drift, rotor_forces
+from contracts.frames import rotation_from_quat
+
+FIDELITY_PAPER = 0
+FIDELITY_RIGID_BODY = 1
+FIDELITIES = {"paper": FIDELITY_PAPER, "rigid-body": FIDELITY_RIGID_BODY}
+
+PAPER_STATE_SIZE = 16
+RIGID_STATE_SIZE = 17
+PAPER_ROTOR = 12
+RIGID_ROTOR = 13
+
+DIST_FORCE = 0
+DIST_TORQUE = 3
+DIST_WIND = 6
+DIST_EFFICIENCY = 9
+DISTURBANCE_SIZE = 13
+
+
+def no_disturbance() -> np.ndarray:
+    dist = np.zeros(DISTURBANCE_SIZE)
+    dist[DIST_EFFICIENCY:] = 1.0
+    return dist
+
+
+@njit(cache=True)
+def _rotor_derivative(
+    rotor_rps: np.ndarray, command_rps: np.ndarray, af: Airframe, out: np.ndarray
+) -> None:
+    """First-order rotor lag; with tau = 0 the speeds are set, not integrated."""
+    for i in range(4):
+        out[i] = (command_rps[i] - rotor_rps[i]) / af.motor_tau_s if af.motor_tau_s > 0 else 0.0
+
+
+@njit(cache=True)
+def paper_derivative(
+    state: np.ndarray, command_rps: np.ndarray, af: Airframe, dist: np.ndarray
+) -> np.ndarray:
+    """The paper's Eq. (sys) with SPEC section 3's signs, plus disturbances."""
+    out = np.zeros(PAPER_STATE_SIZE)
+    rotor = state[PAPER_ROTOR:PAPER_ROTOR + 4]
+    u_z, u_phi, u_theta, u_psi, w_r = rotor_forces(rotor, dist[DIST_EFFICIENCY:], af)
+    phi, theta, psi = state[6], state[7], state[8]
+    phi_dot, theta_dot, psi_dot = state[9], state[10], state[11]
+    f_phi, f_theta, f_psi = paper_attitude_drift(phi_dot, theta_dot, psi_dot, w_r, af)
+    m = af.mass_kg
+    cphi, sphi = math.cos(phi), math.sin(phi)
+    cth, sth = math.cos(theta), math.sin(theta)
+    cpsi, spsi = math.cos(psi), math.sin(psi)
+    out[0:3] = state[3:6]
+    k = af.linear_drag_nspm
+    out[3] = (
+        -(u_z / m) * (cphi * sth * cpsi + sphi * spsi)
+        + (dist[DIST_FORCE] - k * (state[3] - dist[DIST_WIND])) / m
+    )
+    out[4] = (
+        -(u_z / m) * (cphi * sth * spsi - sphi * cpsi)
+        + (dist[DIST_FORCE + 1] - k * (state[4] - dist[DIST_WIND + 1])) / m
+    )
+    out[5] = (
+        af.gravity_mps2
+        - (u_z / m) * cphi * cth
+        + (dist[DIST_FORCE + 2] - k * (state[5] - dist[DIST_WIND + 2])) / m
+    )
+    out[6:9] = state[9:12]
+    out[9] = f_phi + af.arm_m / af.ixx_kgm2 * u_phi + dist[DIST_TORQUE] / af.ixx_kgm2
+    out[10] = f_theta + af.arm_m / af.iyy_kgm2 * u_theta + dist[DIST_TORQUE + 1] / af.iyy_kgm2
+    out[11] = f_psi + u_psi / af.izz_kgm2 + dist[DIST_TORQUE + 2] / af.izz_kgm2
+    _rotor_derivative(rotor, command_rps, af, out[PAPER_ROTOR:])
+    return out
+
+
+@njit(cache=True)
+def rigid_body_derivative(
+    state: np.ndarray, command_rps: np.ndarray, af: Airframe, dist: np.ndarray
+) -> np.ndarray:
+    """Newton-Euler: I w' = -w x I w + tau + tau_gyro, v' = g e_z + R(-U_z e_z)/m + ..."""
+    out = np.zeros(RIGID_STATE_SIZE)
+    rotor = state[RIGID_ROTOR:RIGID_ROTOR + 4]
+    u_z, u_phi, u_theta, u_psi, w_r = rotor_forces(rotor, dist[DIST_EFFICIENCY:], af)
+    q = state[6:10]
+    p, qr, r = state[10], state[11], state[12]
+    rot = rotation_from_quat(q)
+    m = af.mass_kg
+    k = af.linear_drag_nspm
+    out[0:3] = state[3:6]
+    for i in range(3):
+        out[3 + i] = (
+            -rot[i, 2] * u_z / m
+            + (dist[DIST_FORCE + i] - k * (state[3 + i] - dist[DIST_WIND + i])) / m
+        )
+    out[5] += af.gravity_mps2
+    # Quaternion kinematics q' = 1/2 q (x) [0, w].
+    out[6] = 0.5 * (-q[1] * p - q[2] * qr - q[3] * r)
+    out[7] = 0.5 * (q[0] * p + q[2] * r - q[3] * qr)
+    out[8] = 0.5 * (q[0] * qr - q[1] * r + q[3] * p)
+    out[9] = 0.5 * (q[0] * r + q[1] * qr - q[2] * p)
+    ixx, iyy, izz = af.ixx_kgm2, af.iyy_kgm2, af.izz_kgm2
+    h_r = af.rotor_inertia_kgm2 * w_r  # rotor angular momentum along +z_b
+    tau_x = af.arm_m * u_phi + dist[DIST_TORQUE] - h_r * qr
+    tau_y = af.arm_m * u_theta + dist[DIST_TORQUE + 1] + h_r * p
+    tau_z = u_psi + dist[DIST_TORQUE + 2]
+    out[10] = ((iyy - izz) * qr * r + tau_x) / ixx
+    out[11] = ((izz - ixx) * p * r + tau_y) / iyy
+    out[12] = ((ixx - iyy) * p * qr + tau_z) / izz
+    _rotor_derivative(rotor, command_rps, af, out[RIGID_ROTOR:])
+    return out
+
+
+@njit(cache=True)
+def _derivative(
+    fidelity: int, state: np.ndarray, command_rps: np.ndarray, af: Airframe, dist: np.ndarray
+) -> np.ndarray:
+    if fidelity == FIDELITY_PAPER:
+        return paper_derivative(state, command_rps, af, dist)
+    return rigid_body_derivative(state, command_rps, af, dist)
+
+
+@njit(cache=True)
+def rk4_integrate(
+    fidelity: int,
+    state: np.ndarray,
+    command_rps: np.ndarray,
+    af: Airframe,
+    dist: np.ndarray,
+    step_s: float,
+    n_steps: int,
+) -> np.ndarray:
+    """Advance ``n_steps`` fixed RK4 steps with the rotor command held (zero-order hold)."""
+    x = state.copy()
+    rotor_at = PAPER_ROTOR if fidelity == FIDELITY_PAPER else RIGID_ROTOR
+    for _ in range(n_steps):
+        if af.motor_tau_s <= 0.0:
+            x[rotor_at:rotor_at + 4] = command_rps
+        k1 = _derivative(fidelity, x, command_rps, af, dist)
+        k2 = _derivative(fidelity, x + 0.5 * step_s * k1, command_rps, af, dist)
+        k3 = _derivative(fidelity, x + 0.5 * step_s * k2, command_rps, af, dist)
+        k4 = _derivative(fidelity, x + step_s * k3, command_rps, af, dist)
+        x += (step_s / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        if fidelity == FIDELITY_RIGID_BODY:
+            x[6:10] /= math.sqrt(x[6] ** 2 + x[7] ** 2 + x[8] ** 2 + x[9] ** 2)
+    return x

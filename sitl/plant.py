@@ -1,0 +1,193 @@
+"""The plant as an object: fixed-step RK4 dynamics, a rotor model and perturbations.
+
+Pure: no I/O and no clocks. Time advances only when ``advance`` is called, so the same
+calls give the same trajectory bit for bit.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from contracts.airframe import Airframe
+from contracts.frames import euler_from_quat, euler_rates_from_body_rates, quat_from_euler
+from sitl import dynamics
+
+MEASUREMENT_SIZE = 12  # position NED, velocity NED, Euler angles, Euler rates
+
+
+@dataclass(frozen=True)
+class Perturbations:
+    """Changes to the plant that tests and the ground station apply (SPEC section 7)."""
+
+    inertia_scale: float = 1.0
+    rotor_inertia_scale: float = 1.0
+    mass_scale: float = 1.0
+    motor_efficiency: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
+    wind_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    force_ned_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    torque_frd_nm: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        for name in ("inertia_scale", "rotor_inertia_scale", "mass_scale"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and 0.1 <= value <= 10.0):
+                raise ValueError(f"perturbation {name} must be in [0.1, 10], got {value!r}")
+        _check_vector("motor_efficiency", self.motor_efficiency, 4, 0.0, 1.0)
+        _check_vector("wind_ned_mps", self.wind_ned_mps, 3, -50.0, 50.0)
+        _check_vector("force_ned_n", self.force_ned_n, 3, -1000.0, 1000.0)
+        _check_vector("torque_frd_nm", self.torque_frd_nm, 3, -100.0, 100.0)
+
+
+def _check_vector(name: str, value: tuple, size: int, low: float, high: float) -> None:
+    if len(value) != size:
+        raise ValueError(f"perturbation {name} needs {size} values, got {len(value)}")
+    for v in value:
+        if not (math.isfinite(v) and low <= v <= high):
+            raise ValueError(f"perturbation {name} values must be in [{low}, {high}], got {v!r}")
+
+
+@dataclass
+class VehicleState:
+    """Everything the plant knows, in NED/FRD SI units."""
+
+    time_s: float
+    position_ned_m: np.ndarray
+    velocity_ned_mps: np.ndarray
+    euler_rad: np.ndarray
+    euler_rate_rps: np.ndarray
+    body_rate_rps: np.ndarray
+    quaternion: np.ndarray
+    rotor_rps: np.ndarray = field(default_factory=lambda: np.zeros(4))
+
+
+class Plant:
+    """A quadrotor integrated with fixed-step RK4; rotor commands are held between calls."""
+
+    def __init__(
+        self,
+        airframe: Airframe,
+        fidelity: str = "paper",
+        step_s: float = 0.001,
+        position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        euler_rad: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        rotor_rps: float = 0.0,
+    ) -> None:
+        if fidelity not in dynamics.FIDELITIES:
+            known = ", ".join(dynamics.FIDELITIES)
+            raise ValueError(f"unknown plant fidelity {fidelity!r}; known: {known}")
+        if not (math.isfinite(step_s) and 1e-5 <= step_s <= 0.05):
+            raise ValueError(f"plant step_s must be in [1e-5, 0.05] s, got {step_s!r}")
+        self.nominal_airframe = airframe
+        self.fidelity = fidelity
+        self._fidelity_code = dynamics.FIDELITIES[fidelity]
+        self.step_s = step_s
+        self.time_s = 0.0
+        self._steps_done = 0
+        self.perturbations = Perturbations()
+        self._airframe = airframe
+        self._disturbance = dynamics.no_disturbance()
+        if self._fidelity_code == dynamics.FIDELITY_PAPER:
+            self._state = np.zeros(dynamics.PAPER_STATE_SIZE)
+            self._state[6:9] = euler_rad
+            self._rotor_at = dynamics.PAPER_ROTOR
+        else:
+            self._state = np.zeros(dynamics.RIGID_STATE_SIZE)
+            self._state[6:10] = quat_from_euler(*euler_rad)
+            self._rotor_at = dynamics.RIGID_ROTOR
+        self._state[0:3] = position_ned_m
+        self._state[self._rotor_at:self._rotor_at + 4] = rotor_rps
+        self._command_rps = np.full(4, float(rotor_rps))
+
+    @property
+    def airframe(self) -> Airframe:
+        """The airframe as currently perturbed (what the dynamics integrate)."""
+        return self._airframe
+
+    def set_perturbations(self, perturbations: Perturbations) -> None:
+        """Replace the active perturbations; validated when the object was built."""
+        nominal = self.nominal_airframe
+        self._airframe = nominal._replace(
+            mass_kg=nominal.mass_kg * perturbations.mass_scale,
+            ixx_kgm2=nominal.ixx_kgm2 * perturbations.inertia_scale,
+            iyy_kgm2=nominal.iyy_kgm2 * perturbations.inertia_scale,
+            izz_kgm2=nominal.izz_kgm2 * perturbations.inertia_scale,
+            rotor_inertia_kgm2=nominal.rotor_inertia_kgm2 * perturbations.rotor_inertia_scale,
+        )
+        dist = dynamics.no_disturbance()
+        dist[dynamics.DIST_FORCE:dynamics.DIST_FORCE + 3] = perturbations.force_ned_n
+        dist[dynamics.DIST_TORQUE:dynamics.DIST_TORQUE + 3] = perturbations.torque_frd_nm
+        dist[dynamics.DIST_WIND:dynamics.DIST_WIND + 3] = perturbations.wind_ned_mps
+        dist[dynamics.DIST_EFFICIENCY:] = perturbations.motor_efficiency
+        self._disturbance = dist
+        self.perturbations = perturbations
+
+    def set_motor_commands(self, commands: np.ndarray) -> None:
+        """Normalised motor commands c_i in [0, 1] -> rotor speed commands c_i W_max."""
+        c = np.asarray(commands, dtype=float)
+        if c.shape != (4,) or not np.all(np.isfinite(c)):
+            raise ValueError(f"motor commands must be 4 finite numbers, got {commands!r}")
+        self._command_rps = np.clip(c, 0.0, 1.0) * self._airframe.rotor_max_rps
+
+    def advance(self, duration_s: float) -> None:
+        """Integrate for a whole number of plant steps with the commands held."""
+        n_steps = round(duration_s / self.step_s)
+        if n_steps < 1 or abs(n_steps * self.step_s - duration_s) > 1e-9:
+            raise ValueError(
+                f"duration {duration_s} s is not a whole number of {self.step_s} s plant steps"
+            )
+        self._state = dynamics.rk4_integrate(
+            self._fidelity_code,
+            self._state,
+            self._command_rps,
+            self._airframe,
+            self._disturbance,
+            self.step_s,
+            n_steps,
+        )
+        self._steps_done += n_steps
+        self.time_s = self._steps_done * self.step_s
+
+    @property
+    def raw_state(self) -> np.ndarray:
+        return self._state.copy()
+
+    def measurement(self) -> np.ndarray:
+        """Truth measurement for the controller: [pos NED, vel NED, Euler, Euler rates]."""
+        s = self._state
+        out = np.empty(MEASUREMENT_SIZE)
+        out[0:6] = s[0:6]
+        if self._fidelity_code == dynamics.FIDELITY_PAPER:
+            out[6:12] = s[6:12]
+        else:
+            euler = euler_from_quat(s[6:10])
+            out[6:9] = euler
+            out[9:12] = euler_rates_from_body_rates(euler[0], euler[1], s[10], s[11], s[12])
+        return out
+
+    def state(self) -> VehicleState:
+        s = self._state
+        if self._fidelity_code == dynamics.FIDELITY_PAPER:
+            euler = s[6:9].copy()
+            euler_rate = s[9:12].copy()
+            body_rate = euler_rate.copy()  # the paper's small-angle model takes them equal
+            quat = quat_from_euler(euler[0], euler[1], euler[2])
+        else:
+            quat = s[6:10].copy()
+            euler = euler_from_quat(quat)
+            body_rate = s[10:13].copy()
+            euler_rate = euler_rates_from_body_rates(
+                euler[0], euler[1], body_rate[0], body_rate[1], body_rate[2]
+            )
+        return VehicleState(
+            time_s=self.time_s,
+            position_ned_m=s[0:3].copy(),
+            velocity_ned_mps=s[3:6].copy(),
+            euler_rad=euler,
+            euler_rate_rps=euler_rate,
+            body_rate_rps=body_rate,
+            quaternion=quat,
+            rotor_rps=s[self._rotor_at:self._rotor_at + 4].copy(),
+        )

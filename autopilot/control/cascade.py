@@ -66,6 +66,7 @@ def cascade_step(
     theta_f: tuple,
     theta_min: tuple,
     theta_max: tuple,
+    eta_scale: tuple,
     theta_g: np.ndarray,
     gains: tuple,
     af: Airframe,
@@ -82,7 +83,7 @@ def cascade_step(
     # Altitude: z'' = f_z + g_z v with v = -c.phi c.theta U_z.
     v_z, theta_g[CH_Z] = adaptive_channel_step(
         meas[M_POS + 2], meas[M_VEL + 2], ref[REF_POS + 2], ref[REF_VEL + 2], ref[REF_ACC + 2],
-        one, theta_f[CH_Z], theta_min[CH_Z], theta_max[CH_Z], 0.0, theta_g[CH_Z],
+        one, theta_f[CH_Z], theta_min[CH_Z], theta_max[CH_Z], one, 0.0, theta_g[CH_Z],
         gains[CH_Z], period_s, telemetry[CH_Z],
     )
     tilt = max(math.cos(phi) * math.cos(theta), MIN_TILT_COSINE)
@@ -103,7 +104,7 @@ def cascade_step(
         for k, ch in ((0, CH_X), (1, CH_Y)):
             v, theta_g[ch] = adaptive_channel_step(
                 meas[M_POS + k], meas[M_VEL + k], ref[REF_POS + k], ref[REF_VEL + k],
-                ref[REF_ACC + k], one, theta_f[ch], theta_min[ch], theta_max[ch], 0.0,
+                ref[REF_ACC + k], one, theta_f[ch], theta_min[ch], theta_max[ch], one, 0.0,
                 theta_g[ch], gains[ch], period_s, telemetry[ch],
             )
             u_xy[k] = -v / thrust_floor
@@ -140,7 +141,8 @@ def cascade_step(
             offset = f_nominal[ch]
         u_att[ch], theta_g[ch] = adaptive_channel_step(
             meas[M_EULER + ch], rates[ch], yd[ch], yd_dot[ch], yd_ddot[ch], phi_f,
-            theta_f[ch], theta_min[ch], theta_max[ch], offset, theta_g[ch], gains[ch],
+            theta_f[ch], theta_min[ch], theta_max[ch], eta_scale[ch], offset, theta_g[ch],
+            gains[ch],
             period_s, telemetry[ch],
         )
     return mix(u_z, u_att[0], u_att[1], u_att[2], af)
@@ -155,6 +157,15 @@ class AttitudeModel:
     mf_upper: tuple[np.ndarray, np.ndarray, np.ndarray]
     theta_f: tuple[np.ndarray, np.ndarray, np.ndarray]
     g: tuple[float, float, float]
+    eta_scale: tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def regressor_scales(input_ranges: np.ndarray, n_rules: int, halves: int) -> np.ndarray:
+    """Per-component adaptation scale for phi_f = [xi (x) [x; 1]] (halves = 2 for IT2):
+    1 / max(1, |x_j|max)^2 for a term in x_j, 1 for the constant term."""
+    reach = np.maximum(1.0, np.max(np.abs(np.asarray(input_ranges, dtype=float)), axis=1))
+    per_rule = np.concatenate([1.0 / reach**2, [1.0]])
+    return np.tile(per_rule, n_rules * halves)
 
 
 def nominal_attitude_model(af: Airframe) -> AttitudeModel:
@@ -162,7 +173,8 @@ def nominal_attitude_model(af: Airframe) -> AttitudeModel:
     co = attitude_coefficients(af)
     empty = np.zeros((0, 0, 3))
     return AttitudeModel(
-        BASIS_NOMINAL, (empty,) * 3, (empty,) * 3, (np.zeros(0),) * 3, (co.b1, co.b2, co.b3)
+        BASIS_NOMINAL, (empty,) * 3, (empty,) * 3, (np.zeros(0),) * 3, (co.b1, co.b2, co.b3),
+        (np.zeros(0),) * 3,
     )
 
 
@@ -227,7 +239,7 @@ class SlidingModeCascade:
         commands = cascade_step(
             meas, ref, position_mode, np.zeros(2) if kick is None else kick,
             self.model.basis_kind, self.model.mf_lower, self.model.mf_upper, self._theta_f,
-            self._theta_min, self._theta_max, self.theta_g, self._gains, self.airframe,
+            self._theta_min, self._theta_max, self.model.eta_scale, self.theta_g, self._gains, self.airframe,
             self._filter_state, self._filter_limits, self._max_tilt, self.residual_rotor_speed(), self.period_s,
             self.telemetry,
         )

@@ -10,6 +10,7 @@ from autopilot.control.cascade import (
     AttitudeModel,
     SlidingModeCascade,
     nominal_attitude_model,
+    regressor_scales,
 )
 from autopilot.control.pid import PidCascade
 from autopilot.identification.ts_model import FuzzyModelSet
@@ -26,7 +27,7 @@ def attitude_model_from_fuzzy(models: FuzzyModelSet, kind: str, af: Airframe) ->
     """
     nominal_g = attitude_coefficients(af)
     nominal = {"phi": nominal_g.b1, "theta": nominal_g.b2, "psi": nominal_g.b3}
-    lower, upper, theta, g = [], [], [], []
+    lower, upper, theta, g, scales = [], [], [], [], []
     for name in ATTITUDE_CHANNELS:
         ch = models.channels[name]
         if kind == "ivfc":
@@ -37,10 +38,12 @@ def attitude_model_from_fuzzy(models: FuzzyModelSet, kind: str, af: Airframe) ->
             lower.append(np.ascontiguousarray(ch.t1fm.mfs, dtype=float))
             upper.append(np.ascontiguousarray(ch.t1fm.mfs, dtype=float))
             theta.append(np.array(ch.t1fm.theta_f, dtype=float))
+        halves = 2 if kind == "ivfc" else 1
+        scales.append(regressor_scales(ch.ivfm.input_ranges, ch.n_clusters, halves))
         identified_g = ch.ivfm.g if kind == "ivfc" else ch.t1fm.g
         g.append(float(identified_g) if identified_g is not None else nominal[name])
     return AttitudeModel(BASIS_IT2 if kind == "ivfc" else BASIS_T1, tuple(lower), tuple(upper),
-                         tuple(theta), tuple(g))
+                         tuple(theta), tuple(g), tuple(scales))
 
 
 def make_controller(

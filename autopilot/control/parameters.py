@@ -29,7 +29,7 @@ _SMC_GAINS = {
     "LAM": ((8.0, 4.0, 2.0, 5.0), (0.01, 100.0), "1/s", "sliding surface slope lambda"),
     "GAM": ((10.0, 10.0, 10.0, 2.0), (0.0, 200.0), "1/s", "reaching gain gamma"),
     "EPS": ((0.02, 0.02, 0.05, 0.3), (1e-4, 10.0), "", "boundary layer width epsilon"),
-    "ETA_F": ((2.0, 2.0, 0.5, 0.0), (0.0, 1e3), "", "adaptation rate of theta_f"),
+    "ETA_F": ((0.5, 0.5, 0.5, 0.0), (0.0, 1e3), "", "adaptation rate of theta_f"),
     "ETA_G": ((0.05, 0.05, 0.0005, 0.0005), (0.0, 1e3), "", "adaptation rate of theta_g"),
     "WF": ((0.1, 0.1, 0.1, 0.1), (0.0, 100.0), "", "switching gain W_f"),
     "WG": ((0.1, 0.1, 0.1, 0.1), (0.0, 100.0), "", "switching gain W_g"),

@@ -56,16 +56,21 @@ def adapt_theta_f(
     theta_min: np.ndarray,
     theta_max: np.ndarray,
     eta_f: float,
+    eta_scale: np.ndarray,
     period_s: float,
 ) -> None:
-    """theta_f += T (-eta_f phi_f e_eps), with projection onto [theta_min, theta_max].
+    """theta_f += T (-eta_f Gamma phi_f e_eps), projected onto [theta_min, theta_max].
 
+    Gamma = diag(eta_scale) normalises each component by its regressor's range (a
+    consequent multiplying W_r ~ 100 rad/s would otherwise adapt 10^4 times faster than
+    a constant term and make the discrete update unstable); any positive diagonal Gamma
+    keeps the Lyapunov argument (V uses theta~^T Gamma^-1 theta~ / 2 eta_f).
     A component outside its box whose update points further out is left alone.
     """
     if eta_f == 0.0 or e_eps == 0.0:
         return
     for i in range(theta_f.shape[0]):
-        step = -eta_f * phi_f[i] * e_eps * period_s
+        step = -eta_f * eta_scale[i] * phi_f[i] * e_eps * period_s
         if (theta_f[i] >= theta_max[i] and step > 0.0) or (
             theta_f[i] <= theta_min[i] and step < 0.0
         ):
@@ -84,11 +89,12 @@ def adapt_theta_g(
 
 @njit(cache=True)
 def lyapunov(e_eps: float, theta_f_err: np.ndarray, theta_g_err: float,
-             eta_f: float, eta_g: float) -> float:
-    """V = 1/2 e_eps^2 + |theta~_f|^2 / (2 eta_f) + theta~_g^2 / (2 eta_g) (paper Eq. lyap)."""
+             eta_f: float, eta_scale: np.ndarray, eta_g: float) -> float:
+    """V = 1/2 e_eps^2 + theta~_f^T Gamma^-1 theta~_f / (2 eta_f) + theta~_g^2 / (2 eta_g)
+    (the paper's Eq. lyap with the diagonal Gamma of adapt_theta_f)."""
     v = 0.5 * e_eps * e_eps
     if eta_f > 0.0:
-        v += 0.5 * np.dot(theta_f_err, theta_f_err) / eta_f
+        v += 0.5 * np.sum(theta_f_err * theta_f_err / eta_scale) / eta_f
     if eta_g > 0.0:
         v += 0.5 * theta_g_err * theta_g_err / eta_g
     return v
@@ -110,6 +116,7 @@ def adaptive_channel_step(
     theta_f: np.ndarray,
     theta_min: np.ndarray,
     theta_max: np.ndarray,
+    eta_scale: np.ndarray,
     f_offset: float,
     theta_g: float,
     gains: ChannelGains,
@@ -140,7 +147,8 @@ def adaptive_channel_step(
     telemetry[TEL_UEQ] = u_eq
     telemetry[TEL_US] = u_s
     telemetry[TEL_V] = v
-    adapt_theta_f(theta_f, phi_f, e_eps, theta_min, theta_max, gains.eta_f, period_s)
+    adapt_theta_f(theta_f, phi_f, e_eps, theta_min, theta_max, gains.eta_f, eta_scale,
+                  period_s)
     theta_g = adapt_theta_g(theta_g, u_eq, e_eps, gains, period_s)
     telemetry[TEL_THETA_G] = theta_g
     return v, theta_g

@@ -36,6 +36,7 @@ def fit_consequents(
     target = np.asarray(y, dtype=float).ravel()
     if phi.ndim != 2:
         raise ValueError(f"regressor_matrix must be 2-D, got {phi.ndim}-D")
+    n_fuzzy = phi.shape[1]
     if extra_columns is not None:
         extra = np.asarray(extra_columns, dtype=float)
         extra = extra.reshape(extra.shape[0], -1)
@@ -52,13 +53,12 @@ def fit_consequents(
     if not np.isfinite(ridge) or ridge < 0.0:
         raise ValueError(f"ridge must be a finite number >= 0, got {ridge}")
 
-    import os
-    mode = os.environ.get("LSMODE", "col")
-    if mode == "col":
-        scale = np.sqrt(np.mean(phi * phi, axis=0))
-        scale[scale == 0.0] = 1.0  # an all-zero column gets coefficient 0 (minimum norm)
-    else:
-        scale = np.full(n_params, np.sqrt(np.mean(phi * phi)))
+    # fuzzy block: one scale for all its columns (see the module docstring); plain extra
+    # columns: each its own RMS, so g's penalty does not depend on U's units
+    scale = np.full(n_params, np.sqrt(np.mean(phi[:, :n_fuzzy] ** 2)) if n_fuzzy else 1.0)
+    if n_params > n_fuzzy:
+        scale[n_fuzzy:] = np.sqrt(np.mean(phi[:, n_fuzzy:] ** 2, axis=0))
+    scale[scale == 0.0] = 1.0  # all-zero columns get coefficient 0 (minimum norm)
     phi_s = phi / scale
     if ridge > 0.0:
         # augmented system [Phi_s; sqrt(ridge N) I] theta_s = [y; 0]: ridge without forming

@@ -1,0 +1,1 @@
+"""Fuzzy models shipped with the autopilot (made by `ivfm identify --out`)."""

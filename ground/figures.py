@@ -1,0 +1,109 @@
+"""Figures like the paper's: references vs outputs, sliding surfaces, adaptive parameters,
+motor commands. Written as PNG with matplotlib's non-interactive backend."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from autopilot.control.cascade import CHANNELS  # noqa: E402
+from autopilot.control.sliding_mode import TEL_ES  # noqa: E402
+from ground.inprocess import RunRecord  # noqa: E402
+from ground.metrics import AXES, axis_error  # noqa: E402
+from ground.scenarios import Scenario  # noqa: E402
+
+UNITS = {"x": "m", "y": "m", "z": "m", "phi": "rad", "theta": "rad", "psi": "rad"}
+
+
+def _save(fig: plt.Figure, path: Path) -> Path:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def plot_tracking(record: RunRecord, scenario: Scenario, out_dir: Path) -> Path:
+    axes = scenario.axes
+    fig, plots = plt.subplots(len(axes), 2, figsize=(11, 2.2 * len(axes)), squeeze=False)
+    t = record.time_s
+    for row, axis in enumerate(axes):
+        _, meas_index = AXES[axis]
+        output = record.measurement[:, meas_index]
+        error = axis_error(record, axis)
+        reference = output + error
+        sign = -1.0 if axis == "z" else 1.0  # show altitude up, as people read it
+        label = "altitude" if axis == "z" else axis
+        plots[row, 0].plot(t, sign * reference, "k--", lw=1.0, label="reference")
+        plots[row, 0].plot(t, sign * output, "C0", lw=1.2, label=record.controller)
+        plots[row, 0].set_ylabel(f"{label} [{UNITS[axis]}]")
+        plots[row, 1].plot(t, error, "C3", lw=1.0)
+        plots[row, 1].set_ylabel(f"e_{axis} [{UNITS[axis]}]")
+        plots[row, 1].axvline(scenario.transient_s, color="0.6", lw=0.8, ls=":")
+    plots[0, 0].legend(loc="upper right", fontsize=8)
+    plots[-1, 0].set_xlabel("t [s]")
+    plots[-1, 1].set_xlabel("t [s]")
+    fig.suptitle(f"{scenario.name}: {record.controller} on the {record.plant} plant")
+    return _save(fig, out_dir / "tracking.png")
+
+
+def plot_sliding(record: RunRecord, out_dir: Path) -> Path:
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    for ch, name in enumerate(CHANNELS):
+        series = record.channel_telemetry[:, ch, TEL_ES]
+        if np.all(np.isnan(series)):
+            continue
+        ax.plot(record.time_s, series, lw=1.0, label=f"e_s {name}")
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("sliding surface e_s")
+    ax.legend(ncol=3, fontsize=8)
+    ax.set_title(f"Sliding surfaces ({record.controller})")
+    return _save(fig, out_dir / "sliding.png")
+
+
+def plot_adaptive(record: RunRecord, out_dir: Path) -> Path | None:
+    if not record.theta_f:
+        return None
+    fig, plots = plt.subplots(2, 2, figsize=(11, 6))
+    for ch in range(3):
+        ax = plots.flat[ch]
+        theta = record.theta_f[ch]
+        if theta.shape[1]:
+            ax.plot(record.time_s, theta - theta[0], lw=0.8)
+        ax.set_title(f"theta_f {CHANNELS[ch]} (change from identified)", fontsize=9)
+        ax.set_xlabel("t [s]")
+    ax = plots.flat[3]
+    for ch, name in enumerate(CHANNELS):
+        g = record.theta_g[:, ch]
+        if np.all(np.isnan(g)):
+            continue
+        ax.plot(record.time_s, g / g[0], lw=1.0, label=name)
+    ax.set_title("theta_g / initial", fontsize=9)
+    ax.legend(ncol=3, fontsize=8)
+    ax.set_xlabel("t [s]")
+    return _save(fig, out_dir / "adaptive.png")
+
+
+def plot_motors(record: RunRecord, out_dir: Path) -> Path:
+    fig, ax = plt.subplots(figsize=(9, 3.5))
+    for i in range(4):
+        ax.plot(record.time_s, record.motor_commands[:, i], lw=0.8, label=f"motor {i + 1}")
+    ax.set_ylim(-0.05, 1.05)
+    ax.set_xlabel("t [s]")
+    ax.set_ylabel("command W_i / W_max")
+    ax.legend(ncol=4, fontsize=8)
+    ax.set_title(f"Motor commands ({record.controller})")
+    return _save(fig, out_dir / "motors.png")
+
+
+def plot_run(record: RunRecord, scenario: Scenario, out_dir: Path) -> list[Path]:
+    paths = [plot_tracking(record, scenario, out_dir), plot_sliding(record, out_dir),
+             plot_motors(record, out_dir)]
+    adaptive = plot_adaptive(record, out_dir)
+    if adaptive is not None:
+        paths.append(adaptive)
+    return paths

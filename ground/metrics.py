@@ -1,0 +1,81 @@
+"""Metrics of a run: per-axis tracking errors after a transient, control effort, chattering.
+
+Stated definitions (the paper does not print its metric): for each tracked axis,
+e_k = reference_k - output_k over the samples with t >= transient_s;
+rmse = sqrt(mean e^2), mse = mean e^2, max_abs = max |e|. Control effort is the mean of
+sum_i c_i^2 over the same window (c_i the normalised motor commands); chattering is the
+total variation sum_k sum_i |c_i[k] - c_i[k-1]| over that window, and per second.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from autopilot.reference import REF_EULER, REF_POS
+from ground.inprocess import RunRecord
+from ground.scenarios import Scenario
+
+# axis -> (index into the reference vector, index into the measurement vector)
+AXES: dict[str, tuple[int, int]] = {
+    "x": (REF_POS, 0),
+    "y": (REF_POS + 1, 1),
+    "z": (REF_POS + 2, 2),
+    "phi": (REF_EULER, 6),
+    "theta": (REF_EULER + 1, 7),
+    "psi": (REF_EULER + 2, 8),
+}
+
+
+def axis_error(record: RunRecord, axis: str) -> np.ndarray:
+    """Reference minus output for one axis (angles wrapped to [-pi, pi))."""
+    ref_index, meas_index = AXES[axis]
+    reference = record.reference[:, ref_index].copy()
+    if axis in ("phi", "theta"):
+        reference += record.kick[:, 0 if axis == "phi" else 1]
+    error = reference - record.measurement[:, meas_index]
+    if axis in ("phi", "theta", "psi"):
+        error = (error + math.pi) % (2.0 * math.pi) - math.pi
+    return error
+
+
+def compute_metrics(record: RunRecord, scenario: Scenario, airframe_name: str) -> dict[str, Any]:
+    window = record.time_s >= scenario.transient_s
+    axes = {}
+    for axis in scenario.axes:
+        e = axis_error(record, axis)[window]
+        if e.size == 0:
+            axes[axis] = {"rmse": None, "mse": None, "max_abs": None}
+            continue
+        mse = float(np.mean(e**2))
+        axes[axis] = {"rmse": math.sqrt(mse), "mse": mse, "max_abs": float(np.max(np.abs(e)))}
+    c = record.motor_commands[window]
+    duration = float(np.count_nonzero(window)) * record.period_s
+    tv = float(np.sum(np.abs(np.diff(c, axis=0)))) if len(c) > 1 else 0.0
+    sim_time = float(len(record.time_s)) * record.period_s
+    return {
+        "scenario": record.scenario,
+        "controller": record.controller,
+        "plant": record.plant,
+        "airframe": airframe_name,
+        "control_period_s": record.period_s,
+        "sim_time_s": sim_time,
+        "wall_time_s": record.wall_time_s,
+        "real_time_factor": sim_time / record.wall_time_s if record.wall_time_s > 0 else None,
+        "transient_s": scenario.transient_s,
+        "diverged": record.diverged,
+        "axes": axes,
+        "control": {
+            "effort_mean_sum_c2": float(np.mean(np.sum(c**2, axis=1))) if len(c) else None,
+            "chattering_total_variation": tv,
+            "chattering_per_s": tv / duration if duration > 0 else None,
+            "saturated_fraction": float(np.mean((c >= 0.999) | (c <= 0.001))) if len(c) else None,
+        },
+        "definitions": {
+            "error": "reference - output over t >= transient_s (angles wrapped)",
+            "effort_mean_sum_c2": "mean over samples of sum_i c_i^2, c_i = W_i / W_max",
+            "chattering_total_variation": "sum_k sum_i |c_i[k] - c_i[k-1]|",
+        },
+    }

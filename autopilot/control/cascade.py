@@ -109,20 +109,24 @@ def cascade_step(
             )
             u_xy[k] = -v / thrust_floor
         phi_c, theta_c = desired_angles(u_xy[0], u_xy[1], ref[REF_EULER + 2], max_tilt)
+        # Kicks on the desired angles enter before the command filter, as any change of
+        # the desired angle does.
+        phi_c += kick[0]
+        theta_c += kick[1]
         omega, zeta, rate_max, acc_max = filter_limits
         yd[0], yd_dot[0], yd_ddot[0] = command_filter_step(
             filter_state[0], phi_c, period_s, omega, zeta, rate_max, acc_max)
         yd[1], yd_dot[1], yd_ddot[1] = command_filter_step(
             filter_state[1], theta_c, period_s, omega, zeta, rate_max, acc_max)
     else:
+        yd[0] += kick[0]
+        yd[1] += kick[1]
         for ch in (CH_X, CH_Y):
             telemetry[ch, :] = np.nan
         # Keep the filter on the current reference so switching modes is bumpless.
         for k in range(2):
             filter_state[k, 0] = yd[k]
             filter_state[k, 1] = yd_dot[k]
-    yd[0] += kick[0]
-    yd[1] += kick[1]
 
     # Attitude: y'' = f(x) + g U.
     rates = meas[M_RATE:M_RATE + 3]

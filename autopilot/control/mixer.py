@@ -27,12 +27,17 @@ def mix(
     r = u_phi / (2.0 * b)
     p = u_theta / (2.0 * b)
     y = u_psi / (4.0 * d)
+    a = min(max(a, 0.0), top)
     spread = max(abs(r), abs(p))
-    if 2.0 * spread > top:
-        scale = top / (2.0 * spread)
+    # Roll/pitch must fit between 0 and top around the collective: above, the collective
+    # gives way (attitude first); below, roll/pitch shrink rather than the collective
+    # rising, so a vehicle asked to descend does not climb on attitude demands.
+    room = min(a, top / 2.0) if a < spread else top / 2.0
+    if spread > room:
+        scale = room / spread
         r *= scale
         p *= scale
-        spread = max(abs(r), abs(p))
+        spread = room
     a = min(max(a, spread), top - spread)
     # Yaw must keep every rotor in [0, top]: rotors 1, 3 carry -y, rotors 2, 4 carry +y.
     y_low = max(a + abs(p) - top, -(a - abs(r)))

@@ -19,7 +19,9 @@ from autopilot.control.parameters import validate_parameters
 from autopilot.reference import REF_ACC, REF_EULER, REF_EULER_RATE, REF_POS, REF_VEL
 from contracts.airframe import Airframe
 
-INTEGRATOR_LIMIT = 5.0
+# Integrator clamps (anti-windup), as PX4 bounds its integrators.
+RATE_INTEGRATOR_LIMIT = 0.3  # rad (x RATE_I 10 -> 3 rad/s^2)
+VELOCITY_INTEGRATOR_LIMIT = 2.0  # m (x VEL_I -> m/s^2)
 
 
 class PidGains(NamedTuple):
@@ -71,7 +73,7 @@ def pid_step(
     # Vertical: position P -> velocity PI -> acceleration (NED, plus feedforward).
     vz_sp = gains.z_p * (ref[REF_POS + 2] - meas[M_POS + 2]) + ref[REF_VEL + 2]
     vz_err = vz_sp - meas[M_VEL + 2]
-    integrators[5] = _clip(integrators[5] + vz_err * period_s, INTEGRATOR_LIMIT)
+    integrators[5] = _clip(integrators[5] + vz_err * period_s, VELOCITY_INTEGRATOR_LIMIT)
     az = gains.z_vel_p * vz_err + gains.z_vel_i * integrators[5] + ref[REF_ACC + 2]
     att_d = np.empty(3)
     rate_ff = np.empty(3)
@@ -83,7 +85,8 @@ def pid_step(
         for k in range(2):
             v_sp = gains.xy_p * (ref[REF_POS + k] - meas[M_POS + k]) + ref[REF_VEL + k]
             v_err = v_sp - meas[M_VEL + k]
-            integrators[3 + k] = _clip(integrators[3 + k] + v_err * period_s, INTEGRATOR_LIMIT)
+            integrators[3 + k] = _clip(integrators[3 + k] + v_err * period_s,
+                                        VELOCITY_INTEGRATOR_LIMIT)
             vel_rate = (meas[M_VEL + k] - previous[3 + k]) / period_s
             previous[3 + k] = meas[M_VEL + k]
             acc[k] = (gains.xy_vel_p * v_err + gains.xy_vel_i * integrators[3 + k]
@@ -105,7 +108,7 @@ def pid_step(
         rate = meas[M_RATE + k]
         p_gain = gains.yaw_p if k == 2 else gains.att_p
         rate_err = p_gain * err + rate_ff[k] - rate
-        integrators[k] = _clip(integrators[k] + rate_err * period_s, INTEGRATOR_LIMIT)
+        integrators[k] = _clip(integrators[k] + rate_err * period_s, RATE_INTEGRATOR_LIMIT)
         if k == 2:
             alpha[k] = gains.yawrate_p * rate_err + gains.rate_i * 0.1 * integrators[k]
         else:

@@ -24,10 +24,17 @@ def load_models(path: Path | None) -> FuzzyModelSet:
     """The given model file, or the model shipped with the autopilot."""
     from autopilot.identification.model_file import load_model
 
+    from autopilot.control.factory import ATTITUDE_CHANNELS
+
     if path is None:
         with resources.as_file(resources.files("autopilot.models") / DEFAULT_MODEL) as shipped:
             return load_model(shipped)
-    return load_model(path)
+    models = load_model(path)
+    missing = [name for name in ATTITUDE_CHANNELS if name not in models.channels]
+    if missing:
+        raise ValueError(f"{path}: the controller needs channel(s) {', '.join(missing)}, "
+                         f"the model has {', '.join(models.channels) or 'none'}")
+    return models
 
 
 def write_json(path: Path, data: Any) -> None:

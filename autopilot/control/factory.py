@@ -27,6 +27,9 @@ def attitude_model_from_fuzzy(models: FuzzyModelSet, kind: str, af: Airframe) ->
     """
     nominal_g = attitude_coefficients(af)
     nominal = {"phi": nominal_g.b1, "theta": nominal_g.b2, "psi": nominal_g.b3}
+    missing = [name for name in ATTITUDE_CHANNELS if name not in models.channels]
+    if missing:
+        raise ValueError(f"fuzzy model lacks attitude channel(s) {', '.join(missing)}")
     lower, upper, theta, g, scales = [], [], [], [], []
     for name in ATTITUDE_CHANNELS:
         ch = models.channels[name]

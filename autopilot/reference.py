@@ -11,7 +11,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
 # Layout of the reference vector: position NED, its two derivatives, then Euler angles
 # and their two derivatives (the latter ignored for roll/pitch in position mode).
 REF_POS, REF_VEL, REF_ACC = 0, 3, 6

@@ -22,9 +22,8 @@ DEFAULT_MODEL = "paper.json"
 
 def load_models(path: Path | None) -> FuzzyModelSet:
     """The given model file, or the model shipped with the autopilot."""
-    from autopilot.identification.model_file import load_model
-
     from autopilot.control.factory import ATTITUDE_CHANNELS
+    from autopilot.identification.model_file import load_model
 
     if path is None:
         with resources.as_file(resources.files("autopilot.models") / DEFAULT_MODEL) as shipped:

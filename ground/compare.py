@@ -11,7 +11,6 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
 
 from autopilot.identification.ts_model import FuzzyModelSet  # noqa: E402
 from contracts.airframe import airframe_by_name  # noqa: E402
@@ -106,8 +105,8 @@ def comparison_markdown(results: list[dict[str, Any]], scenarios: list[str],
                 for a in axes:
                     x, y = iv["axes"][a]["rmse"], t1["axes"][a]["rmse"]
                     if x is not None and y is not None:
-                        verdicts.append(f"{a} {'yes' if x <= y else 'NO'} ({(y - x) / y * 100:+.1f} %)"
-                                        if y > 0 else f"{a} equal")
+                        margin = f" ({(y - x) / y * 100:+.1f} %)" if y > 0 else ""
+                        verdicts.append(f"{a} {'yes' if x <= y else 'NO'}{margin}")
                 lines.append("")
                 lines.append("IVFC RMSE <= T1FC RMSE (margin relative to T1FC): "
                              + ", ".join(verdicts))

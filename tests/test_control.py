@@ -34,8 +34,12 @@ def test_mixer_inverts_the_rotor_map_when_unsaturated() -> None:
     rng = np.random.default_rng(0)
     weight = PAPER.mass_kg * PAPER.gravity_mps2
     for _ in range(200):
-        wanted = (weight * rng.uniform(0.6, 1.6), rng.uniform(-2, 2), rng.uniform(-2, 2),
-                  rng.uniform(-0.05, 0.05))
+        wanted = (
+            weight * rng.uniform(0.6, 1.6),
+            rng.uniform(-2, 2),
+            rng.uniform(-2, 2),
+            rng.uniform(-0.05, 0.05),
+        )
         c = mix(*wanted, PAPER)
         assert np.all((c > 0) & (c < 1))
         assert np.allclose(forward(c), wanted, rtol=1e-9, atol=1e-9)
@@ -96,8 +100,9 @@ def test_command_filter_respects_its_limits_and_converges() -> None:
 
 
 def _gains(eta_f: float = 2.0, eta_g: float = 0.5) -> ChannelGains:
-    return ChannelGains(lam=4.0, gam=5.0, eps=0.02, eta_f=eta_f, eta_g=eta_g, w_f=0.1, w_g=0.1,
-                        g0=0.5, g_max=10.0)
+    return ChannelGains(
+        lam=4.0, gam=5.0, eps=0.02, eta_f=eta_f, eta_g=eta_g, w_f=0.1, w_g=0.1, g0=0.5, g_max=10.0
+    )
 
 
 def test_lyapunov_function_does_not_increase_on_a_matched_plant() -> None:
@@ -127,10 +132,33 @@ def test_lyapunov_function_does_not_increase_on_a_matched_plant() -> None:
         yd, yd_dot, yd_ddot = math.sin(t), math.cos(t), -math.sin(t)
         phi = basis(y, y_dot)
         theta_before, g_before = theta_f.copy(), theta_g
-        v, theta_g = adaptive_channel_step(y, y_dot, yd, yd_dot, yd_ddot, phi, theta_f, -box, box,
-                                           scale, 0.0, theta_g, gains, period, tel)
-        values.append(lyapunov(tel[TEL_EEPS], theta_before - theta_true, g_before - g_true,
-                               gains.eta_f, scale, gains.eta_g))
+        v, theta_g = adaptive_channel_step(
+            y,
+            y_dot,
+            yd,
+            yd_dot,
+            yd_ddot,
+            phi,
+            theta_f,
+            -box,
+            box,
+            scale,
+            0.0,
+            theta_g,
+            gains,
+            period,
+            tel,
+        )
+        values.append(
+            lyapunov(
+                tel[TEL_EEPS],
+                theta_before - theta_true,
+                g_before - g_true,
+                gains.eta_f,
+                scale,
+                gains.eta_g,
+            )
+        )
         # Exact-enough plant step (semi-implicit Euler at 1e-4 s with the held input).
         y_ddot = theta_true @ basis(y, y_dot) + g_true * v
         y_dot += period * y_ddot
@@ -149,8 +177,12 @@ def test_parameters_table_is_valid_and_checked() -> None:
         assert spec.minimum <= spec.default <= spec.maximum, spec.name
         assert len(spec.name) <= 16
     assert validate_parameters({"ATT_LAM": 5})["ATT_LAM"] == 5.0
-    for bad, match in (({"NOPE": 1.0}, "unknown"), ({"ATT_LAM": math.nan}, "finite"),
-                       ({"ATT_LAM": math.inf}, "finite"), ({"ATT_LAM": -1.0}, "in \\["),
-                       ({"ATT_LAM": "x"}, "number")):
+    for bad, match in (
+        ({"NOPE": 1.0}, "unknown"),
+        ({"ATT_LAM": math.nan}, "finite"),
+        ({"ATT_LAM": math.inf}, "finite"),
+        ({"ATT_LAM": -1.0}, "in \\["),
+        ({"ATT_LAM": "x"}, "number"),
+    ):
         with pytest.raises(ValueError, match=match):
             validate_parameters(bad)

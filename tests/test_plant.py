@@ -29,7 +29,9 @@ def hover_fraction(af=PAPER) -> float:
 @pytest.mark.parametrize("fidelity", FIDELITIES)
 @pytest.mark.parametrize("af", [PAPER, REALISTIC], ids=["paper", "realistic"])
 def test_hover_is_an_equilibrium(fidelity: str, af) -> None:
-    plant = Plant(af, fidelity, position_ned_m=(0.0, 0.0, -1.0), rotor_rps=hover_rotor_speed_rps(af))
+    plant = Plant(
+        af, fidelity, position_ned_m=(0.0, 0.0, -1.0), rotor_rps=hover_rotor_speed_rps(af)
+    )
     plant.set_motor_commands(np.full(4, hover_fraction(af)))
     plant.advance(5.0)
     state = plant.state()
@@ -99,21 +101,31 @@ def test_gyroscopic_terms_have_opposite_signs_on_roll_and_pitch() -> None:
 def test_rk4_matches_scipy_reference_integration(fidelity: str) -> None:
     """The fixed-step RK4 against scipy's adaptive DOP853 on a tumbling manoeuvre."""
     code = dynamics.FIDELITIES[fidelity]
-    plant = Plant(REALISTIC._replace(motor_tau_s=0.02), fidelity, step_s=0.001,
-                  euler_rad=(0.3, -0.2, 0.5), rotor_rps=600.0)
+    plant = Plant(
+        REALISTIC._replace(motor_tau_s=0.02),
+        fidelity,
+        step_s=0.001,
+        euler_rad=(0.3, -0.2, 0.5),
+        rotor_rps=600.0,
+    )
     x0 = plant.raw_state
     cmd = np.array([0.62, 0.55, 0.58, 0.66])
     plant.set_motor_commands(cmd)
     plant.advance(0.5)
     command_rps = cmd * REALISTIC.rotor_max_rps
     dist = dynamics.no_disturbance()
-    dist[dynamics.DIST_WIND:dynamics.DIST_WIND + 3] = (2.0, -1.0, 0.0)
+    dist[dynamics.DIST_WIND : dynamics.DIST_WIND + 3] = (2.0, -1.0, 0.0)
 
     def rhs(_t, x):
         return dynamics._derivative(code, x, command_rps, plant.airframe, dist)
 
-    plant2 = Plant(REALISTIC._replace(motor_tau_s=0.02), fidelity, step_s=0.001,
-                   euler_rad=(0.3, -0.2, 0.5), rotor_rps=600.0)
+    plant2 = Plant(
+        REALISTIC._replace(motor_tau_s=0.02),
+        fidelity,
+        step_s=0.001,
+        euler_rad=(0.3, -0.2, 0.5),
+        rotor_rps=600.0,
+    )
     plant2.set_perturbations(Perturbations(wind_ned_mps=(2.0, -1.0, 0.0)))
     plant2.set_motor_commands(cmd)
     plant2.advance(0.5)
@@ -126,8 +138,10 @@ def test_rk4_matches_scipy_reference_integration(fidelity: str) -> None:
 
 def test_fidelities_agree_at_small_angles() -> None:
     h = hover_fraction()
-    plants = [Plant(PAPER, f, euler_rad=(0.01, -0.01, 0.0), rotor_rps=hover_rotor_speed_rps(PAPER))
-              for f in FIDELITIES]
+    plants = [
+        Plant(PAPER, f, euler_rad=(0.01, -0.01, 0.0), rotor_rps=hover_rotor_speed_rps(PAPER))
+        for f in FIDELITIES
+    ]
     for p in plants:
         p.set_motor_commands([h * 1.001, h, h * 0.999, h])
         p.advance(0.5)
@@ -145,21 +159,30 @@ def test_frames_round_trip() -> None:
         r = rotation_from_quat(q)
         assert np.allclose(r @ r.T, np.eye(3), atol=1e-12)
         rates = rng.normal(size=3)
-        back = euler_rates_from_body_rates(e[0], e[1], *body_rates_from_euler_rates(e[0], e[1], *rates))
+        back = euler_rates_from_body_rates(
+            e[0], e[1], *body_rates_from_euler_rates(e[0], e[1], *rates)
+        )
         assert np.allclose(back, rates, atol=1e-9)
 
 
 def test_perturbations_change_the_plant_and_are_validated() -> None:
     plant = Plant(PAPER, "rigid-body")
-    plant.set_perturbations(Perturbations(inertia_scale=1.2, rotor_inertia_scale=1.2, mass_scale=1.1))
+    plant.set_perturbations(
+        Perturbations(inertia_scale=1.2, rotor_inertia_scale=1.2, mass_scale=1.1)
+    )
     assert plant.airframe.ixx_kgm2 == pytest.approx(0.18 * 1.2)
     assert plant.airframe.rotor_inertia_kgm2 == pytest.approx(1.32e-3 * 1.2)
     assert plant.airframe.mass_kg == pytest.approx(1.32)
     plant.set_perturbations(Perturbations())
     assert plant.airframe == PAPER
-    for bad in (dict(inertia_scale=math.nan), dict(mass_scale=0.0), dict(inertia_scale=math.inf),
-                dict(motor_efficiency=(1, 1, 1, 1.5)), dict(wind_ned_mps=(0, math.nan, 0)),
-                dict(force_ned_n=(0, 0))):
+    for bad in (
+        dict(inertia_scale=math.nan),
+        dict(mass_scale=0.0),
+        dict(inertia_scale=math.inf),
+        dict(motor_efficiency=(1, 1, 1, 1.5)),
+        dict(wind_ned_mps=(0, math.nan, 0)),
+        dict(force_ned_n=(0, 0)),
+    ):
         with pytest.raises(ValueError):
             Perturbations(**bad)
     with pytest.raises(ValueError, match="motor commands"):

@@ -16,7 +16,7 @@ from numba import njit
 
 from autopilot.control.command_filter import command_filter_step
 from autopilot.control.mixer import mix
-from autopilot.control.parameters import ChannelGains, channel_gains, validate_parameters
+from autopilot.control.parameters import channel_gains, validate_parameters
 from autopilot.control.sliding_mode import TELEMETRY_FIELDS, adaptive_channel_step
 from autopilot.identification.ts_model import it2_regressor, t1_regressor
 from autopilot.reference import REF_ACC, REF_EULER, REF_EULER_ACC, REF_EULER_RATE, REF_POS, REF_VEL
@@ -243,9 +243,9 @@ class SlidingModeCascade:
         commands = cascade_step(
             meas, ref, position_mode, np.zeros(2) if kick is None else kick,
             self.model.basis_kind, self.model.mf_lower, self.model.mf_upper, self._theta_f,
-            self._theta_min, self._theta_max, self.model.eta_scale, self.theta_g, self._gains, self.airframe,
-            self._filter_state, self._filter_limits, self._max_tilt, self.residual_rotor_speed(), self.period_s,
-            self.telemetry,
+            self._theta_min, self._theta_max, self.model.eta_scale, self.theta_g, self._gains,
+            self.airframe, self._filter_state, self._filter_limits, self._max_tilt,
+            self.residual_rotor_speed(), self.period_s, self.telemetry,
         )
         self._last_commands = commands
         return commands

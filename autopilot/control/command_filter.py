@@ -9,8 +9,8 @@ acceleration far beyond what the rotors can give.
 
 from __future__ import annotations
 
-from numba import njit
 import numpy as np
+from numba import njit
 
 SUBSTEPS = 10  # semi-implicit Euler substeps per control period
 

@@ -90,7 +90,9 @@ def validate_parameters(overrides: dict[str, float]) -> dict[str, float]:
         try:
             number = float(value)
         except (TypeError, ValueError):
-            raise ValueError(f"controller parameter {name} must be a number, got {value!r}") from None
+            raise ValueError(
+                f"controller parameter {name} must be a number, got {value!r}"
+            ) from None
         if not math.isfinite(number) or not spec.minimum <= number <= spec.maximum:
             raise ValueError(
                 f"controller parameter {name} must be finite and in "

@@ -1,0 +1,82 @@
+"""Benchmarks of the numerical core; prints the figures.
+
+Run: python tests/benchmarks/bench_core.py
+
+Not a test: timings depend on the machine. Each figure is the median of several repeats
+after a warm-up (numba compiles on first call).
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from autopilot.control.factory import make_controller  # noqa: E402
+from autopilot.identification.identify import identify_dataset  # noqa: E402
+from contracts.airframe import PAPER, hover_rotor_speed_rps  # noqa: E402
+from ground.commands import load_models  # noqa: E402
+from ground.excitation import excitation_dataset  # noqa: E402
+from ground.inprocess import run_inprocess  # noqa: E402
+from ground.scenarios import SCENARIOS  # noqa: E402
+from sitl.plant import Plant  # noqa: E402
+
+
+def per_call_us(fn, n: int, repeats: int = 7) -> float:
+    fn()
+    samples = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        for _ in range(n):
+            fn()
+        samples.append((time.perf_counter() - start) / n * 1e6)
+    return statistics.median(samples)
+
+
+def main() -> None:
+    models = load_models(None)
+    ref = SCENARIOS["attitude-sine"].reference.at(1.0)
+    pos_ref = SCENARIOS["position-sine"].reference.at(1.0)
+    plant = Plant(PAPER, "paper", position_ned_m=(0, 0, -1),
+                  rotor_rps=hover_rotor_speed_rps(PAPER))
+    meas = plant.measurement()
+    print("Controller step (all channels + mixer), median us per call:")
+    for kind in ("ivfc", "t1fc", "smc", "pid"):
+        ctrl = make_controller(kind, PAPER, 0.01, models)
+        att = per_call_us(lambda c=ctrl: c.step(meas, ref, False), 20000)
+        pos = per_call_us(lambda c=ctrl: c.step(meas, pos_ref, True), 20000)
+        print(f"  {kind:<5} attitude mode {att:6.2f} us   position mode {pos:6.2f} us")
+    print("Plant step, median us:")
+    for fidelity in ("paper", "rigid-body"):
+        p = Plant(PAPER, fidelity, rotor_rps=hover_rotor_speed_rps(PAPER))
+        p.set_motor_commands(np.full(4, 0.47))
+        one = per_call_us(lambda p=p: p.advance(0.001), 20000)
+        period = per_call_us(lambda p=p: p.advance(0.01), 5000)
+        print(f"  {fidelity:<10} one 1 ms RK4 step {one:6.2f} us   one 10 ms control period "
+              f"(10 steps) {period:6.2f} us")
+    start = time.perf_counter()
+    data = excitation_dataset(PAPER)
+    fly = time.perf_counter() - start
+    start = time.perf_counter()
+    identify_dataset(data)
+    ident = time.perf_counter() - start
+    print(f"Identification: excitation flight {fly:.2f} s + identification (3 channels, GK, "
+          f"EDA, fits, LS) {ident:.2f} s")
+    print("In-process real-time factor (20 s scenarios, 100 Hz control, 1 kHz plant), median of 3:")
+    for name, scenario in SCENARIOS.items():
+        for kind in ("ivfc",):
+            run_inprocess(scenario, kind, "paper", PAPER, models)
+            walls = [run_inprocess(scenario, kind, "paper", PAPER, models).wall_time_s
+                     for _ in range(3)]
+            wall = statistics.median(walls)
+            print(f"  {name:<15} {kind}: {scenario.duration_s / wall:6.0f}x real time "
+                  f"({wall * 1e3:.0f} ms wall)")
+
+
+if __name__ == "__main__":
+    main()

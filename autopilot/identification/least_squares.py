@@ -5,12 +5,15 @@ upper normalised firings xi_l, xi_r are usually close to each other, so the two 
 the regressor matrix are nearly collinear. Plain least squares then finds huge, opposite
 w_l and w_r whose difference fits noise; they predict well on the identification data but
 extrapolate badly, and they are a poor starting point for the controller's adaptation. A
-tiny ridge (1e-8 of the regressor scale by default) picks, among the almost equally good
-solutions, the one of small norm and changes the fit itself negligibly.
+small ridge picks, among the almost equally good solutions, one of small norm and changes
+the fit itself negligibly. The same holds for a rule whose (lower) firing is almost never
+active in the data: its columns are nearly zero and, unpenalised, its consequent grows
+without bound.
 
-The ridge is relative to the regressor scale: every column is first divided by its RMS
-value, so the penalty means the same whatever the units of the regressors (rad/s against
-rotor rad/s against newtons).
+The ridge is relative to the regressor scale: lambda = ridge * N * mean(Phi^2), one scale
+for the whole fuzzy block. (Scaling each column by its own RMS would make the penalty
+vanish on exactly those nearly-zero columns.) Plain extra columns such as U are scaled by
+their own RMS, so the penalty on g does not depend on U's units.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ def fit_consequents(
     *,
     extra_columns: np.ndarray | None = None,
 ) -> np.ndarray:
-    """theta minimising |Phi theta - y|^2 + ridge N |S theta|^2 (S = column RMS scales).
+    """theta minimising |Phi theta - y|^2 + ridge N |S theta|^2 (S: regressor scales).
 
     extra_columns (N,) or (N, k): plain regressors appended after the fuzzy ones, e.g. the
     control input U when the output is a measured acceleration y'' = f(x) + g U; their

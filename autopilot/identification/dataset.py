@@ -159,7 +159,7 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
     """Read and validate a dataset CSV file; DatasetError names file, line and column."""
     where = str(path)
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:  # tolerate a BOM
             rows = list(csv.reader(fh))
     except OSError as exc:
         raise DatasetError(f"{where}: cannot read file ({exc.strerror or exc})") from None
@@ -184,9 +184,7 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
     for k, row in enumerate(rows[1:]):
         line = k + 2
         if len(row) != len(header):
-            raise DatasetError(
-                f"{where}: line {line}: {len(row)} fields, header has {len(header)}"
-            )
+            raise DatasetError(f"{where}: line {line}: {len(row)} fields, header has {len(header)}")
         for j, text in enumerate(row):
             try:
                 value = float(text)

@@ -79,10 +79,12 @@ def fit_gaussian(x: np.ndarray, mu: np.ndarray) -> Gaussian:
     if x_range <= 0.0:
         raise ValueError("all x are equal: a Gaussian's centre and width are undefined")
 
-    lo_b = np.array([HEIGHT_MIN, xa.min() - CENTER_MARGIN_FRACTION * x_range,
-                     SIGMA_FLOOR_FRACTION * x_range])
-    hi_b = np.array([1.0, xa.max() + CENTER_MARGIN_FRACTION * x_range,
-                     SIGMA_CEIL_FRACTION * x_range])
+    lo_b = np.array(
+        [HEIGHT_MIN, xa.min() - CENTER_MARGIN_FRACTION * x_range, SIGMA_FLOOR_FRACTION * x_range]
+    )
+    hi_b = np.array(
+        [1.0, xa.max() + CENTER_MARGIN_FRACTION * x_range, SIGMA_CEIL_FRACTION * x_range]
+    )
 
     w = np.clip(ma, 0.0, None)
     if w.sum() > 0.0:

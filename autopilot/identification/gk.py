@@ -99,9 +99,7 @@ def update_partition(dist2: np.ndarray, fuzziness: float) -> np.ndarray:
     return partition
 
 
-def _norm_distances(
-    data: np.ndarray, centers: np.ndarray, covariances: np.ndarray
-) -> np.ndarray:
+def _norm_distances(data: np.ndarray, centers: np.ndarray, covariances: np.ndarray) -> np.ndarray:
     """Squared GK distances D_ik^2 = (z_k - v_i)^T A_i (z_k - v_i), A_i = det(F_i)^(1/d) F_i^-1."""
     c = centers.shape[0]
     d = data.shape[1]

@@ -1,14 +1,17 @@
 """Consequent parameters by global (ridge-regularised) least squares, SPEC section 4 step 4.
 
-Why a ridge: the IT2 regressor is 1/2 [xi_l (x) [x;1] ; xi_r (x) [x;1]] and the lower and
-upper normalised firings xi_l, xi_r are usually close to each other, so the two halves of
-the regressor matrix are nearly collinear. Plain least squares then finds huge, opposite
-w_l and w_r whose difference fits noise; they predict well on the identification data but
-extrapolate badly, and they are a poor starting point for the controller's adaptation. A
-small ridge picks, among the almost equally good solutions, one of small norm and changes
-the fit itself negligibly. The same holds for a rule whose (lower) firing is almost never
-active in the data: its columns are nearly zero and, unpenalised, its consequent grows
-without bound.
+Why a ridge: the IT2 regressor is 1/2 [xi_l (x) [x;1] ; xi_r (x) [x;1]], and xi_l and xi_r
+both sum to 1 over the rules, so sum_i xi_l,i [x;1] = sum_i xi_r,i [x;1] = [x;1] for every
+x: the regressor matrix is exactly rank deficient by n + 1. Adding the same vector v to
+every lower consequent w_l,i and subtracting it from every upper one w_r,i changes no
+prediction; the data cannot tell these solutions apart. Beyond that, xi_l and xi_r are
+usually close to each other, so the two halves are also nearly collinear. Unregularised,
+least squares may return huge, opposite w_l and w_r whose difference fits noise; they
+predict well on the identification data but extrapolate badly and are a poor starting
+point for the controller's adaptation. A small ridge picks the solution of small norm
+(the minimum-norm one as ridge -> 0) and changes the fit itself negligibly. The same holds
+for a rule whose (lower) firing is almost never active in the data: its columns are
+nearly zero and, unpenalised, its consequent grows without bound.
 
 The ridge is relative to the regressor scale: lambda = ridge * N * mean(Phi^2), one scale
 for the whole fuzzy block. (Scaling each column by its own RMS would make the penalty

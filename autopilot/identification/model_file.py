@@ -46,8 +46,14 @@ FORMAT_VERSION = 1
 OUTPUT_KINDS = ("f", "acc")
 
 _CHANNEL_KEYS = {
-    "regressors", "input_ranges", "n_clusters", "output", "cluster_centers", "notes",
-    "ivfm", "t1fm",
+    "regressors",
+    "input_ranges",
+    "n_clusters",
+    "output",
+    "cluster_centers",
+    "notes",
+    "ivfm",
+    "t1fm",
 }
 _IVFM_KEYS = {"lower", "upper", "theta_f", "g", "rmse_ident", "rmse_valid"}
 _T1FM_KEYS = {"mfs", "theta_f", "g", "rmse_ident", "rmse_valid"}
@@ -159,9 +165,7 @@ def _channel_from_dict(name: str, d: Any, where: str) -> ChannelModel:
     for i in range(c):
         for j in range(n):
             if not interval_holds(Gaussian(*lower[i, j]), Gaussian(*upper[i, j])):
-                raise ModelFileError(
-                    f"{wi}.lower[{i}][{j}]: lower MF exceeds upper MF for some x"
-                )
+                raise ModelFileError(f"{wi}.lower[{i}][{j}]: lower MF exceeds upper MF for some x")
     ivfm = It2Model(
         lower=lower,
         upper=upper,

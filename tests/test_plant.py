@@ -108,10 +108,9 @@ def test_rk4_matches_scipy_reference_integration(fidelity: str) -> None:
         euler_rad=(0.3, -0.2, 0.5),
         rotor_rps=600.0,
     )
+    plant.set_perturbations(Perturbations(wind_ned_mps=(2.0, -1.0, 0.0)))
     x0 = plant.raw_state
     cmd = np.array([0.62, 0.55, 0.58, 0.66])
-    plant.set_motor_commands(cmd)
-    plant.advance(0.5)
     command_rps = cmd * REALISTIC.rotor_max_rps
     dist = dynamics.no_disturbance()
     dist[dynamics.DIST_WIND : dynamics.DIST_WIND + 3] = (2.0, -1.0, 0.0)
@@ -119,18 +118,10 @@ def test_rk4_matches_scipy_reference_integration(fidelity: str) -> None:
     def rhs(_t, x):
         return dynamics._derivative(code, x, command_rps, plant.airframe, dist)
 
-    plant2 = Plant(
-        REALISTIC._replace(motor_tau_s=0.02),
-        fidelity,
-        step_s=0.001,
-        euler_rad=(0.3, -0.2, 0.5),
-        rotor_rps=600.0,
-    )
-    plant2.set_perturbations(Perturbations(wind_ned_mps=(2.0, -1.0, 0.0)))
-    plant2.set_motor_commands(cmd)
-    plant2.advance(0.5)
+    plant.set_motor_commands(cmd)
+    plant.advance(0.5)
     ref = solve_ivp(rhs, (0.0, 0.5), x0, method="DOP853", rtol=1e-11, atol=1e-12).y[:, -1]
-    got = plant2.raw_state
+    got = plant.raw_state
     if fidelity == "rigid-body":
         ref[6:10] /= np.linalg.norm(ref[6:10])
     assert np.max(np.abs(got - ref)) < 1e-7

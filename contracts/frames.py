@@ -92,6 +92,6 @@ def body_rates_from_euler_rates(
     return out
 
 
-def altitude_m(z_ned_m: float) -> float:
+def altitude_m(z_ned_m):  # float or array
     """Altitude shown to people: up is positive, NED z is down."""
     return -z_ned_m

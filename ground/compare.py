@@ -14,6 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 from autopilot.identification.ts_model import FuzzyModelSet  # noqa: E402
 from contracts.airframe import airframe_by_name  # noqa: E402
+from contracts.frames import altitude_m  # noqa: E402
 from ground.inprocess import run_inprocess  # noqa: E402
 from ground.metrics import AXES, axis_error, compute_metrics  # noqa: E402
 from ground.paper_tables import PAPER_MSE_BY_SCENARIO  # noqa: E402
@@ -123,11 +124,11 @@ def plot_overlay(records: dict, plant: str, name: str, controllers: list[str],
         first = records[(plant, name, controllers[0])]
         _, meas_index = AXES[axis]
         reference = first.measurement[:, meas_index] + axis_error(first, axis)
-        sign = -1.0 if axis == "z" else 1.0
-        ax.plot(first.time_s, sign * reference, "k--", lw=1.0, label="reference")
+        shown = altitude_m if axis == "z" else (lambda v: v)
+        ax.plot(first.time_s, shown(reference), "k--", lw=1.0, label="reference")
         for i, controller in enumerate(controllers):
             r = records[(plant, name, controller)]
-            ax.plot(r.time_s, sign * r.measurement[:, meas_index], f"C{i}", lw=1.0,
+            ax.plot(r.time_s, shown(r.measurement[:, meas_index]), f"C{i}", lw=1.0,
                     label=controller)
         ax.set_ylabel("altitude" if axis == "z" else axis)
     plots[0].legend(ncol=len(controllers) + 1, fontsize=8, loc="upper right")

@@ -13,6 +13,7 @@ import numpy as np  # noqa: E402
 
 from autopilot.control.cascade import CHANNELS  # noqa: E402
 from autopilot.control.sliding_mode import TEL_ES  # noqa: E402
+from contracts.frames import altitude_m  # noqa: E402
 from ground.inprocess import RunRecord  # noqa: E402
 from ground.metrics import AXES, axis_error  # noqa: E402
 from ground.scenarios import Scenario  # noqa: E402
@@ -36,10 +37,10 @@ def plot_tracking(record: RunRecord, scenario: Scenario, out_dir: Path) -> Path:
         output = record.measurement[:, meas_index]
         error = axis_error(record, axis)
         reference = output + error
-        sign = -1.0 if axis == "z" else 1.0  # show altitude up, as people read it
+        shown = altitude_m if axis == "z" else (lambda v: v)  # altitude up, as people read it
         label = "altitude" if axis == "z" else axis
-        plots[row, 0].plot(t, sign * reference, "k--", lw=1.0, label="reference")
-        plots[row, 0].plot(t, sign * output, "C0", lw=1.2, label=record.controller)
+        plots[row, 0].plot(t, shown(reference), "k--", lw=1.0, label="reference")
+        plots[row, 0].plot(t, shown(output), "C0", lw=1.2, label=record.controller)
         plots[row, 0].set_ylabel(f"{label} [{UNITS[axis]}]")
         plots[row, 1].plot(t, error, "C3", lw=1.0)
         plots[row, 1].set_ylabel(f"e_{axis} [{UNITS[axis]}]")

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from autopilot.control.cascade import SlidingModeCascade
 from autopilot.control.factory import make_controller
 from autopilot.identification.ts_model import FuzzyModelSet
 from contracts.airframe import Airframe, hover_rotor_speed_rps
@@ -55,7 +56,7 @@ def run_inprocess(
                   position_ned_m=(0.0, 0.0, -scenario.reference.altitude_m),
                   rotor_rps=hover_rotor_speed_rps(airframe))
     ctrl = make_controller(controller, airframe, period_s, models, parameters)
-    adaptive = hasattr(ctrl, "theta_f")
+    adaptive = isinstance(ctrl, SlidingModeCascade)
     meas_log = np.zeros((n, 12))
     ref_log = np.zeros((n, 18))
     kick_log = np.zeros((n, 2))

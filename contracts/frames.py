@@ -95,3 +95,29 @@ def body_rates_from_euler_rates(
 def altitude_m(z_ned_m):  # float or array
     """Altitude shown to people: up is positive, NED z is down."""
     return -z_ned_m
+
+
+# Home of the local NED frame, reported to ground tools as the vehicle's home (PX4's
+# default SITL home, Zurich). Positions map to latitude/longitude with a local flat-earth
+# (equirectangular) projection, exact enough for the few kilometres a SITL flies.
+HOME_LAT_DEG = 47.397742
+HOME_LON_DEG = 8.545594
+HOME_ALT_AMSL_M = 488.0
+EARTH_RADIUS_M = 6_378_137.0
+
+
+def geodetic_from_ned(north_m: float, east_m: float, down_m: float) -> tuple[float, float, float]:
+    """(latitude deg, longitude deg, altitude AMSL m) of a local NED position."""
+    lat = HOME_LAT_DEG + math.degrees(north_m / EARTH_RADIUS_M)
+    lon = HOME_LON_DEG + math.degrees(
+        east_m / (EARTH_RADIUS_M * math.cos(math.radians(HOME_LAT_DEG))))
+    return lat, lon, HOME_ALT_AMSL_M - down_m
+
+
+def ned_from_geodetic(lat_deg: float, lon_deg: float, alt_amsl_m: float) -> tuple[float, float,
+                                                                                   float]:
+    """Inverse of :func:`geodetic_from_ned`."""
+    north = math.radians(lat_deg - HOME_LAT_DEG) * EARTH_RADIUS_M
+    east = math.radians(lon_deg - HOME_LON_DEG) * EARTH_RADIUS_M * math.cos(
+        math.radians(HOME_LAT_DEG))
+    return north, east, HOME_ALT_AMSL_M - alt_amsl_m

@@ -8,32 +8,14 @@ import os
 import sys
 import tempfile
 import time
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from autopilot.control.factory import load_models
 from autopilot.control.parameters import PARAMETERS, validate_parameters
 from autopilot.identification.ts_model import FuzzyModelSet
 from contracts.airframe import airframe_by_name
 from ground.scenarios import SCENARIOS, scenario_by_name
-
-DEFAULT_MODEL = "paper.json"
-
-
-def load_models(path: Path | None) -> FuzzyModelSet:
-    """The given model file, or the model shipped with the autopilot."""
-    from autopilot.control.factory import ATTITUDE_CHANNELS
-    from autopilot.identification.model_file import load_model
-
-    if path is None:
-        with resources.as_file(resources.files("autopilot.models") / DEFAULT_MODEL) as shipped:
-            return load_model(shipped)
-    models = load_model(path)
-    missing = [name for name in ATTITUDE_CHANNELS if name not in models.channels]
-    if missing:
-        raise ValueError(f"{path}: the controller needs channel(s) {', '.join(missing)}, "
-                         f"the model has {', '.join(models.channels) or 'none'}")
-    return models
 
 
 def write_json(path: Path, data: Any) -> None:

@@ -15,8 +15,9 @@ from autopilot.control.cascade import SlidingModeCascade
 from autopilot.control.factory import make_controller
 from autopilot.identification.ts_model import FuzzyModelSet
 from contracts.airframe import Airframe, hover_rotor_speed_rps
+from contracts.schedule import Perturbations
 from ground.scenarios import Scenario
-from sitl.plant import Perturbations, Plant
+from sitl.plant import Plant
 
 
 @dataclass

@@ -9,20 +9,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from autopilot.reference import Reference
-from sitl.plant import Perturbations
+from contracts.schedule import Perturbations, Window, kick_at, plant_perturbations_at
 
 ATTITUDE_AXES = ("phi", "theta", "psi", "z")
 POSITION_AXES = ("x", "y", "z", "psi")
-
-
-@dataclass(frozen=True)
-class Window:
-    """A perturbation active for start_s <= t < end_s (plant change and/or reference kick)."""
-
-    start_s: float
-    end_s: float
-    plant: Perturbations | None = None
-    kick_rad: tuple[float, float] = (0.0, 0.0)  # added to (phi_d, theta_d)
 
 
 @dataclass(frozen=True)
@@ -36,13 +26,10 @@ class Scenario:
     windows: tuple[Window, ...] = field(default_factory=tuple)
 
     def plant_perturbations_at(self, t_s: float) -> Perturbations:
-        active = [w.plant for w in self.windows if w.plant and w.start_s <= t_s < w.end_s]
-        return active[-1] if active else Perturbations()
+        return plant_perturbations_at(self.windows, t_s)
 
     def kick_at(self, t_s: float) -> tuple[float, float]:
-        phi = sum(w.kick_rad[0] for w in self.windows if w.start_s <= t_s < w.end_s)
-        theta = sum(w.kick_rad[1] for w in self.windows if w.start_s <= t_s < w.end_s)
-        return phi, theta
+        return kick_at(self.windows, t_s)
 
 
 def _inertia_test(percent: int) -> Scenario:

@@ -147,8 +147,12 @@ def rk4_integrate(
     dist: np.ndarray,
     step_s: float,
     n_steps: int,
+    ground_contact: bool = False,
 ) -> np.ndarray:
-    """Advance ``n_steps`` fixed RK4 steps with the rotor command held (zero-order hold)."""
+    """Advance ``n_steps`` fixed RK4 steps with the rotor command held (zero-order hold).
+
+    With ``ground_contact`` the plane z = 0 (NED) is the ground: see :func:`rest_on_ground`.
+    """
     x = state.copy()
     rotor_at = PAPER_ROTOR if fidelity == FIDELITY_PAPER else RIGID_ROTOR
     for _ in range(n_steps):
@@ -161,4 +165,29 @@ def rk4_integrate(
         x += (step_s / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         if fidelity == FIDELITY_RIGID_BODY:
             x[6:10] /= math.sqrt(x[6] ** 2 + x[7] ** 2 + x[8] ** 2 + x[9] ** 2)
+        if ground_contact and x[2] > 0.0:
+            rest_on_ground(fidelity, x)
     return x
+
+
+@njit(cache=True)
+def rest_on_ground(fidelity: int, x: np.ndarray) -> None:
+    """A vehicle pushed below z = 0 sits level on the ground, at rest, keeping its yaw.
+
+    A contact model for take-off and landing, not for crashes: the plant does not model
+    tip-over or bounce. Thrust above weight lifts it off on the next step.
+    """
+    x[2] = 0.0
+    x[3:6] = 0.0
+    if fidelity == FIDELITY_PAPER:
+        x[6] = 0.0
+        x[7] = 0.0
+        x[9:12] = 0.0
+    else:
+        w, qx, qy, qz = x[6], x[7], x[8], x[9]
+        yaw = math.atan2(2.0 * (w * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+        x[6] = math.cos(0.5 * yaw)
+        x[7] = 0.0
+        x[8] = 0.0
+        x[9] = math.sin(0.5 * yaw)
+        x[10:13] = 0.0

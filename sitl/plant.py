@@ -12,41 +12,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contracts.airframe import Airframe
-from contracts.frames import euler_from_quat, euler_rates_from_body_rates, quat_from_euler
+from contracts.frames import (
+    body_rates_from_euler_rates,
+    euler_from_quat,
+    euler_rates_from_body_rates,
+    quat_from_euler,
+)
+from contracts.schedule import Perturbations
 from sitl import dynamics
 
 MEASUREMENT_SIZE = 12  # position NED, velocity NED, Euler angles, Euler rates
-
-
-@dataclass(frozen=True)
-class Perturbations:
-    """Changes to the plant that tests and the ground station apply (SPEC section 7)."""
-
-    inertia_scale: float = 1.0
-    rotor_inertia_scale: float = 1.0
-    mass_scale: float = 1.0
-    motor_efficiency: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
-    wind_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    force_ned_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    torque_frd_nm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def __post_init__(self) -> None:
-        for name in ("inertia_scale", "rotor_inertia_scale", "mass_scale"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and 0.1 <= value <= 10.0):
-                raise ValueError(f"perturbation {name} must be in [0.1, 10], got {value!r}")
-        _check_vector("motor_efficiency", self.motor_efficiency, 4, 0.0, 1.0)
-        _check_vector("wind_ned_mps", self.wind_ned_mps, 3, -50.0, 50.0)
-        _check_vector("force_ned_n", self.force_ned_n, 3, -1000.0, 1000.0)
-        _check_vector("torque_frd_nm", self.torque_frd_nm, 3, -100.0, 100.0)
-
-
-def _check_vector(name: str, value: tuple, size: int, low: float, high: float) -> None:
-    if len(value) != size:
-        raise ValueError(f"perturbation {name} needs {size} values, got {len(value)}")
-    for v in value:
-        if not (math.isfinite(v) and low <= v <= high):
-            raise ValueError(f"perturbation {name} values must be in [{low}, {high}], got {v!r}")
 
 
 @dataclass
@@ -74,6 +49,7 @@ class Plant:
         position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
         euler_rad: tuple[float, float, float] = (0.0, 0.0, 0.0),
         rotor_rps: float = 0.0,
+        ground_contact: bool = False,
     ) -> None:
         if fidelity not in dynamics.FIDELITIES:
             known = ", ".join(dynamics.FIDELITIES)
@@ -84,6 +60,7 @@ class Plant:
         self.fidelity = fidelity
         self._fidelity_code = dynamics.FIDELITIES[fidelity]
         self.step_s = step_s
+        self.ground_contact = ground_contact
         self.time_s = 0.0
         self._steps_done = 0
         self.perturbations = Perturbations()
@@ -146,6 +123,7 @@ class Plant:
             self._disturbance,
             self.step_s,
             n_steps,
+            self.ground_contact,
         )
         self._steps_done += n_steps
         self.time_s = self._steps_done * self.step_s
@@ -172,7 +150,9 @@ class Plant:
         if self._fidelity_code == dynamics.FIDELITY_PAPER:
             euler = s[6:9].copy()
             euler_rate = s[9:12].copy()
-            body_rate = euler_rate.copy()  # the paper's small-angle model takes them equal
+            # The paper's model integrates Euler rates; report the body rates a gyro would
+            # see, so a receiver that converts them back recovers the same Euler rates.
+            body_rate = body_rates_from_euler_rates(euler[0], euler[1], *euler_rate)
             quat = quat_from_euler(euler[0], euler[1], euler[2])
         else:
             quat = s[6:10].copy()

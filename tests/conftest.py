@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
+from autopilot.control.factory import load_models
 from autopilot.identification.ts_model import FuzzyModelSet
-from ground.commands import load_models
 
 
 @pytest.fixture(scope="session")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from ground.commands import load_models
+from autopilot.control.factory import load_models
 
 
 def ivfm(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
@@ -41,7 +41,7 @@ def test_run_writes_metrics_and_figures(tmp_path: Path) -> None:
         (["run", "no-such-scenario"], "unknown scenario 'no-such-scenario'"),
         (["run", "attitude-sine", "--param", "ATT_LAM=nan"], "ATT_LAM"),
         (["run", "attitude-sine", "--param", "ATT_LAM=inf"], "ATT_LAM"),
-        (["run", "attitude-sine", "--param", "NOPE=1"], "unknown controller parameter 'NOPE'"),
+        (["run", "attitude-sine", "--param", "NOPE=1"], "unknown parameter 'NOPE'"),
         (["run", "attitude-sine", "--param", "ATT_LAM=-3"], "ATT_LAM"),
         (["run", "attitude-sine", "--controller", "lqr"], "invalid choice: 'lqr'"),
         (["run", "attitude-sine", "--plant", "toy"], "invalid choice: 'toy'"),

@@ -16,8 +16,9 @@ from contracts.frames import (
     quat_from_euler,
     rotation_from_quat,
 )
+from contracts.schedule import Perturbations
 from sitl import dynamics
-from sitl.plant import Perturbations, Plant
+from sitl.plant import Plant
 
 FIDELITIES = ("paper", "rigid-body")
 

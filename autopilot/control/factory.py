@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from importlib import resources
+from pathlib import Path
+
 import numpy as np
 
 from autopilot.control.cascade import (
@@ -67,3 +70,21 @@ def make_controller(
         raise ValueError(f"controller {kind} needs an identified fuzzy model")
     return SlidingModeCascade(attitude_model_from_fuzzy(models, kind, airframe), airframe,
                               period_s, parameters, adaptive=True)
+
+
+SHIPPED_MODEL = "paper.json"
+
+
+def load_models(path: Path | None) -> FuzzyModelSet:
+    """The given model file, or the model shipped with the autopilot."""
+    from autopilot.identification.model_file import load_model
+
+    if path is None:
+        with resources.as_file(resources.files("autopilot.models") / SHIPPED_MODEL) as shipped:
+            return load_model(shipped)
+    models = load_model(path)
+    missing = [name for name in ATTITUDE_CHANNELS if name not in models.channels]
+    if missing:
+        raise ValueError(f"{path}: the controller needs channel(s) {', '.join(missing)}, "
+                         f"the model has {', '.join(models.channels) or 'none'}")
+    return models

@@ -1,5 +1,8 @@
-"""The controller's named parameters: one table, used by the code, the CLI and (later)
-the MAVLink parameter protocol. Names fit MAVLink's 16-character param_id.
+"""The autopilot's named parameters: one table, used by the code, the CLI and the MAVLink
+parameter protocol (all REAL32). Names fit MAVLink's 16-character param_id.
+
+Controller gains first, then the vehicle's own (take-off, landing, failsafes) under
+PX4's names where PX4 has one.
 
 Sliding-mode groups: ATT (roll and pitch), YAW, ALT (altitude), POS (x and y). Each has
 LAM (surface slope lambda, 1/s), GAM (reaching gain gamma, 1/s), EPS (boundary layer),
@@ -22,6 +25,7 @@ class ParamSpec:
     maximum: float
     unit: str
     description: str
+    choices: tuple[float, ...] = ()  # allowed values of an enumeration, () = any in range
 
 
 _SMC_GAINS = {
@@ -71,6 +75,18 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("PID_Z_P", 1.0, 0.0, 20.0, "1/s", "altitude P"),
     ParamSpec("PID_Z_VEL_P", 4.0, 0.0, 50.0, "1/s", "vertical velocity P"),
     ParamSpec("PID_Z_VEL_I", 2.0, 0.0, 50.0, "1/s^2", "vertical velocity I"),
+    # The vehicle (docs/mavlink.md): take-off, landing and failsafes.
+    ParamSpec("MIS_TAKEOFF_ALT", 2.5, 0.5, 100.0, "m", "take-off altitude when none is given"),
+    ParamSpec("MPC_TKO_SPEED", 1.0, 0.1, 5.0, "m/s", "climb speed of take-off"),
+    ParamSpec("MPC_LAND_SPEED", 0.7, 0.1, 3.0, "m/s", "descent speed of landing"),
+    ParamSpec("COM_DISARM_LAND", 1.0, 0.0, 20.0, "s", "disarm this long after touchdown"),
+    ParamSpec("COM_DL_LOSS_T", 10.0, 1.0, 300.0, "s", "ground-station heartbeat loss timeout"),
+    ParamSpec("NAV_DLL_ACT", 1.0, 0.0, 3.0, "", "on GCS loss: 0 none, 1 hold, 3 land",
+              choices=(0.0, 1.0, 3.0)),
+    ParamSpec("COM_OF_LOSS_T", 1.0, 0.1, 60.0, "s", "offboard setpoint loss timeout"),
+    ParamSpec("COM_OBL_ACT", 1.0, 0.0, 1.0, "", "on setpoint loss: 0 land, 1 hold",
+              choices=(0.0, 1.0)),
+    ParamSpec("COM_SIM_LOSS_T", 0.5, 0.05, 60.0, "s", "simulator link loss timeout (-> land)"),
 )
 PARAMETER_SPECS: dict[str, ParamSpec] = {spec.name: spec for spec in PARAMETERS}
 assert all(len(name) <= 16 for name in PARAMETER_SPECS)
@@ -86,18 +102,21 @@ def validate_parameters(overrides: dict[str, float]) -> dict[str, float]:
     for name, value in overrides.items():
         spec = PARAMETER_SPECS.get(name)
         if spec is None:
-            raise ValueError(f"unknown controller parameter {name!r}")
+            raise ValueError(f"unknown parameter {name!r}")
         try:
             number = float(value)
         except (TypeError, ValueError):
             raise ValueError(
-                f"controller parameter {name} must be a number, got {value!r}"
+                f"parameter {name} must be a number, got {value!r}"
             ) from None
         if not math.isfinite(number) or not spec.minimum <= number <= spec.maximum:
             raise ValueError(
-                f"controller parameter {name} must be finite and in "
+                f"parameter {name} must be finite and in "
                 f"[{spec.minimum}, {spec.maximum}], got {value!r}"
             )
+        if spec.choices and number not in spec.choices:
+            raise ValueError(f"parameter {name} must be one of "
+                             f"{', '.join(f'{c:g}' for c in spec.choices)}, got {value!r}")
         params[name] = number
     return params
 

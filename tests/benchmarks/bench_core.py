@@ -17,10 +17,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from autopilot.control.factory import make_controller  # noqa: E402
+from autopilot.control.factory import (
+    load_models,  # noqa: E402
+    make_controller,  # noqa: E402
+)
 from autopilot.identification.identify import identify_dataset  # noqa: E402
 from contracts.airframe import PAPER, hover_rotor_speed_rps  # noqa: E402
-from ground.commands import load_models  # noqa: E402
 from ground.excitation import excitation_dataset  # noqa: E402
 from ground.inprocess import run_inprocess  # noqa: E402
 from ground.scenarios import SCENARIOS  # noqa: E402

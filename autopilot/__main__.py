@@ -1,0 +1,132 @@
+"""``python -m autopilot`` / ``ivfm autopilot``: the autopilot process."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from contracts.mavlink import (
+    API_LOCAL_PORT,
+    API_UDP_PORT,
+    FLAVOURS,
+    GCS_LOCAL_PORT,
+    GCS_UDP_PORT,
+    SIM_TCP_PORT,
+)
+
+
+def _param(text: str) -> tuple[str, float]:
+    name, sep, value = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+    try:
+        return name.strip(), float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{name}: {value!r} is not a number") from None
+
+
+def _address(text: str) -> tuple[str, int] | None:
+    if text.lower() == "none":
+        return None
+    host, _, port = text.rpartition(":")
+    try:
+        return host or "127.0.0.1", int(port)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT or none, got {text!r}") from None
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    from autopilot.control.factory import CONTROLLERS
+    from autopilot.process import STATE_SOURCES
+    from autopilot.reference import REFERENCE_KINDS
+    from contracts.airframe import AIRFRAMES
+
+    p = parser or argparse.ArgumentParser(prog="python -m autopilot", description=__doc__)
+    p.add_argument("--sim", type=_address, default=("127.0.0.1", SIM_TCP_PORT),
+                   metavar="HOST:PORT", help="the simulator's TCP address")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--lockstep", dest="lockstep", action="store_true", default=True,
+                      help="answer every simulator sample (default)")
+    mode.add_argument("--realtime", dest="lockstep", action="store_false",
+                      help="run on a wall-clock timer")
+    p.add_argument("--rate-hz", type=float, default=100.0, help="control rate")
+    p.add_argument("--state-source", default="odometry", choices=list(STATE_SOURCES))
+    p.add_argument("--controller", default="ivfc", choices=CONTROLLERS)
+    p.add_argument("--airframe", default="paper", choices=sorted(AIRFRAMES))
+    p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")
+    p.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE")
+    p.add_argument("--flavour", default="px4", choices=FLAVOURS,
+                   help="how the vehicle presents itself to ground tools")
+    p.add_argument("--gcs", type=_address, default=("127.0.0.1", GCS_UDP_PORT),
+                   metavar="HOST:PORT", help="ground-station link target (or none)")
+    p.add_argument("--gcs-bind", type=int, default=GCS_LOCAL_PORT, metavar="PORT",
+                   help="the ground-station link's own UDP port (0: any)")
+    p.add_argument("--api", type=_address, default=("127.0.0.1", API_UDP_PORT),
+                   metavar="HOST:PORT", help="offboard-API link target (or none)")
+    p.add_argument("--api-bind", type=int, default=API_LOCAL_PORT, metavar="PORT")
+    p.add_argument("--signing-key", metavar="HEX",
+                   help="MAVLink 2 signing: 64 hex digits (32 bytes); unsigned commands are "
+                        "then ignored")
+    p.add_argument("--reference", choices=REFERENCE_KINDS,
+                   help="offer the onboard reference generator of a paper scenario")
+    p.add_argument("--altitude", type=float, default=1.0, help="reference altitude [m]")
+    p.add_argument("--schedule", type=Path, help="reference kicks (schedule JSON, sim time)")
+    p.add_argument("--arm-in-reference", action="store_true",
+                   help="scenario runs: armed in REFERENCE mode from the first sample")
+    p.add_argument("--duration", type=float, default=float("inf"), metavar="S",
+                   help="stop after this much sim time of control")
+    p.add_argument("--record", type=Path, help="write the per-step arrays (npz) on exit")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from autopilot.control.factory import load_models, make_controller
+    from autopilot.control.parameters import validate_parameters
+    from autopilot.ground_link import GroundStation, open_link
+    from autopilot.process import Autopilot, AutopilotConfig
+    from autopilot.reference import Reference
+    from autopilot.vehicle import Vehicle
+    from contracts.airframe import airframe_by_name
+    from contracts.schedule import load_schedule
+
+    config = AutopilotConfig(sim_host=args.sim[0], sim_port=args.sim[1], lockstep=args.lockstep,
+                             rate_hz=args.rate_hz, state_source=args.state_source,
+                             duration_s=args.duration, record_path=args.record)
+    airframe = airframe_by_name(args.airframe)
+    parameters = validate_parameters(dict(args.param))
+    models = load_models(args.model) if args.controller in ("ivfc", "t1fc") else None
+    period_s = 1.0 / args.rate_hz
+    reference = Reference(args.reference, altitude_m=args.altitude) if args.reference else None
+    if args.arm_in_reference and reference is None:
+        raise ValueError("--arm-in-reference needs --reference")
+    key = None
+    if args.signing_key is not None:
+        try:
+            key = bytes.fromhex(args.signing_key)
+        except ValueError:
+            key = b""
+        if len(key) != 32:
+            raise ValueError("--signing-key must be 64 hex digits (32 bytes)")
+    vehicle = Vehicle(lambda p: make_controller(args.controller, airframe, period_s, models, p),
+                      period_s, parameters, reference,
+                      load_schedule(args.schedule) if args.schedule else (), args.flavour)
+    links = [open_link("gcs", ("0.0.0.0", args.gcs_bind), args.gcs, key, 0)]
+    if args.api is not None or args.api_bind:
+        links.append(open_link("api", ("0.0.0.0", args.api_bind), args.api, key, 1))
+    ground = GroundStation(vehicle, links, args.flavour)
+    return Autopilot(config, vehicle, ground, arm_in_reference=args.arm_in_reference).run()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return run(args)
+    except (ValueError, OSError) as exc:
+        print(f"autopilot: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

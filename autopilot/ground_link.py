@@ -1,0 +1,499 @@
+"""The autopilot as a MAVLink vehicle for ground tools, on UDP (SPEC section 7).
+
+Two links as PX4 SITL has them: one to a ground station (sends to 14550) and one to an
+offboard API (sends to 14540); each also answers whoever talks to it. This module maps
+MAVLink to :class:`autopilot.vehicle.Vehicle` calls and the vehicle's state to
+telemetry. Telemetry rates run on the link clock (wall time): they serve people and
+tools, not the control loop.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import socket
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from autopilot.control.parameters import PARAMETER_SPECS, PARAMETERS
+from autopilot.vehicle import RefusedError, Vehicle
+from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, geodetic_from_ned
+from contracts.frames import quat_from_euler as _quat_from_euler
+from contracts.mavlink import (
+    AUTOPILOT_COMPID,
+    AUTOPILOT_SYSID,
+    FlightMode,
+    custom_mode,
+    mavlink,
+    mode_from_custom,
+)
+
+FORCE_DISARM_MAGIC = 21196
+PARAM_COUNT = len(PARAMETERS)
+PARAM_INDEX = {spec.name: i for i, spec in enumerate(PARAMETERS)}
+FIRMWARE_VERSION = (0 << 24) | (3 << 16) | (0 << 8) | 0xFF  # 0.3.0 release
+
+# Position-target type_mask bits (MAVLink POSITION_TARGET_TYPEMASK).
+POS_IGNORE = 0b111
+VEL_IGNORE = 0b111 << 3
+ACC_IGNORE = 0b111 << 6
+FORCE_SET = 1 << 9
+YAW_IGNORE = 1 << 10
+# Attitude-target type_mask bits (ATTITUDE_TARGET_TYPEMASK).
+BODY_RATES_IGNORE = 0b111
+THRUST_IGNORE = 1 << 6
+ATTITUDE_IGNORE = 1 << 7
+
+SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+           | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+           | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+           | mavlink.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+           | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_AHRS)
+PREARM = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+
+# Telemetry every link streams, message id -> default interval [s].
+DEFAULT_STREAMS: dict[int, float] = {
+    mavlink.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 0.05,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 0.05,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 0.05,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.1,
+    mavlink.MAVLINK_MSG_ID_HOME_POSITION: 5.0,
+    mavlink.MAVLINK_MSG_ID_VFR_HUD: 0.25,
+}
+# What REQUEST_MESSAGE and SET_MESSAGE_INTERVAL can have, beyond the streams.
+PRODUCIBLE = set(DEFAULT_STREAMS) | {mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION}
+
+
+@dataclass
+class Peer:
+    address: tuple[str, int]
+    heard_s: float
+
+
+@dataclass
+class GroundLink:
+    """One UDP socket: its parser/encoder (sequence, signing) and who listens."""
+
+    name: str
+    sock: socket.socket
+    default_remote: tuple[str, int] | None
+    mav: mavlink.MAVLink
+    intervals_s: dict[int, float] = field(default_factory=lambda: dict(DEFAULT_STREAMS))
+    next_due_s: dict[int, float] = field(default_factory=dict)
+    peers: dict[tuple[str, int], Peer] = field(default_factory=dict)
+    rejected: int = 0
+
+    def targets(self) -> list[tuple[str, int]]:
+        out = list(self.peers)
+        if self.default_remote is not None and self.default_remote not in self.peers:
+            out.append(self.default_remote)
+        return out
+
+
+def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
+              signing_key: bytes | None, link_id: int) -> GroundLink:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    sock.bind(bind)
+    sock.setblocking(False)
+    mav = mavlink.MAVLink(None, srcSystem=AUTOPILOT_SYSID, srcComponent=AUTOPILOT_COMPID)
+    if signing_key is not None:
+        mav.signing.secret_key = signing_key
+        mav.signing.link_id = link_id
+        mav.signing.sign_outgoing = True
+        # MAVLink's signing clock: 10 us units since 2015-01-01.
+        mav.signing.timestamp = int((time.time() - 1420070400) * 100000)
+        mav.signing.allow_unsigned_callback = None
+    return GroundLink(name, sock, remote, mav)
+
+
+class GroundStation:
+    """Serves every ground link: commands, parameters, setpoints, telemetry."""
+
+    def __init__(self, vehicle: Vehicle, links: list[GroundLink], flavour: str = "px4",
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.vehicle = vehicle
+        self.links = links
+        self.flavour = flavour
+        self.clock = clock
+        self.boot_s = clock()
+        self.mav_autopilot = (mavlink.MAV_AUTOPILOT_PX4 if flavour == "px4"
+                              else mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)
+        self.commands_handled = 0
+
+    # -- receiving -----------------------------------------------------------------------
+    def receive(self, link: GroundLink) -> None:
+        """Read and handle every datagram waiting on the link."""
+        while True:
+            try:
+                data, address = link.sock.recvfrom(65535)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:  # ICMP port unreachable from a tool that went away
+                continue
+            try:
+                msgs = link.mav.parse_buffer(data) or []
+            except mavlink.MAVError:
+                link.rejected += 1
+                continue
+            now = self.clock()
+            for msg in msgs:
+                if msg.get_type() == "BAD_DATA":  # includes unsigned / wrongly signed
+                    link.rejected += 1
+                    continue
+                link.peers[address] = Peer(address, now)
+                self.handle(link, address, msg, now)
+
+    def _for_us(self, msg) -> bool:
+        target = getattr(msg, "target_system", 0)
+        return target in (0, AUTOPILOT_SYSID)
+
+    def handle(self, link: GroundLink, address, msg, now: float) -> None:
+        kind = msg.get_type()
+        handler = getattr(self, f"_on_{kind.lower()}", None)
+        if handler is None or not self._for_us(msg):
+            return
+        handler(link, address, msg, now)
+
+    def _send(self, link: GroundLink, msg, address=None) -> None:
+        data = msg.pack(link.mav)
+        for target in [address] if address is not None else link.targets():
+            with contextlib.suppress(OSError):  # nobody listening there (yet)
+                link.sock.sendto(data, target)
+
+    def broadcast(self, msg_factory: Callable[[], object]) -> None:
+        for link in self.links:
+            self._send(link, msg_factory())
+
+    # -- handlers ------------------------------------------------------------------------
+    def _on_heartbeat(self, link, address, msg, now) -> None:
+        if msg.type == mavlink.MAV_TYPE_GCS or msg.get_srcComponent() == \
+                mavlink.MAV_COMP_ID_MISSIONPLANNER:
+            self.vehicle.gcs_heartbeat(now)
+
+    def _ack(self, link, address, msg, command: int, result: int, text: str | None = None):
+        self._send(link, mavlink.MAVLink_command_ack_message(
+            command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()), address)
+        if text:
+            severity = 6 if result == mavlink.MAV_RESULT_ACCEPTED else 4
+            self._send(link, mavlink.MAVLink_statustext_message(severity, text.encode()[:50]),
+                       address)
+
+    def _on_command_long(self, link, address, msg, now) -> None:
+        params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6,
+                  msg.param7]
+        self._command(link, address, msg, msg.command, params, now)
+
+    def _on_command_int(self, link, address, msg, now) -> None:
+        params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.x * 1e-7, msg.y * 1e-7,
+                  msg.z]
+        self._command(link, address, msg, msg.command, params, now)
+
+    def _command(self, link, address, msg, command: int, params: list[float], now: float):
+        self.commands_handled += 1
+        handler = COMMANDS.get(command)
+        if handler is None:
+            self._ack(link, address, msg, command, mavlink.MAV_RESULT_UNSUPPORTED)
+            return
+        try:
+            text = handler(self, link, address, params, now)
+        except RefusedError as exc:
+            result = (mavlink.MAV_RESULT_TEMPORARILY_REJECTED if exc.temporary
+                      else mavlink.MAV_RESULT_DENIED)
+            self._ack(link, address, msg, command, result, str(exc))
+            return
+        self._ack(link, address, msg, command, mavlink.MAV_RESULT_ACCEPTED)
+        if isinstance(text, list):  # messages to send after the ACK
+            for reply in text:
+                self._send(link, reply, address)
+
+    def _on_set_mode(self, link, address, msg, now) -> None:
+        # Deprecated but sent by older tools (MAVProxy for ArduPilot); acknowledged as
+        # DO_SET_MODE, as ArduPilot does.
+        self._command(link, address, msg, mavlink.MAV_CMD_DO_SET_MODE,
+                      [float(msg.base_mode), float(msg.custom_mode), 0.0, 0, 0, 0, 0], now)
+
+    def _on_param_request_list(self, link, address, msg, now) -> None:
+        for spec in PARAMETERS:
+            self._send(link, self._param_value(spec.name), address)
+
+    def _on_param_request_read(self, link, address, msg, now) -> None:
+        name = msg.param_id.rstrip("\x00") if msg.param_index < 0 else (
+            PARAMETERS[msg.param_index].name if msg.param_index < PARAM_COUNT else "")
+        if name not in PARAM_INDEX:
+            self._send(link, mavlink.MAVLink_statustext_message(
+                4, f"unknown parameter {name or msg.param_index}".encode()[:50]), address)
+            return
+        self._send(link, self._param_value(name), address)
+
+    def _on_param_set(self, link, address, msg, now) -> None:
+        name = msg.param_id.rstrip("\x00")
+        if name in PARAM_INDEX:
+            try:
+                self.vehicle.set_parameter(name, msg.param_value)
+            except RefusedError as exc:
+                self._send(link, mavlink.MAVLink_statustext_message(
+                    4, f"{name}: {exc}".encode()[:50]), address)
+            # PARAM_VALUE either way: the tool learns the value in force.
+            value = self._param_value(name)
+            for target_link in self.links:
+                self._send(target_link, value)
+        else:
+            self._send(link, mavlink.MAVLink_statustext_message(
+                4, f"unknown parameter {name}".encode()[:50]), address)
+
+    def _param_value(self, name: str):
+        return mavlink.MAVLink_param_value_message(
+            name.encode(), float(self.vehicle.parameters[name]), mavlink.MAV_PARAM_TYPE_REAL32,
+            PARAM_COUNT, PARAM_INDEX[name])
+
+    def _on_file_transfer_protocol(self, link, address, msg, now) -> None:
+        # No MAVLink FTP: a NAK (opcode 129, error 4 "Unsupported") so tools fall back to
+        # the parameter protocol at once.
+        payload = bytes(msg.payload)
+        seq = payload[0:2]
+        nak = bytearray(251)
+        nak[0:2] = seq
+        nak[3] = 129
+        nak[4] = 1  # data size
+        nak[5] = payload[3] if len(payload) > 3 else 0  # req_opcode
+        nak[12] = 4
+        self._send(link, mavlink.MAVLink_file_transfer_protocol_message(
+            0, msg.get_srcSystem(), msg.get_srcComponent(), list(nak)), address)
+
+    def _on_mission_request_list(self, link, address, msg, now) -> None:
+        self._send(link, mavlink.MAVLink_mission_count_message(
+            msg.get_srcSystem(), msg.get_srcComponent(), 0, getattr(msg, "mission_type", 0)),
+            address)
+
+    def _on_ping(self, link, address, msg, now) -> None:
+        if msg.target_system == 0:
+            self._send(link, mavlink.MAVLink_ping_message(
+                msg.time_usec, msg.seq, msg.get_srcSystem(), msg.get_srcComponent()), address)
+
+    def _on_timesync(self, link, address, msg, now) -> None:
+        if msg.tc1 == 0:
+            self._send(link, mavlink.MAVLink_timesync_message(
+                int((now - self.boot_s) * 1e9), msg.ts1), address)
+
+    def _on_set_position_target_local_ned(self, link, address, msg, now) -> None:
+        mask = msg.type_mask
+        try:
+            if msg.coordinate_frame != mavlink.MAV_FRAME_LOCAL_NED:
+                raise RefusedError(f"setpoint frame {msg.coordinate_frame} refused: only "
+                              "MAV_FRAME_LOCAL_NED (1)")
+            if mask & FORCE_SET:
+                raise RefusedError("force setpoints are not supported")
+            self.vehicle.position_setpoint(
+                now,
+                None if mask & POS_IGNORE == POS_IGNORE else (msg.x, msg.y, msg.z),
+                None if mask & VEL_IGNORE == VEL_IGNORE else (msg.vx, msg.vy, msg.vz),
+                None if mask & ACC_IGNORE == ACC_IGNORE else (msg.afx, msg.afy, msg.afz),
+                None if mask & YAW_IGNORE else msg.yaw)
+        except RefusedError as exc:
+            self._refuse_setpoint(link, address, str(exc))
+
+    def _on_set_attitude_target(self, link, address, msg, now) -> None:
+        mask = msg.type_mask
+        try:
+            if mask & BODY_RATES_IGNORE != BODY_RATES_IGNORE:
+                raise RefusedError("body-rate setpoints are not supported")
+            self.vehicle.attitude_setpoint(
+                now, None if mask & ATTITUDE_IGNORE else tuple(msg.q),
+                None if mask & THRUST_IGNORE else msg.thrust)
+        except RefusedError as exc:
+            self._refuse_setpoint(link, address, str(exc))
+
+    def _refuse_setpoint(self, link, address, text: str) -> None:
+        # Setpoints stream (20 Hz+): one STATUSTEXT per second at most.
+        now = self.clock()
+        if now - getattr(self, "_last_refusal_s", -math.inf) >= 1.0:
+            self._last_refusal_s = now
+            self._send(link, mavlink.MAVLink_statustext_message(
+                4, f"setpoint refused: {text}".encode()[:50]), address)
+
+    # -- commands ------------------------------------------------------------------------
+    def _cmd_arm(self, link, address, p, now):
+        if p[0] == 1.0:
+            self.vehicle.arm(now)
+        elif p[0] == 0.0:
+            self.vehicle.disarm(force=p[1] == FORCE_DISARM_MAGIC)
+        else:
+            raise RefusedError(f"arm param1 must be 0 or 1, got {p[0]:g}")
+
+    def _cmd_takeoff(self, link, address, p, now):
+        altitude = p[6]
+        if math.isnan(altitude):
+            relative = None
+        elif self.flavour == "px4":
+            relative = altitude - HOME_ALT_AMSL_M  # PX4 reads param7 as AMSL
+        else:
+            relative = altitude  # ArduPilot reads it above home
+        self.vehicle.takeoff(relative)
+
+    def _cmd_land(self, link, address, p, now):
+        self.vehicle.land()
+
+    def _cmd_set_mode(self, link, address, p, now):
+        base, main, sub = p[0], p[1], p[2]
+        if not all(math.isfinite(v) for v in (base, main, sub)):
+            raise RefusedError("mode parameters must be finite")
+        if not int(base) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            raise RefusedError("only custom modes are supported")
+        number = int(main) if self.flavour == "ardupilot" else (int(main) << 16) | (int(sub)
+                                                                                   << 24)
+        if self.flavour == "px4" and main > 255:  # SET_MODE carries the packed form
+            number = int(main)
+        mode = mode_from_custom(self.flavour, number)
+        if mode is None:
+            raise RefusedError(f"unknown mode {main:g}/{sub:g}")
+        self.vehicle.set_mode(mode, now)
+
+    def _cmd_request_message(self, link, address, p, now):
+        return [self._message_by_id(int(p[0]))]
+
+    def _cmd_autopilot_capabilities(self, link, address, p, now):
+        return [self._autopilot_version()]
+
+    def _cmd_home(self, link, address, p, now):
+        return [self._home_position()]
+
+    def _cmd_message_interval(self, link, address, p, now):
+        msg_id, interval_us = int(p[0]), p[1]
+        if msg_id not in PRODUCIBLE:
+            raise RefusedError(f"message {msg_id} is not produced")
+        if not math.isfinite(interval_us):
+            raise RefusedError("interval must be finite")
+        if interval_us == -1:
+            link.intervals_s.pop(msg_id, None)
+        elif interval_us == 0:
+            link.intervals_s[msg_id] = DEFAULT_STREAMS.get(msg_id, 1.0)
+        elif interval_us > 0:
+            link.intervals_s[msg_id] = max(interval_us * 1e-6, 0.005)
+        else:
+            raise RefusedError(f"interval {interval_us:g} us is invalid")
+        link.next_due_s.pop(msg_id, None)
+
+    def _message_by_id(self, msg_id: int):
+        factory = {
+            mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION: self._autopilot_version,
+            mavlink.MAVLINK_MSG_ID_HOME_POSITION: self._home_position,
+        }.get(msg_id)
+        if factory is None and msg_id in DEFAULT_STREAMS:
+            factory = lambda: self._telemetry(msg_id)  # noqa: E731
+        if factory is None:
+            raise RefusedError(f"message {msg_id} is not produced")
+        return factory()
+
+    # -- telemetry -----------------------------------------------------------------------
+    def service(self) -> None:
+        """Send what is due and queued; check the link failsafes."""
+        now = self.clock()
+        self.vehicle.check_links(now)
+        while self.vehicle.messages:
+            severity, text = self.vehicle.messages.pop(0)
+            self.broadcast(lambda s=severity, t=text: mavlink.MAVLink_statustext_message(
+                s, t.encode()))
+        for link in self.links:
+            for peer in [a for a, p in link.peers.items() if now - p.heard_s > 10.0]:
+                del link.peers[peer]
+            for msg_id, interval in link.intervals_s.items():
+                due = link.next_due_s.get(msg_id, now)
+                if now >= due:
+                    self._send(link, self._telemetry(msg_id))
+                    link.next_due_s[msg_id] = max(due + interval, now)
+
+    def _telemetry(self, msg_id: int):
+        v = self.vehicle
+        m = v.measurement if v.measurement is not None else np.zeros(12)
+        boot_ms = int((self.clock() - self.boot_s) * 1000) & 0xFFFFFFFF
+        if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | \
+                mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+            if v.armed:
+                base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+            status = (mavlink.MAV_STATE_CRITICAL if v.failsafe and v.armed else
+                      mavlink.MAV_STATE_ACTIVE if v.armed else mavlink.MAV_STATE_STANDBY)
+            return mavlink.MAVLink_heartbeat_message(
+                mavlink.MAV_TYPE_QUADROTOR, self.mav_autopilot, base,
+                custom_mode(self.flavour, v.mode), status, 3)
+        if msg_id == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
+            health = SENSORS if v.sim_link_ok else 0
+            if v.sim_link_ok and (v.armed or v.landed):
+                health |= PREARM
+            return mavlink.MAVLink_sys_status_message(
+                SENSORS | PREARM, SENSORS | PREARM, health, 0, 12000, -1, -1, 0, 0, 0, 0, 0, 0)
+        if msg_id == mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
+            return mavlink.MAVLink_extended_sys_state_message(
+                mavlink.MAV_VTOL_STATE_MC, self._landed_state())
+        if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE:
+            return mavlink.MAVLink_attitude_message(boot_ms, *m[6:9], *m[9:12])
+        if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION:
+            q = _quat_from_euler(m[6], m[7], m[8])
+            return mavlink.MAVLink_attitude_quaternion_message(boot_ms, *q, *m[9:12],
+                                                               [0.0, 0.0, 0.0, 0.0])
+        if msg_id == mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+            return mavlink.MAVLink_local_position_ned_message(boot_ms, *m[0:6])
+        if msg_id == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            lat, lon, alt = geodetic_from_ned(*m[0:3])
+            heading = int(math.degrees(m[8]) % 360.0 * 100) % 36000
+            return mavlink.MAVLink_global_position_int_message(
+                boot_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),
+                int(round(-m[2] * 1000)), *(int(np.clip(round(c * 100), -32768, 32767))
+                                            for c in m[3:6]), heading)
+        if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
+            return self._home_position()
+        if msg_id == mavlink.MAVLINK_MSG_ID_VFR_HUD:
+            speed = float(np.hypot(m[3], m[4]))
+            heading = int(math.degrees(m[8]) % 360.0)
+            throttle = int(round(100 * float(np.mean(v.last_commands))))
+            return mavlink.MAVLink_vfr_hud_message(speed, speed, heading, throttle,
+                                                   HOME_ALT_AMSL_M - m[2], -m[5])
+        raise ValueError(f"no telemetry for message {msg_id}")
+
+    def _landed_state(self) -> int:
+        v = self.vehicle
+        if not v.armed or v.landed:
+            return mavlink.MAV_LANDED_STATE_ON_GROUND
+        if v.mode == FlightMode.LAND:
+            return mavlink.MAV_LANDED_STATE_LANDING
+        if v.takeoff_altitude_m is not None:
+            return mavlink.MAV_LANDED_STATE_TAKEOFF
+        return mavlink.MAV_LANDED_STATE_IN_AIR
+
+    def _home_position(self):
+        return mavlink.MAVLink_home_position_message(
+            int(HOME_LAT_DEG * 1e7), int(HOME_LON_DEG * 1e7), int(HOME_ALT_AMSL_M * 1000),
+            0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
+
+    def _autopilot_version(self):
+        caps = (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+                | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+                | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+                | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+                | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
+        return mavlink.MAVLink_autopilot_version_message(
+            caps, FIRMWARE_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1, [0] * 18)
+
+
+COMMANDS: dict[int, Callable] = {
+    mavlink.MAV_CMD_COMPONENT_ARM_DISARM: GroundStation._cmd_arm,
+    mavlink.MAV_CMD_NAV_TAKEOFF: GroundStation._cmd_takeoff,
+    mavlink.MAV_CMD_NAV_LAND: GroundStation._cmd_land,
+    mavlink.MAV_CMD_DO_SET_MODE: GroundStation._cmd_set_mode,
+    mavlink.MAV_CMD_REQUEST_MESSAGE: GroundStation._cmd_request_message,
+    mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: GroundStation._cmd_autopilot_capabilities,
+    mavlink.MAV_CMD_GET_HOME_POSITION: GroundStation._cmd_home,
+    mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: GroundStation._cmd_message_interval,
+}
+
+assert set(PARAMETER_SPECS) == set(PARAM_INDEX)

@@ -1,0 +1,357 @@
+"""The autopilot process: the simulator link, the fixed-rate control loop, ground links.
+
+* lockstep: each simulator sample (the state message that closes it) runs the control
+  step when its sim time reaches the next control deadline, then the actuator message
+  answers that sample with the lockstep flag set.
+* real time: a wall-clock timer at the control rate uses the newest sample; loop
+  period, compute time, jitter and deadline misses are measured.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import selectors
+import signal
+import socket
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from autopilot.ground_link import GroundStation
+from autopilot.vehicle import Vehicle
+from contracts.mavlink import (
+    AUTOPILOT_COMPID,
+    AUTOPILOT_SYSID,
+    LinkDataError,
+    actuator_message,
+    mavlink,
+    measurement_from_hil_state,
+    measurement_from_odometry,
+)
+
+STATE_SOURCES = {"odometry": "ODOMETRY", "hil-state": "HIL_STATE_QUATERNION"}
+RECONNECT_S = 0.5
+SPIN_S = 0.0003  # the last stretch before a real-time deadline is busy-waited
+
+
+@dataclass
+class AutopilotConfig:
+    sim_host: str = "127.0.0.1"
+    sim_port: int = 4560
+    lockstep: bool = True
+    rate_hz: float = 100.0
+    state_source: str = "odometry"
+    duration_s: float = math.inf  # stop after this much sim time of control
+    record_path: Path | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.rate_hz) and 1.0 <= self.rate_hz <= 1000.0):
+            raise ValueError(f"control rate must be in [1, 1000] Hz, got {self.rate_hz!r}")
+        if abs(1e6 / self.rate_hz - round(1e6 / self.rate_hz)) > 1e-6:
+            raise ValueError(f"rate {self.rate_hz} Hz does not give a whole microsecond period")
+        if self.state_source not in STATE_SOURCES:
+            raise ValueError(f"unknown state source {self.state_source!r}; known: "
+                             f"{', '.join(STATE_SOURCES)}")
+
+
+@dataclass
+class Timing:
+    """Real-time loop statistics (seconds)."""
+
+    period_s: float
+    periods: list[float] = field(default_factory=list)  # between consecutive control steps
+    compute: list[float] = field(default_factory=list)
+    misses: int = 0
+
+    def summary(self) -> dict[str, float | int]:
+        if len(self.periods) < 2:
+            return {"steps": len(self.compute), "deadline_misses": self.misses}
+        periods = np.array(self.periods)
+        jitter = np.abs(periods - self.period_s)
+        compute = np.array(self.compute)
+        return {
+            "steps": len(self.compute),
+            "nominal_period_ms": self.period_s * 1e3,
+            "period_mean_ms": float(np.mean(periods)) * 1e3,
+            "jitter_p50_ms": float(np.percentile(jitter, 50)) * 1e3,
+            "jitter_p99_ms": float(np.percentile(jitter, 99)) * 1e3,
+            "jitter_max_ms": float(np.max(jitter)) * 1e3,
+            "compute_p50_ms": float(np.percentile(compute, 50)) * 1e3,
+            "compute_p99_ms": float(np.percentile(compute, 99)) * 1e3,
+            "compute_max_ms": float(np.max(compute)) * 1e3,
+            "deadline_misses": self.misses,
+        }
+
+
+class Recorder:
+    """The per-step arrays ``ivfm run`` computes metrics from (until the Zenoh logger)."""
+
+    def __init__(self) -> None:
+        self.rows: dict[str, list] = {k: [] for k in (
+            "time_s", "measurement", "reference", "kick", "motor_commands",
+            "channel_telemetry", "theta_g", "theta_f_0", "theta_f_1", "theta_f_2")}
+
+    def add(self, t_s: float, vehicle: Vehicle) -> None:
+        r, c = self.rows, vehicle.controller
+        r["time_s"].append(t_s)
+        r["measurement"].append(vehicle.measurement.copy())
+        r["reference"].append(vehicle.last_ref.copy())
+        r["kick"].append(vehicle.last_kick.copy())
+        r["motor_commands"].append(vehicle.last_commands.copy())
+        r["channel_telemetry"].append(c.telemetry.copy())
+        theta_g = getattr(c, "theta_g", None)
+        r["theta_g"].append(np.full(6, np.nan) if theta_g is None else theta_g.copy())
+        theta_f = getattr(c, "theta_f", None)
+        for i in range(3):
+            r[f"theta_f_{i}"].append(np.zeros(0) if theta_f is None else theta_f[i].copy())
+
+    def save(self, path: Path, timing: dict) -> None:
+        arrays = {k: np.array(v) for k, v in self.rows.items()}
+        tmp = path.with_suffix(".tmp.npz")
+        np.savez(tmp, timing=np.array(json.dumps(timing)), **arrays)
+        tmp.replace(path)
+
+
+class SimLink:
+    """TCP client of the simulator; reconnects while the simulator is away."""
+
+    def __init__(self, host: str, port: int, source: str) -> None:
+        self.address = (host, port)
+        self.sock: socket.socket | None = None
+        self.source_type = STATE_SOURCES[source]
+        self.decode = (measurement_from_odometry if source == "odometry"
+                       else measurement_from_hil_state)
+        self.mav = mavlink.MAVLink(None, srcSystem=AUTOPILOT_SYSID, srcComponent=AUTOPILOT_COMPID)
+        self.next_attempt_s = 0.0
+        self.bad_messages = 0
+        self.last_bad: str | None = None
+
+    def connect(self, now: float) -> bool:
+        if self.sock is not None or now < self.next_attempt_s:
+            return False
+        self.next_attempt_s = now + RECONNECT_S
+        try:
+            sock = socket.create_connection(self.address, timeout=0.2)
+        except OSError:
+            return False
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.setblocking(False)
+        self.sock = sock
+        self.mav = mavlink.MAVLink(None, srcSystem=AUTOPILOT_SYSID, srcComponent=AUTOPILOT_COMPID)
+        return True
+
+    def close(self) -> None:
+        if self.sock is not None:
+            self.sock.close()
+            self.sock = None
+
+    def read(self) -> list[tuple[int, np.ndarray]] | None:
+        """Samples (time_us, measurement) now available; None when the link closed."""
+        try:
+            data = self.sock.recv(262144)
+        except (BlockingIOError, InterruptedError):
+            return []
+        except OSError:
+            return None
+        if not data:
+            return None
+        samples = []
+        for msg in self.mav.parse_buffer(data) or []:
+            if msg.get_type() != self.source_type:
+                continue
+            try:
+                samples.append((msg.time_usec, self.decode(msg)))
+            except LinkDataError as exc:
+                self.bad_messages += 1
+                self.last_bad = str(exc)
+        return samples
+
+    def send(self, data: bytes) -> bool:
+        try:
+            self.sock.sendall(data)
+            return True
+        except OSError:
+            return False
+
+
+class Autopilot:
+    def __init__(self, config: AutopilotConfig, vehicle: Vehicle, ground: GroundStation,
+                 arm_in_reference: bool = False, log=None) -> None:
+        self.config = config
+        self.vehicle = vehicle
+        self.ground = ground
+        self.arm_in_reference = arm_in_reference
+        self.log = log or (lambda text: print(f"autopilot: {text}", file=sys.stderr, flush=True))
+        self.period_us = round(1e6 / config.rate_hz)
+        self.sim = SimLink(config.sim_host, config.sim_port, config.state_source)
+        self.timing = Timing(self.period_us / 1e6)
+        self.recorder = Recorder() if config.record_path else None
+        self.steps = 0
+        self.max_steps = (math.inf if math.isinf(config.duration_s)
+                          else round(config.duration_s * 1e6 / self.period_us))
+        self.next_control_us: int | None = None
+        self.latest: tuple[int, np.ndarray] | None = None
+        self.sel = selectors.DefaultSelector()
+        for link in ground.links:
+            self.sel.register(link.sock, selectors.EVENT_READ, link)
+        self._stop = False
+        self._progress_at = 0.1
+
+    def stop(self, *_args) -> None:
+        self._stop = True
+
+    def _control(self, time_us: int, measurement: np.ndarray) -> np.ndarray:
+        self.vehicle.sample(time_us / 1e6, measurement)
+        if self.arm_in_reference and not self.vehicle.armed and self.steps == 0:
+            self.vehicle.arm_in_reference()
+            self.log(f"flying the {self.vehicle.reference.kind} reference from "
+                     f"t={time_us / 1e6:.3f} s")
+        commands = self.vehicle.control()
+        if self.recorder is not None:
+            self.recorder.add(time_us / 1e6, self.vehicle)
+        self.steps += 1
+        if self.max_steps < math.inf and self.steps >= self._progress_at * self.max_steps:
+            self.log(f"{100 * self._progress_at:.0f} % ({time_us / 1e6:.1f} s sim)")
+            self._progress_at += 0.1
+        return commands
+
+    def _answer(self, time_us: int, commands: np.ndarray) -> None:
+        msg = actuator_message(time_us, commands, self.vehicle.armed, self.config.lockstep)
+        if not self.sim.send(msg.pack(self.sim.mav)):
+            self._sim_lost()
+
+    def _sim_lost(self) -> None:
+        self.sim.close()
+        if self.vehicle.sim_link_ok:
+            self.log("simulator link lost")
+        self.vehicle.sim_link_lost()
+        self.next_control_us = None
+
+    def _connect(self, now: float) -> None:
+        if self.sim.connect(now):
+            self.log(f"connected to the simulator at {self.sim.address[0]}:"
+                     f"{self.sim.address[1]}")
+            self.sel.register(self.sim.sock, selectors.EVENT_READ, "sim")
+
+    def _on_sim_readable(self) -> None:
+        samples = self.sim.read()
+        if samples is None:
+            self.sel.unregister(self.sim.sock)
+            self._sim_lost()
+            return
+        if self.sim.last_bad:
+            self.log(f"refused simulator data: {self.sim.last_bad}")
+            self.sim.last_bad = None
+        for time_us, measurement in samples:
+            if self.latest is not None and time_us < self.latest[0]:
+                self.next_control_us = None  # a new simulator: its clock starts again
+            self.latest = (time_us, measurement)
+            if not self.config.lockstep:
+                self.vehicle.sample(time_us / 1e6, measurement)
+                continue
+            if self.next_control_us is None or time_us >= self.next_control_us:
+                self.next_control_us = time_us + self.period_us
+                commands = self._control(time_us, measurement)
+            else:
+                commands = self.vehicle.last_commands
+            self._answer(time_us, commands)
+            if self.steps >= self.max_steps:
+                self._stop = True
+                return
+
+    def _sim_watchdog(self, now: float) -> None:
+        """Real time: no sample for COM_SIM_LOSS_T means the simulator is gone."""
+        if self.config.lockstep or self.sim.sock is None:
+            return
+        if now - self._last_sample_wall > self.vehicle.parameters["COM_SIM_LOSS_T"] and \
+                self.vehicle.sim_link_ok:
+            self.log("no samples from the simulator: link lost")
+            self.vehicle.sim_link_lost()
+
+    def run(self) -> int:
+        signal.signal(signal.SIGTERM, self.stop)
+        mode = "lockstep" if self.config.lockstep else "real time"
+        self.log(f"{mode} at {self.config.rate_hz:g} Hz; simulator at "
+                 f"{self.sim.address[0]}:{self.sim.address[1]}; ground links "
+                 + ", ".join(f"{ln.name} udp:{ln.sock.getsockname()[1]}"
+                             for ln in self.ground.links))
+        self._last_sample_wall = time.monotonic()
+        try:
+            if self.config.lockstep:
+                self._run_lockstep()
+            else:
+                self._run_realtime()
+        except KeyboardInterrupt:
+            pass
+        finally:
+            self.sim.close()
+        summary = self.timing.summary() if not self.config.lockstep else {}
+        if summary:
+            self.log("timing " + json.dumps(summary))
+        if self.recorder is not None:
+            self.recorder.save(self.config.record_path, summary)
+        self.log(f"stopped after {self.steps} control steps")
+        return 0
+
+    def _poll(self, timeout_s: float) -> None:
+        for key, _ in self.sel.select(max(0.0, timeout_s)):
+            if key.data == "sim":
+                if self.sim.sock is not None:
+                    self._on_sim_readable()
+                    self._last_sample_wall = time.monotonic()
+            else:
+                self.ground.receive(key.data)
+
+    def _run_lockstep(self) -> None:
+        next_service = 0.0
+        while not self._stop:
+            now = time.monotonic()
+            self._connect(now)
+            self._poll(0.02)
+            now = time.monotonic()
+            if now >= next_service:  # ground links: a few hundred Hz at most
+                self.ground.service()
+                next_service = now + 0.005
+
+    def _run_realtime(self) -> None:
+        period_s = self.period_us / 1e6
+        next_deadline = time.perf_counter()
+        next_service = 0.0
+        previous_start: float | None = None
+        while not self._stop:
+            now = time.monotonic()
+            self._connect(now)
+            self._sim_watchdog(now)
+            if now >= next_service:
+                self.ground.service()
+                next_service = now + 0.005
+            remaining = next_deadline - time.perf_counter()
+            if remaining > SPIN_S:
+                self._poll(remaining - SPIN_S)
+                continue
+            while time.perf_counter() < next_deadline:
+                pass
+            start = time.perf_counter()
+            if self.latest is not None and self.vehicle.sim_link_ok:
+                time_us, measurement = self.latest
+                commands = self._control(time_us, measurement)
+                self._answer(time_us, commands)
+                self.timing.compute.append(time.perf_counter() - start)
+                if previous_start is not None:
+                    self.timing.periods.append(start - previous_start)
+                previous_start = start
+                if self.steps >= self.max_steps:
+                    break
+            else:
+                previous_start = None
+            next_deadline += period_s
+            late = time.perf_counter() - next_deadline
+            if late > 0:  # a whole period lost: count it and re-anchor
+                skipped = int(late // period_s) + 1
+                self.timing.misses += skipped
+                next_deadline += skipped * period_s
+                previous_start = None

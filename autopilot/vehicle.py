@@ -1,0 +1,428 @@
+"""The vehicle's logic: arming, modes, take-off, landing, setpoints and failsafes.
+
+Pure (no sockets, no clocks): the process shell calls it with two times.
+* ``sim_t_s`` (sim time) drives everything in the control path: ramps, the reference
+  generator, landing detection, the controller.
+* ``link_t_s`` (the link clock, wall time in the shell) times what ground tools do:
+  heartbeats, setpoint streams and the simulator link, which arrive in wall time.
+A lockstep scenario without a ground tool never reads the link clock, so it stays
+deterministic. Every refusal returns a reason that the shell sends as STATUSTEXT.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from autopilot.control.parameters import validate_parameters
+from autopilot.reference import (
+    REF_ACC,
+    REF_EULER,
+    REF_POS,
+    REF_SIZE,
+    REF_VEL,
+    Reference,
+)
+from contracts.frames import euler_from_quat
+from contracts.mavlink import FlightMode
+from contracts.schedule import Window, kick_at
+
+LANDED_ALTITUDE_M = 0.05  # the plant's ground is z = 0
+LANDED_SPEED_MPS = 0.1
+TAKEOFF_REACHED_M = 0.1
+MAX_SETPOINT_DISTANCE_M = 1000.0
+MAX_SETPOINT_SPEED_MPS = 20.0
+MAX_SETPOINT_ACCEL_MPS2 = 20.0
+MAX_TILT_SETPOINT_RAD = 1.0
+ARMABLE_MODES = (FlightMode.HOLD, FlightMode.GUIDED, FlightMode.OFFBOARD, FlightMode.TAKEOFF)
+
+
+class RefusedError(Exception):
+    """A request the vehicle will not carry out, with the reason for the ground tool."""
+
+    def __init__(self, reason: str, temporary: bool = False) -> None:
+        super().__init__(reason)
+        self.temporary = temporary  # MAV_RESULT_TEMPORARILY_REJECTED rather than DENIED
+
+
+@dataclass
+class Target:
+    """What the position loop tracks in every mode but REFERENCE and attitude offboard."""
+
+    position_ned_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    velocity_ned_mps: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    accel_ned_mps2: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    yaw_rad: float = 0.0
+    velocity_only: bool = False  # integrate the position from the velocity setpoint
+    # attitude offboard: Euler angles and a climb rate from the thrust field
+    attitude_rad: np.ndarray | None = None
+    climb_rate_mps: float = 0.0
+
+
+def _check(name: str, values, limit: float) -> None:
+    for v in values:
+        if not math.isfinite(v):
+            raise RefusedError(f"{name} holds NaN or infinity")
+        if abs(v) > limit:
+            raise RefusedError(f"{name} {v:g} is beyond +-{limit:g}")
+
+
+class Vehicle:
+    """Arming state, mode, target, failsafes and the controller they feed."""
+
+    def __init__(
+        self,
+        make_controller: Callable[[dict[str, float]], object],
+        period_s: float,
+        parameters: dict[str, float] | None = None,
+        reference: Reference | None = None,
+        schedule: tuple[Window, ...] = (),
+        flavour: str = "px4",
+    ) -> None:
+        self._make_controller = make_controller
+        self.period_s = period_s
+        self.parameters = validate_parameters(parameters or {})
+        self.controller = make_controller(self.parameters)
+        self.reference = reference
+        self.schedule = schedule
+        self.flavour = flavour
+        self.armed = False
+        self.mode = FlightMode.GUIDED if flavour == "ardupilot" else FlightMode.HOLD
+        self.target = Target()
+        self.measurement: np.ndarray | None = None
+        self.sim_t_s = 0.0
+        self.reference_start_s = 0.0
+        self.landed = True
+        self._landed_since_s: float | None = 0.0
+        self.takeoff_altitude_m: float | None = None
+        self.failsafe: str | None = None
+        self.messages: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) for STATUSTEXT
+        # link clock
+        self.gcs_heard_s: float | None = None
+        self.gcs_lost = False
+        self.setpoint_heard_s: float | None = None
+        self.sim_link_ok = False
+        self.last_ref = np.zeros(REF_SIZE)
+        self.last_kick = np.zeros(2)
+        self.last_commands = np.zeros(4)
+
+    # -- announcements -----------------------------------------------------------------
+    def say(self, text: str, severity: int = 6) -> None:
+        """Queue a STATUSTEXT (severity: 3 error, 4 warning, 5 notice, 6 info)."""
+        self.messages.append((severity, text[:50]))
+
+    # -- parameters --------------------------------------------------------------------
+    def set_parameter(self, name: str, value: float) -> None:
+        """Change one parameter; it takes effect at the next control step."""
+        try:
+            updated = validate_parameters({**self.parameters, name: value})
+        except ValueError as exc:
+            raise RefusedError(str(exc)) from None
+        self.parameters = updated
+        self.controller.apply_parameters(updated)
+
+    # -- state from the simulator --------------------------------------------------------
+    @property
+    def altitude_m(self) -> float:
+        return 0.0 if self.measurement is None else -float(self.measurement[2])
+
+    def _hold_here(self) -> None:
+        m = self.measurement
+        self.target = Target(
+            position_ned_m=m[0:3].copy() if m is not None else np.zeros(3),
+            yaw_rad=float(m[8]) if m is not None else 0.0)
+
+    # -- commands ------------------------------------------------------------------------
+    def arm(self, link_t_s: float) -> None:
+        if self.armed:
+            return
+        if not self.sim_link_ok or self.measurement is None:
+            raise RefusedError("arming denied: no state from the simulator", temporary=True)
+        if self.mode not in ARMABLE_MODES:
+            raise RefusedError(f"arming denied in {self.mode.value} mode")
+        if not self.landed:
+            raise RefusedError("arming denied: not on the ground")
+        if self.mode == FlightMode.OFFBOARD and not self.setpoints_streaming(link_t_s):
+            raise RefusedError("arming denied: no offboard setpoints", temporary=True)
+        self._arm()
+        self.say("armed")
+
+    def _arm(self) -> None:
+        self.controller = self._make_controller(self.parameters)
+        self.armed = True
+        if self.mode != FlightMode.OFFBOARD:
+            self._hold_here()
+        self._landed_since_s = None if not self.landed else self.sim_t_s
+
+    def arm_in_reference(self) -> None:
+        """Scenario runs: fly the reference from the first sample, wherever the vehicle is."""
+        if self.reference is None:
+            raise RefusedError("no reference generator configured")
+        self.controller = self._make_controller(self.parameters)
+        self.armed = True
+        self.mode = FlightMode.REFERENCE
+        self.reference_start_s = self.sim_t_s
+        self.landed = False
+
+    def disarm(self, force: bool = False) -> None:
+        if not self.armed:
+            return
+        if not self.landed and not force:
+            raise RefusedError("disarming denied: in the air (force with param2 21196)")
+        self._disarm("disarmed")
+
+    def _disarm(self, text: str) -> None:
+        self.armed = False
+        self.takeoff_altitude_m = None
+        if self.mode in (FlightMode.LAND, FlightMode.TAKEOFF, FlightMode.REFERENCE):
+            self.mode = FlightMode.GUIDED if self.flavour == "ardupilot" else FlightMode.HOLD
+        self.say(text)
+
+    def takeoff(self, relative_altitude_m: float | None) -> None:
+        alt = self.parameters["MIS_TAKEOFF_ALT"] if relative_altitude_m is None \
+            else relative_altitude_m
+        if not math.isfinite(alt) or not 0.5 <= alt <= 100.0:
+            raise RefusedError(f"take-off altitude {alt:g} m is outside [0.5, 100] m")
+        if not self.armed:
+            raise RefusedError("take-off denied: disarmed", temporary=True)
+        if self.flavour == "ardupilot" and self.mode != FlightMode.GUIDED:
+            raise RefusedError("take-off needs GUIDED mode")
+        if self.flavour == "px4":
+            self.mode = FlightMode.TAKEOFF
+        self._hold_here()
+        self.takeoff_altitude_m = alt
+        self.say(f"taking off to {alt:.1f} m")
+
+    def land(self) -> None:
+        if not self.armed:
+            raise RefusedError("landing denied: disarmed", temporary=True)
+        self._enter(FlightMode.LAND)
+
+    def set_mode(self, mode: FlightMode, link_t_s: float) -> None:
+        if mode == self.mode:
+            return
+        if mode == FlightMode.OFFBOARD and not self.setpoints_streaming(link_t_s):
+            raise RefusedError("offboard denied: no setpoint stream", temporary=True)
+        if mode == FlightMode.REFERENCE:
+            if self.reference is None:
+                raise RefusedError("no reference generator configured")
+            if not self.armed or self.landed:
+                raise RefusedError("the reference needs an armed vehicle in the air",
+                                   temporary=True)
+        if mode == FlightMode.TAKEOFF:
+            self.takeoff(None)
+            return
+        if mode == FlightMode.LAND and not self.armed:
+            raise RefusedError("landing denied: disarmed", temporary=True)
+        self._enter(mode)
+
+    def _enter(self, mode: FlightMode) -> None:
+        previous = self.mode
+        self.mode = mode
+        self.takeoff_altitude_m = None
+        if mode in (FlightMode.HOLD, FlightMode.LAND) or (
+                mode == FlightMode.GUIDED and previous != FlightMode.OFFBOARD):
+            self._hold_here()
+        if mode == FlightMode.REFERENCE:
+            self.reference_start_s = self.sim_t_s
+        self.say(f"mode {mode.value}")
+
+    # -- setpoints -----------------------------------------------------------------------
+    def setpoints_streaming(self, link_t_s: float) -> bool:
+        return (self.setpoint_heard_s is not None
+                and link_t_s - self.setpoint_heard_s <= self.parameters["COM_OF_LOSS_T"])
+
+    def position_setpoint(self, link_t_s: float, position: tuple | None, velocity: tuple | None,
+                          accel: tuple | None, yaw: float | None) -> None:
+        """A local NED setpoint; None for a masked group. Validated before anything changes."""
+        if position is None and velocity is None:
+            raise RefusedError("setpoint gives neither position nor velocity")
+        if position is not None:
+            _check("setpoint position", position, MAX_SETPOINT_DISTANCE_M)
+        if velocity is not None:
+            _check("setpoint velocity", velocity, MAX_SETPOINT_SPEED_MPS)
+        if accel is not None:
+            _check("setpoint acceleration", accel, MAX_SETPOINT_ACCEL_MPS2)
+        if yaw is not None:
+            _check("setpoint yaw", (yaw,), 2.0 * math.pi)
+        self.setpoint_heard_s = link_t_s
+        if self.mode not in (FlightMode.OFFBOARD, FlightMode.GUIDED):
+            return  # PX4 takes the stream before offboard starts; it steers nothing yet
+        t = self.target
+        if position is not None:
+            t.position_ned_m = np.array(position, dtype=float)
+        elif t.attitude_rad is not None and self.measurement is not None:
+            t.position_ned_m = self.measurement[0:3].copy()
+        t.velocity_ned_mps = np.array(velocity if velocity is not None else (0.0,) * 3,
+                                      dtype=float)
+        t.accel_ned_mps2 = np.array(accel if accel is not None else (0.0,) * 3, dtype=float)
+        t.velocity_only = position is None
+        if yaw is not None:
+            t.yaw_rad = float(yaw)
+        t.attitude_rad = None
+
+    def attitude_setpoint(self, link_t_s: float, quaternion: tuple | None,
+                          thrust: float | None) -> None:
+        """An attitude setpoint; thrust 0.5 holds altitude, 0 / 1 descend / climb (as
+        ArduPilot reads it)."""
+        if quaternion is None:
+            raise RefusedError("attitude setpoint without attitude: body-rate control is not "
+                          "supported")
+        _check("attitude quaternion", quaternion, 1.01)
+        q = np.array(quaternion, dtype=float)
+        norm = float(np.linalg.norm(q))
+        if not 0.9 < norm < 1.1:
+            raise RefusedError(f"attitude quaternion norm {norm:.3f} is not 1")
+        euler = euler_from_quat(q / norm)
+        if max(abs(euler[0]), abs(euler[1])) > MAX_TILT_SETPOINT_RAD:
+            raise RefusedError(f"attitude setpoint tilts more than {MAX_TILT_SETPOINT_RAD} rad")
+        if thrust is not None:
+            _check("thrust", (thrust,), 1.0)
+            if thrust < 0.0:
+                raise RefusedError(f"thrust {thrust:g} is outside [0, 1]")
+        self.setpoint_heard_s = link_t_s
+        if self.mode not in (FlightMode.OFFBOARD, FlightMode.GUIDED):
+            return
+        t = self.target
+        if t.attitude_rad is None and self.measurement is not None:
+            t.position_ned_m = self.measurement[0:3].copy()
+        t.attitude_rad = euler
+        t.yaw_rad = float(euler[2])
+        speed = self.parameters["MPC_TKO_SPEED"]
+        t.climb_rate_mps = 0.0 if thrust is None else (thrust - 0.5) * 2.0 * speed
+
+    # -- links ---------------------------------------------------------------------------
+    def gcs_heartbeat(self, link_t_s: float) -> None:
+        self.gcs_heard_s = link_t_s
+        if self.gcs_lost:
+            self.gcs_lost = False
+            self.say("ground station link regained", 5)
+
+    def check_links(self, link_t_s: float) -> None:
+        """Failsafes timed on the link clock: ground station and setpoint stream."""
+        p = self.parameters
+        if (self.gcs_heard_s is not None and not self.gcs_lost
+                and link_t_s - self.gcs_heard_s > p["COM_DL_LOSS_T"]):
+            self.gcs_lost = True
+            action = int(p["NAV_DLL_ACT"])
+            self._failsafe("ground station lost", {0: None, 1: FlightMode.HOLD,
+                                                   3: FlightMode.LAND}[action])
+        if self.mode == FlightMode.OFFBOARD and self.armed and not self.setpoints_streaming(
+                link_t_s):
+            action = FlightMode.LAND if p["COM_OBL_ACT"] == 0 else FlightMode.HOLD
+            self._failsafe("offboard setpoints lost", action)
+        elif self.mode == FlightMode.OFFBOARD and not self.armed and not \
+                self.setpoints_streaming(link_t_s):
+            self.mode = FlightMode.HOLD
+
+    def sim_link_lost(self) -> None:
+        if not self.sim_link_ok:
+            return
+        self.sim_link_ok = False
+        self._failsafe("simulator link lost", FlightMode.LAND)
+
+    def _failsafe(self, what: str, action: FlightMode | None) -> None:
+        self.failsafe = what
+        if not self.armed or action is None:
+            self.say(f"{what}", 4)
+            return
+        if self.landed:
+            self._disarm(f"{what}: disarmed on the ground")
+            return
+        self.say(f"{what}: {action.value}", 4)
+        if self.mode != action:
+            self._enter(action)
+
+    # -- the control step ----------------------------------------------------------------
+    def sample(self, sim_t_s: float, measurement: np.ndarray) -> None:
+        """New state from the simulator. A clock going back means a new simulator."""
+        if self.measurement is not None and sim_t_s < self.sim_t_s:
+            self.say("simulator restarted", 5)
+            if self.armed and -measurement[2] < LANDED_ALTITUDE_M:
+                self._disarm("simulator restarted: disarmed on the ground")
+        if not self.sim_link_ok:
+            self.say("simulator link up", 6)
+        self.sim_link_ok = True
+        self.sim_t_s = sim_t_s
+        self.measurement = measurement
+        self._detect_landing()
+
+    def _detect_landing(self) -> None:
+        m = self.measurement
+        on_ground = (-m[2] < LANDED_ALTITUDE_M and abs(m[5]) < LANDED_SPEED_MPS
+                     and not (self.armed and self.mode == FlightMode.TAKEOFF)
+                     and not (self.armed and self.takeoff_altitude_m is not None))
+        if on_ground and self.armed and self.mode not in (FlightMode.LAND,) and \
+                self.target.position_ned_m[2] < -LANDED_ALTITUDE_M:
+            on_ground = False  # asked to be up: lifting off, not landed
+        if on_ground and not self.landed:
+            self.landed = True
+            self._landed_since_s = self.sim_t_s
+            if self.armed:
+                self.say("landed", 6)
+        elif not on_ground and self.landed:
+            self.landed = False
+            self._landed_since_s = None
+        if (self.armed and self.landed and self.mode == FlightMode.LAND
+                and self._landed_since_s is not None
+                and self.sim_t_s - self._landed_since_s >= self.parameters["COM_DISARM_LAND"]):
+            self._disarm("landed: disarmed")
+
+    def control(self) -> np.ndarray:
+        """Motor commands for this control period (zeros when disarmed or without state)."""
+        if not self.armed or self.measurement is None or not self.sim_link_ok:
+            self.last_commands = np.zeros(4)
+            return self.last_commands
+        ref, position_mode, kick = self._reference()
+        self.last_ref, self.last_kick = ref, kick
+        self.last_commands = self.controller.step(self.measurement, ref, position_mode, kick)
+        return self.last_commands
+
+    def _reference(self) -> tuple[np.ndarray, bool, np.ndarray]:
+        if self.mode == FlightMode.REFERENCE:
+            t = self.sim_t_s - self.reference_start_s
+            return (self.reference.at(t), self.reference.position_mode,
+                    np.array(kick_at(self.schedule, t)))
+        dt = self.period_s
+        p = self.parameters
+        tg = self.target
+        ref = np.zeros(REF_SIZE)
+        if self.mode == FlightMode.TAKEOFF or self.takeoff_altitude_m is not None:
+            goal = -self.takeoff_altitude_m
+            speed = p["MPC_TKO_SPEED"]
+            z = tg.position_ned_m[2]
+            tg.position_ned_m[2] = max(goal, z - speed * dt)
+            tg.velocity_ned_mps[:] = 0.0
+            if tg.position_ned_m[2] > goal:
+                tg.velocity_ned_mps[2] = -speed
+            elif abs(self.measurement[2] - goal) < TAKEOFF_REACHED_M:
+                self.say("take-off complete")
+                self.takeoff_altitude_m = None
+                if self.mode == FlightMode.TAKEOFF:
+                    self._enter(FlightMode.HOLD)
+        elif self.mode == FlightMode.LAND:
+            speed = p["MPC_LAND_SPEED"]
+            tg.position_ned_m[2] = min(tg.position_ned_m[2] + speed * dt, 0.5)
+            tg.velocity_ned_mps[:] = 0.0
+            tg.velocity_ned_mps[2] = speed if tg.position_ned_m[2] < 0.5 else 0.0
+        elif tg.attitude_rad is not None:
+            tg.position_ned_m[2] -= tg.climb_rate_mps * dt
+            ref[REF_POS:REF_POS + 3] = tg.position_ned_m
+            ref[REF_VEL + 2] = -tg.climb_rate_mps
+            ref[REF_EULER:REF_EULER + 3] = tg.attitude_rad
+            return ref, False, np.zeros(2)
+        elif tg.velocity_only:
+            tg.position_ned_m += tg.velocity_ned_mps * dt
+        ref[REF_POS:REF_POS + 3] = tg.position_ned_m
+        ref[REF_VEL:REF_VEL + 3] = tg.velocity_ned_mps
+        ref[REF_ACC:REF_ACC + 3] = tg.accel_ned_mps2
+        ref[REF_EULER + 2] = tg.yaw_rad
+        return ref, True, np.zeros(2)
+
+    def step(self, sim_t_s: float, measurement: np.ndarray) -> np.ndarray:
+        """One control period: take the sample, then compute the motor commands."""
+        self.sample(sim_t_s, measurement)
+        return self.control()

@@ -1,0 +1,253 @@
+"""MAVLink conventions shared by the simulator, the autopilot and the ground side.
+
+One place for: the dialect, ports and ids, the simulator-link message mapping (state ->
+HIL_SENSOR / HIL_GPS / HIL_STATE_QUATERNION / ODOMETRY -> controller measurement, and
+motor commands <-> HIL_ACTUATOR_CONTROLS), and the flight-mode numbers of the PX4 and
+ArduPilot-Copter flavours (SPEC section 7).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from contracts.frames import (
+    GRAVITY_MPS2,
+    euler_from_quat,
+    euler_rates_from_body_rates,
+    geodetic_from_ned,
+    ned_from_geodetic,
+    rotation_from_quat,
+)
+
+__all__ = ["mavlink"]
+
+SIM_TCP_PORT = 4560
+GCS_UDP_PORT = 14550  # where a ground station listens (QGroundControl, MAVProxy)
+API_UDP_PORT = 14540  # where an offboard API listens (MAVSDK)
+GCS_LOCAL_PORT = 18570  # the autopilot's own ports for those two links, as PX4 SITL uses
+API_LOCAL_PORT = 14580
+AUTOPILOT_SYSID = 1
+AUTOPILOT_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1
+SIMULATOR_SYSID = 1
+SIMULATOR_COMPID = 51  # any id that is not the autopilot's
+
+# HIL_ACTUATOR_CONTROLS
+HIL_FLAG_LOCKSTEP = 1  # flags bit 0
+HIL_MODE_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+HIL_MOTORS = 4
+
+# HIL_SENSOR fields_updated: accel 0-2, gyro 3-5, mag 6-8, abs/diff pressure, pressure alt,
+# temperature 9-12 (the groups PX4's simulator_mavlink reads).
+HIL_SENSOR_ALL_FIELDS = 0x1FFF
+
+# Earth field at home (Zurich), gauss in NED, for the magnetometer of HIL_SENSOR.
+MAG_FIELD_NED_GAUSS = np.array([0.216, 0.006, 0.424])
+SEA_LEVEL_PRESSURE_HPA = 1013.25
+TEMPERATURE_C = 20.0
+MEASUREMENT_SIZE = 12  # position NED, velocity NED, Euler angles, Euler rates
+
+
+def pressure_hpa(alt_amsl_m: float) -> float:
+    """International standard atmosphere below 11 km."""
+    return SEA_LEVEL_PRESSURE_HPA * (1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588
+
+
+def _int_clamped(value: float, low: int, high: int) -> int:
+    return int(min(high, max(low, round(value))))
+
+
+def sample_messages(
+    time_us: int,
+    position_ned_m: np.ndarray,
+    velocity_ned_mps: np.ndarray,
+    quaternion: np.ndarray,
+    body_rate_rps: np.ndarray,
+    accel_ned_mps2: np.ndarray,
+) -> list[mavlink.MAVLink_message]:
+    """The four messages the simulator sends each sample, from the true state.
+
+    ``accel_ned_mps2`` is the kinematic acceleration; the accelerometer reads the specific
+    force R^T (a - g) in FRD.
+    """
+    rot = rotation_from_quat(quaternion)
+    specific_force = rot.T @ (accel_ned_mps2 - np.array([0.0, 0.0, GRAVITY_MPS2]))
+    mag = rot.T @ MAG_FIELD_NED_GAUSS
+    n, e, d = (float(v) for v in position_ned_m)
+    vn, ve, vd = (float(v) for v in velocity_ned_mps)
+    lat, lon, alt = geodetic_from_ned(n, e, d)
+    p, q, r = (float(v) for v in body_rate_rps)
+    w, x, y, z = (float(v) for v in quaternion)
+    ground_speed = math.hypot(vn, ve)
+    course_cdeg = math.degrees(math.atan2(ve, vn)) % 360.0 * 100.0
+    accel_mg = specific_force / GRAVITY_MPS2 * 1000.0
+    return [
+        mavlink.MAVLink_hil_sensor_message(
+            time_us, *(float(a) for a in specific_force), p, q, r, *(float(m) for m in mag),
+            pressure_hpa(alt), 0.0, alt, TEMPERATURE_C, HIL_SENSOR_ALL_FIELDS, 0),
+        mavlink.MAVLink_hil_gps_message(
+            time_us, 3, _int_clamped(lat * 1e7, -2**31, 2**31 - 1),
+            _int_clamped(lon * 1e7, -2**31, 2**31 - 1), _int_clamped(alt * 1000, -2**31, 2**31 - 1),
+            30, 30, _int_clamped(ground_speed * 100, 0, 65534),
+            _int_clamped(vn * 100, -32768, 32767), _int_clamped(ve * 100, -32768, 32767),
+            _int_clamped(vd * 100, -32768, 32767), _int_clamped(course_cdeg, 0, 35999), 12),
+        mavlink.MAVLink_hil_state_quaternion_message(
+            time_us, [w, x, y, z], p, q, r,
+            _int_clamped(lat * 1e7, -2**31, 2**31 - 1), _int_clamped(lon * 1e7, -2**31, 2**31 - 1),
+            _int_clamped(alt * 1000, -2**31, 2**31 - 1),
+            _int_clamped(vn * 100, -32768, 32767), _int_clamped(ve * 100, -32768, 32767),
+            _int_clamped(vd * 100, -32768, 32767),
+            _int_clamped(ground_speed * 100, 0, 65535), _int_clamped(ground_speed * 100, 0, 65535),
+            *(_int_clamped(a, -32768, 32767) for a in accel_mg)),
+        mavlink.MAVLink_odometry_message(
+            time_us, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_NED, n, e, d,
+            [w, x, y, z], vn, ve, vd, p, q, r, [math.nan] * 21, [math.nan] * 21, 0,
+            mavlink.MAV_ESTIMATOR_TYPE_MOCAP, 100),
+    ]
+
+
+class LinkDataError(ValueError):
+    """A simulator-link message that must not reach the controller."""
+
+
+def _finite(values: list[float], what: str) -> None:
+    if not all(math.isfinite(v) for v in values):
+        raise LinkDataError(f"{what} holds NaN or infinity")
+
+
+def _measurement(position, velocity, quaternion, body_rate) -> np.ndarray:
+    q = np.asarray(quaternion, dtype=float)
+    norm = math.sqrt(float(q @ q))
+    if not 0.9 < norm < 1.1:
+        raise LinkDataError(f"attitude quaternion has norm {norm:.3f}, not 1")
+    euler = euler_from_quat(q / norm)
+    out = np.empty(MEASUREMENT_SIZE)
+    out[0:3] = position
+    out[3:6] = velocity
+    out[6:9] = euler
+    out[9:12] = euler_rates_from_body_rates(euler[0], euler[1], *(float(b) for b in body_rate))
+    return out
+
+
+def measurement_from_odometry(msg: mavlink.MAVLink_odometry_message) -> np.ndarray:
+    """Controller measurement from ODOMETRY (float32 truth, the default state source)."""
+    if msg.frame_id != mavlink.MAV_FRAME_LOCAL_NED or msg.child_frame_id != \
+            mavlink.MAV_FRAME_LOCAL_NED:
+        raise LinkDataError(f"ODOMETRY frames {msg.frame_id}/{msg.child_frame_id}: only "
+                            f"MAV_FRAME_LOCAL_NED ({mavlink.MAV_FRAME_LOCAL_NED}) is understood")
+    values = [msg.x, msg.y, msg.z, *msg.q, msg.vx, msg.vy, msg.vz, msg.rollspeed,
+              msg.pitchspeed, msg.yawspeed]
+    _finite(values, "ODOMETRY")
+    return _measurement((msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz), msg.q,
+                        (msg.rollspeed, msg.pitchspeed, msg.yawspeed))
+
+
+def measurement_from_hil_state(msg: mavlink.MAVLink_hil_state_quaternion_message) -> np.ndarray:
+    """Controller measurement from HIL_STATE_QUATERNION alone (1e-7 deg, mm, cm/s)."""
+    values = [*msg.attitude_quaternion, msg.rollspeed, msg.pitchspeed, msg.yawspeed]
+    _finite(values, "HIL_STATE_QUATERNION")
+    position = ned_from_geodetic(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)
+    velocity = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
+    return _measurement(position, velocity, msg.attitude_quaternion,
+                        (msg.rollspeed, msg.pitchspeed, msg.yawspeed))
+
+
+def actuator_message(time_us: int, commands: np.ndarray, armed: bool,
+                     lockstep: bool) -> mavlink.MAVLink_hil_actuator_controls_message:
+    """Motor commands in [0, 1] on controls[0..3]; time_us echoes the sample they answer."""
+    controls = [0.0] * 16
+    controls[:HIL_MOTORS] = [float(c) for c in commands]
+    return mavlink.MAVLink_hil_actuator_controls_message(
+        time_us, controls, HIL_MODE_ARMED if armed else 0,
+        HIL_FLAG_LOCKSTEP if lockstep else 0)
+
+
+def commands_from_actuator(msg: mavlink.MAVLink_hil_actuator_controls_message) -> np.ndarray:
+    """Motor commands from HIL_ACTUATOR_CONTROLS; disarmed means all motors off."""
+    commands = np.array(msg.controls[:HIL_MOTORS], dtype=float)
+    if not np.all(np.isfinite(commands)):
+        raise LinkDataError("HIL_ACTUATOR_CONTROLS holds NaN or infinity")
+    if np.any(commands < -1e-6) or np.any(commands > 1.0 + 1e-6):
+        raise LinkDataError(f"motor commands must be in [0, 1], got {commands.tolist()}")
+    if not msg.mode & HIL_MODE_ARMED:
+        return np.zeros(HIL_MOTORS)
+    return np.clip(commands, 0.0, 1.0)
+
+
+class FlightMode(enum.Enum):
+    """The autopilot's flight modes (docs/mavlink.md says what each does)."""
+
+    HOLD = "hold"  # hold the position where the mode started
+    TAKEOFF = "takeoff"  # climb to the take-off altitude, then HOLD
+    LAND = "land"  # descend, disarm on the ground
+    OFFBOARD = "offboard"  # follow streamed setpoints (PX4)
+    GUIDED = "guided"  # follow setpoints, hold the last one (ArduPilot)
+    REFERENCE = "reference"  # the onboard reference generator of the paper's scenarios
+
+
+# PX4 custom mode: main mode in bits 16-23, sub mode in bits 24-31.
+PX4_MAIN_POSCTL = 3
+PX4_MAIN_AUTO = 4
+PX4_MAIN_OFFBOARD = 6
+PX4_SUB_AUTO_TAKEOFF = 2
+PX4_SUB_AUTO_LOITER = 3
+PX4_SUB_AUTO_MISSION = 4
+PX4_SUB_AUTO_LAND = 6
+
+PX4_MODES: dict[FlightMode, tuple[int, int]] = {
+    FlightMode.HOLD: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER),
+    FlightMode.TAKEOFF: (PX4_MAIN_AUTO, PX4_SUB_AUTO_TAKEOFF),
+    FlightMode.LAND: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND),
+    FlightMode.OFFBOARD: (PX4_MAIN_OFFBOARD, 0),
+    FlightMode.REFERENCE: (PX4_MAIN_AUTO, PX4_SUB_AUTO_MISSION),
+}
+
+# ArduPilot Copter mode numbers (custom_mode is the number itself).
+COPTER_MODES: dict[FlightMode, int] = {
+    FlightMode.REFERENCE: 3,  # AUTO
+    FlightMode.GUIDED: 4,
+    FlightMode.HOLD: 5,  # LOITER
+    FlightMode.LAND: 9,
+}
+COPTER_MODE_NAMES = {3: "AUTO", 4: "GUIDED", 5: "LOITER", 9: "LAND"}
+
+FLAVOURS = ("px4", "ardupilot")
+
+
+def px4_custom_mode(mode: FlightMode) -> int:
+    main, sub = PX4_MODES[mode]
+    return (main << 16) | (sub << 24)
+
+
+def mode_from_px4(custom_mode: int) -> FlightMode | None:
+    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+    if main == PX4_MAIN_POSCTL:  # position control: the nearest we have is hold
+        return FlightMode.HOLD
+    for mode, (m, s) in PX4_MODES.items():
+        if m == main and (s == sub or main == PX4_MAIN_OFFBOARD):
+            return mode
+    return None
+
+
+def custom_mode(flavour: str, mode: FlightMode) -> int:
+    """HEARTBEAT custom_mode of ``mode`` (TAKEOFF shows as GUIDED in the ArduPilot flavour)."""
+    if flavour == "px4":
+        return px4_custom_mode(mode)
+    if mode == FlightMode.TAKEOFF:
+        mode = FlightMode.GUIDED
+    if mode == FlightMode.OFFBOARD:
+        mode = FlightMode.GUIDED
+    return COPTER_MODES[mode]
+
+
+def mode_from_custom(flavour: str, number: int) -> FlightMode | None:
+    """The mode a DO_SET_MODE / SET_MODE custom mode asks for, or None if unknown."""
+    if flavour == "px4":
+        return mode_from_px4(number)
+    for mode, n in COPTER_MODES.items():
+        if n == number:
+            return mode
+    return None

@@ -1,0 +1,61 @@
+"""``python -m sitl`` / ``ivfm sitl``: the simulator process."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from contracts.airframe import AIRFRAMES, airframe_by_name
+from contracts.mavlink import SIM_TCP_PORT
+from contracts.schedule import load_schedule
+from sitl.dynamics import FIDELITIES
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    p = parser or argparse.ArgumentParser(prog="python -m sitl", description=__doc__)
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on")
+    p.add_argument("--port", type=int, default=SIM_TCP_PORT, help="TCP port (PX4: 4560)")
+    mode = p.add_mutually_exclusive_group()
+    mode.add_argument("--lockstep", dest="lockstep", action="store_true", default=True,
+                      help="wait for the autopilot each sample (default)")
+    mode.add_argument("--realtime", dest="lockstep", action="store_false",
+                      help="pace to the wall clock")
+    p.add_argument("--rate-hz", type=float, default=100.0,
+                   help="samples per second; in lockstep the autopilot's rate or a multiple")
+    p.add_argument("--plant", default="rigid-body", choices=list(FIDELITIES))
+    p.add_argument("--airframe", default="paper", choices=sorted(AIRFRAMES))
+    p.add_argument("--start-altitude", type=float, default=0.0, metavar="M",
+                   help="start hovering at this altitude (default: on the ground)")
+    p.add_argument("--schedule", type=Path, help="perturbation schedule JSON (sim time)")
+    p.add_argument("--duration", type=float, default=float("inf"), metavar="S",
+                   help="stop after this much sim time")
+    p.add_argument("--exit-on-disconnect", action="store_true",
+                   help="stop when the autopilot disconnects (scenario runs)")
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    from sitl.server import Simulator, SimulatorConfig
+
+    config = SimulatorConfig(
+        airframe=airframe_by_name(args.airframe), fidelity=args.plant, host=args.host,
+        port=args.port, lockstep=args.lockstep, rate_hz=args.rate_hz,
+        start_altitude_m=args.start_altitude,
+        schedule=load_schedule(args.schedule) if args.schedule else (),
+        exit_on_disconnect=args.exit_on_disconnect, duration_s=args.duration)
+    return Simulator(config).run()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return run(args)
+    except (ValueError, OSError) as exc:
+        print(f"sitl: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

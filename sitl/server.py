@@ -1,0 +1,282 @@
+"""The simulator process: the plant behind PX4's simulator protocol on TCP (SPEC section 7).
+
+It listens (TCP 4560 by default) for one autopilot at a time. Each sample it sends
+HIL_SENSOR, HIL_GPS, HIL_STATE_QUATERNION and ODOMETRY stamped with sim time and
+applies the HIL_ACTUATOR_CONTROLS it gets back.
+
+* lockstep: send the sample for time t, wait for the actuator message answering t, then
+  advance one period. Time stands still while no autopilot is connected.
+* real time: advance one period per wall-clock period whatever the autopilot does; the
+  motors stop if commands stay away longer than ``actuator_timeout_s`` (an ESC timeout).
+"""
+
+from __future__ import annotations
+
+import math
+import selectors
+import signal
+import socket
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from contracts.airframe import Airframe, hover_rotor_speed_rps
+from contracts.mavlink import (
+    SIM_TCP_PORT,
+    SIMULATOR_COMPID,
+    SIMULATOR_SYSID,
+    LinkDataError,
+    commands_from_actuator,
+    mavlink,
+    sample_messages,
+)
+from contracts.schedule import Perturbations, Window, plant_perturbations_at
+from sitl.plant import Plant
+
+
+@dataclass
+class SimulatorConfig:
+    airframe: Airframe
+    fidelity: str = "paper"
+    host: str = "127.0.0.1"
+    port: int = SIM_TCP_PORT
+    lockstep: bool = True
+    rate_hz: float = 100.0
+    plant_step_s: float = 0.001
+    start_altitude_m: float = 0.0  # > 0 starts in hover at that altitude
+    schedule: tuple[Window, ...] = ()
+    exit_on_disconnect: bool = False
+    duration_s: float = math.inf
+    actuator_timeout_s: float = 0.1
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.rate_hz) and 1.0 <= self.rate_hz <= 2000.0):
+            raise ValueError(f"rate must be in [1, 2000] Hz, got {self.rate_hz!r}")
+        period_us = 1e6 / self.rate_hz
+        if abs(period_us - round(period_us)) > 1e-6:
+            raise ValueError(f"rate {self.rate_hz} Hz does not give a whole microsecond period")
+        steps = 1.0 / self.rate_hz / self.plant_step_s
+        if abs(steps - round(steps)) > 1e-9:
+            raise ValueError(f"the sample period 1/{self.rate_hz} s is not a whole number of "
+                             f"{self.plant_step_s} s plant steps")
+        if not (math.isfinite(self.start_altitude_m) and 0.0 <= self.start_altitude_m <= 1e4):
+            raise ValueError(f"start altitude must be in [0, 1e4] m, got "
+                             f"{self.start_altitude_m!r}")
+
+
+@dataclass
+class LinkStats:
+    """What the simulator measures about the autopilot (real time mostly)."""
+
+    samples_sent: int = 0
+    commands_received: int = 0
+    bad_messages: int = 0
+    periods_without_command: int = 0
+    latency_s: list[float] = field(default_factory=list)
+
+
+class Simulator:
+    def __init__(self, config: SimulatorConfig, log=None) -> None:
+        self.config = config
+        self.log = log or (lambda text: print(f"sitl: {text}", file=sys.stderr, flush=True))
+        alt = config.start_altitude_m
+        self.plant = Plant(config.airframe, config.fidelity, config.plant_step_s,
+                           position_ned_m=(0.0, 0.0, -alt),
+                           rotor_rps=hover_rotor_speed_rps(config.airframe) if alt > 0 else 0.0,
+                           ground_contact=True)
+        self.period_us = round(1e6 / config.rate_hz)
+        self.period_s = self.period_us / 1e6
+        self.step_index = 0
+        self.mav = mavlink.MAVLink(None, srcSystem=SIMULATOR_SYSID, srcComponent=SIMULATOR_COMPID)
+        self.stats = LinkStats()
+        self._active = Perturbations()
+        self._previous_velocity = self.plant.state().velocity_ned_mps
+        self._acceleration = np.zeros(3)
+        self._stop = False
+
+    @property
+    def time_us(self) -> int:
+        return self.step_index * self.period_us
+
+    def stop(self, *_args) -> None:
+        self._stop = True
+
+    # -- the plant side ------------------------------------------------------------------
+    def _sample_bytes(self) -> bytes:
+        s = self.plant.state()
+        msgs = sample_messages(self.time_us, s.position_ned_m, s.velocity_ned_mps,
+                               s.quaternion, s.body_rate_rps, self._acceleration)
+        return b"".join(m.pack(self.mav) for m in msgs)
+
+    def _advance(self) -> None:
+        t = self.time_us / 1e6
+        wanted = plant_perturbations_at(self.config.schedule, t)
+        if wanted != self._active:
+            self.plant.set_perturbations(wanted)
+            self._active = wanted
+            self.log(f"t={t:.3f} s perturbations now {wanted}")
+        self.plant.advance(self.period_s)
+        self.step_index += 1
+        velocity = self.plant.state().velocity_ned_mps
+        self._acceleration = (velocity - self._previous_velocity) / self.period_s
+        self._previous_velocity = velocity
+
+    def _apply(self, msg) -> int | None:
+        """Apply an actuator message; returns the sample time it answers, None if refused."""
+        try:
+            commands = commands_from_actuator(msg)
+        except LinkDataError as exc:
+            self.stats.bad_messages += 1
+            self.log(f"refused actuator message: {exc}")
+            return None
+        self.plant.set_motor_commands(commands)
+        self.stats.commands_received += 1
+        return msg.time_usec
+
+    # -- the link ------------------------------------------------------------------------
+    def run(self) -> int:
+        signal.signal(signal.SIGTERM, self.stop)
+        server = socket.create_server((self.config.host, self.config.port), reuse_port=False)
+        server.settimeout(0.2)
+        self.log(f"listening on tcp {self.config.host}:{server.getsockname()[1]} "
+                 f"({'lockstep' if self.config.lockstep else 'real time'}, "
+                 f"{self.config.rate_hz:g} Hz, {self.config.fidelity} plant)")
+        try:
+            if self.config.lockstep:
+                self._run_lockstep(server)
+            else:
+                self._run_realtime(server)
+        except KeyboardInterrupt:
+            pass
+        finally:
+            server.close()
+        self.log(f"stopped at t={self.time_us / 1e6:.3f} s: {self.stats.samples_sent} samples "
+                 f"sent, {self.stats.commands_received} commands, "
+                 f"{self.stats.bad_messages} refused")
+        return 0
+
+    def _finished(self) -> bool:
+        return self._stop or self.time_us / 1e6 >= self.config.duration_s
+
+    def _accept(self, server: socket.socket) -> socket.socket | None:
+        try:
+            conn, peer = server.accept()
+        except (TimeoutError, BlockingIOError):
+            return None
+        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self.log(f"autopilot connected from {peer[0]}:{peer[1]} at t={self.time_us / 1e6:.3f} s")
+        # A fresh parser per connection: a half message from the last one must not linger.
+        self.mav = mavlink.MAVLink(None, srcSystem=SIMULATOR_SYSID, srcComponent=SIMULATOR_COMPID)
+        return conn
+
+    def _read(self, conn: socket.socket) -> list | None:
+        """Messages available now; None when the autopilot has gone."""
+        try:
+            data = conn.recv(65536)
+        except (BlockingIOError, TimeoutError):
+            return []
+        except OSError:
+            return None
+        if not data:
+            return None
+        try:
+            msgs = self.mav.parse_buffer(data) or []
+        except mavlink.MAVError as exc:
+            self.stats.bad_messages += 1
+            self.log(f"unreadable bytes from the autopilot: {exc}")
+            return []
+        return [m for m in msgs if m.get_type() != "BAD_DATA"]
+
+    def _lost(self, conn: socket.socket) -> None:
+        conn.close()
+        self.log(f"autopilot disconnected at t={self.time_us / 1e6:.3f} s")
+
+    def _run_lockstep(self, server: socket.socket) -> None:
+        while not self._finished():
+            conn = self._accept(server)
+            if conn is None:
+                continue
+            conn.settimeout(0.5)
+            connected = True
+            while connected and not self._finished():
+                try:
+                    conn.sendall(self._sample_bytes())
+                except OSError:
+                    break
+                self.stats.samples_sent += 1
+                answered = False
+                while not answered and not self._stop:
+                    msgs = self._read(conn)
+                    if msgs is None:
+                        connected = False
+                        break
+                    for msg in msgs:
+                        if msg.get_type() == "HIL_ACTUATOR_CONTROLS":
+                            answered = self._apply(msg) == self.time_us or answered
+                if answered:
+                    self._advance()
+            self._lost(conn)
+            if self.config.exit_on_disconnect:
+                return
+
+    def _run_realtime(self, server: socket.socket) -> None:
+        server.setblocking(False)
+        conn: socket.socket | None = None
+        sel = selectors.DefaultSelector()
+        start = time.perf_counter()
+        last_command_time = -math.inf
+        timed_out = True
+        while not self._finished():
+            if conn is None:
+                conn = self._accept(server)
+                if conn is not None:
+                    conn.setblocking(False)
+                    sel.register(conn, selectors.EVENT_READ)
+            if conn is not None:
+                try:
+                    conn.sendall(self._sample_bytes())
+                    self.stats.samples_sent += 1
+                except OSError:
+                    pass
+            deadline = start + (self.step_index + 1) * self.period_s
+            got_command = False
+            while conn is not None:
+                remaining = deadline - time.perf_counter()
+                if remaining <= 0 or not sel.select(remaining):
+                    break
+                msgs = self._read(conn)
+                if msgs is None:
+                    sel.unregister(conn)
+                    self._lost(conn)
+                    conn = None
+                    if self.config.exit_on_disconnect:
+                        return
+                    break
+                for msg in msgs:
+                    if msg.get_type() == "HIL_ACTUATOR_CONTROLS":
+                        answered = self._apply(msg)
+                        if answered is not None:
+                            got_command = True
+                            last_command_time = self.time_us / 1e6
+                            self.stats.latency_s.append(max(0, self.time_us - answered) / 1e6)
+                            if timed_out:
+                                self.log(f"actuator commands flowing at t="
+                                         f"{self.time_us / 1e6:.3f} s")
+                                timed_out = False
+            if conn is None:
+                time.sleep(max(0.0, deadline - time.perf_counter()))
+            if not got_command:
+                self.stats.periods_without_command += 1
+            if (not timed_out and self.time_us / 1e6 - last_command_time
+                    > self.config.actuator_timeout_s):
+                timed_out = True
+                self.plant.set_motor_commands(np.zeros(4))
+                self.log(f"no actuator commands for {self.config.actuator_timeout_s:g} s at "
+                         f"t={self.time_us / 1e6:.3f} s: motors stopped")
+            self._advance()
+            if time.perf_counter() - deadline > 1.0:  # far behind (suspended?): re-anchor
+                start = time.perf_counter() - self.step_index * self.period_s
+        if conn is not None:
+            conn.close()

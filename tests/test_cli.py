@@ -56,7 +56,7 @@ def test_bad_arguments_are_refused_and_nothing_is_written(tmp_path: Path, args, 
 
 
 def _write_bad_models(tmp_path: Path) -> dict[str, Path]:
-    good = json.loads((Path(load_models.__code__.co_filename).parents[1] / "autopilot" / "models"
+    good = json.loads((Path(load_models.__code__.co_filename).parents[1] / "models"
                        / "paper.json").read_text())
     cases = {}
     cases["not-json"] = "{ this is not json"

@@ -96,8 +96,12 @@ class Recorder:
             "channel_telemetry", "theta_g", "theta_f_0", "theta_f_1", "theta_f_2")}
 
     def add(self, t_s: float, vehicle: Vehicle) -> None:
+        """One control step; time counts from the start of the reference."""
         r, c = self.rows, vehicle.controller
-        r["time_s"].append(t_s)
+        if not r["time_s"]:
+            self.wall_start_s = time.perf_counter()
+        self.wall_end_s = time.perf_counter()
+        r["time_s"].append(t_s - vehicle.reference_start_s)
         r["measurement"].append(vehicle.measurement.copy())
         r["reference"].append(vehicle.last_ref.copy())
         r["kick"].append(vehicle.last_kick.copy())
@@ -112,7 +116,9 @@ class Recorder:
     def save(self, path: Path, timing: dict) -> None:
         arrays = {k: np.array(v) for k, v in self.rows.items()}
         tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, timing=np.array(json.dumps(timing)), **arrays)
+        loop_s = self.wall_end_s - self.wall_start_s if self.rows["time_s"] else 0.0
+        np.savez(tmp, timing=np.array(json.dumps(timing)), loop_wall_s=np.array(loop_s),
+                 **arrays)
         tmp.replace(path)
 
 

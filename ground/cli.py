@@ -47,8 +47,14 @@ def _build_parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser("run", help="run one scenario and write metrics.json and figures")
     run.add_argument("scenario", help=f"one of: {', '.join(SCENARIOS)}")
-    run.add_argument("--inprocess", action="store_true",
-                     help="plant and controller in one process (the only mode so far)")
+    pace = run.add_mutually_exclusive_group()
+    pace.add_argument("--inprocess", action="store_true",
+                      help="plant and controller in one process (no MAVLink)")
+    pace.add_argument("--realtime", action="store_true",
+                      help="the two processes paced to the wall clock (default: lockstep)")
+    run.add_argument("--rate-hz", type=float, default=100.0, help="control rate")
+    run.add_argument("--state-source", default="odometry", choices=["odometry", "hil-state"],
+                     help="what the autopilot reads its state from")
     run.add_argument("--controller", default="ivfc", choices=CONTROLLERS)
     run.add_argument("--plant", default="paper", choices=list(FIDELITIES))
     run.add_argument("--out", type=Path, required=True, help="output directory")
@@ -71,6 +77,11 @@ def _build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--clusters", type=int, default=None)
     ident.add_argument("--airframe", default="paper", choices=sorted(AIRFRAMES))
 
+    from autopilot.__main__ import build_parser as autopilot_parser
+    from sitl.__main__ import build_parser as sitl_parser
+
+    sitl_parser(sub.add_parser("sitl", help="the simulator process (PX4 simulator protocol)"))
+    autopilot_parser(sub.add_parser("autopilot", help="the autopilot process (MAVLink vehicle)"))
     sub.add_parser("scenarios", help="list the scenarios")
     sub.add_parser("params", help="list the controller parameters with defaults")
     return parser
@@ -88,6 +99,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             "identify": commands.identify_command,
             "scenarios": commands.scenarios_command,
             "params": commands.params_command,
+            "sitl": commands.sitl_command,
+            "autopilot": commands.autopilot_command,
         }[args.command]
         return handler(args)
     except (UsageError, ValueError, OSError) as exc:

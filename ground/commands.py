@@ -36,17 +36,33 @@ def run_command(args: argparse.Namespace) -> int:
     from ground.figures import plot_run
     from ground.inprocess import run_inprocess
     from ground.metrics import compute_metrics
+    from ground.processes import run_processes
 
     scenario = scenario_by_name(args.scenario)
     airframe = airframe_by_name(args.airframe)
     parameters = validate_parameters(dict(args.param))
     models = load_models(args.model) if args.controller in ("ivfc", "t1fc") else None
+    how = ("in process" if args.inprocess else
+           "simulator + autopilot, real time" if args.realtime else
+           "simulator + autopilot, lockstep")
     print(f"ivfm: {scenario.name} with {args.controller} on the {args.plant} plant "
-          f"({scenario.duration_s:g} s sim, in process)", file=sys.stderr)
-    record = run_inprocess(scenario, args.controller, args.plant, airframe, models,
-                           parameters=parameters)
+          f"({scenario.duration_s:g} s sim, {how})", file=sys.stderr)
+    timing: dict = {}
+    if args.inprocess:
+        record = run_inprocess(scenario, args.controller, args.plant, airframe, models,
+                               period_s=1.0 / args.rate_hz, parameters=parameters)
+    else:
+        overrides = {k: v for k, v in parameters.items() if k in dict(args.param)}
+        record, timing = run_processes(
+            scenario, args.controller, args.plant, args.airframe, args.out, args.model,
+            overrides, realtime=args.realtime, rate_hz=args.rate_hz,
+            state_source=args.state_source)
     metrics = compute_metrics(record, scenario, args.airframe)
+    metrics["mode"] = "inprocess" if args.inprocess else (
+        "realtime" if args.realtime else "lockstep")
     metrics["parameters"] = parameters
+    if timing:
+        metrics["timing"] = timing
     args.out.mkdir(parents=True, exist_ok=True)
     write_json(args.out / "metrics.json", metrics)
     if not args.no_figures:
@@ -143,3 +159,15 @@ def params_command(args: argparse.Namespace) -> int:
         print(f"{p.name:<16} {p.default:>10g}  [{p.minimum:g}, {p.maximum:g}] {p.unit:<8}"
               f" {p.description}")
     return 0
+
+
+def sitl_command(args: argparse.Namespace) -> int:
+    from sitl.__main__ import run
+
+    return run(args)
+
+
+def autopilot_command(args: argparse.Namespace) -> int:
+    from autopilot.__main__ import run
+
+    return run(args)

@@ -225,6 +225,16 @@ class Simulator:
         server.setblocking(False)
         conn: socket.socket | None = None
         sel = selectors.DefaultSelector()
+        # Sim time starts with the first autopilot, so a scenario's schedule and the
+        # autopilot's reference share an origin; afterwards the world goes on without it.
+        while conn is None and not self._finished():
+            conn = self._accept(server)
+            if conn is None:
+                time.sleep(0.01)
+        if conn is None:
+            return
+        conn.setblocking(False)
+        sel.register(conn, selectors.EVENT_READ)
         start = time.perf_counter()
         last_command_time = -math.inf
         timed_out = True

@@ -51,6 +51,8 @@ def run_inprocess(
     parameters: dict[str, float] | None = None,
 ) -> RunRecord:
     n = int(round(scenario.duration_s / period_s))
+    # Sim time in whole microseconds, as the simulator stamps its samples.
+    period_us = round(period_s * 1e6)
     # Scenarios start in hover at the reference's altitude over the origin: the paper's
     # tests are about tracking, not take-off.
     plant = Plant(airframe, plant_fidelity, plant_step_s,
@@ -71,7 +73,7 @@ def run_inprocess(
     diverged = False
     start = time.perf_counter()
     for k in range(n):
-        t = k * period_s
+        t = k * period_us / 1e6
         wanted = scenario.plant_perturbations_at(t)
         if wanted != active:
             plant.set_perturbations(wanted)
@@ -95,7 +97,7 @@ def run_inprocess(
     wall = time.perf_counter() - start
     return RunRecord(
         scenario=scenario.name, controller=controller, plant=plant_fidelity, period_s=period_s,
-        time_s=np.arange(n) * period_s, measurement=meas_log[:n], reference=ref_log[:n],
+        time_s=np.arange(n) * period_us / 1e6, measurement=meas_log[:n], reference=ref_log[:n],
         kick=kick_log[:n], motor_commands=cmd_log[:n], channel_telemetry=tel_log[:n],
         theta_g=theta_g_log[:n], theta_f=[t[:n] for t in theta_f_log], wall_time_s=wall,
         diverged=diverged,

@@ -1,0 +1,174 @@
+"""Start the simulator and autopilot as real processes and talk to them as a ground tool."""
+
+from __future__ import annotations
+
+import math
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+os.environ["MAVLINK20"] = "1"  # before pymavlink picks its dialect: MAVLink 2, as tools use
+
+from pymavlink import mavutil  # noqa: E402
+
+mavutil.set_dialect("common")
+GCS_SYSID = 255
+
+
+def free_port(kind: int = socket.SOCK_DGRAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass
+class Processes:
+    sim_port: int
+    gcs_port: int  # where the test's ground tool listens
+    vehicle_port: int  # the autopilot's own ground-link port
+    log_dir: Path
+    sim_args: list[str] = field(default_factory=list)
+    autopilot_args: list[str] = field(default_factory=list)
+    sim: subprocess.Popen | None = None
+    autopilot: subprocess.Popen | None = None
+
+    def start_sim(self) -> None:
+        log = open(self.log_dir / "sitl.log", "a")  # noqa: SIM115 (lives with the process)
+        self.sim = subprocess.Popen(
+            [sys.executable, "-m", "sitl", "--port", str(self.sim_port), *self.sim_args],
+            stdout=log, stderr=subprocess.STDOUT)
+
+    def start_autopilot(self) -> None:
+        log = open(self.log_dir / "autopilot.log", "a")  # noqa: SIM115
+        self.autopilot = subprocess.Popen(
+            [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{self.sim_port}",
+             "--gcs", f"127.0.0.1:{self.gcs_port}", "--gcs-bind", str(self.vehicle_port),
+             "--api", "none", "--api-bind", "0", *self.autopilot_args],
+            stdout=log, stderr=subprocess.STDOUT)
+
+    def sim_log(self) -> str:
+        return (self.log_dir / "sitl.log").read_text()
+
+    def autopilot_log(self) -> str:
+        return (self.log_dir / "autopilot.log").read_text()
+
+    def stop(self) -> None:
+        for proc in (self.autopilot, self.sim):
+            if proc is not None and proc.poll() is None:
+                proc.terminate()
+                try:
+                    proc.wait(5)
+                except subprocess.TimeoutExpired:
+                    proc.kill()
+                    proc.wait()
+
+
+def start_processes(log_dir: Path, sim_args: list[str] | None = None,
+                    autopilot_args: list[str] | None = None) -> Processes:
+    """Simulator and autopilot in real time at 100 Hz, the vehicle on the ground."""
+    procs = Processes(free_port(socket.SOCK_STREAM), free_port(), free_port(), log_dir,
+                      ["--realtime", "--plant", "rigid-body", *(sim_args or [])],
+                      ["--realtime", *(autopilot_args or [])])
+    procs.start_sim()
+    procs.start_autopilot()
+    return procs
+
+
+class GroundTool:
+    """A pymavlink ground station: heartbeats, and waiting for what the vehicle says."""
+
+    def __init__(self, port: int, signing_key: bytes | None = None) -> None:
+        self.conn = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}",
+                                               source_system=GCS_SYSID, source_component=190)
+        if signing_key is not None:
+            self.conn.setup_signing(signing_key, sign_outgoing=True)
+        self.texts: list[str] = []
+        self.last_heartbeat_s = 0.0
+        self.heartbeats = True
+
+    @property
+    def mav(self):
+        return self.conn.mav
+
+    def pump(self, timeout_s: float = 0.05):
+        """Receive one message (or None); keeps our 1 Hz heartbeat going."""
+        now = time.monotonic()
+        if self.heartbeats and now - self.last_heartbeat_s >= 1.0:
+            self.last_heartbeat_s = now
+            self.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS,
+                                    mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        msg = self.conn.recv_match(blocking=True, timeout=timeout_s)
+        if msg is not None and msg.get_type() == "STATUSTEXT":
+            self.texts.append(msg.text)
+        return msg
+
+    def wait(self, predicate: Callable, timeout_s: float = 10.0, what: str = "",
+             also: Callable[[], None] | None = None):
+        """The first message for which predicate(msg) holds; fails after timeout_s."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if also is not None:
+                also()
+            msg = self.pump()
+            if msg is not None and predicate(msg):
+                return msg
+        raise AssertionError(f"timed out after {timeout_s} s waiting for {what or predicate}; "
+                             f"status texts: {self.texts[-8:]}")
+
+    def wait_type(self, kind: str, timeout_s: float = 10.0, cond: Callable | None = None,
+                  also: Callable[[], None] | None = None):
+        return self.wait(lambda m: m.get_type() == kind and (cond is None or cond(m)),
+                         timeout_s, kind, also)
+
+    def wait_text(self, fragment: str, timeout_s: float = 10.0,
+                  also: Callable[[], None] | None = None) -> str:
+        for text in self.texts:
+            if fragment in text:
+                return text
+        msg = self.wait(lambda m: m.get_type() == "STATUSTEXT" and fragment in m.text,
+                        timeout_s, f"STATUSTEXT '{fragment}'", also)
+        return msg.text
+
+    def command(self, command: int, *params: float, timeout_s: float = 5.0):
+        """COMMAND_LONG to the vehicle; returns its COMMAND_ACK."""
+        p = list(params) + [0.0] * (7 - len(params))
+        self.mav.command_long_send(1, 1, command, 0, *p)
+        return self.wait_type("COMMAND_ACK", timeout_s, lambda m: m.command == command)
+
+    def connect(self, timeout_s: float = 30.0):
+        """Wait for the vehicle's heartbeat and a healthy simulator link."""
+        self.wait_type("HEARTBEAT", timeout_s, lambda m: m.get_srcComponent() == 1)
+        return self.wait_type("SYS_STATUS", timeout_s,
+                              lambda m: m.onboard_control_sensors_health & 0x20)
+
+    def position(self):
+        return self.wait_type("LOCAL_POSITION_NED")
+
+    def heartbeat(self):
+        return self.wait_type("HEARTBEAT", cond=lambda m: m.get_srcComponent() == 1)
+
+    def armed(self) -> bool:
+        return bool(self.heartbeat().base_mode & mavutil.mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+
+    def send_position_setpoint(self, x: float, y: float, z: float, yaw: float = 0.0,
+                               type_mask: int = 0x9F8) -> None:
+        self.mav.set_position_target_local_ned_send(
+            0, 1, 1, mavutil.mavlink.MAV_FRAME_LOCAL_NED, type_mask, x, y, z, 0.0, 0.0, 0.0,
+            0.0, 0.0, 0.0, yaw, 0.0)
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+def px4_mode(main: int, sub: int = 0) -> tuple[float, float, float]:
+    """DO_SET_MODE params for a PX4 custom mode."""
+    return float(mavutil.mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED), float(main), float(sub)
+
+
+def is_nan(value: float) -> bool:
+    return isinstance(value, float) and math.isnan(value)

@@ -1,0 +1,266 @@
+"""The autopilot as a MAVLink vehicle, driven by a pymavlink ground station over UDP.
+
+Real processes (simulator + autopilot, real time, rigid-body plant) on real sockets.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import pytest
+
+from tests.harness import GroundTool, mavutil, px4_mode, start_processes
+
+M = mavutil.mavlink
+ACCEPTED, DENIED = M.MAV_RESULT_ACCEPTED, M.MAV_RESULT_DENIED
+TEMP_REJECTED, UNSUPPORTED = M.MAV_RESULT_TEMPORARILY_REJECTED, M.MAV_RESULT_UNSUPPORTED
+OFFBOARD = px4_mode(6)
+HOLD = px4_mode(4, 3)
+
+
+@pytest.fixture
+def vehicle(tmp_path):
+    procs = start_processes(tmp_path)
+    tool = GroundTool(procs.gcs_port)
+    try:
+        tool.connect()
+        yield procs, tool
+    finally:
+        tool.close()
+        procs.stop()
+
+
+def _take_off(tool: GroundTool, altitude_m: float = 2.5) -> None:
+    assert tool.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == ACCEPTED
+    assert tool.command(M.MAV_CMD_NAV_TAKEOFF, *[math.nan] * 7).result == ACCEPTED
+    tool.wait_type("LOCAL_POSITION_NED", 20, lambda m: abs(m.z + altitude_m) < 0.15)
+    tool.wait_text("take-off complete", 10)
+
+
+def _custom_mode(hb) -> tuple[int, int]:
+    return (hb.custom_mode >> 16) & 0xFF, (hb.custom_mode >> 24) & 0xFF
+
+
+def test_every_command_is_acknowledged(vehicle):
+    procs, tool = vehicle
+    cases = [
+        (M.MAV_CMD_REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_AUTOPILOT_VERSION,), ACCEPTED),
+        (M.MAV_CMD_REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_HOME_POSITION,), ACCEPTED),
+        (M.MAV_CMD_REQUEST_MESSAGE, (395,), DENIED),  # COMPONENT_INFORMATION
+        (M.MAV_CMD_GET_HOME_POSITION, (), ACCEPTED),
+        (M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, (1,), ACCEPTED),
+        (M.MAV_CMD_SET_MESSAGE_INTERVAL, (M.MAVLINK_MSG_ID_ATTITUDE, 100000), ACCEPTED),
+        (M.MAV_CMD_SET_MESSAGE_INTERVAL, (M.MAVLINK_MSG_ID_ATTITUDE, math.nan), DENIED),
+        (M.MAV_CMD_NAV_TAKEOFF, (math.nan,) * 7, TEMP_REJECTED),  # disarmed
+        (M.MAV_CMD_NAV_LAND, (), TEMP_REJECTED),  # disarmed
+        (M.MAV_CMD_DO_SET_MODE, OFFBOARD, TEMP_REJECTED),  # no setpoint stream
+        (M.MAV_CMD_DO_SET_MODE, px4_mode(42), DENIED),
+        (M.MAV_CMD_COMPONENT_ARM_DISARM, (7,), DENIED),
+        (M.MAV_CMD_USER_1, (), UNSUPPORTED),
+        (M.MAV_CMD_DO_REPOSITION, (), UNSUPPORTED),
+        (M.MAV_CMD_COMPONENT_ARM_DISARM, (1,), ACCEPTED),
+        (M.MAV_CMD_COMPONENT_ARM_DISARM, (0,), ACCEPTED),
+    ]
+    for command, params, expected in cases:
+        ack = tool.command(command, *params)
+        assert ack.result == expected, (command, params, ack)
+        assert ack.target_system == 255
+    # COMMAND_INT too, and the message a request asked for arrives.
+    tool.mav.command_int_send(1, 1, 0, M.MAV_CMD_USER_2, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+    assert tool.wait_type("COMMAND_ACK", cond=lambda m: m.command == M.MAV_CMD_USER_2).result \
+        == UNSUPPORTED
+    tool.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+    version = tool.wait_type("AUTOPILOT_VERSION")
+    assert version.capabilities & M.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+
+
+def test_take_off_hold_land_and_auto_disarm(vehicle):
+    procs, tool = vehicle
+    hb = tool.heartbeat()
+    assert hb.autopilot == M.MAV_AUTOPILOT_PX4 and hb.type == M.MAV_TYPE_QUADROTOR
+    _take_off(tool)
+    hb = tool.heartbeat()
+    assert _custom_mode(hb) == (4, 3)  # AUTO.LOITER: hold after take-off
+    state = tool.wait_type("EXTENDED_SYS_STATE")
+    assert state.landed_state == M.MAV_LANDED_STATE_IN_AIR
+    # Disarming in the air is denied unless forced.
+    assert tool.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 0).result == DENIED
+    assert tool.command(M.MAV_CMD_NAV_LAND).result == ACCEPTED
+    tool.wait_text("landed: disarmed", 30)
+    assert not tool.armed()
+    assert abs(tool.position().z) < 0.1
+
+
+def test_offboard_needs_a_stream_and_follows_setpoints(vehicle):
+    procs, tool = vehicle
+    _take_off(tool)
+    assert tool.command(M.MAV_CMD_DO_SET_MODE, *OFFBOARD).result == TEMP_REJECTED
+    stream = _streamer(tool, lambda: tool.send_position_setpoint(1.0, -0.5, -2.0))
+    stream()
+    tool.wait_type("HEARTBEAT", 2, also=stream)
+    assert tool.command(M.MAV_CMD_DO_SET_MODE, *OFFBOARD).result == ACCEPTED
+    tool.wait_type("LOCAL_POSITION_NED", 20,
+                   lambda m: abs(m.x - 1.0) < 0.1 and abs(m.y + 0.5) < 0.1
+                   and abs(m.z + 2.0) < 0.1, also=stream)
+    assert _custom_mode(tool.wait_type("HEARTBEAT", also=stream)) == (6, 0)
+
+
+def _streamer(tool: GroundTool, send, rate_hz: float = 20.0):
+    last = [0.0]
+
+    def stream() -> None:
+        now = time.monotonic()
+        if now - last[0] >= 1.0 / rate_hz:
+            last[0] = now
+            send()
+    return stream
+
+
+@pytest.mark.parametrize("bad", [
+    (math.nan, 0.0, -2.0), (math.inf, 0.0, -2.0), (0.0, -math.inf, -2.0), (0.0, 0.0, 5e4)])
+def test_bad_setpoints_are_refused_and_change_nothing(vehicle, bad):
+    procs, tool = vehicle
+    _take_off(tool)
+    good = _streamer(tool, lambda: tool.send_position_setpoint(0.5, 0.0, -2.0))
+    good()
+    tool.wait_type("HEARTBEAT", 2, also=good)
+    assert tool.command(M.MAV_CMD_DO_SET_MODE, *OFFBOARD).result == ACCEPTED
+    tool.wait_type("LOCAL_POSITION_NED", 20, lambda m: abs(m.x - 0.5) < 0.05, also=good)
+    # A stream of bad setpoints: refused with a STATUSTEXT; the target stays where it was.
+    bad_stream = _streamer(tool, lambda: tool.send_position_setpoint(*bad))
+    tool.wait_text("setpoint refused", 5, also=bad_stream)
+    end = time.monotonic() + 0.8  # less than the 1 s setpoint-loss timeout
+    while time.monotonic() < end:
+        bad_stream()
+        pos = tool.pump()
+        if pos is not None and pos.get_type() == "LOCAL_POSITION_NED":
+            assert abs(pos.x - 0.5) < 0.15 and abs(pos.z + 2.0) < 0.15  # still settling
+    # Bad setpoints do not count as a stream: the setpoint-loss failsafe takes over.
+    tool.wait_text("offboard setpoints lost: hold", 5, also=bad_stream)
+    assert _custom_mode(tool.heartbeat()) == (4, 3)
+    pos = tool.position()
+    assert abs(pos.x - 0.5) < 0.15 and abs(pos.z + 2.0) < 0.15
+
+
+def test_setpoint_loss_failsafe_fires_after_its_timeout(vehicle):
+    procs, tool = vehicle
+    _take_off(tool)
+    stream = _streamer(tool, lambda: tool.send_position_setpoint(0.0, 0.0, -2.5))
+    tool.wait_type("HEARTBEAT", 2, also=stream)
+    assert tool.command(M.MAV_CMD_DO_SET_MODE, *OFFBOARD).result == ACCEPTED
+    tool.wait_type("HEARTBEAT", 2, also=stream)
+    stopped = time.monotonic()
+    text = tool.wait_text("offboard setpoints lost", 5)
+    elapsed = time.monotonic() - stopped
+    assert text == "offboard setpoints lost: hold"
+    assert 0.9 <= elapsed <= 2.0  # COM_OF_LOSS_T = 1 s, plus the 20 Hz stream gap
+    assert _custom_mode(tool.heartbeat()) == (4, 3)
+
+
+def test_ground_station_loss_failsafe_and_parameters(vehicle):
+    procs, tool = vehicle
+    # The parameter protocol: the whole list, a read, a set that takes effect, bad sets.
+    tool.mav.param_request_list_send(1, 1)
+    values = {}
+    while True:
+        msg = tool.wait_type("PARAM_VALUE", 5)
+        values[msg.param_id] = msg
+        if len(values) == msg.param_count:
+            break
+    assert all(v.param_type == M.MAV_PARAM_TYPE_REAL32 for v in values.values())
+    assert values["ATT_LAM"].param_value == pytest.approx(8.0)
+    for name, value, expected in [("ATT_LAM", 9.5, 9.5), ("ATT_LAM", math.nan, 9.5),
+                                  ("ATT_LAM", 1e9, 9.5), ("NAV_DLL_ACT", 2.0, 1.0),
+                                  ("COM_DL_LOSS_T", 2.5, 2.5)]:
+        tool.mav.param_set_send(1, 1, name.encode(), value, M.MAV_PARAM_TYPE_REAL32)
+        echo = tool.wait_type("PARAM_VALUE", 5, lambda m, n=name: m.param_id == n)
+        assert echo.param_value == pytest.approx(expected), (name, value)
+    tool.mav.param_request_read_send(1, 1, b"ATT_LAM", -1)
+    assert tool.wait_type("PARAM_VALUE", 5, lambda m: m.param_id == "ATT_LAM").param_value \
+        == pytest.approx(9.5)
+    tool.mav.param_set_send(1, 1, b"NO_SUCH_PARAM", 1.0, M.MAV_PARAM_TYPE_REAL32)
+    tool.wait_text("unknown parameter NO_SUCH_PARAM", 5)
+    # Fly, then go silent: after COM_DL_LOSS_T = 2.5 s the vehicle holds and says so.
+    _take_off(tool)
+    tool.heartbeats = False
+    silent = tool.last_heartbeat_s
+    text = tool.wait_text("ground station lost", 5)
+    assert text == "ground station lost: hold"
+    assert 2.5 <= time.monotonic() - silent <= 3.5
+    tool.heartbeats = True
+    tool.wait_text("ground station link regained", 5)
+
+
+def test_ftp_gets_a_nak_and_missions_are_empty(vehicle):
+    procs, tool = vehicle
+    payload = [0] * 251
+    payload[3] = 5  # OpenFileRO
+    tool.mav.file_transfer_protocol_send(0, 1, 1, payload)
+    reply = tool.wait_type("FILE_TRANSFER_PROTOCOL", 5)
+    assert reply.payload[3] == 129  # NAK
+    tool.mav.mission_request_list_send(1, 1, 0)
+    assert tool.wait_type("MISSION_COUNT", 5).count == 0
+
+
+def test_simulator_loss_lands_and_a_new_simulator_reconnects(vehicle):
+    procs, tool = vehicle
+    _take_off(tool)
+    procs.sim.kill()
+    procs.sim.wait()
+    tool.wait_text("simulator link lost: land", 5)
+    assert _custom_mode(tool.heartbeat()) == (4, 6)  # AUTO.LAND
+    # The autopilot keeps serving ground tools meanwhile.
+    assert tool.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_HOME_POSITION).result \
+        == ACCEPTED
+    procs.start_sim()  # a new simulator: on the ground, its clock from zero
+    tool.wait_text("simulator link up", 15)
+    tool.wait_text("disarmed", 10)
+    assert not tool.armed()
+    assert tool.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result == ACCEPTED
+
+
+def test_killing_the_autopilot_stops_the_motors_and_a_new_one_reconnects(vehicle):
+    procs, tool = vehicle
+    _take_off(tool)
+    procs.autopilot.kill()
+    procs.autopilot.wait()
+    deadline = time.monotonic() + 10
+    while "motors stopped" not in procs.sim_log() and time.monotonic() < deadline:
+        time.sleep(0.1)
+    log = procs.sim_log()
+    assert "autopilot disconnected" in log and "motors stopped" in log
+    assert procs.sim.poll() is None  # still running
+    procs.start_autopilot()
+    tool.wait_text("simulator link up", 15)
+    pos = tool.position()
+    assert abs(pos.z) < 0.05  # it fell to the ground while nobody flew it
+    assert procs.sim_log().count("autopilot connected") == 2
+
+
+def test_signing_ignores_unsigned_and_wrongly_signed_commands(tmp_path):
+    key = bytes(range(32))
+    procs = start_processes(tmp_path, autopilot_args=["--signing-key", key.hex()])
+    signed = GroundTool(procs.gcs_port, key)
+    try:
+        signed.connect()
+        # Unsigned, then wrongly signed, arming attempts from other sockets.
+        for k in (None, bytes(32)):
+            other = mavutil.mavlink_connection(f"udpout:127.0.0.1:{procs.vehicle_port}",
+                                               source_system=255)
+            if k is not None:
+                other.setup_signing(k, sign_outgoing=True)
+            for _ in range(3):
+                other.mav.command_long_send(1, 1, M.MAV_CMD_COMPONENT_ARM_DISARM, 0, 1, 0, 0,
+                                            0, 0, 0, 0)
+                time.sleep(0.2)
+            reply = other.recv_match(type="COMMAND_ACK", blocking=True, timeout=1.0)
+            assert reply is None
+            other.close()
+        assert not signed.armed()
+        ack = signed.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        assert ack.result == ACCEPTED and ack.get_signed()
+        assert signed.armed()
+    finally:
+        signed.close()
+        procs.stop()

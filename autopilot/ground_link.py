@@ -399,6 +399,12 @@ class GroundStation:
         """Send what is due and queued; check the link failsafes."""
         now = self.clock()
         self.vehicle.check_links(now)
+        shown = (self.vehicle.armed, self.vehicle.mode)
+        if shown != getattr(self, "_shown", None):  # tools read arming and mode off heartbeats
+            self._shown = shown
+            for link in self.links:
+                link.next_due_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now
+                link.next_due_s[mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE] = now
         while self.vehicle.messages:
             severity, text = self.vehicle.messages.pop(0)
             self.broadcast(lambda s=severity, t=text: mavlink.MAVLink_statustext_message(

@@ -31,6 +31,7 @@ from contracts.mavlink import (
     mavlink,
     measurement_from_hil_state,
     measurement_from_odometry,
+    split_frames,
 )
 
 STATE_SOURCES = {"odometry": "ODOMETRY", "hil-state": "HIL_STATE_QUATERNION"}
@@ -129,6 +130,8 @@ class SimLink:
         self.address = (host, port)
         self.sock: socket.socket | None = None
         self.source_type = STATE_SOURCES[source]
+        self.source_id = getattr(mavlink, f"MAVLINK_MSG_ID_{self.source_type}")
+        self._pending = b""
         self.decode = (measurement_from_odometry if source == "odometry"
                        else measurement_from_hil_state)
         self.mav = mavlink.MAVLink(None, srcSystem=AUTOPILOT_SYSID, srcComponent=AUTOPILOT_COMPID)
@@ -148,6 +151,7 @@ class SimLink:
         sock.setblocking(False)
         self.sock = sock
         self.mav = mavlink.MAVLink(None, srcSystem=AUTOPILOT_SYSID, srcComponent=AUTOPILOT_COMPID)
+        self._pending = b""
         return True
 
     def close(self) -> None:
@@ -165,8 +169,10 @@ class SimLink:
             return None
         if not data:
             return None
+        frames, self._pending = split_frames(self._pending + data)
+        wanted = b"".join(f for msgid, f in frames if msgid in (self.source_id, -1))
         samples = []
-        for msg in self.mav.parse_buffer(data) or []:
+        for msg in (self.mav.parse_buffer(wanted) if wanted else None) or []:
             if msg.get_type() != self.source_type:
                 continue
             try:

@@ -20,7 +20,6 @@ from contracts.frames import (
     euler_rates_from_body_rates,
     geodetic_from_ned,
     ned_from_geodetic,
-    rotation_from_quat,
 )
 
 __all__ = ["mavlink"]
@@ -73,20 +72,20 @@ def sample_messages(
     ``accel_ned_mps2`` is the kinematic acceleration; the accelerometer reads the specific
     force R^T (a - g) in FRD.
     """
-    rot = rotation_from_quat(quaternion)
-    specific_force = rot.T @ (accel_ned_mps2 - np.array([0.0, 0.0, GRAVITY_MPS2]))
-    mag = rot.T @ MAG_FIELD_NED_GAUSS
+    w, x, y, z = (float(v) for v in quaternion)
+    ax, ay, az = (float(v) for v in accel_ned_mps2)
+    fx, fy, fz = _to_body(w, x, y, z, ax, ay, az - GRAVITY_MPS2)
+    mag = _to_body(w, x, y, z, *MAG_FIELD_NED_TUPLE)
     n, e, d = (float(v) for v in position_ned_m)
     vn, ve, vd = (float(v) for v in velocity_ned_mps)
     lat, lon, alt = geodetic_from_ned(n, e, d)
     p, q, r = (float(v) for v in body_rate_rps)
-    w, x, y, z = (float(v) for v in quaternion)
     ground_speed = math.hypot(vn, ve)
     course_cdeg = math.degrees(math.atan2(ve, vn)) % 360.0 * 100.0
-    accel_mg = specific_force / GRAVITY_MPS2 * 1000.0
+    accel_mg = (fx * MG_PER_MPS2, fy * MG_PER_MPS2, fz * MG_PER_MPS2)
     return [
         mavlink.MAVLink_hil_sensor_message(
-            time_us, *(float(a) for a in specific_force), p, q, r, *(float(m) for m in mag),
+            time_us, fx, fy, fz, p, q, r, *mag,
             pressure_hpa(alt), 0.0, alt, TEMPERATURE_C, HIL_SENSOR_ALL_FIELDS, 0),
         mavlink.MAVLink_hil_gps_message(
             time_us, 3, _int_clamped(lat * 1e7, -2**31, 2**31 - 1),
@@ -107,6 +106,23 @@ def sample_messages(
             [w, x, y, z], vn, ve, vd, p, q, r, [math.nan] * 21, [math.nan] * 21, 0,
             mavlink.MAV_ESTIMATOR_TYPE_MOCAP, 100),
     ]
+
+
+MG_PER_MPS2 = 1000.0 / GRAVITY_MPS2
+MAG_FIELD_NED_TUPLE = tuple(float(v) for v in MAG_FIELD_NED_GAUSS)
+
+
+def _to_body(w: float, x: float, y: float, z: float, vx: float, vy: float,
+             vz: float) -> tuple[float, float, float]:
+    """R(q)^T v: a world (NED) vector in body axes (FRD), in plain floats (per sample)."""
+    return (
+        (1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y + w * z) * vy
+        + 2.0 * (x * z - w * y) * vz,
+        2.0 * (x * y - w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy
+        + 2.0 * (y * z + w * x) * vz,
+        2.0 * (x * z + w * y) * vx + 2.0 * (y * z - w * x) * vy
+        + (1.0 - 2.0 * (x * x + y * y)) * vz,
+    )
 
 
 class LinkDataError(ValueError):
@@ -251,3 +267,36 @@ def mode_from_custom(flavour: str, number: int) -> FlightMode | None:
         if n == number:
             return mode
     return None
+
+
+def split_frames(buffer: bytes) -> tuple[list[tuple[int, bytes]], bytes]:
+    """Cut a byte stream into whole MAVLink frames ``(msgid, frame)`` and the remainder.
+
+    Lets a receiver hand pymavlink only the frames it reads (the autopilot needs one
+    message of the simulator's four). Bytes that are not a frame start are passed on as
+    msgid -1 for pymavlink to judge.
+    """
+    frames = []
+    i, n = 0, len(buffer)
+    while i < n:
+        magic = buffer[i]
+        if magic == 0xFD and i + 10 <= n:
+            size = 12 + buffer[i + 1] + (13 if buffer[i + 2] & 1 else 0)
+            msgid = buffer[i + 7] | buffer[i + 8] << 8 | buffer[i + 9] << 16
+        elif magic == 0xFE and i + 6 <= n:
+            size = 8 + buffer[i + 1]
+            msgid = buffer[i + 5]
+        elif magic in (0xFD, 0xFE):
+            break  # header incomplete
+        else:
+            j = i + 1
+            while j < n and buffer[j] not in (0xFD, 0xFE):
+                j += 1
+            frames.append((-1, buffer[i:j]))
+            i = j
+            continue
+        if i + size > n:
+            break
+        frames.append((msgid, buffer[i:i + size]))
+        i += size
+    return frames, buffer[i:]

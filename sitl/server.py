@@ -92,7 +92,8 @@ class Simulator:
         self.mav = mavlink.MAVLink(None, srcSystem=SIMULATOR_SYSID, srcComponent=SIMULATOR_COMPID)
         self.stats = LinkStats()
         self._active = Perturbations()
-        self._previous_velocity = self.plant.state().velocity_ned_mps
+        self._state = self.plant.state()
+        self._previous_velocity = self._state.velocity_ned_mps
         self._acceleration = np.zeros(3)
         self._stop = False
 
@@ -105,7 +106,7 @@ class Simulator:
 
     # -- the plant side ------------------------------------------------------------------
     def _sample_bytes(self) -> bytes:
-        s = self.plant.state()
+        s = self._state
         msgs = sample_messages(self.time_us, s.position_ned_m, s.velocity_ned_mps,
                                s.quaternion, s.body_rate_rps, self._acceleration)
         return b"".join(m.pack(self.mav) for m in msgs)
@@ -119,7 +120,8 @@ class Simulator:
             self.log(f"t={t:.3f} s perturbations now {wanted}")
         self.plant.advance(self.period_s)
         self.step_index += 1
-        velocity = self.plant.state().velocity_ned_mps
+        self._state = self.plant.state()
+        velocity = self._state.velocity_ned_mps
         self._acceleration = (velocity - self._previous_velocity) / self.period_s
         self._previous_velocity = velocity
 

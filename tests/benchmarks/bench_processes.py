@@ -1,0 +1,170 @@
+"""Benchmarks of the two-process SITL: lockstep real-time factor and one cycle's parts.
+
+    python tests/benchmarks/bench_processes.py            # lockstep figures
+    python tests/benchmarks/bench_processes.py --realtime # 60 s real-time jitter, 100/250 Hz
+
+Prints figures; asserts nothing (speed is measured here, not in timed tests).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+import numpy as np  # noqa: E402
+
+from autopilot.control.factory import load_models, make_controller  # noqa: E402
+from autopilot.reference import Reference  # noqa: E402
+from autopilot.vehicle import Vehicle  # noqa: E402
+from contracts.airframe import PAPER, hover_rotor_speed_rps  # noqa: E402
+from contracts.mavlink import (  # noqa: E402
+    actuator_message,
+    commands_from_actuator,
+    mavlink,
+    measurement_from_odometry,
+    sample_messages,
+    split_frames,
+)
+from ground.processes import run_processes  # noqa: E402
+from ground.scenarios import scenario_by_name  # noqa: E402
+from sitl.plant import Plant  # noqa: E402
+
+ECHO = """
+import socket, sys
+srv = socket.create_server(("127.0.0.1", 0)); print(srv.getsockname()[1], flush=True)
+conn, _ = srv.accept(); conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+n = int(sys.argv[1])
+while True:
+    data = conn.recv(65536)
+    if not data: break
+    conn.sendall(b"x" * n)
+"""
+
+
+def _per_call_us(fn, n: int = 3000) -> float:
+    fn()
+    best = []
+    for _ in range(3):
+        start = time.perf_counter()
+        for _ in range(n):
+            fn()
+        best.append((time.perf_counter() - start) / n * 1e6)
+    return min(best)
+
+
+def cycle_parts() -> dict[str, float]:
+    models = load_models(None)
+    plant = Plant(PAPER, "paper", 0.001, position_ned_m=(0, 0, -1),
+                  rotor_rps=hover_rotor_speed_rps(PAPER), ground_contact=True)
+    vehicle = Vehicle(lambda p: make_controller("ivfc", PAPER, 0.01, models, p), 0.01,
+                      reference=Reference("attitude-sine"))
+    vehicle.sample(0.0, plant.measurement())
+    vehicle.arm_in_reference()
+    sim_mav = mavlink.MAVLink(None, 1, 51)
+    ap_mav = mavlink.MAVLink(None, 1, 1)
+    s = plant.state()
+
+    def encode_sample():
+        msgs = sample_messages(0, s.position_ned_m, s.velocity_ned_mps, s.quaternion,
+                               s.body_rate_rps, np.zeros(3))
+        return b"".join(m.pack(sim_mav) for m in msgs)
+
+    sample = encode_sample()
+
+    def decode_sample():  # as the autopilot's SimLink: only the state message is parsed
+        frames, _ = split_frames(sample)
+        wanted = b"".join(f for msgid, f in frames if msgid == mavlink.MAVLINK_MSG_ID_ODOMETRY)
+        for msg in ap_mav.parse_buffer(wanted):
+            measurement_from_odometry(msg)
+
+    actuator = actuator_message(0, np.full(4, 0.5), True, True).pack(ap_mav)
+
+    def decode_actuator():
+        for msg in sim_mav.parse_buffer(actuator):
+            commands_from_actuator(msg)
+
+    parts = {
+        "sim: state -> 4 messages (encode)": _per_call_us(encode_sample),
+        "autopilot: 4 messages -> measurement (decode)": _per_call_us(decode_sample),
+        "autopilot: control step (IVFC + vehicle logic)": _per_call_us(
+            lambda: vehicle.step(0.0, plant.measurement())),
+        "autopilot: actuator message (encode)": _per_call_us(
+            lambda: actuator_message(0, np.full(4, 0.5), True, True).pack(ap_mav)),
+        "sim: actuator message (decode)": _per_call_us(decode_actuator),
+        "sim: plant 10 ms (10 RK4 steps) + state": _per_call_us(
+            lambda: (plant.advance(0.01), plant.state())),
+    }
+    # Transport: the same bytes ping-ponged with a second process over TCP loopback.
+    echo = subprocess.Popen([sys.executable, "-c", ECHO, str(len(actuator))],
+                            stdout=subprocess.PIPE, text=True)
+    port = int(echo.stdout.readline())
+    conn = socket.create_connection(("127.0.0.1", port))
+    conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def round_trip():
+        conn.sendall(sample)
+        got = 0
+        while got < len(actuator):
+            got += len(conn.recv(65536))
+
+    parts["send + receive both ways (TCP loopback, 2 processes)"] = _per_call_us(round_trip,
+                                                                                2000)
+    conn.close()
+    echo.wait(5)
+    return parts
+
+
+def lockstep_rtf(repeats: int = 3) -> list[float]:
+    scenario = dataclasses.replace(scenario_by_name("attitude-sine"), duration_s=60.0)
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for i in range(repeats):
+            record, _ = run_processes(scenario, "ivfc", "paper", "paper", Path(tmp) / str(i))
+            out.append(scenario.duration_s / record.wall_time_s)
+    return out
+
+
+def realtime(rate_hz: float, duration_s: float = 60.0) -> dict:
+    scenario = dataclasses.replace(scenario_by_name("attitude-sine"), duration_s=duration_s)
+    with tempfile.TemporaryDirectory() as tmp:
+        _, timing = run_processes(scenario, "ivfc", "paper", "paper", Path(tmp),
+                                  realtime=True, rate_hz=rate_hz)
+    return timing
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--realtime", action="store_true")
+    args = parser.parse_args()
+    if args.realtime:
+        for rate in (100.0, 250.0):
+            t = realtime(rate)
+            print(f"real time {rate:g} Hz, 60 s: jitter p50 {t['jitter_p50_ms']:.3f} ms, "
+                  f"p99 {t['jitter_p99_ms']:.3f} ms, max {t['jitter_max_ms']:.3f} ms; "
+                  f"compute p50 {t['compute_p50_ms']:.3f} ms, p99 {t['compute_p99_ms']:.3f} "
+                  f"ms; deadline misses {t['deadline_misses']} of {t['steps']} steps")
+        return
+    parts = cycle_parts()
+    print("one lockstep cycle, by part (us, best of 3):")
+    for name, us in parts.items():
+        print(f"  {us:8.1f}  {name}")
+    total = sum(parts.values())
+    print(f"  {total:8.1f}  sum -> at most {1e4 / total:.0f}x real time at 100 Hz")
+    rtf = lockstep_rtf()
+    print(f"lockstep attitude-sine, 60 s sim, both processes and all messages: "
+          f"{statistics.median(rtf):.0f}x real time (runs: "
+          f"{', '.join(f'{r:.0f}x' for r in rtf)}; control loop only, process start "
+          f"excluded)")
+
+
+if __name__ == "__main__":
+    main()

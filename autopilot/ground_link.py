@@ -260,9 +260,10 @@ class GroundStation:
         # No MAVLink FTP: a NAK (opcode 129, error 4 "Unsupported") so tools fall back to
         # the parameter protocol at once.
         payload = bytes(msg.payload)
-        seq = payload[0:2]
+        seq = (int.from_bytes(payload[0:2], "little") + 1) % 65536  # a reply is request + 1
         nak = bytearray(251)
-        nak[0:2] = seq
+        nak[0:2] = seq.to_bytes(2, "little")
+        nak[2] = payload[2]  # session
         nak[3] = 129
         nak[4] = 1  # data size
         nak[5] = payload[3] if len(payload) > 3 else 0  # req_opcode

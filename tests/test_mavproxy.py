@@ -1,0 +1,94 @@
+"""MAVProxy (PyPI ``MAVProxy``) at its prompt, as a person types, flies the real processes.
+
+The autopilot runs its ArduPilot-Copter flavour, the one MAVProxy's mode names know.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import sys
+import time
+from pathlib import Path
+
+import pexpect
+
+from autopilot.control.parameters import PARAMETERS
+from tests.harness import start_processes
+
+MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
+MODULES = "param,ftp,arm,mode,cmdlong,misc"  # what the flow needs; no GUI modules
+
+
+class Prompt:
+    def __init__(self, port: int, workdir: Path) -> None:
+        workdir.mkdir(parents=True, exist_ok=True)
+        env = dict(os.environ, HOME=str(workdir), TERM="dumb", PYTHONUNBUFFERED="1",
+                   MPLBACKEND="Agg")
+        env.pop("DISPLAY", None)
+        self.child = pexpect.spawn(
+            str(MAVPROXY), [f"--master=udpin:127.0.0.1:{port}", "--no-state",
+                            f"--default-modules={MODULES}"],
+            cwd=str(workdir), env=env, encoding="utf-8", codec_errors="replace", timeout=30,
+            echo=False)
+        self.child.logfile_read = open(workdir / "mavproxy.log", "w")  # noqa: SIM115
+
+    def type(self, line: str, *expect: str, timeout_s: float = 15.0) -> None:
+        """Type a line at the prompt and wait for each pattern in turn."""
+        self.child.sendline(line)
+        for pattern in expect:
+            self.child.expect(pattern, timeout=timeout_s)
+
+    def relative_altitude_m(self) -> float:
+        self.type("status GLOBAL_POSITION_INT", r"relative_alt : (-?\d+)")
+        return int(self.child.match.group(1)) / 1000.0
+
+    def close(self) -> None:
+        if self.child.isalive():
+            self.child.sendeof()  # Ctrl-D: MAVProxy's own clean exit
+            try:
+                self.child.expect(pexpect.EOF, timeout=10)
+            except pexpect.TIMEOUT:
+                self.child.terminate(force=True)
+        self.child.close()
+        self.child.logfile_read.close()
+
+
+def _param_line(name: str, value: float) -> str:
+    return rf"{re.escape(name)}\s+{re.escape(repr(float(value)))}\r?\n"
+
+
+def test_mavproxy_arms_takes_off_tunes_a_gain_and_lands(tmp_path):
+    procs = start_processes(tmp_path, autopilot_args=["--flavour", "ardupilot"])
+    prompt = Prompt(procs.gcs_port, tmp_path / "mavproxy")
+    try:
+        prompt.child.expect(r"online system 1", timeout=40)
+        # Parameters download by themselves (FTP is declined, then the parameter protocol).
+        start = time.monotonic()
+        prompt.child.expect(rf"Received {len(PARAMETERS)} parameters", timeout=40)
+        assert "FTP: request timed out" not in prompt.child.before
+        assert time.monotonic() - start < 10
+        prompt.type("mode GUIDED", r"Got COMMAND_ACK: DO_SET_MODE: ACCEPTED")
+        prompt.type("arm throttle", r"Got COMMAND_ACK: COMPONENT_ARM_DISARM: ACCEPTED",
+                    r"(?<!DIS)ARMED")
+        prompt.type("takeoff 2", r"Got COMMAND_ACK: NAV_TAKEOFF: ACCEPTED")
+        deadline = time.monotonic() + 20
+        altitude = prompt.relative_altitude_m()
+        while abs(altitude - 2.0) > 0.15 and time.monotonic() < deadline:
+            time.sleep(0.5)
+            altitude = prompt.relative_altitude_m()
+        assert abs(altitude - 2.0) <= 0.15
+        # Read a controller gain, set it in flight, read it back.
+        prompt.type("param show ATT_LAM", _param_line("ATT_LAM", 8.0))
+        prompt.type("param watch ATT_LAM")
+        prompt.type("param set ATT_LAM 9", r"> ATT_LAM=9\.000000")  # the vehicle's echo
+        prompt.type("param show ATT_LAM", _param_line("ATT_LAM", 9.0))
+        # A bad value is refused by the vehicle and the old one stays.
+        prompt.type("param set ATT_LAM 1e9", r"ATT_LAM: parameter ATT_LAM must be")
+        prompt.type("param show ATT_LAM", _param_line("ATT_LAM", 9.0))
+        prompt.type("mode LAND", r"Mode LAND")
+        prompt.child.expect(r"DISARMED", timeout=30)
+        assert prompt.relative_altitude_m() < 0.1
+    finally:
+        prompt.close()
+        procs.stop()

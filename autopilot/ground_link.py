@@ -29,6 +29,7 @@ from contracts.mavlink import (
     custom_mode,
     mavlink,
     mode_from_custom,
+    new_mavlink,
 )
 
 FORCE_DISARM_MAGIC = 21196
@@ -105,7 +106,7 @@ def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     sock.bind(bind)
     sock.setblocking(False)
-    mav = mavlink.MAVLink(None, srcSystem=AUTOPILOT_SYSID, srcComponent=AUTOPILOT_COMPID)
+    mav = new_mavlink(AUTOPILOT_SYSID, AUTOPILOT_COMPID)
     if signing_key is not None:
         mav.signing.secret_key = signing_key
         mav.signing.link_id = link_id

@@ -31,12 +31,14 @@ from contracts.mavlink import (
     mavlink,
     measurement_from_hil_state,
     measurement_from_odometry,
+    new_mavlink,
     split_frames,
 )
 
 STATE_SOURCES = {"odometry": "ODOMETRY", "hil-state": "HIL_STATE_QUATERNION"}
 RECONNECT_S = 0.5
-SPIN_S = 0.0003  # the last stretch before a real-time deadline is busy-waited
+SPIN_S = 0.0002  # the last stretch before a real-time deadline is busy-waited
+POLL_MIN_S = 0.0012  # below this, sleep (ns resolution) instead of epoll (ms resolution)
 
 
 @dataclass
@@ -89,37 +91,53 @@ class Timing:
 
 
 class Recorder:
-    """The per-step arrays ``ivfm run`` computes metrics from (until the Zenoh logger)."""
+    """The per-step arrays ``ivfm run`` computes metrics from (until the Zenoh logger).
+
+    Rows go into preallocated arrays that double when full: no per-step Python objects
+    pile up for the garbage collector to walk in the middle of a real-time loop.
+    """
 
     def __init__(self) -> None:
-        self.rows: dict[str, list] = {k: [] for k in (
-            "time_s", "measurement", "reference", "kick", "motor_commands",
-            "channel_telemetry", "theta_g", "theta_f_0", "theta_f_1", "theta_f_2")}
+        self.arrays: dict[str, np.ndarray] = {}
+        self.n = 0
+        self.wall_start_s = self.wall_end_s = 0.0
+
+    def _row(self, t_s: float, vehicle: Vehicle) -> dict[str, np.ndarray | float]:
+        c = vehicle.controller
+        theta_g = getattr(c, "theta_g", None)
+        theta_f = getattr(c, "theta_f", None)
+        row = {
+            "time_s": t_s - vehicle.reference_start_s,
+            "measurement": vehicle.measurement, "reference": vehicle.last_ref,
+            "kick": vehicle.last_kick, "motor_commands": vehicle.last_commands,
+            "channel_telemetry": c.telemetry,
+            "theta_g": np.full(6, np.nan) if theta_g is None else theta_g,
+        }
+        for i in range(3):
+            row[f"theta_f_{i}"] = np.zeros(0) if theta_f is None else theta_f[i]
+        return row
 
     def add(self, t_s: float, vehicle: Vehicle) -> None:
         """One control step; time counts from the start of the reference."""
-        r, c = self.rows, vehicle.controller
-        if not r["time_s"]:
-            self.wall_start_s = time.perf_counter()
-        self.wall_end_s = time.perf_counter()
-        r["time_s"].append(t_s - vehicle.reference_start_s)
-        r["measurement"].append(vehicle.measurement.copy())
-        r["reference"].append(vehicle.last_ref.copy())
-        r["kick"].append(vehicle.last_kick.copy())
-        r["motor_commands"].append(vehicle.last_commands.copy())
-        r["channel_telemetry"].append(c.telemetry.copy())
-        theta_g = getattr(c, "theta_g", None)
-        r["theta_g"].append(np.full(6, np.nan) if theta_g is None else theta_g.copy())
-        theta_f = getattr(c, "theta_f", None)
-        for i in range(3):
-            r[f"theta_f_{i}"].append(np.zeros(0) if theta_f is None else theta_f[i].copy())
+        now = time.perf_counter()
+        if self.n == 0:
+            self.wall_start_s = now
+        self.wall_end_s = now
+        row = self._row(t_s, vehicle)
+        if not self.arrays:
+            self.arrays = {k: np.zeros((1024, *np.shape(v))) for k, v in row.items()}
+        if self.n == len(self.arrays["time_s"]):
+            self.arrays = {k: np.concatenate([a, np.zeros_like(a)]) for k, a in
+                           self.arrays.items()}
+        for k, v in row.items():
+            self.arrays[k][self.n] = v
+        self.n += 1
 
     def save(self, path: Path, timing: dict) -> None:
-        arrays = {k: np.array(v) for k, v in self.rows.items()}
+        arrays = {k: a[:self.n] for k, a in self.arrays.items()}
         tmp = path.with_suffix(".tmp.npz")
-        loop_s = self.wall_end_s - self.wall_start_s if self.rows["time_s"] else 0.0
-        np.savez(tmp, timing=np.array(json.dumps(timing)), loop_wall_s=np.array(loop_s),
-                 **arrays)
+        np.savez(tmp, timing=np.array(json.dumps(timing)),
+                 loop_wall_s=np.array(self.wall_end_s - self.wall_start_s), **arrays)
         tmp.replace(path)
 
 
@@ -134,7 +152,7 @@ class SimLink:
         self._pending = b""
         self.decode = (measurement_from_odometry if source == "odometry"
                        else measurement_from_hil_state)
-        self.mav = mavlink.MAVLink(None, srcSystem=AUTOPILOT_SYSID, srcComponent=AUTOPILOT_COMPID)
+        self.mav = new_mavlink(AUTOPILOT_SYSID, AUTOPILOT_COMPID)
         self.next_attempt_s = 0.0
         self.bad_messages = 0
         self.last_bad: str | None = None
@@ -150,7 +168,7 @@ class SimLink:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setblocking(False)
         self.sock = sock
-        self.mav = mavlink.MAVLink(None, srcSystem=AUTOPILOT_SYSID, srcComponent=AUTOPILOT_COMPID)
+        self.mav = new_mavlink(AUTOPILOT_SYSID, AUTOPILOT_COMPID)
         self._pending = b""
         return True
 
@@ -342,9 +360,13 @@ class Autopilot:
                 self.ground.service()
                 next_service = now + 0.005
             remaining = next_deadline - time.perf_counter()
-            if remaining > SPIN_S:
-                self._poll(remaining - SPIN_S)
+            if remaining > POLL_MIN_S:
+                # epoll counts whole milliseconds and rounds up: ask for whole ones, early.
+                self._poll(math.floor((remaining - SPIN_S) * 1000.0) / 1000.0)
                 continue
+            if remaining > SPIN_S:
+                time.sleep(remaining - SPIN_S)  # nanosecond sleep; I/O waits in the buffers
+            self._poll(0.0)  # the newest sample
             while time.perf_counter() < next_deadline:
                 pass
             start = time.perf_counter()

@@ -50,6 +50,15 @@ TEMPERATURE_C = 20.0
 MEASUREMENT_SIZE = 12  # position NED, velocity NED, Euler angles, Euler rates
 
 
+def new_mavlink(sysid: int, compid: int) -> mavlink.MAVLink:
+    """An encoder/parser for one link. Robust parsing: bytes that are not a valid frame
+    become BAD_DATA messages (which every receiver drops and counts) and parsing goes on,
+    rather than an exception that would lose the frames behind them."""
+    mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+    mav.robust_parsing = True
+    return mav
+
+
 def pressure_hpa(alt_amsl_m: float) -> float:
     """International standard atmosphere below 11 km."""
     return SEA_LEVEL_PRESSURE_HPA * (1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588

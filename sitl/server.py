@@ -29,7 +29,7 @@ from contracts.mavlink import (
     SIMULATOR_SYSID,
     LinkDataError,
     commands_from_actuator,
-    mavlink,
+    new_mavlink,
     sample_messages,
 )
 from contracts.schedule import Perturbations, Window, plant_perturbations_at
@@ -89,7 +89,7 @@ class Simulator:
         self.period_us = round(1e6 / config.rate_hz)
         self.period_s = self.period_us / 1e6
         self.step_index = 0
-        self.mav = mavlink.MAVLink(None, srcSystem=SIMULATOR_SYSID, srcComponent=SIMULATOR_COMPID)
+        self.mav = new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID)
         self.stats = LinkStats()
         self._active = Perturbations()
         self._state = self.plant.state()
@@ -170,7 +170,7 @@ class Simulator:
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         self.log(f"autopilot connected from {peer[0]}:{peer[1]} at t={self.time_us / 1e6:.3f} s")
         # A fresh parser per connection: a half message from the last one must not linger.
-        self.mav = mavlink.MAVLink(None, srcSystem=SIMULATOR_SYSID, srcComponent=SIMULATOR_COMPID)
+        self.mav = new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID)
         return conn
 
     def _read(self, conn: socket.socket) -> list | None:
@@ -183,12 +183,11 @@ class Simulator:
             return None
         if not data:
             return None
-        try:
-            msgs = self.mav.parse_buffer(data) or []
-        except mavlink.MAVError as exc:
-            self.stats.bad_messages += 1
-            self.log(f"unreadable bytes from the autopilot: {exc}")
-            return []
+        msgs = self.mav.parse_buffer(data) or []
+        bad = [m for m in msgs if m.get_type() == "BAD_DATA"]
+        if bad:
+            self.stats.bad_messages += len(bad)
+            self.log(f"unreadable bytes from the autopilot: {bad[0].reason}")
         return [m for m in msgs if m.get_type() != "BAD_DATA"]
 
     def _lost(self, conn: socket.socket) -> None:
@@ -215,8 +214,11 @@ class Simulator:
                         connected = False
                         break
                     for msg in msgs:
-                        if msg.get_type() == "HIL_ACTUATOR_CONTROLS":
-                            answered = self._apply(msg) == self.time_us or answered
+                        if msg.get_type() == "HIL_ACTUATOR_CONTROLS" and \
+                                msg.time_usec == self.time_us:
+                            # A refused answer keeps the previous commands; time goes on.
+                            self._apply(msg)
+                            answered = True
                 if answered:
                     self._advance()
             self._lost(conn)

@@ -264,3 +264,43 @@ def test_signing_ignores_unsigned_and_wrongly_signed_commands(tmp_path):
     finally:
         signed.close()
         procs.stop()
+
+
+def test_attitude_setpoints_tilt_the_vehicle_and_bad_ones_are_refused(vehicle):
+    procs, tool = vehicle
+    _take_off(tool)
+    roll = 0.1
+    q = [math.cos(roll / 2), math.sin(roll / 2), 0.0, 0.0]
+
+    def send(quaternion, thrust=0.5):
+        tool.mav.set_attitude_target_send(0, 1, 1, 0b00000111, quaternion, 0, 0, 0, thrust)
+
+    stream = _streamer(tool, lambda: send(q))
+    tool.wait_type("HEARTBEAT", 2, also=stream)
+    assert tool.command(M.MAV_CMD_DO_SET_MODE, *OFFBOARD).result == ACCEPTED
+    tool.wait_type("ATTITUDE", 10, lambda m: abs(m.roll - roll) < 0.01, also=stream)
+    z_before = tool.position().z
+    bad = _streamer(tool, lambda: send([math.nan, 0.0, 0.0, 0.0]))
+    tool.wait_text("setpoint refused", 5, also=bad)
+    att = tool.wait_type("ATTITUDE", 2, also=bad)
+    assert abs(att.roll - roll) < 0.02  # the last good setpoint still holds
+    assert abs(tool.position().z - z_before) < 0.2  # thrust 0.5: altitude held
+    tool.wait_text("offboard setpoints lost: hold", 5, also=bad)
+
+
+def test_stalled_simulator_triggers_the_link_loss_failsafe_after_its_timeout(vehicle):
+    """SIGSTOP keeps the socket open: only the COM_SIM_LOSS_T watchdog can notice."""
+    import signal
+
+    procs, tool = vehicle
+    _take_off(tool)
+    procs.sim.send_signal(signal.SIGSTOP)
+    stopped = time.monotonic()
+    try:
+        text = tool.wait_text("simulator link lost", 5)
+        assert text == "simulator link lost: land"
+        assert time.monotonic() - stopped >= 0.5  # COM_SIM_LOSS_T
+    finally:
+        procs.sim.send_signal(signal.SIGCONT)
+    tool.wait_text("simulator link up", 5)
+    assert _custom_mode(tool.heartbeat()) == (4, 6)  # landing once state is back

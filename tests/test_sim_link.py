@@ -1,0 +1,194 @@
+"""The simulator link: message mapping round trips, and bad input from either side."""
+
+from __future__ import annotations
+
+import math
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from contracts.airframe import PAPER, hover_rotor_speed_rps
+from contracts.mavlink import (
+    LinkDataError,
+    actuator_message,
+    commands_from_actuator,
+    mavlink,
+    measurement_from_hil_state,
+    measurement_from_odometry,
+    sample_messages,
+    split_frames,
+)
+from sitl.plant import Plant
+from tests.harness import free_port
+
+
+def _flying_plant(fidelity: str) -> Plant:
+    plant = Plant(PAPER, fidelity, position_ned_m=(1.0, -2.0, -3.0), euler_rad=(0.3, -0.2, 1.0),
+                  rotor_rps=hover_rotor_speed_rps(PAPER))
+    plant.set_motor_commands(np.array([0.5, 0.45, 0.48, 0.47]))
+    plant.advance(0.5)
+    return plant
+
+
+def _decoded(plant: Plant) -> dict[str, object]:
+    s = plant.state()
+    mav = mavlink.MAVLink(None, 1, 51)
+    data = b"".join(m.pack(mav) for m in sample_messages(
+        123456, s.position_ned_m, s.velocity_ned_mps, s.quaternion, s.body_rate_rps,
+        np.zeros(3)))
+    return {m.get_type(): m for m in mavlink.MAVLink(None, 1, 1).parse_buffer(data)}
+
+
+@pytest.mark.parametrize("fidelity", ["paper", "rigid-body"])
+def test_odometry_gives_the_plant_measurement_to_float32(fidelity):
+    plant = _flying_plant(fidelity)
+    msgs = _decoded(plant)
+    assert set(msgs) == {"HIL_SENSOR", "HIL_GPS", "HIL_STATE_QUATERNION", "ODOMETRY"}
+    np.testing.assert_allclose(measurement_from_odometry(msgs["ODOMETRY"]),
+                               plant.measurement(), atol=1e-5)
+    # HIL_STATE_QUATERNION alone: 1e-7 deg (~1 cm), mm, cm/s.
+    hil = measurement_from_hil_state(msgs["HIL_STATE_QUATERNION"])
+    truth = plant.measurement()
+    np.testing.assert_allclose(hil[0:3], truth[0:3], atol=0.02)
+    np.testing.assert_allclose(hil[3:6], truth[3:6], atol=0.006)
+    np.testing.assert_allclose(hil[6:12], truth[6:12], atol=1e-5)
+
+
+def test_hil_sensor_reads_gravity_at_rest():
+    plant = Plant(PAPER, "rigid-body", ground_contact=True)
+    sensor = _decoded(plant)["HIL_SENSOR"]
+    assert (sensor.xacc, sensor.yacc) == pytest.approx((0.0, 0.0), abs=1e-9)
+    assert sensor.zacc == pytest.approx(-PAPER.gravity_mps2)  # FRD: up is -z
+    assert sensor.abs_pressure == pytest.approx(956.0, abs=0.5)  # ISA at 488 m AMSL
+
+
+@pytest.mark.parametrize("controls,armed,why", [
+    ([math.nan, 0, 0, 0], True, "NaN"), ([0.5, math.inf, 0, 0], True, "NaN or infinity"),
+    ([1.5, 0, 0, 0], True, "in [0, 1]"), ([-0.2, 0, 0, 0], True, "in [0, 1]")])
+def test_bad_actuator_messages_are_refused(controls, armed, why):
+    msg = actuator_message(0, np.zeros(4), armed, True)
+    msg.controls[:4] = controls
+    with pytest.raises(LinkDataError, match=why.split()[0]):
+        commands_from_actuator(msg)
+
+
+def test_disarmed_actuator_message_means_motors_off():
+    msg = actuator_message(0, np.full(4, 0.7), False, True)
+    np.testing.assert_array_equal(commands_from_actuator(msg), np.zeros(4))
+
+
+def test_bad_odometry_is_refused():
+    msg = _decoded(_flying_plant("rigid-body"))["ODOMETRY"]
+    msg.x = math.nan
+    with pytest.raises(LinkDataError):
+        measurement_from_odometry(msg)
+    msg.x, msg.q = 0.0, [0.1, 0.0, 0.0, 0.0]
+    with pytest.raises(LinkDataError, match="norm"):
+        measurement_from_odometry(msg)
+
+
+def test_split_frames_keeps_partial_frames_for_later():
+    plant = _flying_plant("paper")
+    s = plant.state()
+    mav = mavlink.MAVLink(None, 1, 51)
+    data = b"".join(m.pack(mav) for m in sample_messages(
+        1, s.position_ned_m, s.velocity_ned_mps, s.quaternion, s.body_rate_rps, np.zeros(3)))
+    frames, rest = split_frames(b"\x00\x01" + data + data[:20])
+    assert [i for i, _ in frames] == [-1, 107, 113, 115, 331] and rest == data[:20]
+
+
+def test_simulator_survives_garbage_and_bad_commands(tmp_path):
+    """A fake autopilot: garbage bytes, then NaN motor commands, then good ones."""
+    port = free_port(socket.SOCK_STREAM)
+    log = tmp_path / "sitl.log"
+    with open(log, "w") as out:
+        sim = subprocess.Popen([sys.executable, "-m", "sitl", "--port", str(port), "--plant",
+                                "paper"], stdout=out, stderr=subprocess.STDOUT)
+    try:
+        conn = _connect(port)
+        mav = mavlink.MAVLink(None, 1, 1)
+        got = mavlink.MAVLink(None, 1, 1)
+
+        def next_sample_time() -> int:
+            while True:
+                for m in got.parse_buffer(conn.recv(65536)) or []:
+                    if m.get_type() == "ODOMETRY":
+                        return m.time_usec
+
+        t = next_sample_time()
+        conn.sendall(b"garbage, not mavlink")
+        bad = actuator_message(t, np.zeros(4), True, True)
+        bad.controls[0] = math.nan
+        conn.sendall(bad.pack(mav))  # refused; lockstep still goes on
+        t2 = next_sample_time()
+        assert t2 == t + 10000
+        for _ in range(5):
+            conn.sendall(actuator_message(t2, np.full(4, 0.2), True, True).pack(mav))
+            t2 = next_sample_time()
+        assert t2 == t + 60000
+        conn.close()
+        deadline = time.monotonic() + 5
+        while "autopilot disconnected" not in log.read_text() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert sim.poll() is None
+        text = log.read_text()
+        assert "refused actuator message" in text and "autopilot disconnected" in text
+    finally:
+        sim.terminate()
+        sim.wait(5)
+
+
+def _connect(port: int) -> socket.socket:
+    deadline = time.monotonic() + 20
+    while True:
+        try:
+            return socket.create_connection(("127.0.0.1", port), timeout=5)
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.1)
+
+
+def test_autopilot_refuses_bad_simulator_data_and_keeps_serving(tmp_path):
+    """A fake simulator sends NaN odometry: refused, logged, no motor output, no crash."""
+    server = socket.create_server(("127.0.0.1", 0))
+    port = server.getsockname()[1]
+    log = tmp_path / "autopilot.log"
+    with open(log, "w") as out:
+        ap = subprocess.Popen([sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{port}",
+                               "--gcs", "none", "--gcs-bind", "0", "--api", "none",
+                               "--api-bind", "0"], stdout=out, stderr=subprocess.STDOUT)
+    try:
+        server.settimeout(20)
+        conn, _ = server.accept()
+        conn.settimeout(5)
+        mav = mavlink.MAVLink(None, 1, 51)
+        plant = Plant(PAPER, "paper", ground_contact=True)
+        s = plant.state()
+        msgs = sample_messages(0, s.position_ned_m, s.velocity_ned_mps, s.quaternion,
+                               s.body_rate_rps, np.zeros(3))
+        msgs[3].vx = math.nan
+        conn.sendall(b"".join(m.pack(mav) for m in msgs))
+        time.sleep(0.5)
+        good = sample_messages(10000, s.position_ned_m, s.velocity_ned_mps, s.quaternion,
+                               s.body_rate_rps, np.zeros(3))
+        conn.sendall(b"".join(m.pack(mav) for m in good))
+        reply = []
+        reader = mavlink.MAVLink(None, 1, 51)
+        while not reply:
+            reply = [m for m in reader.parse_buffer(conn.recv(65536)) or []
+                     if m.get_type() == "HIL_ACTUATOR_CONTROLS"]
+        # Only the good sample is answered, disarmed, motors off.
+        assert [m.time_usec for m in reply] == [10000]
+        assert reply[0].mode == 0 and list(reply[0].controls[:4]) == [0, 0, 0, 0]
+        assert ap.poll() is None
+        assert "refused simulator data: ODOMETRY holds NaN" in log.read_text()
+        conn.close()
+    finally:
+        ap.terminate()
+        ap.wait(5)
+        server.close()

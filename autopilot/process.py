@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from autopilot.ground_link import GroundStation
+from autopilot.reference import REF_SIZE
 from autopilot.vehicle import Vehicle
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
@@ -309,6 +310,7 @@ class Autopilot:
                  f"{self.sim.address[0]}:{self.sim.address[1]}; ground links "
                  + ", ".join(f"{ln.name} udp:{ln.sock.getsockname()[1]}"
                              for ln in self.ground.links))
+        self._warm_up()
         self._last_sample_wall = time.monotonic()
         try:
             if self.config.lockstep:
@@ -326,6 +328,15 @@ class Autopilot:
             self.recorder.save(self.config.record_path, summary)
         self.log(f"stopped after {self.steps} control steps")
         return 0
+
+    def _warm_up(self) -> None:
+        """Load the compiled control law before the loop: its first call takes ~0.1 s,
+        which would otherwise be the first real-time step's deadline miss."""
+        scratch = self.vehicle._make_controller(self.vehicle.parameters)
+        hover = np.zeros(12)
+        hover[2] = -1.0
+        scratch.step(hover, np.zeros(REF_SIZE), True, np.zeros(2))
+        scratch.step(hover, np.zeros(REF_SIZE), False, np.zeros(2))
 
     def _poll(self, timeout_s: float) -> None:
         for key, _ in self.sel.select(max(0.0, timeout_s)):

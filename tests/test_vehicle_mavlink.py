@@ -213,6 +213,7 @@ def test_simulator_loss_lands_and_a_new_simulator_reconnects(vehicle):
     # The autopilot keeps serving ground tools meanwhile.
     assert tool.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_HOME_POSITION).result \
         == ACCEPTED
+    tool.texts.clear()  # wait for new announcements, not the first link-up
     procs.start_sim()  # a new simulator: on the ground, its clock from zero
     tool.wait_text("simulator link up", 15)
     tool.wait_text("disarmed", 10)
@@ -231,10 +232,12 @@ def test_killing_the_autopilot_stops_the_motors_and_a_new_one_reconnects(vehicle
     log = procs.sim_log()
     assert "autopilot disconnected" in log and "motors stopped" in log
     assert procs.sim.poll() is None  # still running
+    tool.texts.clear()
     procs.start_autopilot()
     tool.wait_text("simulator link up", 15)
-    pos = tool.position()
-    assert abs(pos.z) < 0.05  # it fell to the ground while nobody flew it
+    # Nobody flies it: motors stopped, it falls to the ground (the new autopilot is disarmed).
+    tool.wait_type("LOCAL_POSITION_NED", 10, lambda m: abs(m.z) < 0.05)
+    assert not tool.armed()
     assert procs.sim_log().count("autopilot connected") == 2
 
 
@@ -302,5 +305,6 @@ def test_stalled_simulator_triggers_the_link_loss_failsafe_after_its_timeout(veh
         assert time.monotonic() - stopped >= 0.5  # COM_SIM_LOSS_T
     finally:
         procs.sim.send_signal(signal.SIGCONT)
+    tool.texts.clear()
     tool.wait_text("simulator link up", 5)
     assert _custom_mode(tool.heartbeat()) == (4, 6)  # landing once state is back

@@ -59,6 +59,24 @@ def rotation_from_quat(q: np.ndarray) -> np.ndarray:
     return r
 
 
+def world_to_body(w: float, x: float, y: float, z: float, vx: float, vy: float,
+                  vz: float) -> tuple[float, float, float]:
+    """R(q)^T v: a world (NED) vector in body axes (FRD).
+
+    :func:`rotation_from_quat` transposed, written out in plain floats for per-message
+    use outside compiled loops (a numba call costs more than the arithmetic here);
+    tests/test_sim_link.py checks the two agree.
+    """
+    return (
+        (1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y + w * z) * vy
+        + 2.0 * (x * z - w * y) * vz,
+        2.0 * (x * y - w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy
+        + 2.0 * (y * z + w * x) * vz,
+        2.0 * (x * z + w * y) * vx + 2.0 * (y * z - w * x) * vy
+        + (1.0 - 2.0 * (x * x + y * y)) * vz,
+    )
+
+
 @njit(cache=True)
 def euler_rates_from_body_rates(
     phi: float, theta: float, p: float, q: float, r: float

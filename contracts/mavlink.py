@@ -20,6 +20,7 @@ from contracts.frames import (
     euler_rates_from_body_rates,
     geodetic_from_ned,
     ned_from_geodetic,
+    world_to_body,
 )
 
 __all__ = ["mavlink"]
@@ -83,8 +84,8 @@ def sample_messages(
     """
     w, x, y, z = (float(v) for v in quaternion)
     ax, ay, az = (float(v) for v in accel_ned_mps2)
-    fx, fy, fz = _to_body(w, x, y, z, ax, ay, az - GRAVITY_MPS2)
-    mag = _to_body(w, x, y, z, *MAG_FIELD_NED_TUPLE)
+    fx, fy, fz = world_to_body(w, x, y, z, ax, ay, az - GRAVITY_MPS2)
+    mag = world_to_body(w, x, y, z, *MAG_FIELD_NED_TUPLE)
     n, e, d = (float(v) for v in position_ned_m)
     vn, ve, vd = (float(v) for v in velocity_ned_mps)
     lat, lon, alt = geodetic_from_ned(n, e, d)
@@ -119,19 +120,6 @@ def sample_messages(
 
 MG_PER_MPS2 = 1000.0 / GRAVITY_MPS2
 MAG_FIELD_NED_TUPLE = tuple(float(v) for v in MAG_FIELD_NED_GAUSS)
-
-
-def _to_body(w: float, x: float, y: float, z: float, vx: float, vy: float,
-             vz: float) -> tuple[float, float, float]:
-    """R(q)^T v: a world (NED) vector in body axes (FRD), in plain floats (per sample)."""
-    return (
-        (1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y + w * z) * vy
-        + 2.0 * (x * z - w * y) * vz,
-        2.0 * (x * y - w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy
-        + 2.0 * (y * z + w * x) * vz,
-        2.0 * (x * z + w * y) * vx + 2.0 * (y * z - w * x) * vy
-        + (1.0 - 2.0 * (x * x + y * y)) * vz,
-    )
 
 
 class LinkDataError(ValueError):

@@ -192,3 +192,14 @@ def test_autopilot_refuses_bad_simulator_data_and_keeps_serving(tmp_path):
         ap.terminate()
         ap.wait(5)
         server.close()
+
+
+def test_world_to_body_is_the_transposed_rotation():
+    from contracts.frames import quat_from_euler, rotation_from_quat, world_to_body
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        q = quat_from_euler(*rng.uniform(-1.5, 1.5, 3))
+        v = rng.normal(size=3)
+        np.testing.assert_allclose(world_to_body(*q, *v), rotation_from_quat(q).T @ v,
+                                   atol=1e-12)

@@ -17,14 +17,14 @@ from contracts.mavlink import (
 )
 
 
-def _param(text: str) -> tuple[str, float]:
-    name, sep, value = text.partition("=")
-    if not sep:
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
+def param_argument(text: str) -> tuple[str, float]:
+    """argparse type for NAME=VALUE (also used by ``ivfm run``)."""
+    from autopilot.control.parameters import parse_assignment
+
     try:
-        return name.strip(), float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{name}: {value!r} is not a number") from None
+        return parse_assignment(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def _address(text: str) -> tuple[str, int] | None:
@@ -56,7 +56,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--controller", default="ivfc", choices=CONTROLLERS)
     p.add_argument("--airframe", default="paper", choices=sorted(AIRFRAMES))
     p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")
-    p.add_argument("--param", type=_param, action="append", default=[], metavar="NAME=VALUE")
+    p.add_argument("--param", type=param_argument, action="append", default=[],
+                   metavar="NAME=VALUE")
     p.add_argument("--flavour", default="px4", choices=FLAVOURS,
                    help="how the vehicle presents itself to ground tools")
     p.add_argument("--gcs", type=_address, default=("127.0.0.1", GCS_UDP_PORT),

@@ -7,7 +7,6 @@ gives ``ivfm: error: ...`` on stderr, exit code 2, and no output files.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,20 +16,8 @@ class UsageError(Exception):
     """Bad input from the command line: reported in one line, exit code 2."""
 
 
-def _parse_param(text: str) -> tuple[str, float]:
-    name, sep, value = text.partition("=")
-    if not sep:
-        raise argparse.ArgumentTypeError(f"expected NAME=VALUE, got {text!r}")
-    try:
-        number = float(value)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{name}: {value!r} is not a number") from None
-    if not math.isfinite(number):
-        raise argparse.ArgumentTypeError(f"{name}: {value!r} is not finite")
-    return name.strip(), number
-
-
 def _build_parser() -> argparse.ArgumentParser:
+    from autopilot.__main__ import param_argument
     from autopilot.control.factory import CONTROLLERS
     from contracts.airframe import AIRFRAMES
     from ground.scenarios import SCENARIOS
@@ -42,7 +29,7 @@ def _build_parser() -> argparse.ArgumentParser:
     def add_common(p: argparse.ArgumentParser) -> None:
         p.add_argument("--airframe", default="paper", choices=sorted(AIRFRAMES))
         p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")
-        p.add_argument("--param", type=_parse_param, action="append", default=[],
+        p.add_argument("--param", type=param_argument, action="append", default=[],
                        metavar="NAME=VALUE", help="controller parameter override (repeatable)")
 
     run = sub.add_parser("run", help="run one scenario and write metrics.json and figures")

@@ -92,6 +92,20 @@ PARAMETER_SPECS: dict[str, ParamSpec] = {spec.name: spec for spec in PARAMETERS}
 assert all(len(name) <= 16 for name in PARAMETER_SPECS)
 
 
+def parse_assignment(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` from a command line (both ``ivfm run`` and ``ivfm autopilot``)."""
+    name, sep, value = text.partition("=")
+    if not sep:
+        raise ValueError(f"expected NAME=VALUE, got {text!r}")
+    try:
+        number = float(value)
+    except ValueError:
+        raise ValueError(f"{name}: {value!r} is not a number") from None
+    if not math.isfinite(number):
+        raise ValueError(f"{name}: {value!r} is not finite")
+    return name.strip(), number
+
+
 def default_parameters() -> dict[str, float]:
     return {spec.name: spec.default for spec in PARAMETERS}
 

@@ -15,6 +15,12 @@ from contracts.mavlink import (
     GCS_UDP_PORT,
     SIM_TCP_PORT,
 )
+from contracts.zenoh_link import (
+    VEHICLE_CONNECT,
+    VEHICLE_LISTEN,
+    add_zenoh_arguments,
+    zenoh_options_from_args,
+)
 
 
 def param_argument(text: str) -> tuple[str, float]:
@@ -73,12 +79,18 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--reference", choices=REFERENCE_KINDS,
                    help="offer the onboard reference generator of a paper scenario")
     p.add_argument("--altitude", type=float, default=1.0, help="reference altitude [m]")
-    p.add_argument("--schedule", type=Path, help="reference kicks (schedule JSON, sim time)")
+    p.add_argument("--reference-option", action="append", default=[], metavar="NAME=VALUE",
+                   help="another reference field (yaw_rad, amplitude, hold_start_s, "
+                        "hold_end_s; repeatable)")
+    p.add_argument("--schedule", type=Path,
+                   help="perturbation schedule JSON (sim time); the autopilot takes the kicks")
     p.add_argument("--arm-in-reference", action="store_true",
                    help="scenario runs: armed in REFERENCE mode from the first sample")
     p.add_argument("--duration", type=float, default=float("inf"), metavar="S",
                    help="stop after this much sim time of control")
-    p.add_argument("--record", type=Path, help="write the per-step arrays (npz) on exit")
+    p.add_argument("--sysid", type=int, default=1, metavar="ID",
+                   help="MAVLink system id, also the vehicle id in telemetry keys (1-255)")
+    add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT)
     return p
 
 
@@ -90,16 +102,30 @@ def run(args: argparse.Namespace) -> int:
     from autopilot.reference import Reference
     from autopilot.vehicle import Vehicle
     from contracts.airframe import airframe_by_name
-    from contracts.schedule import load_schedule
+    from contracts.perturbations import load_schedule
+    from contracts.telemetry import check_vehicle_id
 
     config = AutopilotConfig(sim_host=args.sim[0], sim_port=args.sim[1], lockstep=args.lockstep,
                              rate_hz=args.rate_hz, state_source=args.state_source,
-                             duration_s=args.duration, record_path=args.record)
+                             duration_s=args.duration, sysid=check_vehicle_id(args.sysid),
+                             zenoh=zenoh_options_from_args(args))
     airframe = airframe_by_name(args.airframe)
     parameters = validate_parameters(dict(args.param))
     models = load_models(args.model) if args.controller in ("ivfc", "t1fc") else None
     period_s = 1.0 / args.rate_hz
-    reference = Reference(args.reference, altitude_m=args.altitude) if args.reference else None
+    reference = None
+    if args.reference:
+        options = {}
+        for item in args.reference_option:
+            name, _, value = item.partition("=")
+            if name not in ("yaw_rad", "amplitude", "hold_start_s", "hold_end_s"):
+                raise ValueError(f"--reference-option: unknown field {name!r}")
+            try:
+                options[name] = float(value)
+            except ValueError:
+                raise ValueError(f"--reference-option {name}: {value!r} is not a number") \
+                    from None
+        reference = Reference(args.reference, altitude_m=args.altitude, **options)
     if args.arm_in_reference and reference is None:
         raise ValueError("--arm-in-reference needs --reference")
     key = None
@@ -113,10 +139,11 @@ def run(args: argparse.Namespace) -> int:
     vehicle = Vehicle(lambda p: make_controller(args.controller, airframe, period_s, models, p),
                       period_s, parameters, reference,
                       load_schedule(args.schedule) if args.schedule else (), args.flavour)
-    links = [open_link("gcs", ("0.0.0.0", args.gcs_bind), args.gcs, key, 0)]
+    links = [open_link("gcs", ("0.0.0.0", args.gcs_bind), args.gcs, key, 0, config.sysid)]
     if args.api is not None or args.api_bind:
-        links.append(open_link("api", ("0.0.0.0", args.api_bind), args.api, key, 1))
-    ground = GroundStation(vehicle, links, args.flavour)
+        links.append(open_link("api", ("0.0.0.0", args.api_bind), args.api, key, 1,
+                               config.sysid))
+    ground = GroundStation(vehicle, links, args.flavour, sysid=config.sysid)
     return Autopilot(config, vehicle, ground, arm_in_reference=args.arm_in_reference).run()
 
 

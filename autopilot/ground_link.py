@@ -101,12 +101,13 @@ class GroundLink:
 
 
 def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
-              signing_key: bytes | None, link_id: int) -> GroundLink:
+              signing_key: bytes | None, link_id: int,
+              sysid: int = AUTOPILOT_SYSID) -> GroundLink:
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     sock.bind(bind)
     sock.setblocking(False)
-    mav = new_mavlink(AUTOPILOT_SYSID, AUTOPILOT_COMPID)
+    mav = new_mavlink(sysid, AUTOPILOT_COMPID)
     if signing_key is not None:
         mav.signing.secret_key = signing_key
         mav.signing.link_id = link_id
@@ -121,8 +122,12 @@ class GroundStation:
     """Serves every ground link: commands, parameters, setpoints, telemetry."""
 
     def __init__(self, vehicle: Vehicle, links: list[GroundLink], flavour: str = "px4",
-                 clock: Callable[[], float] = time.monotonic) -> None:
+                 clock: Callable[[], float] = time.monotonic,
+                 sysid: int = AUTOPILOT_SYSID) -> None:
         self.vehicle = vehicle
+        self.sysid = sysid
+        # Called once per message sent to tools (the Zenoh MAVLink mirror listens here).
+        self.on_sent: Callable[[GroundLink, object, bytes], None] | None = None
         self.links = links
         self.flavour = flavour
         self.clock = clock
@@ -156,7 +161,7 @@ class GroundStation:
 
     def _for_us(self, msg) -> bool:
         target = getattr(msg, "target_system", 0)
-        return target in (0, AUTOPILOT_SYSID)
+        return target in (0, self.sysid)
 
     def handle(self, link: GroundLink, address, msg, now: float) -> None:
         kind = msg.get_type()
@@ -167,6 +172,8 @@ class GroundStation:
 
     def _send(self, link: GroundLink, msg, address=None) -> None:
         data = msg.pack(link.mav)
+        if self.on_sent is not None:
+            self.on_sent(link, msg, data)
         for target in [address] if address is not None else link.targets():
             with contextlib.suppress(OSError):  # nobody listening there (yet)
                 link.sock.sendto(data, target)
@@ -420,10 +427,13 @@ class GroundStation:
                     self._send(link, self._telemetry(msg_id))
                     link.next_due_s[msg_id] = max(due + interval, now)
 
-    def _telemetry(self, msg_id: int):
+    def _telemetry(self, msg_id: int, boot_ms: int | None = None):
+        """A telemetry message; ``boot_ms`` defaults to the link clock (the Zenoh mirror
+        passes sim time)."""
         v = self.vehicle
         m = v.measurement if v.measurement is not None else np.zeros(12)
-        boot_ms = int((self.clock() - self.boot_s) * 1000) & 0xFFFFFFFF
+        if boot_ms is None:
+            boot_ms = int((self.clock() - self.boot_s) * 1000) & 0xFFFFFFFF
         if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
             base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | \
                 mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED

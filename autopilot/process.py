@@ -5,19 +5,23 @@
   answers that sample with the lockstep flag set.
 * real time: a wall-clock timer at the control rate uses the newest sample; loop
   period, compute time, jitter and deadline misses are measured.
+
+Each control step publishes the controller's internals and the loop timing over Zenoh,
+and mirrors the MAVLink it produces (``contracts/telemetry.py``); perturbation requests
+(reference kicks) are taken between steps.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import queue
 import selectors
 import signal
 import socket
 import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -27,6 +31,7 @@ from autopilot.vehicle import Vehicle
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
+    FlightMode,
     LinkDataError,
     actuator_message,
     mavlink,
@@ -35,11 +40,27 @@ from contracts.mavlink import (
     new_mavlink,
     split_frames,
 )
+from contracts.telemetry import (
+    AUTOPILOT,
+    CONTROL,
+    FLAG_ARMED,
+    FLAG_FAILSAFE,
+    TIMING,
+    json_record,
+)
+from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
 
 STATE_SOURCES = {"odometry": "ODOMETRY", "hil-state": "HIL_STATE_QUATERNION"}
 RECONNECT_S = 0.5
 SPIN_S = 0.0002  # the last stretch before a real-time deadline is busy-waited
 POLL_MIN_S = 0.0012  # below this, sleep (ns resolution) instead of epoll (ms resolution)
+MODE_INDEX = {mode: i for i, mode in enumerate(FlightMode)}
+# The MAVLink mirror's sim-time streams (message, period in microseconds of sim time).
+MIRROR_STREAMS_US = ((mavlink.MAVLINK_MSG_ID_HEARTBEAT, 1_000_000),
+                     (mavlink.MAVLINK_MSG_ID_ATTITUDE, 100_000),
+                     (mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 100_000),
+                     (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 100_000))
+MIRRORED_TOOL_MESSAGES = frozenset({"STATUSTEXT", "COMMAND_ACK"})
 
 
 @dataclass
@@ -50,7 +71,8 @@ class AutopilotConfig:
     rate_hz: float = 100.0
     state_source: str = "odometry"
     duration_s: float = math.inf  # stop after this much sim time of control
-    record_path: Path | None = None
+    sysid: int = AUTOPILOT_SYSID  # also the vehicle id in telemetry keys
+    zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(enabled=False))
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.rate_hz) and 1.0 <= self.rate_hz <= 1000.0):
@@ -91,61 +113,10 @@ class Timing:
         }
 
 
-class Recorder:
-    """The per-step arrays ``ivfm run`` computes metrics from (until the Zenoh logger).
-
-    Rows go into preallocated arrays that double when full: no per-step Python objects
-    pile up for the garbage collector to walk in the middle of a real-time loop.
-    """
-
-    def __init__(self) -> None:
-        self.arrays: dict[str, np.ndarray] = {}
-        self.n = 0
-        self.wall_start_s = self.wall_end_s = 0.0
-
-    def _row(self, t_s: float, vehicle: Vehicle) -> dict[str, np.ndarray | float]:
-        c = vehicle.controller
-        theta_g = getattr(c, "theta_g", None)
-        theta_f = getattr(c, "theta_f", None)
-        row = {
-            "time_s": t_s - vehicle.reference_start_s,
-            "measurement": vehicle.measurement, "reference": vehicle.last_ref,
-            "kick": vehicle.last_kick, "motor_commands": vehicle.last_commands,
-            "channel_telemetry": c.telemetry,
-            "theta_g": np.full(6, np.nan) if theta_g is None else theta_g,
-        }
-        for i in range(3):
-            row[f"theta_f_{i}"] = np.zeros(0) if theta_f is None else theta_f[i]
-        return row
-
-    def add(self, t_s: float, vehicle: Vehicle) -> None:
-        """One control step; time counts from the start of the reference."""
-        now = time.perf_counter()
-        if self.n == 0:
-            self.wall_start_s = now
-        self.wall_end_s = now
-        row = self._row(t_s, vehicle)
-        if not self.arrays:
-            self.arrays = {k: np.zeros((1024, *np.shape(v))) for k, v in row.items()}
-        if self.n == len(self.arrays["time_s"]):
-            self.arrays = {k: np.concatenate([a, np.zeros_like(a)]) for k, a in
-                           self.arrays.items()}
-        for k, v in row.items():
-            self.arrays[k][self.n] = v
-        self.n += 1
-
-    def save(self, path: Path, timing: dict) -> None:
-        arrays = {k: a[:self.n] for k, a in self.arrays.items()}
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, timing=np.array(json.dumps(timing)),
-                 loop_wall_s=np.array(self.wall_end_s - self.wall_start_s), **arrays)
-        tmp.replace(path)
-
-
 class SimLink:
     """TCP client of the simulator; reconnects while the simulator is away."""
 
-    def __init__(self, host: str, port: int, source: str) -> None:
+    def __init__(self, host: str, port: int, source: str, sysid: int = AUTOPILOT_SYSID) -> None:
         self.address = (host, port)
         self.sock: socket.socket | None = None
         self.source_type = STATE_SOURCES[source]
@@ -153,7 +124,8 @@ class SimLink:
         self._pending = b""
         self.decode = (measurement_from_odometry if source == "odometry"
                        else measurement_from_hil_state)
-        self.mav = new_mavlink(AUTOPILOT_SYSID, AUTOPILOT_COMPID)
+        self.sysid = sysid
+        self.mav = new_mavlink(sysid, AUTOPILOT_COMPID)
         self.next_attempt_s = 0.0
         self.bad_messages = 0
         self.last_bad: str | None = None
@@ -169,7 +141,7 @@ class SimLink:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setblocking(False)
         self.sock = sock
-        self.mav = new_mavlink(AUTOPILOT_SYSID, AUTOPILOT_COMPID)
+        self.mav = new_mavlink(self.sysid, AUTOPILOT_COMPID)
         self._pending = b""
         return True
 
@@ -218,9 +190,19 @@ class Autopilot:
         self.arm_in_reference = arm_in_reference
         self.log = log or (lambda text: print(f"autopilot: {text}", file=sys.stderr, flush=True))
         self.period_us = round(1e6 / config.rate_hz)
-        self.sim = SimLink(config.sim_host, config.sim_port, config.state_source)
+        self.sim = SimLink(config.sim_host, config.sim_port, config.state_source, config.sysid)
         self.timing = Timing(self.period_us / 1e6)
-        self.recorder = Recorder() if config.record_path else None
+        self.node = TelemetryNode(config.zenoh, config.sysid, AUTOPILOT, self.log)
+        self._control_pub = self.node.publisher("control")
+        self._timing_pub = self.node.publisher("timing")
+        self._event_pub = self.node.publisher("perturbation")
+        self.node.serve("perturb")
+        self._control_floats = np.zeros(CONTROL.dtype.itemsize // 8 - CONTROL.float_offset())
+        self._mirror_mav = new_mavlink(config.sysid, AUTOPILOT_COMPID)
+        self._mirror_due_us = [0] * len(MIRROR_STREAMS_US)
+        self._previous_control_wall: float | None = None
+        if self.node.enabled:
+            ground.on_sent = self._mirror_tool_message
         self.steps = 0
         self.max_steps = (math.inf if math.isinf(config.duration_s)
                           else round(config.duration_s * 1e6 / self.period_us))
@@ -236,14 +218,18 @@ class Autopilot:
         self._stop = True
 
     def _control(self, time_us: int, measurement: np.ndarray) -> np.ndarray:
+        start = time.perf_counter()
+        if not self.node.requests.empty():
+            self._service_requests()
         self.vehicle.sample(time_us / 1e6, measurement)
         if self.arm_in_reference and not self.vehicle.armed and self.steps == 0:
             self.vehicle.arm_in_reference()
             self.log(f"flying the {self.vehicle.reference.kind} reference from "
                      f"t={time_us / 1e6:.3f} s")
         commands = self.vehicle.control()
-        if self.recorder is not None:
-            self.recorder.add(time_us / 1e6, self.vehicle)
+        compute_s = time.perf_counter() - start
+        if self.node.enabled:
+            self._publish_step(time_us, compute_s, start)
         self.steps += 1
         if self.max_steps < math.inf and self.steps >= self._progress_at * self.max_steps:
             self.log(f"{100 * self._progress_at:.0f} % ({time_us / 1e6:.1f} s sim)")
@@ -252,8 +238,76 @@ class Autopilot:
 
     def _answer(self, time_us: int, commands: np.ndarray) -> None:
         msg = actuator_message(time_us, commands, self.vehicle.armed, self.config.lockstep)
-        if not self.sim.send(msg.pack(self.sim.mav)):
+        frame = msg.pack(self.sim.mav)
+        if not self.sim.send(frame):
             self._sim_lost()
+        elif self.node.enabled:
+            self.node.mirror(self.config.sysid, AUTOPILOT_COMPID, "HIL_ACTUATOR_CONTROLS",
+                             frame, time_us)
+
+    # -- Zenoh ---------------------------------------------------------------------------
+    def _publish_step(self, time_us: int, compute_s: float, start_wall_s: float) -> None:
+        """The control record, the timing record, kick events and the mirror streams."""
+        v = self.vehicle
+        c = v.controller
+        f = self._control_floats
+        f[0] = time_us / 1e6 - v.reference_start_s
+        f[1:13], f[13:31], f[31:33], f[33:37] = (v.measurement, v.last_ref, v.last_kick,
+                                                 v.last_commands)
+        f[37:97] = c.telemetry.T.ravel()
+        theta_g = getattr(c, "theta_g", None)
+        f[97:103] = np.nan if theta_g is None else theta_g
+        theta_f = getattr(c, "theta_f", None)
+        flags = (FLAG_ARMED if v.armed else 0) | (FLAG_FAILSAFE if v.failsafe else 0)
+        pub = self._control_pub
+        pub.put(CONTROL.encode((pub.count, time_us, MODE_INDEX[v.mode], flags), f,
+                               tuple(theta_f[:3]) if theta_f is not None else ((), (), ())))
+        previous, self._previous_control_wall = self._previous_control_wall, start_wall_s
+        period_s = math.nan if previous is None else start_wall_s - previous
+        pub = self._timing_pub
+        pub.put(TIMING.encode((pub.count, time_us, self.timing.misses),
+                              np.array((compute_s, period_s))))
+        if v.perturbations.entries:
+            for event, e in v.perturbations.changes(time_us / 1e6):
+                self._event_pub.put(json_record(self._event_pub.count, time_us, event=event,
+                                                **e.to_request()))
+                self.log(f"t={time_us / 1e6:.3f} s perturbation {e.id} ({e.kind}) {event}")
+        for i, (msg_id, every_us) in enumerate(MIRROR_STREAMS_US):
+            if time_us >= self._mirror_due_us[i]:
+                self._mirror_due_us[i] = time_us - time_us % every_us + every_us
+                msg = self.ground._telemetry(msg_id, boot_ms=(time_us // 1000) & 0xFFFFFFFF)
+                self.node.mirror(self.config.sysid, AUTOPILOT_COMPID, msg.get_type(),
+                                 msg.pack(self._mirror_mav), time_us)
+
+    def _mirror_tool_message(self, link, msg, frame: bytes) -> None:
+        """Announcements and acknowledgements to ground tools go into the log too."""
+        kind = msg.get_type()
+        if kind in MIRRORED_TOOL_MESSAGES and (kind == "COMMAND_ACK" or
+                                               link is self.ground.links[0]):
+            self.node.mirror(self.config.sysid, AUTOPILOT_COMPID, kind, frame,
+                             round(self.vehicle.sim_t_s * 1e6))
+
+    def _service_requests(self) -> None:
+        while True:
+            try:
+                request: Request = self.node.requests.get_nowait()
+            except queue.Empty:
+                return
+            now_s = self.vehicle.sim_t_s
+            try:
+                answer = self.vehicle.perturbations.handle(request.data, now_s)
+            except ValueError as exc:
+                self.log(f"refused {request.topic} request: {exc}")
+                request.reply(False, error=str(exc))
+                continue
+            self.log(f"perturbation request answered: {answer}")
+            request.reply(True, sim_time_us=round(now_s * 1e6), **answer)
+
+    def _status(self, final: bool = False) -> None:
+        summary = self.timing.summary() if not self.config.lockstep else {}
+        self.node.status(round(self.vehicle.sim_t_s * 1e6), final=final, steps=self.steps,
+                         armed=self.vehicle.armed, mode=self.vehicle.mode.value,
+                         timing=summary if final else {})
 
     def _sim_lost(self) -> None:
         self.sim.close()
@@ -321,11 +375,12 @@ class Autopilot:
             pass
         finally:
             self.sim.close()
+            self._service_requests()
+            self._status(final=True)
+            self.node.close()
         summary = self.timing.summary() if not self.config.lockstep else {}
         if summary:
             self.log("timing " + json.dumps(summary))
-        if self.recorder is not None:
-            self.recorder.save(self.config.record_path, summary)
         self.log(f"stopped after {self.steps} control steps")
         return 0
 
@@ -356,6 +411,8 @@ class Autopilot:
             now = time.monotonic()
             if now >= next_service:  # ground links: a few hundred Hz at most
                 self.ground.service()
+                self._service_requests()
+                self._status()
                 next_service = now + 0.005
 
     def _run_realtime(self) -> None:
@@ -369,6 +426,8 @@ class Autopilot:
             self._sim_watchdog(now)
             if now >= next_service:
                 self.ground.service()
+                self._service_requests()
+                self._status()
                 next_service = now + 0.005
             remaining = next_deadline - time.perf_counter()
             if remaining > POLL_MIN_S:

@@ -28,7 +28,7 @@ from autopilot.reference import (
 )
 from contracts.frames import euler_from_quat
 from contracts.mavlink import FlightMode
-from contracts.schedule import Window, kick_at
+from contracts.perturbations import AUTOPILOT, Perturbation, PerturbationBook, kick_at
 
 LANDED_ALTITUDE_M = 0.05  # the plant's ground is z = 0
 LANDED_SPEED_MPS = 0.1
@@ -79,7 +79,7 @@ class Vehicle:
         period_s: float,
         parameters: dict[str, float] | None = None,
         reference: Reference | None = None,
-        schedule: tuple[Window, ...] = (),
+        schedule: tuple[Perturbation, ...] = (),
         flavour: str = "px4",
     ) -> None:
         self._make_controller = make_controller
@@ -87,7 +87,8 @@ class Vehicle:
         self.parameters = validate_parameters(parameters or {})
         self.controller = make_controller(self.parameters)
         self.reference = reference
-        self.schedule = schedule
+        # Reference kicks (sim time), from the command line and from Zenoh requests.
+        self.perturbations = PerturbationBook(AUTOPILOT, schedule)
         self.flavour = flavour
         self.armed = False
         self.mode = FlightMode.GUIDED if flavour == "ardupilot" else FlightMode.HOLD
@@ -376,16 +377,17 @@ class Vehicle:
         if not self.armed or self.measurement is None or not self.sim_link_ok:
             self.last_commands = np.zeros(4)
             return self.last_commands
-        ref, position_mode, kick = self._reference()
+        ref, position_mode = self._reference()
+        entries = self.perturbations.entries
+        kick = np.array(kick_at(entries, self.sim_t_s)) if entries else np.zeros(2)
         self.last_ref, self.last_kick = ref, kick
         self.last_commands = self.controller.step(self.measurement, ref, position_mode, kick)
         return self.last_commands
 
-    def _reference(self) -> tuple[np.ndarray, bool, np.ndarray]:
+    def _reference(self) -> tuple[np.ndarray, bool]:
         if self.mode == FlightMode.REFERENCE:
             t = self.sim_t_s - self.reference_start_s
-            return (self.reference.at(t), self.reference.position_mode,
-                    np.array(kick_at(self.schedule, t)))
+            return self.reference.at(t), self.reference.position_mode
         dt = self.period_s
         p = self.parameters
         tg = self.target
@@ -413,14 +415,14 @@ class Vehicle:
             ref[REF_POS:REF_POS + 3] = tg.position_ned_m
             ref[REF_VEL + 2] = -tg.climb_rate_mps
             ref[REF_EULER:REF_EULER + 3] = tg.attitude_rad
-            return ref, False, np.zeros(2)
+            return ref, False
         elif tg.velocity_only:
             tg.position_ned_m += tg.velocity_ned_mps * dt
         ref[REF_POS:REF_POS + 3] = tg.position_ned_m
         ref[REF_VEL:REF_VEL + 3] = tg.velocity_ned_mps
         ref[REF_ACC:REF_ACC + 3] = tg.accel_ned_mps2
         ref[REF_EULER + 2] = tg.yaw_rad
-        return ref, True, np.zeros(2)
+        return ref, True
 
     def step(self, sim_t_s: float, measurement: np.ndarray) -> np.ndarray:
         """One control period: take the sample, then compute the motor commands."""

@@ -12,10 +12,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 
-class UsageError(Exception):
-    """Bad input from the command line: reported in one line, exit code 2."""
-
-
 def _build_parser() -> argparse.ArgumentParser:
     from autopilot.__main__ import param_argument
     from autopilot.control.factory import CONTROLLERS
@@ -33,7 +29,7 @@ def _build_parser() -> argparse.ArgumentParser:
                        metavar="NAME=VALUE", help="controller parameter override (repeatable)")
 
     run = sub.add_parser("run", help="run one scenario and write metrics.json and figures")
-    run.add_argument("scenario", help=f"one of: {', '.join(SCENARIOS)}")
+    run.add_argument("scenario", help=f"one of: {', '.join(SCENARIOS)}; or a scenario .toml")
     pace = run.add_mutually_exclusive_group()
     pace.add_argument("--inprocess", action="store_true",
                       help="plant and controller in one process (no MAVLink)")
@@ -42,11 +38,16 @@ def _build_parser() -> argparse.ArgumentParser:
     run.add_argument("--rate-hz", type=float, default=100.0, help="control rate")
     run.add_argument("--state-source", default="odometry", choices=["odometry", "hil-state"],
                      help="what the autopilot reads its state from")
-    run.add_argument("--controller", default="ivfc", choices=CONTROLLERS)
-    run.add_argument("--plant", default="paper", choices=list(FIDELITIES))
-    run.add_argument("--out", type=Path, required=True, help="output directory")
+    run.add_argument("--controller", choices=CONTROLLERS, help="(default: the scenario's)")
+    run.add_argument("--plant", choices=list(FIDELITIES), help="(default: the scenario's)")
+    run.add_argument("--out", type=Path, required=True, help="output directory (run folder)")
     run.add_argument("--no-figures", action="store_true")
     add_common(run)
+    run.set_defaults(airframe=None)
+
+    rep = sub.add_parser("report", help="metrics.json and figures of a run folder, from its log")
+    rep.add_argument("run_dir", type=Path, help="a folder written by ivfm run")
+    rep.add_argument("--no-figures", action="store_true")
 
     compare = sub.add_parser("compare", help="every controller on every scenario, tables+figures")
     compare.add_argument("--out", type=Path, required=True)
@@ -57,6 +58,9 @@ def _build_parser() -> argparse.ArgumentParser:
 
     ident = sub.add_parser("identify", help="build the IVFM and T1FM from input-output data")
     ident.add_argument("--data", type=Path, help="dataset CSV (default: fly the excitation)")
+    ident.add_argument("--log", type=Path, metavar="MCAP_OR_RUN_DIR",
+                       help="identify from a logged flight (see docs/scenarios.md)")
+    ident.add_argument("--vehicle", type=int, default=1, help="vehicle id in the log")
     ident.add_argument("--out", type=Path, default=None, help="model JSON to write")
     ident.add_argument("--write-data", type=Path, help="also save the generated excitation CSV")
     ident.add_argument("--seed", type=int, default=0)
@@ -69,9 +73,56 @@ def _build_parser() -> argparse.ArgumentParser:
 
     sitl_parser(sub.add_parser("sitl", help="the simulator process (PX4 simulator protocol)"))
     autopilot_parser(sub.add_parser("autopilot", help="the autopilot process (MAVLink vehicle)"))
+    _ground_parsers(sub.add_parser("ground", help="ground station: logger, perturbations, "
+                                                  "router, .tlog export"))
     sub.add_parser("scenarios", help="list the scenarios")
     sub.add_parser("params", help="list the controller parameters with defaults")
     return parser
+
+
+def _ground_parsers(ground: argparse.ArgumentParser) -> None:
+    from contracts.perturbations import KINDS
+    from contracts.telemetry import DEFAULT_GROUND_ENDPOINT
+    from contracts.zenoh_link import add_zenoh_arguments
+
+    sub = ground.add_subparsers(dest="ground_command", required=True)
+    log = sub.add_parser("log", help="record all telemetry to MCAP (docs/telemetry.md)")
+    log.add_argument("--out", type=Path, required=True, help="folder for the .mcap files")
+    log.add_argument("--name", default="logger", help="logger name (status key, token)")
+    log.add_argument("--prefix", default="telemetry", help="file name prefix")
+    log.add_argument("--chunk-kib", type=int, default=32, help="MCAP chunk size [KiB]")
+    log.add_argument("--flush-s", type=float, default=0.25,
+                     help="close a chunk at least this often [s]")
+    log.add_argument("--rotate-mib", type=int, default=512, help="start a new file past this")
+    log.add_argument("--compression", default="zstd", choices=["zstd", "lz4", "none"])
+    add_zenoh_arguments(log, [DEFAULT_GROUND_ENDPOINT], [])
+
+    kinds = "; ".join(f"{k}: {', '.join(v.params) or '-'} ({v.target})"
+                      for k, v in KINDS.items())
+    pert = sub.add_parser("perturb", help="inject a perturbation (acknowledged)",
+                          description=f"Kinds and their NAME=VALUE fields: {kinds}. "
+                                      "'list' and 'clear' show and end perturbations.")
+    pert.add_argument("kind", choices=[*KINDS, "list", "clear"])
+    pert.add_argument("values", nargs="*", metavar="NAME=VALUE",
+                      help="fields; vectors comma-separated (ned_mps=3,0,0)")
+    pert.add_argument("--vehicle", type=int, default=1)
+    pert.add_argument("--start", default="now", help="sim time [s] or now (default)")
+    pert.add_argument("--end", type=float, help="sim time it ends [s]")
+    pert.add_argument("--duration", type=float, help="how long [s] (instead of --end)")
+    pert.add_argument("--id", help="name it (clear: the one to end)")
+    pert.add_argument("--target", choices=["sitl", "autopilot"], help="list/clear: one side")
+    pert.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the ack")
+    add_zenoh_arguments(pert, [], [DEFAULT_GROUND_ENDPOINT])
+
+    router = sub.add_parser("router", help="a Zenoh router linking machines")
+    router.add_argument("--listen", action="append", metavar="ENDPOINT",
+                        help="default tcp/0.0.0.0:7447 (repeatable)")
+    router.add_argument("--connect", action="append", metavar="ENDPOINT",
+                        help="other routers (repeatable)")
+
+    tlog = sub.add_parser("tlog", help="export the MAVLink mirror of a log as a .tlog")
+    tlog.add_argument("log", type=Path, help="an .mcap file or a run folder")
+    tlog.add_argument("--out", type=Path, help="the .tlog (default beside the log)")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -79,8 +130,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     from ground import commands
 
+    if args.command == "ground":
+        args.command = f"ground {args.ground_command}"
     try:
         handler = {
+            "report": commands.report_command,
+            "ground log": commands.ground_log_command,
+            "ground perturb": commands.ground_perturb_command,
+            "ground router": commands.ground_router_command,
+            "ground tlog": commands.ground_tlog_command,
             "run": commands.run_command,
             "compare": commands.compare_command,
             "identify": commands.identify_command,
@@ -90,7 +148,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "autopilot": commands.autopilot_command,
         }[args.command]
         return handler(args)
-    except (UsageError, ValueError, OSError) as exc:
+    except (commands.UsageError, ValueError, OSError) as exc:
         print(f"ivfm: error: {exc}", file=sys.stderr)
         return 2
 

@@ -18,6 +18,10 @@ from contracts.airframe import airframe_by_name
 from ground.scenarios import SCENARIOS, scenario_by_name
 
 
+class UsageError(Exception):
+    """Bad input from the command line: reported in one line, exit code 2."""
+
+
 def write_json(path: Path, data: Any) -> None:
     """Write JSON atomically (temp file + rename) so no half-written file is left."""
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -33,42 +37,68 @@ def write_json(path: Path, data: Any) -> None:
 
 
 def run_command(args: argparse.Namespace) -> int:
+    import shutil
+
     from ground.figures import plot_run
     from ground.inprocess import run_inprocess
     from ground.metrics import compute_metrics
-    from ground.processes import run_processes
+    from ground.processes import RunSettings, run_processes
+    from ground.report import RUN_FILE, SCENARIO_FILE, report
 
     scenario = scenario_by_name(args.scenario)
-    airframe = airframe_by_name(args.airframe)
-    parameters = validate_parameters(dict(args.param))
-    models = load_models(args.model) if args.controller in ("ivfc", "t1fc") else None
+    controller = args.controller or scenario.controller
+    plant = args.plant or scenario.plant
+    airframe_name = args.airframe or scenario.airframe
+    airframe = airframe_by_name(airframe_name)
+    parameters = validate_parameters({**scenario.parameters, **dict(args.param)})
+    model_path = args.model or scenario.model_path
+    models = load_models(model_path) if controller in ("ivfc", "t1fc") else None
     how = ("in process" if args.inprocess else
-           "simulator + autopilot, real time" if args.realtime else
-           "simulator + autopilot, lockstep")
-    print(f"ivfm: {scenario.name} with {args.controller} on the {args.plant} plant "
+           "logger + simulator + autopilot, real time" if args.realtime else
+           "logger + simulator + autopilot, lockstep")
+    print(f"ivfm: {scenario.name} with {controller} on the {plant} plant "
           f"({scenario.duration_s:g} s sim, {how})", file=sys.stderr)
-    timing: dict = {}
     if args.inprocess:
-        record = run_inprocess(scenario, args.controller, args.plant, airframe, models,
+        record = run_inprocess(scenario, controller, plant, airframe, models,
                                period_s=1.0 / args.rate_hz, parameters=parameters)
+        metrics = compute_metrics(record, scenario, airframe_name)
+        metrics["mode"] = "inprocess"
+        metrics["parameters"] = parameters
+        write_json(args.out / "metrics.json", metrics)
+        if not args.no_figures:
+            plot_run(record, scenario, args.out)
     else:
-        overrides = {k: v for k, v in parameters.items() if k in dict(args.param)}
-        record, timing = run_processes(
-            scenario, args.controller, args.plant, args.airframe, args.out, args.model,
-            overrides, realtime=args.realtime, rate_hz=args.rate_hz,
-            state_source=args.state_source)
-    metrics = compute_metrics(record, scenario, args.airframe)
-    metrics["mode"] = "inprocess" if args.inprocess else (
-        "realtime" if args.realtime else "lockstep")
-    metrics["parameters"] = parameters
-    if timing:
-        metrics["timing"] = timing
-    args.out.mkdir(parents=True, exist_ok=True)
-    write_json(args.out / "metrics.json", metrics)
-    if not args.no_figures:
-        plot_run(record, scenario, args.out)
+        settings = RunSettings(controller, plant, airframe_name, model_path,
+                               {k: v for k, v in parameters.items() if k in
+                                {**scenario.parameters, **dict(args.param)}},
+                               realtime=args.realtime, rate_hz=args.rate_hz,
+                               state_source=args.state_source)
+        accounting = run_processes(scenario, settings, args.out)
+        timing = accounting.pop("timing")
+        shutil.copyfile(scenario.source, args.out / SCENARIO_FILE)
+        write_json(args.out / RUN_FILE, {
+            "scenario": scenario.name, "controller": controller, "plant": plant,
+            "airframe": airframe_name, "rate_hz": args.rate_hz, "vehicle": settings.vehicle,
+            "mode": "realtime" if args.realtime else "lockstep",
+            "state_source": args.state_source, "parameters": parameters,
+            "model": str(model_path) if model_path else None,
+            "telemetry": accounting, "timing": timing})
+        metrics, record = report(args.out, figures=not args.no_figures)
+        lost = sum(accounting["lost"].values())
+        print(f"telemetry: {sum(accounting['published'].values())} records published, "
+              f"{sum(accounting['logged'].values())} logged, {lost} lost; log in {args.out}",
+              file=sys.stderr)
     print(format_metrics(metrics))
     print(f"wrote {args.out / 'metrics.json'}" + ("" if args.no_figures else " and figures"))
+    return 1 if record.diverged else 0
+
+
+def report_command(args: argparse.Namespace) -> int:
+    from ground.report import report
+
+    metrics, record = report(args.run_dir, figures=not args.no_figures)
+    print(format_metrics(metrics))
+    print(f"wrote {args.run_dir / 'metrics.json'}" + ("" if args.no_figures else " and figures"))
     return 1 if record.diverged else 0
 
 
@@ -149,8 +179,9 @@ def format_table_2(models: FuzzyModelSet, paper: dict[str, tuple[float, float]])
 
 def scenarios_command(args: argparse.Namespace) -> int:
     for s in SCENARIOS.values():
+        kicks = f", {len(s.perturbations)} perturbations" if s.perturbations else ""
         print(f"{s.name:<16} {s.description} (judged on {', '.join(s.axes)} after "
-              f"{s.transient_s:g} s)")
+              f"{s.transient_s:g} s{kicks}; {s.source})")
     return 0
 
 
@@ -171,3 +202,99 @@ def autopilot_command(args: argparse.Namespace) -> int:
     from autopilot.__main__ import run
 
     return run(args)
+
+
+def ground_log_command(args: argparse.Namespace) -> int:
+    from contracts.zenoh_link import zenoh_options_from_args
+    from ground.logger import Logger, LoggerConfig
+
+    config = LoggerConfig(args.out, zenoh_options_from_args(args), name=args.name,
+                          prefix=args.prefix, chunk_bytes=args.chunk_kib * 1024,
+                          flush_period_s=args.flush_s, rotate_bytes=args.rotate_mib * 2**20,
+                          compression=args.compression)
+    return Logger(config).run()
+
+
+def _perturb_value(text: str) -> Any:
+    """A NAME=VALUE right-hand side: a number or comma-separated numbers."""
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        numbers = [float(p) for p in parts]
+    except ValueError:
+        raise UsageError(f"{text!r} is not a number or a comma-separated list of numbers") \
+            from None
+    return numbers if len(numbers) > 1 else numbers[0]
+
+
+def ground_perturb_command(args: argparse.Namespace) -> int:
+    from contracts.perturbations import KINDS
+    from contracts.zenoh_link import zenoh_options_from_args
+    from ground.perturb import PerturbationClient, PerturbationError
+
+    with PerturbationClient(zenoh_options_from_args(args), timeout_s=args.timeout) as client:
+        try:
+            if args.kind in ("list", "clear"):
+                targets = [args.target] if args.target else ["sitl", "autopilot"]
+                for target in targets:
+                    if args.kind == "list":
+                        for entry in client.list(args.vehicle, target):
+                            print(f"{target}: {json.dumps(entry)}")
+                    else:
+                        answer = client.clear(args.vehicle, target, args.id)
+                        print(f"{target}: cleared {', '.join(answer['cleared']) or 'nothing'}")
+                return 0
+            request: dict[str, Any] = {"kind": args.kind, "start_s": args.start}
+            if args.start != "now":
+                try:
+                    request["start_s"] = float(args.start)
+                except ValueError:
+                    raise UsageError(f"--start must be 'now' or seconds, got {args.start!r}") \
+                        from None
+            if args.end is not None:
+                request["end_s"] = args.end
+            if args.duration is not None:
+                request["duration_s"] = args.duration
+            if args.id is not None:
+                request["id"] = args.id
+            for item in args.values:
+                name, sep, value = item.partition("=")
+                if not sep:
+                    raise UsageError(f"expected NAME=VALUE, got {item!r}; {args.kind} takes "
+                                     f"{', '.join(KINDS[args.kind].params) or 'nothing'}")
+                request[name] = _perturb_value(value)
+            answer = client.send(args.vehicle, request)
+        except PerturbationError as exc:
+            print(f"ivfm: error: {exc}", file=sys.stderr)
+            return 1
+    print(f"accepted by vehicle {args.vehicle}: {json.dumps(answer)}")
+    return 0
+
+
+def ground_router_command(args: argparse.Namespace) -> int:
+    import signal
+    import threading
+
+    from contracts.zenoh_link import ZenohOptions, open_session
+
+    options = ZenohOptions("router", listen=args.listen or ["tcp/0.0.0.0:7447"],
+                           connect=args.connect or [])
+    session = open_session(options, exit_on_listen_failure=True)
+    stop = threading.Event()
+    signal.signal(signal.SIGINT, lambda *_: stop.set())
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    print(f"ivfm ground router: listening on {', '.join(options.listen)}"
+          + (f", linked to {', '.join(options.connect)}" if options.connect else ""),
+          file=sys.stderr, flush=True)
+    stop.wait()
+    session.close()
+    return 0
+
+
+def ground_tlog_command(args: argparse.Namespace) -> int:
+    from ground.logger import export_tlog
+
+    out = args.out or (args.log.with_suffix(".tlog") if args.log.is_file()
+                       else args.log / "telemetry.tlog")
+    count = export_tlog(args.log, out)
+    print(f"wrote {count} MAVLink frames to {out}")
+    return 0

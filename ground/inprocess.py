@@ -15,9 +15,14 @@ from autopilot.control.cascade import SlidingModeCascade
 from autopilot.control.factory import make_controller
 from autopilot.identification.ts_model import FuzzyModelSet
 from contracts.airframe import Airframe, hover_rotor_speed_rps
-from contracts.schedule import Perturbations
+from contracts.perturbations import Perturbations
 from ground.scenarios import Scenario
 from sitl.plant import Plant
+
+
+# What the in-process runner applies: the plant and the reference, not the link.
+IN_PROCESS_KINDS = frozenset({"inertia", "rotor_inertia", "mass", "motor_efficiency",
+                              "motor_failure", "wind", "gust", "force", "torque", "kick"})
 
 
 @dataclass
@@ -50,6 +55,11 @@ def run_inprocess(
     plant_step_s: float = 0.001,
     parameters: dict[str, float] | None = None,
 ) -> RunRecord:
+    unsupported = sorted({e.kind for e in scenario.perturbations
+                          if e.kind not in IN_PROCESS_KINDS})
+    if unsupported:
+        raise ValueError(f"{', '.join(unsupported)} act on the simulator link; run "
+                         f"{scenario.name} through the processes (without --inprocess)")
     n = int(round(scenario.duration_s / period_s))
     # Sim time in whole microseconds, as the simulator stamps its samples.
     period_us = round(period_s * 1e6)

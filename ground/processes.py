@@ -1,26 +1,38 @@
-"""Run a scenario through the simulator and autopilot processes (SPEC section 7).
+"""Run a scenario through every process: logger, simulator and autopilot (SPEC section 7).
 
-The ground side starts ``python -m sitl`` and ``python -m autopilot`` on a free port,
-hands both the scenario's schedule (plant changes to the simulator, reference kicks to
-the autopilot), waits, and reads back the autopilot's per-step record.
+The ground station starts ``ivfm ground log`` (listening on a free loopback port: the
+Zenoh meeting point), ``python -m sitl --hold`` and ``python -m autopilot``. When the
+logger has heard both vehicle processes it delivers the scenario's perturbations as
+acknowledged Zenoh requests, releases the simulator, shows progress from the
+simulator's status records, and at the end stops the logger once it holds both
+processes' final status (so every record published before it has arrived). The run
+folder then holds the MCAP log and the processes' logs; ``ground/report.py`` computes
+everything else from the log.
 """
 
 from __future__ import annotations
 
 import json
-import math
+import shutil
+import signal
 import socket
 import subprocess
 import sys
-import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-import numpy as np
+import zenoh
 
-from contracts.schedule import windows_to_json
-from ground.inprocess import RunRecord
+from contracts.perturbations import schedule_to_json
+from contracts.telemetry import logger_key, vehicle_key
+from contracts.zenoh_link import ZenohOptions, open_session
+from ground.perturb import PerturbationClient, PerturbationError
 from ground.scenarios import Scenario
+
+LOG_PREFIX = "telemetry"
+LOGGER_NAME = "run"
 
 
 class ProcessRunError(RuntimeError):
@@ -40,91 +52,206 @@ def _tail(path: Path, lines: int = 15) -> str:
         return "(no log)"
 
 
-def run_processes(
-    scenario: Scenario,
-    controller: str,
-    plant_fidelity: str,
-    airframe_name: str,
-    out_dir: Path,
-    model_path: Path | None = None,
-    parameters: dict[str, float] | None = None,
-    realtime: bool = False,
-    rate_hz: float = 100.0,
-    state_source: str = "odometry",
-) -> tuple[RunRecord, dict]:
-    """Fly ``scenario`` through the two processes; returns the record and the timing."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    port = free_tcp_port()
-    pace = ["--realtime"] if realtime else ["--lockstep"]
-    with tempfile.TemporaryDirectory(prefix="ivfm-run-") as tmp:
-        schedule = Path(tmp) / "schedule.json"
-        schedule.write_text(windows_to_json(scenario.windows))
-        record_path = Path(tmp) / "record.npz"
-        sim_log, ap_log = out_dir / "sitl.log", out_dir / "autopilot.log"
-        sim_cmd = [sys.executable, "-m", "sitl", "--port", str(port), *pace,
-                   "--rate-hz", str(rate_hz), "--plant", plant_fidelity,
-                   "--airframe", airframe_name,
-                   "--start-altitude", str(scenario.reference.altitude_m),
-                   "--schedule", str(schedule), "--exit-on-disconnect"]
-        ap_cmd = [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{port}", *pace,
-                  "--rate-hz", str(rate_hz), "--state-source", state_source,
-                  "--controller", controller, "--airframe", airframe_name,
-                  "--reference", scenario.reference.kind,
-                  "--altitude", str(scenario.reference.altitude_m),
-                  "--schedule", str(schedule), "--arm-in-reference",
-                  "--duration", str(scenario.duration_s), "--record", str(record_path),
-                  "--gcs-bind", "0", "--api", "none", "--api-bind", "0"]
-        if model_path is not None:
-            ap_cmd += ["--model", str(model_path)]
-        for name, value in (parameters or {}).items():
-            ap_cmd += ["--param", f"{name}={value!r}"]
-        timeout_s = 120.0 + (scenario.duration_s * (1.5 if realtime else 1.0))
-        with open(sim_log, "w") as sim_out, open(ap_log, "w") as ap_out:
-            sim = subprocess.Popen(sim_cmd, stdout=sim_out, stderr=subprocess.STDOUT)
-            autopilot = subprocess.Popen(ap_cmd, stdout=ap_out, stderr=subprocess.STDOUT)
+@dataclass
+class RunSettings:
+    """How a scenario is flown (the scenario file's choices after command-line overrides)."""
+
+    controller: str
+    plant: str
+    airframe: str
+    model_path: Path | None = None
+    parameters: dict[str, float] | None = None
+    realtime: bool = False
+    rate_hz: float = 100.0
+    state_source: str = "odometry"
+    vehicle: int = 1
+
+
+def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
+                     endpoint: str, schedule_path: Path | None = None) -> tuple[list, list]:
+    """The simulator's and the autopilot's command lines for one vehicle of a run."""
+    pace = ["--realtime"] if settings.realtime else ["--lockstep"]
+    zenoh_args = ["--zenoh-connect", endpoint]
+    ref = scenario.reference
+    sim = [sys.executable, "-m", "sitl", "--port", str(sim_port), *pace,
+           "--rate-hz", str(settings.rate_hz), "--plant", settings.plant,
+           "--airframe", settings.airframe, "--start-altitude", str(ref.altitude_m),
+           "--exit-on-disconnect", "--vehicle", str(settings.vehicle), *zenoh_args]
+    sim += ["--schedule", str(schedule_path)] if schedule_path else ["--hold"]
+    autopilot = [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{sim_port}", *pace,
+                 "--rate-hz", str(settings.rate_hz), "--state-source", settings.state_source,
+                 "--controller", settings.controller, "--airframe", settings.airframe,
+                 "--reference", ref.kind, "--altitude", str(ref.altitude_m),
+                 "--reference-option", f"yaw_rad={ref.yaw_rad!r}",
+                 "--reference-option", f"amplitude={ref.amplitude!r}",
+                 "--reference-option", f"hold_start_s={ref.hold_start_s!r}",
+                 "--reference-option", f"hold_end_s={ref.hold_end_s!r}",
+                 "--arm-in-reference", "--duration", str(scenario.duration_s),
+                 "--sysid", str(settings.vehicle), "--gcs-bind", "0", "--api", "none",
+                 "--api-bind", "0", *zenoh_args]
+    if schedule_path:
+        autopilot += ["--schedule", str(schedule_path)]
+    if settings.model_path is not None:
+        autopilot += ["--model", str(settings.model_path)]
+    for name, value in (settings.parameters or {}).items():
+        autopilot += ["--param", f"{name}={value!r}"]
+    return sim, autopilot
+
+
+class LoggerProcess:
+    """``ivfm ground log`` as a child process, and questions to it over Zenoh."""
+
+    def __init__(self, out_dir: Path, endpoint: str, log_path: Path,
+                 name: str = LOGGER_NAME, extra: list[str] | None = None) -> None:
+        self.name = name
+        self.log_path = log_path
+        self._out = open(log_path, "w")  # noqa: SIM115 (closed in stop)
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "ground.cli", "ground", "log", "--out", str(out_dir),
+             "--name", name, "--prefix", LOG_PREFIX, "--zenoh-listen", endpoint,
+             *(extra or [])],
+            stdout=self._out, stderr=subprocess.STDOUT)
+
+    def status(self, session: zenoh.Session) -> dict[str, Any] | None:
+        for reply in session.get(logger_key(self.name, "status"), timeout=2.0):
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_bytes())
+        return None
+
+    def wait_until(self, session: zenoh.Session, heard: list[str], final: bool,
+                   timeout_s: float) -> dict[str, Any]:
+        """Until the logger holds a status record (the final one, if asked) from each key."""
+        deadline = time.monotonic() + timeout_s
+        status: dict[str, Any] | None = None
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                raise ProcessRunError(f"the logger exited ({self.proc.returncode}):\n"
+                                      f"{_tail(self.log_path)}")
+            status = self.status(session)
+            if status is not None and all(
+                    key in status["heard"] and (status["heard"][key].get("final") or not final)
+                    for key in heard):
+                return status
+            time.sleep(0.05)
+        raise ProcessRunError(f"the logger did not hear {', '.join(heard)} within "
+                              f"{timeout_s:g} s (last status: {status})\n{_tail(self.log_path)}")
+
+    def stop(self) -> int:
+        if self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGINT)
             try:
-                _follow(autopilot, ap_log, timeout_s)
-                sim.wait(timeout=10.0)
+                self.proc.wait(timeout=20.0)
             except subprocess.TimeoutExpired:
-                raise ProcessRunError(f"the run did not finish in {timeout_s:.0f} s; "
-                                      f"autopilot log:\n{_tail(ap_log)}") from None
-            finally:
-                for proc in (autopilot, sim):
-                    if proc.poll() is None:
-                        proc.kill()
-                        proc.wait()
-        if autopilot.returncode != 0 or not record_path.exists():
-            raise ProcessRunError(f"the autopilot failed (exit {autopilot.returncode}):\n"
-                                  f"{_tail(ap_log)}\nsimulator log:\n{_tail(sim_log)}")
-        return _record(record_path, scenario, controller, plant_fidelity, rate_hz)
+                self.proc.kill()
+                self.proc.wait()
+        self._out.close()
+        return self.proc.returncode
 
 
-def _follow(proc: subprocess.Popen, log: Path, timeout_s: float) -> None:
-    """Wait for the process, echoing its progress lines."""
+def clear_run_folder(out_dir: Path) -> None:
+    """A run folder holds one run: remove the telemetry of a previous one."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    for old in [*out_dir.glob(f"{LOG_PREFIX}-*.mcap"), *out_dir.glob(f"{LOG_PREFIX}-*.active")]:
+        old.unlink()
+    figures = out_dir / "figures"
+    if figures.is_dir():
+        shutil.rmtree(figures)
+
+
+def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path) -> dict[str, Any]:
+    """Fly ``scenario`` through the processes; returns the telemetry accounting (records
+    published and logged per key) and the autopilot's timing summary."""
+    clear_run_folder(out_dir)
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    sim_port = free_tcp_port()
+    v = settings.vehicle
+    logs = {name: out_dir / f"{name}.log" for name in ("logger", "sitl", "autopilot")}
+    logger = LoggerProcess(out_dir, endpoint, logs["logger"])
+    procs: dict[str, subprocess.Popen] = {}
+    outs = []
+    session = open_session(ZenohOptions(connect=[endpoint], listen=["tcp/127.0.0.1:0"]))
+    timeout_s = 120.0 + scenario.duration_s * (1.5 if settings.realtime else 1.0)
+    try:
+        sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint)
+        for name, cmd in (("sitl", sim_cmd), ("autopilot", ap_cmd)):
+            out = open(logs[name], "w")  # noqa: SIM115 (closed below)
+            outs.append(out)
+            procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT)
+        status_keys = [vehicle_key(v, p, "status") for p in ("sitl", "autopilot")]
+        logger.wait_until(session, status_keys, final=False, timeout_s=60.0)
+        client = PerturbationClient(session=session, timeout_s=10.0)
+        for entry in scenario.perturbations:
+            answer = client.send(v, entry.to_request())
+            print(f"  perturbation {answer.get('id')}: {entry.kind} "
+                  f"[{entry.start_s:g}, {entry.end_s:g}) s acknowledged by the "
+                  f"{entry.target}", file=sys.stderr, flush=True)
+        client.start(v)
+        _follow(session, procs, v, scenario.duration_s, timeout_s, logs)
+        final = logger.wait_until(session, status_keys, final=True, timeout_s=30.0)
+    except PerturbationError as exc:
+        raise ProcessRunError(f"{exc}\n{_tail(logs['sitl'])}") from None
+    finally:
+        for proc in procs.values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        for out in outs:
+            out.close()
+        session.close()
+        logger_rc = logger.stop()
+    if procs["autopilot"].returncode != 0:
+        raise ProcessRunError(f"the autopilot failed (exit {procs['autopilot'].returncode}):\n"
+                              f"{_tail(logs['autopilot'])}\nsimulator log:\n"
+                              f"{_tail(logs['sitl'])}")
+    if logger_rc != 0:
+        raise ProcessRunError(f"the logger failed (exit {logger_rc}):\n{_tail(logs['logger'])}")
+    return telemetry_accounting(final)
+
+
+def telemetry_accounting(logger_status: dict[str, Any]) -> dict[str, Any]:
+    """Per key: records the processes say they published vs records the logger wrote."""
+    published: dict[str, int] = {}
+    timing: dict[str, Any] = {}
+    for record in logger_status["heard"].values():
+        published.update(record.get("published", {}))
+        if record.get("timing"):
+            timing = record["timing"]
+    logged = logger_status["per_key"]
+    lost = {k: n - logged.get(k, 0) for k, n in published.items() if n != logged.get(k, 0)}
+    return {"published": published, "logged": {k: logged.get(k, 0) for k in published},
+            "lost": lost, "refused_by_logger": logger_status["rejected"], "timing": timing}
+
+
+def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen], vehicle: int,
+            duration_s: float, timeout_s: float, logs: dict[str, Path]) -> None:
+    """Wait for the vehicle processes, echoing progress from the simulator's status."""
+    shown = [0.0]
+
+    def on_status(sample: zenoh.Sample) -> None:
+        try:
+            t = json.loads(sample.payload.to_bytes())["sim_time_us"] / 1e6
+        except (ValueError, KeyError, TypeError):
+            return
+        if t >= shown[0] + 0.1 * duration_s or t >= duration_s > shown[0]:
+            shown[0] = t
+            print(f"  {min(100.0, 100 * t / duration_s):3.0f} % ({t:.1f} s of "
+                  f"{duration_s:g} s sim)", file=sys.stderr, flush=True)
+
+    sub = session.declare_subscriber(vehicle_key(vehicle, "sitl", "status"), on_status)
     deadline = time.monotonic() + timeout_s
-    seen = 0
-    while proc.poll() is None:
-        if time.monotonic() > deadline:
-            raise subprocess.TimeoutExpired(proc.args, timeout_s)
-        time.sleep(0.2)
-        lines = log.read_text().splitlines()
-        for line in lines[seen:]:
-            if "%" in line and "sim)" in line:
-                print(f"  {line}", file=sys.stderr, flush=True)
-        seen = len(lines)
+    try:
+        while any(p.poll() is None for p in procs.values()):
+            if time.monotonic() > deadline:
+                raise ProcessRunError(f"the run did not finish in {timeout_s:.0f} s; autopilot "
+                                      f"log:\n{_tail(logs['autopilot'])}")
+            if procs["autopilot"].poll() not in (None, 0):
+                return
+            time.sleep(0.05)
+    finally:
+        sub.undeclare()
 
 
-def _record(path: Path, scenario: Scenario, controller: str, plant: str,
-            rate_hz: float) -> tuple[RunRecord, dict]:
-    d = np.load(path)
-    n = len(d["time_s"])
-    measurement = d["measurement"]
-    diverged = bool(n < round(scenario.duration_s * rate_hz) or not np.all(
-        np.isfinite(measurement)) or np.max(np.abs(measurement[:, 0:3])) > 1e3)
-    record = RunRecord(
-        scenario=scenario.name, controller=controller, plant=plant, period_s=1.0 / rate_hz,
-        time_s=d["time_s"], measurement=measurement, reference=d["reference"], kick=d["kick"],
-        motor_commands=d["motor_commands"], channel_telemetry=d["channel_telemetry"],
-        theta_g=d["theta_g"], theta_f=[d[f"theta_f_{i}"] for i in range(3)],
-        wall_time_s=float(d["loop_wall_s"]) or math.nan, diverged=diverged)
-    return record, json.loads(str(d["timing"]))
+def write_schedule(scenario: Scenario, path: Path) -> Path:
+    """The schedule as a file, for running vehicles without the ground station."""
+    path.write_text(schedule_to_json(scenario.perturbations))
+    return path

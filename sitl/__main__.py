@@ -9,7 +9,13 @@ from pathlib import Path
 
 from contracts.airframe import AIRFRAMES, airframe_by_name
 from contracts.mavlink import SIM_TCP_PORT
-from contracts.schedule import load_schedule
+from contracts.perturbations import load_schedule
+from contracts.zenoh_link import (
+    VEHICLE_CONNECT,
+    VEHICLE_LISTEN,
+    add_zenoh_arguments,
+    zenoh_options_from_args,
+)
 from sitl.dynamics import FIDELITIES
 
 
@@ -33,6 +39,12 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                    help="stop after this much sim time")
     p.add_argument("--exit-on-disconnect", action="store_true",
                    help="stop when the autopilot disconnects (scenario runs)")
+    p.add_argument("--vehicle", type=int, default=1, metavar="ID",
+                   help="vehicle id in telemetry keys (the autopilot's MAVLink system id)")
+    p.add_argument("--hold", action="store_true",
+                   help="lockstep: wait for a start request over Zenoh before the first sample")
+    p.add_argument("--seed", type=int, default=0, help="seed of sensor noise and link loss")
+    add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT)
     return p
 
 
@@ -44,7 +56,9 @@ def run(args: argparse.Namespace) -> int:
         port=args.port, lockstep=args.lockstep, rate_hz=args.rate_hz,
         start_altitude_m=args.start_altitude,
         schedule=load_schedule(args.schedule) if args.schedule else (),
-        exit_on_disconnect=args.exit_on_disconnect, duration_s=args.duration)
+        exit_on_disconnect=args.exit_on_disconnect, duration_s=args.duration,
+        vehicle_id=args.vehicle, zenoh=zenoh_options_from_args(args), hold=args.hold,
+        seed=args.seed)
     return Simulator(config).run()
 
 

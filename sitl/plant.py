@@ -18,7 +18,7 @@ from contracts.frames import (
     euler_rates_from_body_rates,
     quat_from_euler,
 )
-from contracts.schedule import Perturbations
+from contracts.perturbations import Perturbations
 from sitl import dynamics
 
 MEASUREMENT_SIZE = 12  # position NED, velocity NED, Euler angles, Euler rates

@@ -2,7 +2,10 @@
 
 It listens (TCP 4560 by default) for one autopilot at a time. Each sample it sends
 HIL_SENSOR, HIL_GPS, HIL_STATE_QUATERNION and ODOMETRY stamped with sim time and
-applies the HIL_ACTUATOR_CONTROLS it gets back.
+applies the HIL_ACTUATOR_CONTROLS it gets back. Over Zenoh it publishes its truth state
+each sample and every perturbation as it takes effect, and takes perturbation requests
+(``contracts/perturbations.py``) at any time; with ``hold`` a lockstep run waits for a
+start request, so a ground station can deliver a schedule before sim time moves.
 
 * lockstep: send the sample for time t, wait for the actuator message answering t, then
   advance one period. Time stands still while no autopilot is connected.
@@ -12,7 +15,9 @@ applies the HIL_ACTUATOR_CONTROLS it gets back.
 
 from __future__ import annotations
 
+import collections
 import math
+import queue
 import selectors
 import signal
 import socket
@@ -23,6 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contracts.airframe import Airframe, hover_rotor_speed_rps
+from contracts.frames import quat_from_euler
 from contracts.mavlink import (
     SIM_TCP_PORT,
     SIMULATOR_COMPID,
@@ -32,8 +38,19 @@ from contracts.mavlink import (
     new_mavlink,
     sample_messages,
 )
-from contracts.schedule import Perturbations, Window, plant_perturbations_at
-from sitl.plant import Plant
+from contracts.perturbations import (
+    NO_SENSOR_EFFECTS,
+    SIMULATOR,
+    Perturbation,
+    PerturbationBook,
+    Perturbations,
+    SensorEffects,
+    plant_perturbations_at,
+    sensor_effects_at,
+)
+from contracts.telemetry import SITL, STATE, json_record
+from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
+from sitl.plant import Plant, VehicleState
 
 
 @dataclass
@@ -46,10 +63,14 @@ class SimulatorConfig:
     rate_hz: float = 100.0
     plant_step_s: float = 0.001
     start_altitude_m: float = 0.0  # > 0 starts in hover at that altitude
-    schedule: tuple[Window, ...] = ()
+    schedule: tuple[Perturbation, ...] = ()
     exit_on_disconnect: bool = False
     duration_s: float = math.inf
     actuator_timeout_s: float = 0.1
+    vehicle_id: int = 1
+    zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(enabled=False))
+    hold: bool = False  # wait for a start request before the first sample
+    seed: int = 0  # sensor noise and link loss
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.rate_hz) and 1.0 <= self.rate_hz <= 2000.0):
@@ -92,10 +113,22 @@ class Simulator:
         self.mav = new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID)
         self.stats = LinkStats()
         self._active = Perturbations()
+        self._sensor = NO_SENSOR_EFFECTS
+        self.book = PerturbationBook(SIMULATOR, config.schedule)
+        self.rng = np.random.default_rng(config.seed)
         self._state = self.plant.state()
+        self._history: collections.deque[VehicleState] = collections.deque(maxlen=101)
+        self._commands = np.zeros(4)
         self._previous_velocity = self._state.velocity_ned_mps
         self._acceleration = np.zeros(3)
         self._stop = False
+        self.started = not config.hold
+        self.node = TelemetryNode(config.zenoh, config.vehicle_id, SITL, self.log)
+        self._state_pub = self.node.publisher("state")
+        self._event_pub = self.node.publisher("perturbation")
+        self.node.serve("perturb")
+        self.node.serve("start")
+        self._state_floats = np.zeros(STATE.dtype.itemsize // 8 - STATE.float_offset())
 
     @property
     def time_us(self) -> int:
@@ -105,25 +138,108 @@ class Simulator:
         self._stop = True
 
     # -- the plant side ------------------------------------------------------------------
-    def _sample_bytes(self) -> bytes:
-        s = self._state
-        msgs = sample_messages(self.time_us, s.position_ned_m, s.velocity_ned_mps,
-                               s.quaternion, s.body_rate_rps, self._acceleration)
+    def _prepare_sample(self) -> bytes | None:
+        """Take requests, apply the perturbations in force at this sample's time, publish
+        the truth; the bytes to send, or None when the link loses this sample."""
+        self._service_requests()
+        if self.book.entries:
+            self._update_perturbations(self.time_us / 1e6)
+        self._publish_state()
+        self.node.status(self.time_us, **self._status_fields())
+        sensor = self._sensor
+        if sensor is NO_SENSOR_EFFECTS:
+            s = self._state
+            return self._encode(s.position_ned_m, s.velocity_ned_mps, s.quaternion,
+                                s.body_rate_rps)
+        if sensor.loss_fraction > 0.0 and self.rng.random() < sensor.loss_fraction:
+            return None
+        return self._encode(*self._sensed_state(sensor))
+
+    def _encode(self, position, velocity, quaternion, body_rate) -> bytes:
+        msgs = sample_messages(self.time_us, position, velocity, quaternion, body_rate,
+                               self._acceleration)
         return b"".join(m.pack(self.mav) for m in msgs)
 
-    def _advance(self) -> None:
-        t = self.time_us / 1e6
-        wanted = plant_perturbations_at(self.config.schedule, t)
+    def _sensed_state(self, sensor: SensorEffects) -> tuple[np.ndarray, ...]:
+        """What the link carries under sensor noise, bias and delay (truth is published)."""
+        delay = min(sensor.delay_samples, len(self._history) - 1)
+        s = self._history[-1 - delay] if delay > 0 else self._state
+        noise = self.rng.normal(size=12) if (sensor.noise_position_m or
+                                             sensor.noise_velocity_mps or
+                                             sensor.noise_angle_rad or
+                                             sensor.noise_rate_rps) else np.zeros(12)
+        position = s.position_ned_m + sensor.bias_position_m + \
+            sensor.noise_position_m * noise[0:3]
+        velocity = s.velocity_ned_mps + sensor.bias_velocity_mps + \
+            sensor.noise_velocity_mps * noise[3:6]
+        euler = s.euler_rad + sensor.bias_angle_rad + sensor.noise_angle_rad * noise[6:9]
+        rates = s.body_rate_rps + sensor.bias_rate_rps + sensor.noise_rate_rps * noise[9:12]
+        return position, velocity, quat_from_euler(*euler), rates
+
+    def _update_perturbations(self, t_s: float) -> None:
+        entries = self.book.entries
+        wanted = plant_perturbations_at(entries, t_s)
         if wanted != self._active:
             self.plant.set_perturbations(wanted)
             self._active = wanted
-            self.log(f"t={t:.3f} s perturbations now {wanted}")
+        self._sensor = sensor_effects_at(entries, t_s)
+        for event, e in self.book.changes(t_s):
+            self._event_pub.put(json_record(self._event_pub.count, self.time_us, event=event,
+                                            **e.to_request()))
+            self.log(f"t={t_s:.3f} s perturbation {e.id} ({e.kind}) {event}")
+
+    def _publish_state(self) -> None:
+        if not self.node.enabled:
+            return
+        s, p = self._state, self._active
+        f = self._state_floats
+        f[0:3], f[3:6], f[6:10] = s.position_ned_m, s.velocity_ned_mps, s.quaternion
+        f[10:13], f[13:16], f[16:19] = s.euler_rad, s.euler_rate_rps, s.body_rate_rps
+        f[19:23], f[23:27] = s.rotor_rps, self._commands
+        f[27:30] = p.inertia_scale, p.rotor_inertia_scale, p.mass_scale
+        f[30:34], f[34:37] = p.motor_efficiency, p.wind_ned_mps
+        f[37:40], f[40:43] = p.force_ned_n, p.torque_frd_nm
+        self._state_pub.put(STATE.encode((self._state_pub.count, self.time_us), f))
+
+    def _advance(self) -> None:
         self.plant.advance(self.period_s)
         self.step_index += 1
         self._state = self.plant.state()
+        self._history.append(self._state)
         velocity = self._state.velocity_ned_mps
         self._acceleration = (velocity - self._previous_velocity) / self.period_s
         self._previous_velocity = velocity
+
+    # -- requests over Zenoh -------------------------------------------------------------
+    def _service_requests(self) -> None:
+        while True:
+            try:
+                request = self.node.requests.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                self._answer_request(request)
+            except ValueError as exc:
+                self.log(f"refused {request.topic} request: {exc}")
+                request.reply(False, error=str(exc))
+
+    def _answer_request(self, request: Request) -> None:
+        if request.topic == "start":
+            if not self.started:
+                self.log(f"start requested at t={self.time_us / 1e6:.3f} s")
+            self.started = True
+            request.reply(True, sim_time_us=self.time_us)
+            return
+        answer = self.book.handle(request.data, self.time_us / 1e6)
+        self.log(f"perturbation request answered: {answer}")
+        request.reply(True, sim_time_us=self.time_us, **answer)
+
+    def _status_fields(self) -> dict:
+        return {"samples_sent": self.stats.samples_sent,
+                "commands_received": self.stats.commands_received,
+                "refused": self.stats.bad_messages,
+                "periods_without_command": self.stats.periods_without_command,
+                "started": self.started}
 
     def _apply(self, msg) -> int | None:
         """Apply an actuator message; returns the sample time it answers, None if refused."""
@@ -134,6 +250,7 @@ class Simulator:
             self.log(f"refused actuator message: {exc}")
             return None
         self.plant.set_motor_commands(commands)
+        self._commands = commands
         self.stats.commands_received += 1
         return msg.time_usec
 
@@ -154,10 +271,31 @@ class Simulator:
             pass
         finally:
             server.close()
+            self._service_requests()
+            self.node.status(self.time_us, final=True, **self._status_fields(),
+                             latency=self._latency_summary())
+            self.node.close()
         self.log(f"stopped at t={self.time_us / 1e6:.3f} s: {self.stats.samples_sent} samples "
                  f"sent, {self.stats.commands_received} commands, "
                  f"{self.stats.bad_messages} refused")
         return 0
+
+    def _latency_summary(self) -> dict:
+        if not self.stats.latency_s:
+            return {}
+        latency = np.array(self.stats.latency_s) * 1e3
+        return {"p50_ms": float(np.percentile(latency, 50)),
+                "p99_ms": float(np.percentile(latency, 99)), "max_ms": float(latency.max())}
+
+    def _idle(self) -> None:
+        """While sim time stands still: take requests, say we are here."""
+        self._service_requests()
+        self.node.status(self.time_us, **self._status_fields())
+
+    def _wait_for_start(self) -> None:
+        while not self.started and not self._stop:
+            self._idle()
+            time.sleep(0.005)
 
     def _finished(self) -> bool:
         return self._stop or self.time_us / 1e6 >= self.config.duration_s
@@ -198,12 +336,18 @@ class Simulator:
         while not self._finished():
             conn = self._accept(server)
             if conn is None:
+                self._idle()
                 continue
             conn.settimeout(0.5)
             connected = True
+            self._wait_for_start()
             while connected and not self._finished():
+                sample = self._prepare_sample()
+                if sample is None:  # lost on the link: the motors keep the last commands
+                    self._advance()
+                    continue
                 try:
-                    conn.sendall(self._sample_bytes())
+                    conn.sendall(sample)
                 except OSError:
                     break
                 self.stats.samples_sent += 1
@@ -234,9 +378,11 @@ class Simulator:
         while conn is None and not self._finished():
             conn = self._accept(server)
             if conn is None:
+                self._idle()
                 time.sleep(0.01)
         if conn is None:
             return
+        self._wait_for_start()
         conn.setblocking(False)
         sel.register(conn, selectors.EVENT_READ)
         start = time.perf_counter()
@@ -248,9 +394,10 @@ class Simulator:
                 if conn is not None:
                     conn.setblocking(False)
                     sel.register(conn, selectors.EVENT_READ)
-            if conn is not None:
+            sample = self._prepare_sample()
+            if conn is not None and sample is not None:
                 try:
-                    conn.sendall(self._sample_bytes())
+                    conn.sendall(sample)
                     self.stats.samples_sent += 1
                 except OSError:
                     pass
@@ -287,6 +434,7 @@ class Simulator:
                     > self.config.actuator_timeout_s):
                 timed_out = True
                 self.plant.set_motor_commands(np.zeros(4))
+                self._commands = np.zeros(4)
                 self.log(f"no actuator commands for {self.config.actuator_timeout_s:g} s at "
                          f"t={self.time_us / 1e6:.3f} s: motors stopped")
             self._advance()

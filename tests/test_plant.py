@@ -16,7 +16,7 @@ from contracts.frames import (
     quat_from_euler,
     rotation_from_quat,
 )
-from contracts.schedule import Perturbations
+from contracts.perturbations import Perturbations
 from sitl import dynamics
 from sitl.plant import Plant
 

@@ -1,0 +1,238 @@
+"""Zenoh telemetry: key expressions and record schemas, defined once (SPEC section 7).
+
+Keys (``V`` is the vehicle id, the autopilot's MAVLink system id):
+
+=====================================  ========  =============================================
+key                                    encoding  what
+=====================================  ========  =============================================
+``ivfm/vehicle/V/sitl/state``          CDR       truth state and plant perturbations, each sample
+``ivfm/vehicle/V/autopilot/control``   CDR       controller internals, each control step
+``ivfm/vehicle/V/autopilot/timing``    CDR       loop period, compute time, misses, each step
+``ivfm/vehicle/V/{proc}/perturbation`` JSON      a perturbation took effect / ended
+``ivfm/vehicle/V/{proc}/status``       JSON      1 Hz (wall) and final: counters per topic
+``mavlink/V/C/MSG``                    MAVLink   raw MAVLink 2 frames the autopilot produced
+``ivfm/vehicle/V/{proc}/perturb``      query     perturbation requests (acknowledged)
+``ivfm/vehicle/V/sitl/start``          query     release a held lockstep simulator
+``ivfm/ground/logger/NAME/status``     query     what a logger has recorded
+=====================================  ========  =============================================
+
+Liveliness tokens: ``ivfm/vehicle/V/sitl``, ``ivfm/vehicle/V/autopilot``,
+``ivfm/ground/logger/NAME``.
+
+The CDR records are ROS 2 CDR (little endian) of the ``ros2msg`` schemas below, so the
+MCAP log opens in Foxglove and PlotJuggler as is: the logger writes the payload it gets.
+Every record starts with ``uint64 seq`` and ``int64 sim_time_us``; MAVLink mirror frames
+carry the two in the Zenoh attachment (``<Qq``).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+ROOT = "ivfm"
+SITL, AUTOPILOT = "sitl", "autopilot"
+DEFAULT_PORT = 7447
+DEFAULT_GROUND_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
+MAX_VEHICLE_ID = 255
+
+CDR_HEADER = b"\x00\x01\x00\x00"  # CDR, little endian
+MIRROR_ATTACHMENT = struct.Struct("<Qq")  # seq, sim_time_us
+
+
+def vehicle_key(vehicle: int, process: str, topic: str | None = None) -> str:
+    check_vehicle_id(vehicle)
+    base = f"{ROOT}/vehicle/{vehicle}/{process}"
+    return base if topic is None else f"{base}/{topic}"
+
+
+def logger_key(name: str, topic: str | None = None) -> str:
+    base = f"{ROOT}/ground/logger/{name}"
+    return base if topic is None else f"{base}/{topic}"
+
+
+def mavlink_key(sysid: int, compid: int, message_name: str) -> str:
+    return f"mavlink/{sysid}/{compid}/{message_name}"
+
+
+def check_vehicle_id(vehicle: int) -> int:
+    if isinstance(vehicle, bool) or not isinstance(vehicle, int) or \
+            not 1 <= vehicle <= MAX_VEHICLE_ID:
+        raise ValueError(f"vehicle id must be a whole number in [1, {MAX_VEHICLE_ID}], "
+                         f"got {vehicle!r}")
+    return vehicle
+
+
+def parse_key(key: str) -> tuple[int, str, str] | None:
+    """(vehicle, process, topic) of an ``ivfm/vehicle/...`` key, else None."""
+    parts = key.split("/")
+    if len(parts) != 5 or parts[0] != ROOT or parts[1] != "vehicle" or not parts[2].isdigit():
+        return None
+    return int(parts[2]), parts[3], parts[4]
+
+
+# -- CDR record schemas ---------------------------------------------------------------------
+
+_ROS_TYPES = {"u8": "uint64", "i8": "int64", "f8": "float64"}
+
+
+@dataclass(frozen=True)
+class RecordSchema:
+    """A flat record: fixed fields (8-byte scalars and arrays), then float64 sequences."""
+
+    name: str
+    fields: tuple[tuple[str, str, int], ...]  # (name, u8 | i8 | f8, count; 0 = scalar)
+    sequences: tuple[str, ...] = ()
+    comment: str = ""
+
+    @property
+    def dtype(self) -> np.dtype:
+        return np.dtype([(n, "<" + t, (c,)) if c else (n, "<" + t) for n, t, c in self.fields])
+
+    @property
+    def fixed_size(self) -> int:
+        return len(CDR_HEADER) + self.dtype.itemsize
+
+    @property
+    def ros2msg(self) -> str:
+        lines = [f"# {self.comment}"] if self.comment else []
+        for n, t, c in self.fields:
+            lines.append(f"{_ROS_TYPES[t]}{f'[{c}]' if c else ''} {n}")
+        lines.extend(f"float64[] {n}" for n in self.sequences)
+        return "\n".join(lines) + "\n"
+
+    def float_offset(self) -> int:
+        """Where the float64 part starts (after the leading integer fields), in values."""
+        return sum(1 for _n, t, _c in self.fields if t != "f8")
+
+    def encode(self, ints: tuple[int, ...], floats: np.ndarray,
+               sequences: tuple[np.ndarray, ...] = ()) -> bytes:
+        """Payload from the integer fields (in order), the float64 part laid out flat, and
+        the sequences."""
+        out = [CDR_HEADER, struct.pack(f"<{len(ints)}q", *ints), floats.tobytes()]
+        for seq in sequences:
+            out.append(struct.pack("<I4x", len(seq)))
+            out.append(np.asarray(seq, dtype="<f8").tobytes())
+        return b"".join(out)
+
+    def decode(self, payload: bytes) -> dict[str, Any]:
+        """Fields by name; raises ValueError on a payload that does not fit the schema."""
+        if len(payload) < self.fixed_size or payload[:4] != CDR_HEADER:
+            raise ValueError(f"{self.name}: payload of {len(payload)} bytes is not a "
+                             f"{self.fixed_size}+ byte CDR record")
+        row = np.frombuffer(payload, dtype=self.dtype, count=1, offset=4)[0]
+        out: dict[str, Any] = {n: row[n] for n, _t, _c in self.fields}
+        at = self.fixed_size
+        for name in self.sequences:
+            if at + 8 > len(payload):
+                raise ValueError(f"{self.name}: payload ends before sequence {name}")
+            (count,) = struct.unpack_from("<I", payload, at)
+            at += 8
+            if at + 8 * count > len(payload):
+                raise ValueError(f"{self.name}: sequence {name} of {count} runs past the end")
+            out[name] = np.frombuffer(payload, dtype="<f8", count=count, offset=at)
+            at += 8 * count
+        if at != len(payload):
+            raise ValueError(f"{self.name}: {len(payload) - at} bytes left over")
+        return out
+
+    def check(self, payload: bytes) -> None:
+        """Cheap structural check (the logger's): header, sizes and sequence lengths."""
+        size = len(payload)
+        if size < self.fixed_size or payload[:4] != CDR_HEADER:
+            raise ValueError(f"{self.name}: payload of {size} bytes is not a "
+                             f"{self.fixed_size}+ byte CDR record")
+        at = self.fixed_size
+        for name in self.sequences:
+            if at + 8 > size:
+                raise ValueError(f"{self.name}: payload ends before sequence {name}")
+            at += 8 + 8 * struct.unpack_from("<I", payload, at)[0]
+        if at != size:
+            raise ValueError(f"{self.name}: {size} bytes where the record says {at}")
+
+
+# Columns of the controller's per-channel internals (autopilot/control/sliding_mode.py's
+# TELEMETRY_FIELDS), each published as one array over the channels below.
+CHANNELS = ("phi", "theta", "psi", "z", "x", "y")
+CHANNEL_INTERNALS = ("ref", "y", "e", "e_s", "e_eps", "f_hat", "u_eq", "u_s", "v",
+                     "theta_g_channel")
+
+CONTROL = RecordSchema(
+    "ivfm_msgs/msg/Control",
+    (("seq", "u8", 0), ("sim_time_us", "i8", 0), ("mode", "i8", 0), ("flags", "i8", 0),
+     ("reference_time_s", "f8", 0), ("measurement", "f8", 12), ("reference", "f8", 18),
+     ("kick_rad", "f8", 2), ("motor_commands", "f8", 4),
+     *((f"ch_{name}", "f8", 6) for name in CHANNEL_INTERNALS), ("theta_g", "f8", 6)),
+    sequences=("theta_f_phi", "theta_f_theta", "theta_f_psi"),
+    comment="IVFM autopilot, one control step. measurement: x y z vx vy vz phi theta psi "
+            "and Euler rates (NED/FRD, SI). ch_*: per channel phi theta psi z x y. "
+            "mode: index in MODES; flags: bit 0 armed, bit 1 position loop, bit 2 failsafe",
+)
+
+TIMING = RecordSchema(
+    "ivfm_msgs/msg/LoopTiming",
+    (("seq", "u8", 0), ("sim_time_us", "i8", 0), ("deadline_misses", "i8", 0),
+     ("compute_s", "f8", 0), ("period_s", "f8", 0)),
+    comment="Autopilot loop timing on the wall clock (period NaN when the loop restarted)",
+)
+
+STATE = RecordSchema(
+    "ivfm_msgs/msg/TruthState",
+    (("seq", "u8", 0), ("sim_time_us", "i8", 0), ("position_ned_m", "f8", 3),
+     ("velocity_ned_mps", "f8", 3), ("quaternion", "f8", 4), ("euler_rad", "f8", 3),
+     ("euler_rate_rps", "f8", 3), ("body_rate_rps", "f8", 3), ("rotor_rps", "f8", 4),
+     ("motor_commands", "f8", 4), ("inertia_scale", "f8", 0),
+     ("rotor_inertia_scale", "f8", 0), ("mass_scale", "f8", 0),
+     ("motor_efficiency", "f8", 4), ("wind_ned_mps", "f8", 3), ("force_ned_n", "f8", 3),
+     ("torque_frd_nm", "f8", 3)),
+    comment="Simulator truth at one sample (before the step) and the plant perturbations "
+            "in force",
+)
+
+CDR_TOPICS: dict[tuple[str, str], RecordSchema] = {
+    (SITL, "state"): STATE, (AUTOPILOT, "control"): CONTROL, (AUTOPILOT, "timing"): TIMING,
+}
+JSON_TOPICS = ("status", "perturbation")
+
+# Record modes by index (contracts.mavlink.FlightMode order) and flag bits.
+FLAG_ARMED, FLAG_POSITION, FLAG_FAILSAFE = 1, 2, 4
+
+
+def schema_for_key(key: str) -> RecordSchema | str | None:
+    """The CDR schema of a key, "json" for JSON records, "mavlink" for mirror frames,
+    None for keys outside the contract."""
+    if key.startswith("mavlink/"):
+        return "mavlink"
+    parsed = parse_key(key)
+    if parsed is None:
+        return None
+    _vehicle, process, topic = parsed
+    if topic in JSON_TOPICS and process in (SITL, AUTOPILOT):
+        return "json"
+    return CDR_TOPICS.get((process, topic))
+
+
+def json_record(seq: int, sim_time_us: int, **fields: Any) -> bytes:
+    return json.dumps({"seq": seq, "sim_time_us": sim_time_us, **fields},
+                      allow_nan=False, separators=(",", ":")).encode()
+
+
+def decode_json_record(payload: bytes) -> dict[str, Any]:
+    try:
+        data = json.loads(payload)
+    except (ValueError, UnicodeDecodeError) as exc:
+        raise ValueError(f"JSON record does not parse: {exc}") from None
+    if not isinstance(data, dict) or not isinstance(data.get("seq"), int) or \
+            not isinstance(data.get("sim_time_us"), int):
+        raise ValueError("JSON record lacks integer seq and sim_time_us")
+    return data
+
+
+JSON_RECORD_SCHEMA = json.dumps({
+    "type": "object", "required": ["seq", "sim_time_us"],
+    "properties": {"seq": {"type": "integer"}, "sim_time_us": {"type": "integer"}},
+}).encode()

@@ -1,0 +1,255 @@
+"""Zenoh sessions and the processes' telemetry node (SPEC section 7).
+
+Sessions are peers on explicit loopback endpoints by default: the ground station (logger)
+listens on ``tcp/127.0.0.1:7447`` and vehicles connect there, retrying quietly while it is
+away; multicast scouting is off, gossip lets peers find each other through whoever they
+reach. ``client`` mode goes through a router only (``ivfm ground router``).
+
+A node never blocks its process's control loop: publications use Zenoh's drop-on-
+congestion, a failed put is counted and not raised, and requests (perturbations, start)
+are queued by the Zenoh thread and taken by the loop when it is ready.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import queue
+import re
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import zenoh
+
+from contracts.telemetry import (
+    DEFAULT_GROUND_ENDPOINT,
+    MIRROR_ATTACHMENT,
+    json_record,
+    mavlink_key,
+    vehicle_key,
+)
+
+MODES = ("peer", "client", "router")
+_ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9a-fA-F:]+\]|[A-Za-z0-9.\-]+):\d{1,5}$")
+STATUS_PERIOD_S = 1.0
+
+
+@dataclass
+class ZenohOptions:
+    mode: str = "peer"
+    listen: list[str] = field(default_factory=list)
+    connect: list[str] = field(default_factory=list)
+    enabled: bool = True
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ValueError(f"zenoh mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        for endpoint in [*self.listen, *self.connect]:
+            check_endpoint(endpoint)
+        if self.mode == "client" and self.listen:
+            raise ValueError("a zenoh client does not listen; drop --zenoh-listen")
+
+
+def check_endpoint(endpoint: str) -> str:
+    match = _ENDPOINT.match(endpoint)
+    if not match or not 0 <= int(endpoint.rsplit(":", 1)[1]) <= 65535:
+        raise ValueError(f"zenoh endpoint must look like tcp/127.0.0.1:7447, got {endpoint!r}")
+    return endpoint
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser, listen: list[str],
+                        connect: list[str]) -> None:
+    g = parser.add_argument_group("zenoh")
+    g.add_argument("--zenoh-mode", default="peer", choices=["peer", "client"],
+                   help="peer (default) or client (through a router only)")
+    g.add_argument("--zenoh-listen", action="append", metavar="ENDPOINT",
+                   help=f"endpoint to listen on (repeatable; 'none' for none; "
+                        f"default {' '.join(listen) or 'none'})")
+    g.add_argument("--zenoh-connect", action="append", metavar="ENDPOINT",
+                   help=f"endpoint to connect to (repeatable; 'none' for none; "
+                        f"default {' '.join(connect) or 'none'})")
+    g.add_argument("--no-zenoh", action="store_true", help="no telemetry, no requests")
+    parser.set_defaults(_zenoh_listen_default=listen, _zenoh_connect_default=connect)
+
+
+def zenoh_options_from_args(args: argparse.Namespace) -> ZenohOptions:
+    def pick(given: list[str] | None, default: list[str]) -> list[str]:
+        values = default if given is None else given
+        return [] if values == ["none"] else [v for v in values if v != "none"]
+
+    listen = pick(args.zenoh_listen, args._zenoh_listen_default)
+    if args.zenoh_mode == "client" and args.zenoh_listen is None:
+        listen = []
+    return ZenohOptions(args.zenoh_mode, listen,
+                        pick(args.zenoh_connect, args._zenoh_connect_default),
+                        enabled=not args.no_zenoh)
+
+
+VEHICLE_LISTEN = ["tcp/127.0.0.1:0"]
+VEHICLE_CONNECT = [DEFAULT_GROUND_ENDPOINT]
+
+
+def session_config(options: ZenohOptions, exit_on_listen_failure: bool = False) -> zenoh.Config:
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(options.mode))
+    config.insert_json5("listen/endpoints", json.dumps(options.listen))
+    config.insert_json5("connect/endpoints", json.dumps(options.connect))
+    config.insert_json5("listen/exit_on_failure", json.dumps(exit_on_listen_failure))
+    config.insert_json5("connect/exit_on_failure", "false")
+    # Reconnect quickly when the other side comes (back): ground stations start late.
+    config.insert_json5("connect/retry", json.dumps(
+        {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 1.5}))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    return config
+
+
+def open_session(options: ZenohOptions, exit_on_listen_failure: bool = False) -> zenoh.Session:
+    """Open a session; a bad configuration or a taken port gives a ValueError that says so."""
+    try:
+        return zenoh.open(session_config(options, exit_on_listen_failure))
+    except zenoh.ZError as exc:
+        raise ValueError(f"cannot open a zenoh session (listen {options.listen}, connect "
+                         f"{options.connect}): {exc}") from None
+
+
+class Publisher:
+    """One key: counts what it published, never raises into the caller's loop."""
+
+    def __init__(self, session: zenoh.Session | None, key: str) -> None:
+        self.key = key
+        self.count = 0
+        self.failed = 0
+        self._pub = None
+        if session is not None:
+            self._pub = session.declare_publisher(
+                key, congestion_control=zenoh.CongestionControl.DROP)
+
+    @property
+    def matched(self) -> bool:
+        return self._pub is not None and self._pub.matching_status.matching
+
+    def put(self, payload: bytes, attachment: bytes | None = None) -> None:
+        if self._pub is None:
+            return
+        try:
+            if attachment is None:
+                self._pub.put(payload)
+            else:
+                self._pub.put(payload, attachment=attachment)
+            self.count += 1
+        except zenoh.ZError:
+            self.failed += 1
+
+
+@dataclass
+class Request:
+    """A query taken off the Zenoh thread; the loop answers it with ``reply``."""
+
+    topic: str
+    data: Any
+    _query: Any
+    answered: threading.Event = field(default_factory=threading.Event)
+
+    def reply(self, ok: bool, **body: Any) -> None:
+        payload = json.dumps({"ok": ok, **body}, allow_nan=False, default=str).encode()
+        try:
+            if ok:
+                self._query.reply(self._query.key_expr, payload)
+            else:
+                self._query.reply_err(payload)
+            self._query.drop()
+        except zenoh.ZError:
+            pass  # the asker has gone: nothing to tell
+        self.answered.set()
+
+
+class TelemetryNode:
+    """A vehicle process's Zenoh side: publishers, liveliness, request queues, status."""
+
+    def __init__(self, options: ZenohOptions, vehicle: int, process: str,
+                 log: Callable[[str], None] | None = None) -> None:
+        self.vehicle = vehicle
+        self.process = process
+        self.log = log or (lambda text: print(f"{process}: {text}", file=sys.stderr))
+        self.session = open_session(options) if options.enabled else None
+        self.token = None
+        if self.session is not None:
+            self.token = self.session.liveliness().declare_token(vehicle_key(vehicle, process))
+        self.publishers: dict[str, Publisher] = {}
+        self._mirror: dict[str, Publisher] = {}
+        self.requests: queue.SimpleQueue[Request] = queue.SimpleQueue()
+        self._queryables: list[Any] = []
+        self._status = self.publisher("status")
+        self._status_due_s = 0.0
+        self.mirror_seq = 0
+
+    @property
+    def enabled(self) -> bool:
+        return self.session is not None
+
+    def publisher(self, topic: str) -> Publisher:
+        pub = Publisher(self.session, vehicle_key(self.vehicle, self.process, topic))
+        self.publishers[topic] = pub
+        return pub
+
+    def serve(self, topic: str) -> None:
+        """Accept queries on ``topic``: JSON payloads go to ``requests``; a payload that is
+        not JSON is refused here, on the Zenoh thread."""
+        if self.session is None:
+            return
+
+        def on_query(query: zenoh.Query) -> None:
+            raw = query.payload.to_bytes() if query.payload is not None else b""
+            try:
+                data = json.loads(raw) if raw else {}
+            except (ValueError, UnicodeDecodeError) as exc:
+                Request(topic, None, query).reply(False, error=f"payload is not JSON: {exc}")
+                return
+            self.requests.put(Request(topic, data, query))
+
+        self._queryables.append(self.session.declare_queryable(
+            vehicle_key(self.vehicle, self.process, topic), on_query))
+
+    def mirror(self, sysid: int, compid: int, message_name: str, frame: bytes,
+               sim_time_us: int) -> None:
+        """A MAVLink frame onto ``mavlink/sysid/compid/NAME`` (sim time in the attachment)."""
+        if self.session is None:
+            return
+        key = mavlink_key(sysid, compid, message_name)
+        pub = self._mirror.get(key)
+        if pub is None:
+            pub = self._mirror[key] = Publisher(self.session, key)
+        pub.put(frame, MIRROR_ATTACHMENT.pack(self.mirror_seq, sim_time_us))
+        self.mirror_seq += 1
+
+    def counts(self) -> dict[str, int]:
+        out = {pub.key: pub.count for pub in self.publishers.values() if pub is not self._status}
+        out.update({key: pub.count for key, pub in self._mirror.items()})
+        return out
+
+    def status(self, sim_time_us: int, final: bool = False, force: bool = False,
+               **extra: Any) -> None:
+        """Counters at most once a second of wall time (always when final or forced)."""
+        now = time.monotonic()
+        if self.session is None or not (final or force or now >= self._status_due_s):
+            return
+        self._status_due_s = now + STATUS_PERIOD_S
+        failed = sum(p.failed for p in [*self.publishers.values(), *self._mirror.values()])
+        self._status.put(json_record(self._status.count, sim_time_us, process=self.process,
+                                     vehicle=self.vehicle, final=final,
+                                     published=self.counts(), failed_puts=failed, **extra))
+
+    def close(self) -> None:
+        if self.session is None:
+            return
+        try:
+            if self.token is not None:
+                self.token.undeclare()
+            self.session.close()
+        except zenoh.ZError as exc:
+            self.log(f"zenoh session close: {exc}")
+        self.session = None

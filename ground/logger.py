@@ -1,0 +1,396 @@
+"""The ground logger: every telemetry record it hears, into MCAP (SPEC section 7).
+
+* One MCAP channel per Zenoh key; the CDR records are written as they arrive with their
+  ``ros2msg`` schema (Foxglove and PlotJuggler decode them), JSON records with a JSON
+  schema, MAVLink mirror frames with message encoding ``mavlink``. ``log_time`` is the
+  wall time of arrival, ``publish_time`` the record's sim time, ``sequence`` its seq.
+* Small chunks: a chunk closes when it reaches ``chunk_bytes`` or ``flush_period_s`` has
+  passed, so a crash loses at most the last fraction of a second.
+* The file being written is ``NAME.mcap.active``; it becomes ``NAME.mcap`` when finished.
+  At start the logger salvages any ``.active`` file left by a crash: every complete record
+  is copied into a finished file.
+* Past ``rotate_bytes`` the file is finished and the next one started.
+* A record that does not fit its key's schema is refused (counted, reported on stderr and
+  in the status reply), not written.
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import queue
+import re
+import signal
+import struct
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import zenoh
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Message, Schema
+from mcap.stream_reader import StreamReader
+from mcap.writer import CompressionType, Writer
+
+from contracts.telemetry import (
+    JSON_RECORD_SCHEMA,
+    MIRROR_ATTACHMENT,
+    RecordSchema,
+    decode_json_record,
+    logger_key,
+    parse_key,
+    schema_for_key,
+)
+from contracts.zenoh_link import ZenohOptions, open_session
+
+ACTIVE_SUFFIX = ".mcap.active"
+SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
+_SIM_TIME = struct.Struct("<q")  # sim_time_us right after seq in every CDR record
+_NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+
+@dataclass
+class LoggerConfig:
+    out_dir: Path
+    zenoh: ZenohOptions
+    name: str = "logger"
+    prefix: str = "telemetry"
+    chunk_bytes: int = 32 * 1024
+    flush_period_s: float = 0.25
+    rotate_bytes: int = 512 * 1024 * 1024
+    compression: str = "zstd"
+
+    def __post_init__(self) -> None:
+        for label, value in (("name", self.name), ("prefix", self.prefix)):
+            if not _NAME.match(value):
+                raise ValueError(f"logger {label} must be 1-64 letters, digits, '.', '_' or "
+                                 f"'-', got {value!r}")
+        if not 1024 <= self.chunk_bytes <= 64 * 1024 * 1024:
+            raise ValueError(f"chunk size must be in [1 KiB, 64 MiB], got {self.chunk_bytes}")
+        if not 0.01 <= self.flush_period_s <= 1.0:
+            raise ValueError(f"flush period must be in [0.01, 1] s, got {self.flush_period_s}")
+        if self.rotate_bytes < 1024 * 1024:
+            raise ValueError(f"rotation size must be at least 1 MiB, got {self.rotate_bytes}")
+        if self.compression not in ("zstd", "lz4", "none"):
+            raise ValueError(f"compression must be zstd, lz4 or none, got {self.compression!r}")
+
+
+@dataclass
+class Counters:
+    records: int = 0
+    rejected: int = 0
+    per_key: dict[str, int] = field(default_factory=lambda: collections.defaultdict(int))
+    rejected_per_key: dict[str, int] = field(
+        default_factory=lambda: collections.defaultdict(int))
+    last_error: str = ""
+    files: list[str] = field(default_factory=list)
+    heard: dict[str, dict[str, Any]] = field(default_factory=dict)  # status key -> record
+
+
+class McapFile:
+    """One MCAP file being written: channels by key, time-bounded chunks."""
+
+    def __init__(self, path: Path, config: LoggerConfig) -> None:
+        self.active_path = path.with_name(path.name + ".active")
+        self.path = path
+        self.stream = open(self.active_path, "wb")  # noqa: SIM115 (closed in finish)
+        compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                       "none": CompressionType.NONE}[config.compression]
+        self.writer = Writer(self.stream, chunk_size=config.chunk_bytes, compression=compression)
+        self.writer.start(profile="", library="ivfm-sitl ground logger")
+        self.schemas: dict[str, int] = {}
+        self.channels: dict[str, int] = {}
+        self.dirty = False
+
+    def channel(self, key: str, schema: RecordSchema | str | None) -> int:
+        channel_id = self.channels.get(key)
+        if channel_id is not None:
+            return channel_id
+        if isinstance(schema, RecordSchema):
+            schema_id = self._schema(schema.name, "ros2msg", schema.ros2msg.encode())
+            encoding = "cdr"
+        elif schema == "json":
+            schema_id = self._schema("ivfm.JsonRecord", "jsonschema", JSON_RECORD_SCHEMA)
+            encoding = "json"
+        elif schema == "mavlink":
+            schema_id, encoding = 0, "mavlink"
+        else:
+            schema_id, encoding = 0, "application/octet-stream"
+        channel_id = self.writer.register_channel(key, encoding, schema_id)
+        self.channels[key] = channel_id
+        return channel_id
+
+    def _schema(self, name: str, encoding: str, data: bytes) -> int:
+        if name not in self.schemas:
+            self.schemas[name] = self.writer.register_schema(name, encoding, data)
+        return self.schemas[name]
+
+    def add(self, channel_id: int, log_time_ns: int, sim_time_ns: int, seq: int,
+            data: bytes) -> None:
+        self.writer.add_message(channel_id, log_time_ns, data, sim_time_ns, seq & 0xFFFFFFFF)
+        self.dirty = True
+
+    def flush(self) -> None:
+        """Close the open chunk and push it to the OS: a crash after this loses nothing
+        written so far. (The mcap writer has no public call for it; its own end of chunk
+        is what we ask for.)"""
+        if self.dirty:
+            self.writer._Writer__finalize_chunk()  # noqa: SLF001
+            self.writer._Writer__flush()  # noqa: SLF001
+            self.stream.flush()
+            self.dirty = False
+
+    @property
+    def size(self) -> int:
+        return self.stream.tell()
+
+    def finish(self) -> Path:
+        self.writer.finish()
+        self.stream.close()
+        self.active_path.replace(self.path)
+        return self.path
+
+
+def salvage(active_path: Path, log: Callable[[str], None] = print) -> Path:
+    """Copy every complete record of an unfinished MCAP file into a finished one."""
+    final = active_path.with_name(active_path.name[:-len(".active")])
+    if final.exists():
+        final = final.with_name(final.stem + "-salvaged.mcap")
+    schemas: dict[int, Schema] = {}
+    channels: dict[int, Channel] = {}
+    count = 0
+    with open(active_path, "rb") as src, open(final, "wb") as dst:
+        writer = Writer(dst)
+        writer.start(profile="", library="ivfm-sitl ground logger (salvaged)")
+        schema_ids: dict[int, int] = {}
+        channel_ids: dict[int, int] = {}
+        try:
+            for record in StreamReader(src, validate_crcs=False).records:
+                if isinstance(record, Schema) and record.id not in schemas:
+                    schemas[record.id] = record
+                    schema_ids[record.id] = writer.register_schema(
+                        record.name, record.encoding, record.data)
+                elif isinstance(record, Channel) and record.id not in channels:
+                    channels[record.id] = record
+                    channel_ids[record.id] = writer.register_channel(
+                        record.topic, record.message_encoding,
+                        schema_ids.get(record.schema_id, 0), record.metadata)
+                elif isinstance(record, Message) and record.channel_id in channel_ids:
+                    writer.add_message(channel_ids[record.channel_id], record.log_time,
+                                       record.data, record.publish_time, record.sequence)
+                    count += 1
+        except (McapError, EOFError, ValueError, struct.error) as exc:
+            log(f"salvage of {active_path.name} stopped at a torn record: {exc}")
+        writer.finish()
+    active_path.unlink()
+    log(f"salvaged {count} records from {active_path.name} into {final.name}")
+    return final
+
+
+class Logger:
+    def __init__(self, config: LoggerConfig, log: Callable[[str], None] | None = None) -> None:
+        self.config = config
+        self.log = log or (lambda text: print(f"logger: {text}", file=sys.stderr, flush=True))
+        self.counters = Counters()
+        self._inbox: collections.deque[tuple[str, bytes, bytes | None, int]] = \
+            collections.deque()
+        self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
+        self._stop = threading.Event()
+        self._file: McapFile | None = None
+        self._index = 0
+        self._warned: dict[str, float] = {}
+
+    def stop(self, *_args: Any) -> None:
+        self._stop.set()
+
+    # -- files ---------------------------------------------------------------------------
+    def _start_files(self) -> None:
+        out = self.config.out_dir
+        out.mkdir(parents=True, exist_ok=True)
+        for active in sorted(out.glob(f"*{ACTIVE_SUFFIX}")):
+            salvage(active, self.log)
+        taken = [int(m.group(1)) for p in out.glob(f"{self.config.prefix}-*.mcap")
+                 if (m := re.match(rf"{re.escape(self.config.prefix)}-(\d+)", p.name))]
+        self._index = max(taken, default=-1) + 1
+        self._open_next()
+
+    def _open_next(self) -> None:
+        path = self.config.out_dir / f"{self.config.prefix}-{self._index:03d}.mcap"
+        self._index += 1
+        self._file = McapFile(path, self.config)
+        self.log(f"writing {path.name}")
+
+    def _rotate(self) -> None:
+        done = self._file.finish()
+        self.counters.files.append(str(done))
+        self._open_next()
+
+    # -- records -------------------------------------------------------------------------
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        attachment = sample.attachment
+        self._inbox.append((str(sample.key_expr), sample.payload.to_bytes(),
+                            attachment.to_bytes() if attachment is not None else None,
+                            time.time_ns()))
+
+    def _write(self, key: str, payload: bytes, attachment: bytes | None,
+               log_time_ns: int) -> None:
+        schema = schema_for_key(key)
+        try:
+            seq, sim_time_us = self._check(key, schema, payload, attachment)
+        except ValueError as exc:
+            self._refuse(key, str(exc))
+            return
+        f = self._file
+        f.add(f.channel(key, schema), log_time_ns, sim_time_us * 1000, seq, payload)
+        c = self.counters
+        c.records += 1
+        c.per_key[key] += 1
+
+    def _check(self, key: str, schema: RecordSchema | str | None, payload: bytes,
+               attachment: bytes | None) -> tuple[int, int]:
+        """(seq, sim_time_us) of a record that fits its key; ValueError otherwise."""
+        if isinstance(schema, RecordSchema):
+            schema.check(payload)
+            seq, sim_time_us = struct.unpack_from("<Qq", payload, 4)
+            return seq, sim_time_us
+        if schema == "json":
+            record = decode_json_record(payload)
+            parsed = parse_key(key)
+            if parsed is not None and parsed[2] == "status":
+                self.counters.heard[key] = record
+            return record["seq"], record["sim_time_us"]
+        if schema == "mavlink":
+            if attachment is None or len(attachment) != MIRROR_ATTACHMENT.size:
+                raise ValueError("MAVLink mirror frame without its seq/sim-time attachment")
+            if not payload or payload[0] != 0xFD:
+                raise ValueError("MAVLink mirror frame is not MAVLink 2")
+            return MIRROR_ATTACHMENT.unpack(attachment)
+        return 0, 0  # outside the contract: kept as opaque bytes
+
+    def _refuse(self, key: str, reason: str) -> None:
+        c = self.counters
+        c.rejected += 1
+        c.rejected_per_key[key] += 1
+        c.last_error = f"{key}: {reason}"
+        now = time.monotonic()
+        if now - self._warned.get(key, -10.0) > 5.0:  # one line per key per 5 s
+            self._warned[key] = now
+            self.log(f"refused a record on {key}: {reason} "
+                     f"({c.rejected_per_key[key]} so far on this key)")
+
+    def status(self) -> dict[str, Any]:
+        c = self.counters
+        return {"name": self.config.name, "records": c.records, "rejected": c.rejected,
+                "per_key": dict(c.per_key), "rejected_per_key": dict(c.rejected_per_key),
+                "last_error": c.last_error, "heard": c.heard,
+                "file": str(self._file.active_path) if self._file else None,
+                "finished_files": c.files}
+
+    # -- the loop ------------------------------------------------------------------------
+    def run(self, ready: Callable[[], None] | None = None) -> int:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, self.stop)
+            signal.signal(signal.SIGINT, self.stop)
+        session = open_session(self.config.zenoh, exit_on_listen_failure=True)
+        self._start_files()
+        subscribers = [session.declare_subscriber(k, self._on_sample) for k in SUBSCRIBED]
+        queryable = session.declare_queryable(logger_key(self.config.name, "status"),
+                                              self._queries.put)
+        token = session.liveliness().declare_token(logger_key(self.config.name))
+        self.log(f"listening on {', '.join(self.config.zenoh.listen) or 'no endpoint'}"
+                 f"{'; connecting to ' + ', '.join(self.config.zenoh.connect) if self.config.zenoh.connect else ''}"  # noqa: E501
+                 f" ({self.config.zenoh.mode}); logging to {self.config.out_dir}")
+        if ready is not None:
+            ready()
+        next_flush = time.monotonic() + self.config.flush_period_s
+        try:
+            while not self._stop.is_set():
+                wrote = self._drain()
+                self._answer_queries()
+                now = time.monotonic()
+                if now >= next_flush:
+                    self._file.flush()
+                    next_flush = now + self.config.flush_period_s
+                    if self._file.size >= self.config.rotate_bytes:
+                        self._rotate()
+                if not wrote:
+                    self._stop.wait(0.005)
+        finally:
+            token.undeclare()
+            for sub in subscribers:
+                sub.undeclare()
+            queryable.undeclare()
+            self._drain()
+            self._answer_queries()
+            session.close()
+            done = self._file.finish()
+            self.counters.files.append(str(done))
+            self.log(f"finished {done.name}: {self.counters.records} records, "
+                     f"{self.counters.rejected} refused")
+        return 0
+
+    def _drain(self) -> int:
+        n = 0
+        inbox = self._inbox
+        while inbox:
+            self._write(*inbox.popleft())
+            n += 1
+        return n
+
+    def _answer_queries(self) -> None:
+        while True:
+            try:
+                query = self._queries.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                query.reply(query.key_expr, json.dumps(self.status(), default=str).encode())
+                query.drop()
+            except zenoh.ZError:
+                pass
+
+
+# -- reading logs back ------------------------------------------------------------------
+
+def log_files(path: Path) -> list[Path]:
+    """The finished MCAP files of a run folder (in order), or the one file given."""
+    path = Path(path)
+    if path.is_dir():
+        files = sorted(path.glob("*.mcap"))
+        if not files:
+            raise ValueError(f"no .mcap file in {path}")
+        return files
+    if not path.exists():
+        raise ValueError(f"no such log: {path}")
+    return [path]
+
+
+def iter_messages(path: Path, topic_prefix: str = "") -> Iterator[tuple[str, Any, bytes]]:
+    """(topic, MCAP message, data) over the log files of ``path``."""
+    for file in log_files(path):
+        with open(file, "rb") as f:
+            try:
+                reader = make_reader(f)
+                for _schema, channel, message in reader.iter_messages(log_time_order=False):
+                    if channel.topic.startswith(topic_prefix):
+                        yield channel.topic, message, message.data
+            except McapError as exc:
+                raise ValueError(f"{file} is not a readable MCAP file: {exc}") from None
+
+
+def export_tlog(path: Path, out: Path) -> int:
+    """The MAVLink mirror as a .tlog (8-byte big-endian microseconds, then the frame), the
+    format MAVExplorer, QGroundControl and pymavlink read."""
+    count = 0
+    tmp = out.with_name(out.name + ".tmp")
+    with open(tmp, "wb") as f:
+        for _topic, message, data in iter_messages(path, "mavlink/"):
+            f.write(struct.pack(">Q", message.log_time // 1000) + data)
+            count += 1
+    tmp.replace(out)
+    return count

@@ -19,7 +19,6 @@ from contracts.perturbations import Perturbations
 from ground.scenarios import Scenario
 from sitl.plant import Plant
 
-
 # What the in-process runner applies: the plant and the reference, not the link.
 IN_PROCESS_KINDS = frozenset({"inertia", "rotor_inertia", "mass", "motor_efficiency",
                               "motor_failure", "wind", "gust", "force", "torque", "kick"})

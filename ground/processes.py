@@ -255,3 +255,13 @@ def write_schedule(scenario: Scenario, path: Path) -> Path:
     """The schedule as a file, for running vehicles without the ground station."""
     path.write_text(schedule_to_json(scenario.perturbations))
     return path
+
+
+def fly(scenario: Scenario, settings: RunSettings, out_dir: Path):
+    """Run the processes and read the run back from its log: (RunRecord, accounting)."""
+    from ground.report import record_from_log
+
+    accounting = run_processes(scenario, settings, out_dir)
+    record = record_from_log(out_dir, settings.vehicle, scenario, settings.controller,
+                             settings.plant, settings.rate_hz)
+    return record, accounting

@@ -1,4 +1,5 @@
-"""Scenarios through the simulator and autopilot processes (lockstep and real time)."""
+"""Scenarios through every process: logger + simulator + autopilot, perturbations over
+Zenoh, metrics from the MCAP log (lockstep and real time)."""
 
 from __future__ import annotations
 
@@ -10,16 +11,23 @@ import pytest
 from contracts.airframe import PAPER
 from ground.inprocess import run_inprocess
 from ground.metrics import compute_metrics
-from ground.processes import run_processes
+from ground.processes import RunSettings, fly
+from ground.report import control_records, perturbation_events
 from ground.scenarios import scenario_by_name
 
+IVFC = RunSettings("ivfc", "paper", "paper")
 
-@pytest.mark.parametrize("name", ["attitude-jr-20", "position-kick"])
-def test_lockstep_matches_in_process_to_float32_rounding(name, shipped_models, tmp_path):
+
+@pytest.mark.parametrize("name", ["attitude-jr-10", "attitude-jr-15", "attitude-jr-20",
+                                  "position-kick"])
+def test_perturbation_scenarios_over_zenoh_match_in_process(name, shipped_models, tmp_path):
     scenario = scenario_by_name(name)
-    ours, _ = run_processes(scenario, "ivfc", "paper", "paper", tmp_path)
+    ours, accounting = fly(scenario, IVFC, tmp_path)
     reference = run_inprocess(scenario, "ivfc", "paper", PAPER, shipped_models)
-    assert len(ours.time_s) == len(reference.time_s)
+    # Zero loss: every record each process says it published is in the log.
+    assert accounting["lost"] == {}
+    assert accounting["published"]["ivfm/vehicle/1/autopilot/control"] == 2000
+    assert not ours.diverged
     np.testing.assert_array_equal(ours.time_s, reference.time_s)
     # The autopilot reads float32 ODOMETRY; the state stays within float32-level noise.
     assert np.max(np.abs(ours.measurement - reference.measurement)) < 1e-4
@@ -27,24 +35,30 @@ def test_lockstep_matches_in_process_to_float32_rounding(name, shipped_models, t
     b = compute_metrics(reference, scenario, "paper")["axes"]
     for axis in scenario.axes:
         assert a[axis]["rmse"] == pytest.approx(b[axis]["rmse"], rel=1e-3, abs=1e-6), axis
+    # Each perturbation was applied, and logged, at the sim time its window says.
+    events = perturbation_events(tmp_path, 1)
+    expected = sorted((round(t * 1e6), ev, e.id) for e in scenario.perturbations
+                      for t, ev in ((e.start_s, "start"), (e.end_s, "end")))
+    assert sorted((e["sim_time_us"], e["event"], e["id"]) for e in events) == expected
+    targets = {e["process"] for e in events}
+    assert targets == {"autopilot" if name == "position-kick" else "sitl"}
 
 
-def test_two_lockstep_runs_are_identical(tmp_path):
+def test_two_lockstep_runs_log_identical_records(tmp_path):
     scenario = dataclasses.replace(scenario_by_name("attitude-jr-10"), duration_s=14.0)
-    first, _ = run_processes(scenario, "ivfc", "paper", "paper", tmp_path / "a")
-    second, _ = run_processes(scenario, "ivfc", "paper", "paper", tmp_path / "b")
-    for field in ("measurement", "reference", "motor_commands", "channel_telemetry",
-                  "theta_g"):
-        np.testing.assert_array_equal(getattr(first, field), getattr(second, field))
-    for a, b in zip(first.theta_f, second.theta_f, strict=True):
-        np.testing.assert_array_equal(a, b)
+    fly(scenario, IVFC, tmp_path / "a")
+    fly(scenario, IVFC, tmp_path / "b")
+    first, second = control_records(tmp_path / "a", 1), control_records(tmp_path / "b", 1)
+    assert len(first["seq"]) == 1400 and len(first["missing"]) == 0
+    for field, values in first.items():
+        if field != "log_time_ns":  # the wall clock of arrival
+            np.testing.assert_array_equal(values, second[field], err_msg=field)
 
 
 def test_hil_state_source_flies_the_scenario(tmp_path):
     """HIL_STATE_QUATERNION alone (cm, mm, 1e-7 deg) still tracks position-sine."""
     scenario = dataclasses.replace(scenario_by_name("position-sine"), duration_s=10.0)
-    record, _ = run_processes(scenario, "ivfc", "paper", "paper", tmp_path,
-                              state_source="hil-state")
+    record, _ = fly(scenario, dataclasses.replace(IVFC, state_source="hil-state"), tmp_path)
     metrics = compute_metrics(record, scenario, "paper")
     assert not record.diverged
     assert metrics["axes"]["x"]["rmse"] < 0.05 and metrics["axes"]["y"]["rmse"] < 0.05
@@ -52,14 +66,17 @@ def test_hil_state_source_flies_the_scenario(tmp_path):
 
 def test_real_time_run_reports_loop_timing(tmp_path):
     scenario = dataclasses.replace(scenario_by_name("attitude-sine"), duration_s=4.0)
-    record, timing = run_processes(scenario, "ivfc", "paper", "paper", tmp_path,
-                                   realtime=True)
+    record, accounting = fly(scenario, dataclasses.replace(IVFC, realtime=True), tmp_path)
+    timing = accounting["timing"]
     assert not record.diverged
+    assert accounting["lost"] == {}
     assert timing["steps"] == 400
     for key in ("jitter_p50_ms", "jitter_p99_ms", "jitter_max_ms", "compute_p99_ms",
                 "deadline_misses"):
         assert key in timing
     assert timing["period_mean_ms"] == pytest.approx(10.0, rel=0.05)
+    # The log's per-step timing records agree with the summary's step count.
+    assert accounting["published"]["ivfm/vehicle/1/autopilot/timing"] == 400
     # Tracking in real time is close to lockstep (the autopilot sees samples up to one
     # period old), not identical.
     metrics = compute_metrics(record, scenario, "paper")

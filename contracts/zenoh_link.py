@@ -107,13 +107,22 @@ def session_config(options: ZenohOptions, exit_on_listen_failure: bool = False) 
     return config
 
 
+CLIENT_CONNECT_TIMEOUT_S = 15.0
+
+
 def open_session(options: ZenohOptions, exit_on_listen_failure: bool = False) -> zenoh.Session:
-    """Open a session; a bad configuration or a taken port gives a ValueError that says so."""
-    try:
-        return zenoh.open(session_config(options, exit_on_listen_failure))
-    except zenoh.ZError as exc:
-        raise ValueError(f"cannot open a zenoh session (listen {options.listen}, connect "
-                         f"{options.connect}): {exc}") from None
+    """Open a session; a bad configuration or a taken port gives a ValueError that says so.
+    A client needs its router at once, so it retries for a while (a router may be starting)."""
+    deadline = time.monotonic() + (CLIENT_CONNECT_TIMEOUT_S if options.mode == "client" else 0)
+    while True:
+        try:
+            return zenoh.open(session_config(options, exit_on_listen_failure))
+        except zenoh.ZError as exc:
+            if time.monotonic() < deadline:
+                time.sleep(0.2)
+                continue
+            raise ValueError(f"cannot open a zenoh session (listen {options.listen}, connect "
+                             f"{options.connect}): {exc}") from None
 
 
 class Publisher:

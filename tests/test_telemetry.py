@@ -75,8 +75,9 @@ class Vehicle:
 
 @pytest.fixture
 def session():
+    """The test's ground session, connecting to where the test's logger will listen."""
     endpoint = _endpoint()
-    s = open_session(ZenohOptions(listen=[endpoint]))
+    s = open_session(ZenohOptions(listen=["tcp/127.0.0.1:0"], connect=[endpoint]))
     yield s, endpoint
     s.close()
 
@@ -241,15 +242,18 @@ def test_bad_requests_and_payloads_are_refused_and_change_nothing(tmp_path, sess
             time.sleep(0.1)
         assert status["rejected"] == 3
         assert status["per_key"][vehicle_key(9, "autopilot", "control")] == 1
-        # ... and the vehicle is still flying normally once started.
+        # ... and the vehicle flies its run once started, with only the good perturbation.
         client.start(1)
-        time.sleep(1.0)
-        assert vehicle.procs[0].poll() is None and vehicle.procs[1].poll() is None
+        vehicle.wait()
     finally:
         vehicle.kill()
         assert logger.stop() == 0
     log = (tmp_path / "logger.log").read_text()
     assert "refused a record on ivfm/vehicle/9/autopilot/control" in log
+    assert "stopped after 3000 control steps" in vehicle.logs[1].read_text()
+    sim_log = vehicle.logs[0].read_text()
+    assert f"t=1.000 s perturbation {good['id']} (wind) start" in sim_log
+    assert sim_log.count("perturbation sitl-") == 2  # its start and its end, nothing else
 
 
 def test_three_vehicles_into_one_logger_separated_by_vehicle(tmp_path, session):
@@ -290,6 +294,10 @@ def test_vehicle_and_logger_meet_only_through_the_router(tmp_path):
     router = subprocess.Popen([sys.executable, "-m", "ground.cli", "ground", "router",
                                "--listen", router_endpoint],
                               stdout=router_log, stderr=subprocess.STDOUT)
+    deadline = time.monotonic() + 30
+    while "listening" not in (tmp_path / "router.log").read_text():
+        assert time.monotonic() < deadline and router.poll() is None
+        time.sleep(0.05)
     client_args = ["--zenoh-mode", "client", "--zenoh-connect", router_endpoint]
     logger = LoggerProcess(tmp_path / "log", "none", tmp_path / "logger.log",
                            extra=["--zenoh-mode", "client", "--zenoh-connect",

@@ -1,4 +1,5 @@
-"""Benchmarks of the two-process SITL: lockstep real-time factor and one cycle's parts.
+"""Benchmarks of the SITL processes (logger + simulator + autopilot): lockstep real-time
+factor and one cycle's parts.
 
     python tests/benchmarks/bench_processes.py            # lockstep figures
     python tests/benchmarks/bench_processes.py --realtime # 60 s real-time jitter, 100/250 Hz
@@ -34,7 +35,7 @@ from contracts.mavlink import (  # noqa: E402
     sample_messages,
     split_frames,
 )
-from ground.processes import run_processes  # noqa: E402
+from ground.processes import RunSettings, fly  # noqa: E402
 from ground.scenarios import scenario_by_name  # noqa: E402
 from sitl.plant import Plant  # noqa: E402
 
@@ -128,7 +129,7 @@ def lockstep_rtf(repeats: int = 3) -> list[float]:
     out = []
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(repeats):
-            record, _ = run_processes(scenario, "ivfc", "paper", "paper", Path(tmp) / str(i))
+            record, _ = fly(scenario, RunSettings("ivfc", "paper", "paper"), Path(tmp) / str(i))
             out.append(scenario.duration_s / record.wall_time_s)
     return out
 
@@ -136,9 +137,9 @@ def lockstep_rtf(repeats: int = 3) -> list[float]:
 def realtime(rate_hz: float, duration_s: float = 60.0) -> dict:
     scenario = dataclasses.replace(scenario_by_name("attitude-sine"), duration_s=duration_s)
     with tempfile.TemporaryDirectory() as tmp:
-        _, timing = run_processes(scenario, "ivfc", "paper", "paper", Path(tmp),
-                                  realtime=True, rate_hz=rate_hz)
-    return timing
+        _, accounting = fly(scenario, RunSettings("ivfc", "paper", "paper", realtime=True,
+                                                  rate_hz=rate_hz), Path(tmp))
+    return accounting["timing"]
 
 
 def main() -> None:

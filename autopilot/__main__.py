@@ -81,7 +81,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--altitude", type=float, default=1.0, help="reference altitude [m]")
     p.add_argument("--reference-option", action="append", default=[], metavar="NAME=VALUE",
                    help="another reference field (yaw_rad, amplitude, hold_start_s, "
-                        "hold_end_s; repeatable)")
+                        "hold_end_s, seed; repeatable)")
     p.add_argument("--schedule", type=Path,
                    help="perturbation schedule JSON (sim time); the autopilot takes the kicks")
     p.add_argument("--arm-in-reference", action="store_true",
@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         options = {}
         for item in args.reference_option:
             name, _, value = item.partition("=")
-            if name not in ("yaw_rad", "amplitude", "hold_start_s", "hold_end_s"):
+            if name not in ("yaw_rad", "amplitude", "hold_start_s", "hold_end_s", "seed"):
                 raise ValueError(f"--reference-option: unknown field {name!r}")
             try:
                 options[name] = float(value)

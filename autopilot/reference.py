@@ -6,6 +6,7 @@ A reference is a flat array (see ``REF_*``) plus whether the position loop is ac
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -17,7 +18,39 @@ REF_POS, REF_VEL, REF_ACC = 0, 3, 6
 REF_EULER, REF_EULER_RATE, REF_EULER_ACC = 9, 12, 15
 REF_SIZE = 18
 
-REFERENCE_KINDS = ("attitude-sine", "attitude-hold", "position-sine", "hover")
+REFERENCE_KINDS = ("attitude-sine", "attitude-hold", "position-sine", "hover", "excitation")
+
+# The excitation for identification: seeded multisines on the three attitude angles.
+N_SINES = 4
+ATTITUDE_AMPLITUDE_RAD = 0.5
+YAW_AMPLITUDE_RAD = 0.4
+
+
+def multisine(rng: np.random.Generator, amplitude: float) -> tuple[np.ndarray, ...]:
+    """Frequencies [rad/s], phases and amplitudes of one seeded multisine."""
+    freqs = rng.uniform(0.4, 3.0, N_SINES)
+    phases = rng.uniform(0.0, 2.0 * np.pi, N_SINES)
+    amps = amplitude * rng.dirichlet(np.ones(N_SINES))
+    return freqs, phases, amps
+
+
+def evaluate_multisine(sines: tuple[np.ndarray, ...], t: float) -> tuple[float, float, float]:
+    """Value and two derivatives at t."""
+    freqs, phases, amps = sines
+    arg = freqs * t + phases
+    return (float(np.sum(amps * np.sin(arg))), float(np.sum(amps * freqs * np.cos(arg))),
+            float(-np.sum(amps * freqs**2 * np.sin(arg))))
+
+
+def excitation_sines(rng: np.random.Generator) -> list[tuple[np.ndarray, ...]]:
+    """Roll, pitch and yaw multisines, drawn in that order from ``rng``."""
+    return [multisine(rng, ATTITUDE_AMPLITUDE_RAD), multisine(rng, ATTITUDE_AMPLITUDE_RAD),
+            multisine(rng, YAW_AMPLITUDE_RAD)]
+
+
+@functools.lru_cache(maxsize=8)
+def _seeded_excitation(seed: int) -> list[tuple[np.ndarray, ...]]:
+    return excitation_sines(np.random.default_rng(seed))
 
 
 @dataclass(frozen=True)
@@ -30,15 +63,19 @@ class Reference:
     amplitude: float = 1.0  # rad for attitude, m for position
     hold_start_s: float = 10.0
     hold_end_s: float = 12.0
+    seed: float = 0.0  # excitation: the multisines' seed (a whole number)
 
     def __post_init__(self) -> None:
         if self.kind not in REFERENCE_KINDS:
             raise ValueError(
                 f"unknown reference kind {self.kind!r}; known: {', '.join(REFERENCE_KINDS)}"
             )
-        for name in ("altitude_m", "yaw_rad", "amplitude", "hold_start_s", "hold_end_s"):
+        for name in ("altitude_m", "yaw_rad", "amplitude", "hold_start_s", "hold_end_s",
+                     "seed"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"reference {name} must be finite")
+        if self.seed != int(self.seed) or self.seed < 0:
+            raise ValueError(f"reference seed must be a whole number >= 0, got {self.seed!r}")
 
     @property
     def position_mode(self) -> bool:
@@ -57,6 +94,10 @@ class Reference:
             ref[REF_POS], ref[REF_POS + 1] = a * s, -a * s
             ref[REF_VEL], ref[REF_VEL + 1] = a * c, -a * c
             ref[REF_ACC], ref[REF_ACC + 1] = -a * s, a * s
+        elif self.kind == "excitation":
+            for axis, sines in enumerate(_seeded_excitation(int(self.seed))):
+                (ref[REF_EULER + axis], ref[REF_EULER_RATE + axis],
+                 ref[REF_EULER_ACC + axis]) = evaluate_multisine(sines, t_s)
         elif self.kind in ("attitude-sine", "attitude-hold"):
             holding = self.kind == "attitude-hold" and self.hold_start_s <= t_s < self.hold_end_s
             if not holding:

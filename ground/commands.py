@@ -141,7 +141,15 @@ def identify_command(args: argparse.Namespace) -> int:
     if n_clusters < 2:
         raise ValueError(f"--clusters must be at least 2, got {n_clusters}")
     start = time.perf_counter()
-    if args.data is not None:
+    if args.data is not None and args.log is not None:
+        raise UsageError("give --data or --log, not both")
+    if args.log is not None:
+        from ground.excitation import dataset_from_log
+
+        dataset = dataset_from_log(args.log, args.vehicle, airframe)
+        print(f"ivfm: identifying from the log {args.log} ({dataset.n_rows} samples of "
+              f"vehicle {args.vehicle})", file=sys.stderr)
+    elif args.data is not None:
         dataset = read_dataset(args.data)
         print(f"ivfm: identifying from {args.data} ({dataset.n_rows} samples)", file=sys.stderr)
     else:

@@ -86,6 +86,7 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
                  "--reference-option", f"amplitude={ref.amplitude!r}",
                  "--reference-option", f"hold_start_s={ref.hold_start_s!r}",
                  "--reference-option", f"hold_end_s={ref.hold_end_s!r}",
+                 "--reference-option", f"seed={ref.seed!r}",
                  "--arm-in-reference", "--duration", str(scenario.duration_s),
                  "--sysid", str(settings.vehicle), "--gcs-bind", "0", "--api", "none",
                  "--api-bind", "0", *zenoh_args]

@@ -45,10 +45,15 @@ class Param:
     default: float | tuple[float, ...]
     size: int = 0
     integer: bool = False
+    required: bool = False
 
 
-def _vec3(low: float, high: float) -> Param:
-    return Param(low, high, (0.0, 0.0, 0.0), size=3)
+def _vec3(low: float, high: float, required: bool = False) -> Param:
+    return Param(low, high, (0.0, 0.0, 0.0), size=3, required=required)
+
+
+def _needed(low: float, high: float, integer: bool = False) -> Param:
+    return Param(low, high, low, integer=integer, required=True)
 
 
 @dataclass(frozen=True)
@@ -59,21 +64,22 @@ class Kind:
 
 
 KINDS: dict[str, Kind] = {
-    "inertia": Kind(SIMULATOR, {"scale": Param(*INERTIA_SCALE_RANGE, 1.0)},
+    "inertia": Kind(SIMULATOR, {"scale": _needed(*INERTIA_SCALE_RANGE)},
                     "body inertia I scaled"),
-    "rotor_inertia": Kind(SIMULATOR, {"scale": Param(*INERTIA_SCALE_RANGE, 1.0)},
+    "rotor_inertia": Kind(SIMULATOR, {"scale": _needed(*INERTIA_SCALE_RANGE)},
                           "rotor inertia Jr scaled"),
-    "mass": Kind(SIMULATOR, {"scale": Param(*INERTIA_SCALE_RANGE, 1.0)}, "mass scaled"),
-    "motor_efficiency": Kind(SIMULATOR, {"motor": Param(1, 4, 1, integer=True),
-                                         "efficiency": Param(0.0, 1.0, 1.0)},
+    "mass": Kind(SIMULATOR, {"scale": _needed(*INERTIA_SCALE_RANGE)}, "mass scaled"),
+    "motor_efficiency": Kind(SIMULATOR, {"motor": _needed(1, 4, integer=True),
+                                         "efficiency": _needed(0.0, 1.0)},
                              "one motor's thrust and torque scaled by efficiency"),
-    "motor_failure": Kind(SIMULATOR, {"motor": Param(1, 4, 1, integer=True)},
+    "motor_failure": Kind(SIMULATOR, {"motor": _needed(1, 4, integer=True)},
                           "one motor gives nothing"),
-    "wind": Kind(SIMULATOR, {"ned_mps": _vec3(*WIND_RANGE_MPS)}, "steady wind (NED)"),
-    "gust": Kind(SIMULATOR, {"ned_mps": _vec3(*WIND_RANGE_MPS)},
+    "wind": Kind(SIMULATOR, {"ned_mps": _vec3(*WIND_RANGE_MPS, True)}, "steady wind (NED)"),
+    "gust": Kind(SIMULATOR, {"ned_mps": _vec3(*WIND_RANGE_MPS, True)},
                  "1 - cos gust peaking at ned_mps mid-window (needs a finite end)"),
-    "force": Kind(SIMULATOR, {"ned_n": _vec3(*FORCE_RANGE_N)}, "external force (NED)"),
-    "torque": Kind(SIMULATOR, {"frd_nm": _vec3(*TORQUE_RANGE_NM)}, "external torque (FRD)"),
+    "force": Kind(SIMULATOR, {"ned_n": _vec3(*FORCE_RANGE_N, True)}, "external force (NED)"),
+    "torque": Kind(SIMULATOR, {"frd_nm": _vec3(*TORQUE_RANGE_NM, True)},
+                   "external torque (FRD)"),
     "sensor_noise": Kind(SIMULATOR, {"position_m": Param(0.0, 10.0, 0.0),
                                      "velocity_mps": Param(0.0, 10.0, 0.0),
                                      "angle_rad": Param(0.0, 0.5, 0.0),
@@ -84,9 +90,9 @@ KINDS: dict[str, Kind] = {
                                     "angle_rad": _vec3(-0.5, 0.5),
                                     "rate_rps": _vec3(-5.0, 5.0)},
                         "constant offsets on the state sent"),
-    "link_delay": Kind(SIMULATOR, {"samples": Param(0, 100, 1, integer=True)},
+    "link_delay": Kind(SIMULATOR, {"samples": _needed(0, 100, integer=True)},
                        "the state sent is this many samples old"),
-    "link_loss": Kind(SIMULATOR, {"fraction": Param(0.0, 0.95, 0.1)},
+    "link_loss": Kind(SIMULATOR, {"fraction": _needed(0.0, 0.95)},
                       "this fraction of samples is not sent (seeded)"),
     "kick": Kind(AUTOPILOT, {"phi_rad": Param(-1.0, 1.0, 0.0),
                              "theta_rad": Param(-1.0, 1.0, 0.0)},
@@ -159,6 +165,8 @@ def parse_request(data: Any, default_id: str = "") -> Perturbation:
         raise ValueError("gust: needs an end_s or duration_s (its shape spans the window)")
     params: dict[str, Any] = {}
     for name, spec in kind.params.items():
+        if spec.required and name not in data:
+            raise ValueError(f"{kind_name}: {name} is required")
         value = data.get(name, spec.default)
         if spec.size:
             if not isinstance(value, (list, tuple)) or len(value) != spec.size:

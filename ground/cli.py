@@ -16,7 +16,7 @@ def _build_parser() -> argparse.ArgumentParser:
     from autopilot.__main__ import param_argument
     from autopilot.control.factory import CONTROLLERS
     from contracts.airframe import AIRFRAMES
-    from ground.scenarios import SCENARIOS
+    from ground.scenarios import PAPER_SCENARIOS, SCENARIOS
     from sitl.dynamics import FIDELITIES
 
     parser = argparse.ArgumentParser(prog="ivfm", description=__doc__.splitlines()[0])
@@ -51,7 +51,7 @@ def _build_parser() -> argparse.ArgumentParser:
 
     compare = sub.add_parser("compare", help="every controller on every scenario, tables+figures")
     compare.add_argument("--out", type=Path, required=True)
-    compare.add_argument("--scenarios", nargs="+", default=list(SCENARIOS))
+    compare.add_argument("--scenarios", nargs="+", default=list(PAPER_SCENARIOS))
     compare.add_argument("--controllers", nargs="+", default=list(CONTROLLERS))
     compare.add_argument("--plants", nargs="+", default=list(FIDELITIES))
     add_common(compare)

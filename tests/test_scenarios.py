@@ -10,7 +10,7 @@ from autopilot.control.factory import CONTROLLERS
 from contracts.airframe import PAPER
 from ground.inprocess import run_inprocess
 from ground.metrics import compute_metrics
-from ground.scenarios import SCENARIOS
+from ground.scenarios import PAPER_SCENARIOS, SCENARIOS
 
 PLANTS = ("paper", "rigid-body")
 
@@ -19,7 +19,8 @@ PLANTS = ("paper", "rigid-body")
 def all_metrics(shipped_models):
     out = {}
     for plant in PLANTS:
-        for name, scenario in SCENARIOS.items():
+        for name in PAPER_SCENARIOS:
+            scenario = SCENARIOS[name]
             for controller in CONTROLLERS:
                 record = run_inprocess(scenario, controller, plant, PAPER, shipped_models)
                 out[(plant, name, controller)] = compute_metrics(record, scenario, "paper")

@@ -1,0 +1,274 @@
+"""The ground station's commands: scenario files, perturbation kinds, ``ivfm ground
+perturb``, ``ivfm report``, ``ivfm identify --log``."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from autopilot.control.factory import load_models
+from contracts.airframe import PAPER
+from contracts.perturbations import (
+    parse_request,
+    parse_schedule,
+    plant_perturbations_at,
+    resolve_now,
+    sensor_effects_at,
+)
+from contracts.telemetry import vehicle_key
+from contracts.zenoh_link import ZenohOptions, open_session
+from ground.cli import main
+from ground.inprocess import run_inprocess
+from ground.metrics import compute_metrics
+from ground.perturb import PerturbationClient
+from ground.processes import RunSettings, fly, free_tcp_port, vehicle_commands
+from ground.report import control_records, perturbation_events
+from ground.scenarios import load_scenario, scenario_by_name
+
+# -- perturbation requests (pure) ---------------------------------------------------------
+
+
+def test_requests_combine_as_documented():
+    entries = parse_schedule([
+        {"kind": "inertia", "scale": 1.2, "start_s": 1, "end_s": 3},
+        {"kind": "inertia", "scale": 1.5, "start_s": 2, "end_s": 4},
+        {"kind": "motor_failure", "motor": 3, "start_s": 0},
+        {"kind": "motor_efficiency", "motor": 1, "efficiency": 0.5, "start_s": 0},
+        {"kind": "wind", "ned_mps": [1, 2, 0], "start_s": 0},
+        {"kind": "gust", "ned_mps": [4, 0, 0], "start_s": 10, "duration_s": 2},
+        {"kind": "force", "ned_n": [0, 0, -1], "start_s": 0, "end_s": 1},
+        {"kind": "force", "ned_n": [1, 0, 0], "start_s": 0, "end_s": 1},
+    ])
+    assert [e.id for e in entries] == [f"p{i}" for i in range(8)]
+    p = plant_perturbations_at(entries, 2.5)
+    assert p.inertia_scale == pytest.approx(1.8)  # 1.2 x 1.5
+    assert p.motor_efficiency == (0.5, 1.0, 0.0, 1.0)
+    assert p.wind_ned_mps == (1.0, 2.0, 0.0) and p.force_ned_n == (0.0, 0.0, 0.0)
+    assert plant_perturbations_at(entries, 0.5).force_ned_n == (1.0, 0.0, -1.0)
+    assert plant_perturbations_at(entries, 11.0).wind_ned_mps == pytest.approx((5.0, 2.0, 0.0))
+    assert plant_perturbations_at(entries, 10.5).wind_ned_mps[0] == pytest.approx(3.0)
+    assert plant_perturbations_at(entries, 12.0).wind_ned_mps == (1.0, 2.0, 0.0)  # gust over
+    # Scales that would leave the plant's range are clipped, not raised in the loop.
+    many = parse_schedule([{"kind": "mass", "scale": 10.0}, {"kind": "mass", "scale": 10.0}])
+    assert plant_perturbations_at(many, 0.0).mass_scale == 10.0
+
+
+def test_sensor_and_link_effects_combine():
+    entries = parse_schedule([
+        {"kind": "sensor_noise", "angle_rad": 0.03, "start_s": 0},
+        {"kind": "sensor_noise", "angle_rad": 0.04, "start_s": 0},
+        {"kind": "sensor_bias", "rate_rps": [0.1, 0, 0], "start_s": 0},
+        {"kind": "link_delay", "samples": 2, "start_s": 0},
+        {"kind": "link_delay", "samples": 5, "start_s": 0, "end_s": 1},
+        {"kind": "link_loss", "fraction": 0.2, "start_s": 5},
+    ])
+    e = sensor_effects_at(entries, 0.5)
+    assert e.noise_angle_rad == pytest.approx(0.05) and e.bias_rate_rps == (0.1, 0.0, 0.0)
+    assert e.delay_samples == 5 and e.loss_fraction == 0.0
+    assert sensor_effects_at(entries, 6.0).delay_samples == 2
+    assert sensor_effects_at(entries, 6.0).loss_fraction == 0.2
+
+
+def test_now_requests_take_the_receivers_time():
+    entry = parse_request({"kind": "kick", "phi_rad": 0.1, "start_s": "now", "duration_s": 0.5})
+    assert entry.start_s is None
+    fixed = resolve_now(entry, 7.25)
+    assert (fixed.start_s, fixed.end_s) == (7.25, 7.75)
+    with pytest.raises(ValueError, match="duration_s, not end_s"):
+        parse_request({"kind": "kick", "start_s": "now", "end_s": 3})
+
+
+@pytest.mark.parametrize("request_, text", [
+    ({"kind": "wind"}, "ned_mps is required"),
+    ({"kind": "wind", "ned_mps": [1, 2]}, "needs 3 numbers"),
+    ({"kind": "wind", "ned_mps": [1, 2, "x"]}, "must be a number"),
+    ({"kind": "mass", "scale": True}, "must be a number"),
+    ({"kind": "motor_efficiency", "motor": 1.5}, "whole number"),
+    ({"kind": "link_loss", "fraction": 1.0}, "must be in"),
+    ({"kind": "inertia", "scale": 2, "start_s": -1}, "start_s must be in"),
+    ({"kind": "inertia", "scale": 2, "end_s": 1, "duration_s": 1}, "not both"),
+    ({"kind": "inertia", "scale": 2, "id": 5}, "id must be a string"),
+    ("inertia", "table of fields"),
+])
+def test_bad_requests_name_the_field(request_, text):
+    with pytest.raises(ValueError, match=text):
+        parse_request(request_)
+
+
+# -- scenario files ------------------------------------------------------------------------
+
+def test_shipped_scenarios_are_the_papers(tmp_path):
+    kick = scenario_by_name("position-kick")
+    assert [(e.kind, e.start_s, e.end_s, e.params) for e in kick.perturbations] == [
+        ("kick", 8.0, 8.5, {"phi_rad": 0.25, "theta_rad": 0.0}),
+        ("kick", 9.0, 9.5, {"phi_rad": 0.0, "theta_rad": 0.25})]
+    jr = scenario_by_name("attitude-jr-15")
+    assert {(e.kind, e.params["scale"]) for e in jr.perturbations} == {
+        ("inertia", 1.15), ("rotor_inertia", 1.15)}
+    assert scenario_by_name("attitude-hold").reference.hold_start_s == 10.0
+
+
+@pytest.mark.parametrize("text, error", [
+    ("duration_s = nan\n[reference]\nkind = 'hover'", "duration_s must be a number"),
+    ("colour = 'red'\n[reference]\nkind = 'hover'", "unknown field(s) colour"),
+    ("[reference]\nkind = 'loop'", "unknown reference kind"),
+    ("[reference]\nkind = 'hover'\nspeed = 3", "reference: unknown field(s) speed"),
+    ("[reference]\nkind = 'hover'\n[controller]\nname = 'pid9'", "controller.name"),
+    ("[reference]\nkind = 'hover'\n[controller.parameters]\nATT_LAM = nan", "ATT_LAM"),
+    ("[reference]\nkind = 'hover'\n[[perturbation]]\nkind = 'wind'\nned_mps = [1, 0]",
+     "perturbation 0: wind: ned_mps needs 3 numbers"),
+    ("[reference]\nkind = 'hover'\n[[perturbation]]\nkind = 'mass'\nscale = 1.1\n"
+     "start_s = 'now'", "needs start_s in sim time"),
+    ("[reference\nkind = 'hover'", "not valid TOML"),
+])
+def test_bad_scenario_files_are_refused_with_the_field(tmp_path, text, error):
+    path = tmp_path / "mine.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=error.replace("(", r"\(").replace(")", r"\)")):
+        load_scenario(path)
+    out = tmp_path / "out"
+    assert main(["run", str(path), "--out", str(out)]) == 2
+    assert not out.exists()
+
+
+# -- through the processes ----------------------------------------------------------------
+
+def test_report_recomputes_metrics_from_the_log_alone(tmp_path):
+    run_dir = tmp_path / "run"
+    assert main(["run", "attitude-jr-15", "--out", str(run_dir)]) == 0
+    first = json.loads((run_dir / "metrics.json").read_text())
+    assert (run_dir / "tracking.png").stat().st_size > 10_000
+    (run_dir / "metrics.json").unlink()
+    (run_dir / "tracking.png").unlink()
+    assert main(["report", str(run_dir)]) == 0
+    assert json.loads((run_dir / "metrics.json").read_text()) == first
+    assert (run_dir / "tracking.png").exists()
+    assert first["telemetry"]["lost"] == {}
+    assert [(e["event"], e["kind"], e["sim_time_us"]) for e in first["perturbations_applied"]
+            ] == [("start", "inertia", 12_000_000), ("start", "rotor_inertia", 12_000_000),
+                  ("end", "inertia", 14_000_000), ("end", "rotor_inertia", 14_000_000)]
+    assert main(["report", str(tmp_path)]) == 2  # not a run folder: a clear error
+
+
+def test_random_perturbations_are_deterministic_in_lockstep(tmp_path):
+    """Sensor noise, link loss and delay, a gust and a weak motor: the same run twice gives
+    the same log; without them the flight differs."""
+    path = tmp_path / "rough.toml"
+    base = Path(scenario_by_name("position-sine").source).read_text()
+    path.write_text(base.replace("duration_s = 20.0", "duration_s = 8.0") + """
+[[perturbation]]
+kind = "sensor_noise"
+angle_rad = 0.002
+rate_rps = 0.01
+start_s = 2.0
+[[perturbation]]
+kind = "link_loss"
+fraction = 0.1
+start_s = 3.0
+end_s = 5.0
+[[perturbation]]
+kind = "link_delay"
+samples = 2
+start_s = 5.0
+[[perturbation]]
+kind = "gust"
+ned_mps = [3.0, 0.0, 0.0]
+start_s = 4.0
+duration_s = 2.0
+[[perturbation]]
+kind = "motor_efficiency"
+motor = 2
+efficiency = 0.9
+start_s = 6.0
+""")
+    rough = load_scenario(path)
+    assert rough.duration_s == 8.0
+    settings = RunSettings("ivfc", "paper", "paper")
+    a, acc_a = fly(rough, settings, tmp_path / "a")
+    b, _ = fly(rough, settings, tmp_path / "b")
+    calm, _ = fly(dataclasses.replace(rough, perturbations=()), settings, tmp_path / "c")
+    assert acc_a["lost"] == {}
+    np.testing.assert_array_equal(a.measurement, b.measurement)
+    np.testing.assert_array_equal(a.motor_commands, b.motor_commands)
+    assert not a.diverged
+    assert np.max(np.abs(a.measurement - calm.measurement)) > 1e-3
+    assert np.array_equal(a.measurement[:200], calm.measurement[:200])  # before t = 2 s
+    events = [(e["id"], e["event"], e["sim_time_us"])
+              for e in perturbation_events(tmp_path / "a", 1)]
+    assert ("p3", "end", 6_000_000) in events and ("p1", "start", 3_000_000) in events
+    # The truth the simulator logged shows the gust's peak mid-window.
+    truth = control_records(tmp_path / "a", 1)  # the autopilot's view has the noise ...
+    assert np.std(np.diff(truth["measurement"][300:, 9])) > \
+        np.std(np.diff(control_records(tmp_path / "c", 1)["measurement"][300:, 9]))
+
+
+def test_ground_perturb_command_against_live_vehicle_processes(tmp_path):
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    session = open_session(ZenohOptions(listen=[endpoint]))  # the meeting point
+    scenario = dataclasses.replace(scenario_by_name("attitude-sine"), duration_s=6.0)
+    sim, ap = vehicle_commands(scenario, RunSettings("ivfc", "paper", "paper"),
+                               free_tcp_port(), endpoint)
+    logs = [open(tmp_path / n, "w") for n in ("sitl.log", "autopilot.log")]  # noqa: SIM115
+    procs = [subprocess.Popen(c, stdout=f, stderr=subprocess.STDOUT)
+             for c, f in zip((sim, ap), logs, strict=True)]
+
+    def ivfm(*args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "ground.cli", "ground", "perturb", *args,
+                               "--zenoh-connect", endpoint, "--timeout", "10"],
+                              capture_output=True, text=True, timeout=60)
+
+    try:
+        PerturbationClient(session=session).wait_for(1, "sitl", 30.0)
+        ok = ivfm("wind", "ned_mps=2,0,0", "--start", "1", "--duration", "2", "--id", "breeze")
+        assert ok.returncode == 0, ok.stderr
+        assert "accepted by vehicle 1" in ok.stdout and '"id": "breeze"' in ok.stdout
+        kick = ivfm("kick", "phi_rad=0.1", "--start", "2", "--end", "2.5")
+        assert kick.returncode == 0 and '"id": "autopilot-0"' in kick.stdout, kick.stderr
+        bad = ivfm("wind", "ned_mps=nan,0,0")
+        assert bad.returncode == 2 and "ned_mps must be in" in bad.stderr
+        unknown = ivfm("mass", "weight=3")
+        assert unknown.returncode == 2 and "unknown field(s) weight" in unknown.stderr
+        away = ivfm("mass", "scale=1.1", "--vehicle", "9", "--timeout", "1")
+        assert away.returncode == 1 and "no answer from vehicle 9" in away.stderr
+        listed = ivfm("list")
+        assert listed.returncode == 0 and listed.stdout.count("\n") == 2, listed.stdout
+        PerturbationClient(session=session).start(1)
+        for proc in procs:
+            proc.wait(60)
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+        for f in logs:
+            f.close()
+        session.close()
+    sim_log = (tmp_path / "sitl.log").read_text()
+    assert "t=1.000 s perturbation breeze (wind) start" in sim_log
+    assert "t=3.000 s perturbation breeze (wind) end" in sim_log
+    assert "t=2.000 s perturbation autopilot-0 (kick) start" in \
+        (tmp_path / "autopilot.log").read_text()
+    assert vehicle_key(1, "sitl") == "ivfm/vehicle/1/sitl"
+
+
+def test_identify_from_a_logged_excitation_flight_closes_the_loop(tmp_path):
+    run_dir = tmp_path / "excitation"
+    assert main(["run", "excitation", "--out", str(run_dir), "--no-figures"]) == 0
+    model = tmp_path / "model.json"
+    assert main(["identify", "--log", str(run_dir), "--out", str(model)]) == 0
+    models = load_models(model)
+    for name, channel in models.channels.items():
+        assert math.isfinite(channel.rmse_valid_ivfm), name
+    # The controller built on the logged flight's model flies the paper's attitude test.
+    scenario = scenario_by_name("attitude-sine")
+    record = run_inprocess(scenario, "ivfc", "paper", PAPER, models)
+    axes = compute_metrics(record, scenario, "paper")["axes"]
+    assert not record.diverged
+    assert axes["phi"]["rmse"] < 0.01 and axes["theta"]["rmse"] < 0.01
+    assert main(["identify", "--log", str(tmp_path / "nothing-here")]) == 2

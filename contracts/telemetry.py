@@ -170,7 +170,7 @@ CONTROL = RecordSchema(
     sequences=("theta_f_phi", "theta_f_theta", "theta_f_psi"),
     comment="IVFM autopilot, one control step. measurement: x y z vx vy vz phi theta psi "
             "and Euler rates (NED/FRD, SI). ch_*: per channel phi theta psi z x y. "
-            "mode: index in MODES; flags: bit 0 armed, bit 1 position loop, bit 2 failsafe",
+            "mode: index in FlightMode; flags: bit 0 armed, bit 2 failsafe",
 )
 
 TIMING = RecordSchema(
@@ -199,7 +199,7 @@ CDR_TOPICS: dict[tuple[str, str], RecordSchema] = {
 JSON_TOPICS = ("status", "perturbation")
 
 # Record modes by index (contracts.mavlink.FlightMode order) and flag bits.
-FLAG_ARMED, FLAG_POSITION, FLAG_FAILSAFE = 1, 2, 4
+FLAG_ARMED, FLAG_FAILSAFE = 1, 4
 
 
 def schema_for_key(key: str) -> RecordSchema | str | None:

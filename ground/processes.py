@@ -25,7 +25,6 @@ from typing import Any
 
 import zenoh
 
-from contracts.perturbations import schedule_to_json
 from contracts.telemetry import logger_key, vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.perturb import PerturbationClient, PerturbationError
@@ -68,7 +67,7 @@ class RunSettings:
 
 
 def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
-                     endpoint: str, schedule_path: Path | None = None) -> tuple[list, list]:
+                     endpoint: str) -> tuple[list, list]:
     """The simulator's and the autopilot's command lines for one vehicle of a run."""
     pace = ["--realtime"] if settings.realtime else ["--lockstep"]
     zenoh_args = ["--zenoh-connect", endpoint]
@@ -76,8 +75,7 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
     sim = [sys.executable, "-m", "sitl", "--port", str(sim_port), *pace,
            "--rate-hz", str(settings.rate_hz), "--plant", settings.plant,
            "--airframe", settings.airframe, "--start-altitude", str(ref.altitude_m),
-           "--exit-on-disconnect", "--vehicle", str(settings.vehicle), *zenoh_args]
-    sim += ["--schedule", str(schedule_path)] if schedule_path else ["--hold"]
+           "--exit-on-disconnect", "--vehicle", str(settings.vehicle), "--hold", *zenoh_args]
     autopilot = [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{sim_port}", *pace,
                  "--rate-hz", str(settings.rate_hz), "--state-source", settings.state_source,
                  "--controller", settings.controller, "--airframe", settings.airframe,
@@ -90,8 +88,6 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
                  "--arm-in-reference", "--duration", str(scenario.duration_s),
                  "--sysid", str(settings.vehicle), "--gcs-bind", "0", "--api", "none",
                  "--api-bind", "0", *zenoh_args]
-    if schedule_path:
-        autopilot += ["--schedule", str(schedule_path)]
     if settings.model_path is not None:
         autopilot += ["--model", str(settings.model_path)]
     for name, value in (settings.parameters or {}).items():
@@ -250,12 +246,6 @@ def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen], vehicle:
             time.sleep(0.05)
     finally:
         sub.undeclare()
-
-
-def write_schedule(scenario: Scenario, path: Path) -> Path:
-    """The schedule as a file, for running vehicles without the ground station."""
-    path.write_text(schedule_to_json(scenario.perturbations))
-    return path
 
 
 def fly(scenario: Scenario, settings: RunSettings, out_dir: Path):

@@ -20,6 +20,8 @@ from contracts.perturbations import (
     parse_schedule,
     plant_perturbations_at,
     resolve_now,
+    schedule_from_json,
+    schedule_to_json,
     sensor_effects_at,
 )
 from contracts.telemetry import vehicle_key
@@ -74,6 +76,17 @@ def test_sensor_and_link_effects_combine():
     assert e.delay_samples == 5 and e.loss_fraction == 0.0
     assert sensor_effects_at(entries, 6.0).delay_samples == 2
     assert sensor_effects_at(entries, 6.0).loss_fraction == 0.2
+
+
+def test_schedule_files_round_trip_and_refuse_bad_ones():
+    entries = scenario_by_name("attitude-jr-20").perturbations + \
+        scenario_by_name("position-kick").perturbations
+    assert schedule_from_json(schedule_to_json(entries)) == entries
+    with pytest.raises(ValueError, match="format 'ivfm-schedule'"):
+        schedule_from_json('{"perturbations": []}')
+    with pytest.raises(ValueError, match="perturbation 0: mass: scale must be in"):
+        schedule_from_json('{"format": "ivfm-schedule", "perturbations": '
+                           '[{"kind": "mass", "scale": NaN}]}')
 
 
 def test_now_requests_take_the_receivers_time():

@@ -86,16 +86,22 @@ def _wait_heard(logger: LoggerProcess, s: zenoh.Session, keys: list[str], final:
     return logger.wait_until(s, keys, final=final, timeout_s=60.0)
 
 
+def _fly_logged(logger: LoggerProcess, s: zenoh.Session, vehicle: Vehicle,
+                keys: list[str]) -> dict:
+    """Release a held vehicle once the logger hears it; the logger's status at its end."""
+    _wait_heard(logger, s, keys, final=False)
+    PerturbationClient(session=s).start(1)
+    vehicle.wait()
+    return _wait_heard(logger, s, keys, final=True)
+
+
 def test_log_holds_every_record_and_decodes_with_ros2_cdr(tmp_path, session):
     s, endpoint = session
     logger = LoggerProcess(tmp_path / "log", endpoint, tmp_path / "logger.log")
     vehicle = Vehicle(tmp_path, endpoint, duration_s=3.0, hold=True)
+    keys = [vehicle_key(1, p, "status") for p in ("sitl", "autopilot")]
     try:
-        keys = [vehicle_key(1, p, "status") for p in ("sitl", "autopilot")]
-        _wait_heard(logger, s, keys, final=False)
-        PerturbationClient(session=s).start(1)
-        vehicle.wait()
-        status = _wait_heard(logger, s, keys, final=True)
+        status = _fly_logged(logger, s, vehicle, keys)
     finally:
         vehicle.kill()
         assert logger.stop() == 0
@@ -306,10 +312,7 @@ def test_vehicle_and_logger_meet_only_through_the_router(tmp_path):
     s = open_session(ZenohOptions("client", connect=[router_endpoint]))
     keys = [vehicle_key(1, p, "status") for p in ("sitl", "autopilot")]
     try:
-        _wait_heard(logger, s, keys, final=False)
-        PerturbationClient(session=s).start(1)
-        vehicle.wait()
-        status = _wait_heard(logger, s, keys, final=True)
+        status = _fly_logged(logger, s, vehicle, keys)
     finally:
         vehicle.kill()
         logger_rc = logger.stop()

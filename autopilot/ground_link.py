@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from autopilot.control.parameters import PARAMETER_SPECS, PARAMETERS
+from autopilot.offboard import global_setpoint, local_setpoint
 from autopilot.vehicle import RefusedError, Vehicle
 from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, geodetic_from_ned
 from contracts.frames import quat_from_euler as _quat_from_euler
@@ -37,12 +38,6 @@ PARAM_COUNT = len(PARAMETERS)
 PARAM_INDEX = {spec.name: i for i, spec in enumerate(PARAMETERS)}
 FIRMWARE_VERSION = (0 << 24) | (3 << 16) | (0 << 8) | 0xFF  # 0.3.0 release
 
-# Position-target type_mask bits (MAVLink POSITION_TARGET_TYPEMASK).
-POS_IGNORE = 0b111
-VEL_IGNORE = 0b111 << 3
-ACC_IGNORE = 0b111 << 6
-FORCE_SET = 1 << 9
-YAW_IGNORE = 1 << 10
 # Attitude-target type_mask bits (ATTITUDE_TARGET_TYPEMASK).
 BODY_RATES_IGNORE = 0b111
 THRUST_IGNORE = 1 << 6
@@ -295,19 +290,23 @@ class GroundStation:
                 int((now - self.boot_s) * 1e9), msg.ts1), address)
 
     def _on_set_position_target_local_ned(self, link, address, msg, now) -> None:
-        mask = msg.type_mask
+        v = self.vehicle
+        here = v.measurement[0:3] if v.measurement is not None else np.zeros(3)
         try:
-            if msg.coordinate_frame != mavlink.MAV_FRAME_LOCAL_NED:
-                raise RefusedError(f"setpoint frame {msg.coordinate_frame} refused: only "
-                              "MAV_FRAME_LOCAL_NED (1)")
-            if mask & FORCE_SET:
-                raise RefusedError("force setpoints are not supported")
-            self.vehicle.position_setpoint(
-                now,
-                None if mask & POS_IGNORE == POS_IGNORE else (msg.x, msg.y, msg.z),
-                None if mask & VEL_IGNORE == VEL_IGNORE else (msg.vx, msg.vy, msg.vz),
-                None if mask & ACC_IGNORE == ACC_IGNORE else (msg.afx, msg.afy, msg.afz),
-                None if mask & YAW_IGNORE else msg.yaw)
+            setpoint = local_setpoint(
+                msg.coordinate_frame, msg.type_mask, (msg.x, msg.y, msg.z),
+                (msg.vx, msg.vy, msg.vz), (msg.afx, msg.afy, msg.afz), msg.yaw, msg.yaw_rate,
+                here, v.heading_rad)
+            v.position_setpoint(now, setpoint)
+        except RefusedError as exc:
+            self._refuse_setpoint(link, address, str(exc))
+
+    def _on_set_position_target_global_int(self, link, address, msg, now) -> None:
+        try:
+            setpoint = global_setpoint(
+                msg.coordinate_frame, msg.type_mask, msg.lat_int, msg.lon_int, msg.alt,
+                (msg.vx, msg.vy, msg.vz), (msg.afx, msg.afy, msg.afz), msg.yaw, msg.yaw_rate)
+            self.vehicle.position_setpoint(now, setpoint)
         except RefusedError as exc:
             self._refuse_setpoint(link, address, str(exc))
 
@@ -498,6 +497,7 @@ class GroundStation:
                 | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
                 | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+                | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
                 | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
         return mavlink.MAVLink_autopilot_version_message(
             caps, FIRMWARE_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1, [0] * 18)

@@ -13,31 +13,34 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from autopilot.control.parameters import validate_parameters
-from autopilot.reference import (
-    REF_ACC,
-    REF_EULER,
-    REF_POS,
-    REF_SIZE,
-    REF_VEL,
-    Reference,
-)
-from contracts.frames import euler_from_quat
+from autopilot.reference import REF_EULER, REF_POS, REF_SIZE, REF_VEL, Reference
+from autopilot.shaping import Setpoint, SetpointShaper, ShapingLimits, limits_from_parameters
+from contracts.airframe import max_thrust_n
+from contracts.frames import euler_from_quat, wrap_pi
 from contracts.mavlink import FlightMode
 from contracts.perturbations import AUTOPILOT, Perturbation, PerturbationBook, kick_at
 
 LANDED_ALTITUDE_M = 0.05  # the plant's ground is z = 0
 LANDED_SPEED_MPS = 0.1
 TAKEOFF_REACHED_M = 0.1
+LAND_REFERENCE_Z_M = 0.5  # landing descends towards 0.5 m below the ground: it touches down
 MAX_SETPOINT_DISTANCE_M = 1000.0
 MAX_SETPOINT_SPEED_MPS = 20.0
 MAX_SETPOINT_ACCEL_MPS2 = 20.0
+MAX_SETPOINT_YAW_RATE_RPS = 20.0
 MAX_TILT_SETPOINT_RAD = 1.0
+# A position setpoint's velocity / acceleration feed-forward is the setpoint's own motion:
+# it applies while the streamed position moves, and lapses this long after it stops, so
+# a setpoint that stands still is a place to stop at, not to fly past.
+FEED_FORWARD_HOLD_S = 0.5
 ARMABLE_MODES = (FlightMode.HOLD, FlightMode.GUIDED, FlightMode.OFFBOARD, FlightMode.TAKEOFF)
+SHAPED_MODES = (FlightMode.HOLD, FlightMode.GUIDED, FlightMode.OFFBOARD, FlightMode.TAKEOFF,
+                FlightMode.LAND)
 
 
 class RefusedError(Exception):
@@ -49,17 +52,14 @@ class RefusedError(Exception):
 
 
 @dataclass
-class Target:
-    """What the position loop tracks in every mode but REFERENCE and attitude offboard."""
+class AttitudeTarget:
+    """An attitude setpoint: Euler angles, and the vertical part as the flavour reads
+    SET_ATTITUDE_TARGET's thrust."""
 
-    position_ned_m: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    velocity_ned_mps: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    accel_ned_mps2: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    yaw_rad: float = 0.0
-    velocity_only: bool = False  # integrate the position from the velocity setpoint
-    # attitude offboard: Euler angles and a climb rate from the thrust field
-    attitude_rad: np.ndarray | None = None
-    climb_rate_mps: float = 0.0
+    euler_rad: np.ndarray
+    thrust_fraction: float = math.nan  # PX4: collective thrust / the airframe's maximum
+    climb_rate_mps: float = 0.0  # ArduPilot (or no thrust): altitude loop at this rate
+    altitude_ref_ned_m: float = math.nan  # the altitude loop's reference, integrated
 
 
 def _check(name: str, values, limit: float) -> None:
@@ -70,8 +70,17 @@ def _check(name: str, values, limit: float) -> None:
             raise RefusedError(f"{name} {v:g} is beyond +-{limit:g}")
 
 
+def _check_given(name: str, values: np.ndarray, limit: float) -> None:
+    """NaN marks a left-out value here; what is given must be within +-limit."""
+    for v in values:
+        if math.isinf(v):
+            raise RefusedError(f"{name} holds an infinity")
+        if abs(v) > limit:
+            raise RefusedError(f"{name} {v:g} is beyond +-{limit:g}")
+
+
 class Vehicle:
-    """Arming state, mode, target, failsafes and the controller they feed."""
+    """Arming state, mode, setpoints, failsafes and the controller they feed."""
 
     def __init__(
         self,
@@ -85,6 +94,7 @@ class Vehicle:
         self._make_controller = make_controller
         self.period_s = period_s
         self.parameters = validate_parameters(parameters or {})
+        self.limits: ShapingLimits = limits_from_parameters(self.parameters)
         self.controller = make_controller(self.parameters)
         self.reference = reference
         # Reference kicks (sim time), from the command line and from Zenoh requests.
@@ -92,7 +102,15 @@ class Vehicle:
         self.flavour = flavour
         self.armed = False
         self.mode = FlightMode.GUIDED if flavour == "ardupilot" else FlightMode.HOLD
-        self.target = Target()
+        # What the vehicle flies to in the shaped modes, and the shaper in front of the
+        # controller (autopilot/shaping.py); an attitude setpoint bypasses both.
+        self.setpoint = Setpoint.hold((0.0, 0.0, 0.0), 0.0)
+        self.attitude_target: AttitudeTarget | None = None
+        self.shaper = SetpointShaper()
+        self._shaping = False  # the shaper produced the last reference
+        self._streamed: Setpoint | AttitudeTarget | None = None  # newest, before offboard
+        self._tool_position: np.ndarray | None = None
+        self._tool_position_moved_s = -math.inf
         self.measurement: np.ndarray | None = None
         self.sim_t_s = 0.0
         self.reference_start_s = 0.0
@@ -123,6 +141,7 @@ class Vehicle:
         except ValueError as exc:
             raise RefusedError(str(exc)) from None
         self.parameters = updated
+        self.limits = limits_from_parameters(updated)
         self.controller.apply_parameters(updated)
 
     # -- state from the simulator --------------------------------------------------------
@@ -130,11 +149,22 @@ class Vehicle:
     def altitude_m(self) -> float:
         return 0.0 if self.measurement is None else -float(self.measurement[2])
 
+    @property
+    def heading_rad(self) -> float:
+        """The vehicle's yaw now (0 before any state arrived)."""
+        return 0.0 if self.measurement is None else wrap_pi(float(self.measurement[8]))
+
     def _hold_here(self) -> None:
+        """Hold where the vehicle can stop: the shaped reference's stopping point when it
+        is moving one, else the measured position; the heading it has."""
         m = self.measurement
-        self.target = Target(
-            position_ned_m=m[0:3].copy() if m is not None else np.zeros(3),
-            yaw_rad=float(m[8]) if m is not None else 0.0)
+        if self._shaping:
+            position, yaw = self.shaper.stopping_point(self.limits), self.shaper.yaw_rad
+        else:
+            position = m[0:3].copy() if m is not None else np.zeros(3)
+            yaw = self.heading_rad
+        self.setpoint = Setpoint.hold(position, yaw)
+        self.attitude_target = None
 
     # -- commands ------------------------------------------------------------------------
     def arm(self, link_t_s: float) -> None:
@@ -154,8 +184,12 @@ class Vehicle:
     def _arm(self) -> None:
         self.controller = self._make_controller(self.parameters)
         self.armed = True
+        self._shaping = False
+        self.last_ref = np.zeros(REF_SIZE)
         if self.mode != FlightMode.OFFBOARD:
             self._hold_here()
+        else:
+            self._apply_streamed()
         self._landed_since_s = None if not self.landed else self.sim_t_s
 
     def arm_in_reference(self) -> None:
@@ -177,6 +211,7 @@ class Vehicle:
 
     def _disarm(self, text: str) -> None:
         self.armed = False
+        self._shaping = False
         self.takeoff_altitude_m = None
         if self.mode in (FlightMode.LAND, FlightMode.TAKEOFF, FlightMode.REFERENCE):
             self.mode = FlightMode.GUIDED if self.flavour == "ardupilot" else FlightMode.HOLD
@@ -194,6 +229,7 @@ class Vehicle:
         if self.flavour == "px4":
             self.mode = FlightMode.TAKEOFF
         self._hold_here()
+        self.setpoint.position_ned_m[2] = -alt
         self.takeoff_altitude_m = alt
         self.say(f"taking off to {alt:.1f} m")
 
@@ -227,6 +263,10 @@ class Vehicle:
         if mode in (FlightMode.HOLD, FlightMode.LAND) or (
                 mode == FlightMode.GUIDED and previous != FlightMode.OFFBOARD):
             self._hold_here()
+        if mode == FlightMode.LAND:
+            self.setpoint.position_ned_m[2] = LAND_REFERENCE_Z_M
+        if mode == FlightMode.OFFBOARD:
+            self._apply_streamed()
         if mode == FlightMode.REFERENCE:
             self.reference_start_s = self.sim_t_s
         self.say(f"mode {mode.value}")
@@ -236,42 +276,49 @@ class Vehicle:
         return (self.setpoint_heard_s is not None
                 and link_t_s - self.setpoint_heard_s <= self.parameters["COM_OF_LOSS_T"])
 
-    def position_setpoint(self, link_t_s: float, position: tuple | None, velocity: tuple | None,
-                          accel: tuple | None, yaw: float | None) -> None:
-        """A local NED setpoint; None for a masked group. Validated before anything changes."""
-        if position is None and velocity is None:
-            raise RefusedError("setpoint gives neither position nor velocity")
-        if position is not None:
-            _check("setpoint position", position, MAX_SETPOINT_DISTANCE_M)
-        if velocity is not None:
-            _check("setpoint velocity", velocity, MAX_SETPOINT_SPEED_MPS)
-        if accel is not None:
-            _check("setpoint acceleration", accel, MAX_SETPOINT_ACCEL_MPS2)
-        if yaw is not None:
-            _check("setpoint yaw", (yaw,), 2.0 * math.pi)
+    def position_setpoint(self, link_t_s: float, setpoint: Setpoint) -> None:
+        """A local NED setpoint (NaN for what the tool left out); checked before anything
+        changes. Per axis group a position (velocity and acceleration then feed-forward)
+        or a velocity; a yaw or a yaw rate (docs/mavlink.md)."""
+        sp = Setpoint(np.array(setpoint.position_ned_m, dtype=float),
+                      np.array(setpoint.velocity_ned_mps, dtype=float),
+                      np.array(setpoint.accel_ned_mps2, dtype=float),
+                      float(setpoint.yaw_rad), float(setpoint.yaw_rate_rps))
+        pos, vel = sp.position_ned_m, sp.velocity_ned_mps
+        if np.isnan(pos[0]) != np.isnan(pos[1]):
+            raise RefusedError("setpoint gives x without y or y without x")
+        for group in (slice(0, 2), slice(2, 3)):
+            if np.all(np.isnan(pos[group])) and np.any(np.isnan(vel[group])):
+                raise RefusedError("setpoint gives neither position nor velocity")
+        _check_given("setpoint position", pos, MAX_SETPOINT_DISTANCE_M)
+        _check_given("setpoint velocity", vel, MAX_SETPOINT_SPEED_MPS)
+        _check_given("setpoint acceleration", sp.accel_ned_mps2, MAX_SETPOINT_ACCEL_MPS2)
+        _check_given("setpoint yaw", (sp.yaw_rad,), math.inf)
+        _check_given("setpoint yaw rate", (sp.yaw_rate_rps,), MAX_SETPOINT_YAW_RATE_RPS)
+        sp.yaw_rad = wrap_pi(sp.yaw_rad)
         self.setpoint_heard_s = link_t_s
-        if self.mode not in (FlightMode.OFFBOARD, FlightMode.GUIDED):
-            return  # PX4 takes the stream before offboard starts; it steers nothing yet
-        t = self.target
-        if position is not None:
-            t.position_ned_m = np.array(position, dtype=float)
-        elif t.attitude_rad is not None and self.measurement is not None:
-            t.position_ned_m = self.measurement[0:3].copy()
-        t.velocity_ned_mps = np.array(velocity if velocity is not None else (0.0,) * 3,
-                                      dtype=float)
-        t.accel_ned_mps2 = np.array(accel if accel is not None else (0.0,) * 3, dtype=float)
-        t.velocity_only = position is None
-        if yaw is not None:
-            t.yaw_rad = float(yaw)
-        t.attitude_rad = None
+        given = np.isfinite(pos)
+        if np.any(given):
+            if self._tool_position is None or not np.array_equal(
+                    given, np.isfinite(self._tool_position)) or np.any(
+                    np.abs(pos[given] - self._tool_position[given]) > 1e-6):
+                self._tool_position_moved_s = link_t_s
+            self._tool_position = pos.copy()
+            if link_t_s - self._tool_position_moved_s > FEED_FORWARD_HOLD_S:
+                vel[given] = np.nan
+                sp.accel_ned_mps2[given] = np.nan
+        self._streamed = sp
+        if self.mode in (FlightMode.OFFBOARD, FlightMode.GUIDED):
+            self._apply_streamed()
 
     def attitude_setpoint(self, link_t_s: float, quaternion: tuple | None,
                           thrust: float | None) -> None:
-        """An attitude setpoint; thrust 0.5 holds altitude, 0 / 1 descend / climb (as
-        ArduPilot reads it)."""
+        """An attitude setpoint. Thrust as the flavour reads it: PX4, the collective
+        thrust as a fraction of the maximum; ArduPilot, 0.5 holds the altitude and 0 / 1
+        descend / climb at MPC_TKO_SPEED. Without thrust the altitude is held."""
         if quaternion is None:
             raise RefusedError("attitude setpoint without attitude: body-rate control is not "
-                          "supported")
+                               "supported")
         _check("attitude quaternion", quaternion, 1.01)
         q = np.array(quaternion, dtype=float)
         norm = float(np.linalg.norm(q))
@@ -280,20 +327,33 @@ class Vehicle:
         euler = euler_from_quat(q / norm)
         if max(abs(euler[0]), abs(euler[1])) > MAX_TILT_SETPOINT_RAD:
             raise RefusedError(f"attitude setpoint tilts more than {MAX_TILT_SETPOINT_RAD} rad")
+        target = AttitudeTarget(euler)
         if thrust is not None:
             _check("thrust", (thrust,), 1.0)
             if thrust < 0.0:
                 raise RefusedError(f"thrust {thrust:g} is outside [0, 1]")
+            if self.flavour == "px4":
+                target.thrust_fraction = float(thrust)
+            else:
+                target.climb_rate_mps = (thrust - 0.5) * 2.0 * self.parameters["MPC_TKO_SPEED"]
         self.setpoint_heard_s = link_t_s
-        if self.mode not in (FlightMode.OFFBOARD, FlightMode.GUIDED):
-            return
-        t = self.target
-        if t.attitude_rad is None and self.measurement is not None:
-            t.position_ned_m = self.measurement[0:3].copy()
-        t.attitude_rad = euler
-        t.yaw_rad = float(euler[2])
-        speed = self.parameters["MPC_TKO_SPEED"]
-        t.climb_rate_mps = 0.0 if thrust is None else (thrust - 0.5) * 2.0 * speed
+        self._streamed = target
+        if self.mode in (FlightMode.OFFBOARD, FlightMode.GUIDED):
+            self._apply_streamed()
+
+    def _apply_streamed(self) -> None:
+        """The newest streamed setpoint becomes what the vehicle flies to."""
+        streamed = self._streamed
+        if isinstance(streamed, Setpoint):
+            self.setpoint = streamed
+            self.attitude_target = None
+        elif isinstance(streamed, AttitudeTarget):
+            previous = self.attitude_target
+            if previous is not None:
+                streamed.altitude_ref_ned_m = previous.altitude_ref_ned_m
+            elif self.measurement is not None:
+                streamed.altitude_ref_ned_m = float(self.measurement[2])
+            self.attitude_target = streamed
 
     # -- links ---------------------------------------------------------------------------
     def gcs_heartbeat(self, link_t_s: float) -> None:
@@ -357,7 +417,7 @@ class Vehicle:
                      and not (self.armed and self.mode == FlightMode.TAKEOFF)
                      and not (self.armed and self.takeoff_altitude_m is not None))
         if on_ground and self.armed and self.mode not in (FlightMode.LAND,) and \
-                self.target.position_ned_m[2] < -LANDED_ALTITUDE_M:
+                self.last_ref[REF_POS + 2] < -LANDED_ALTITUDE_M:
             on_ground = False  # asked to be up: lifting off, not landed
         if on_ground and not self.landed:
             self.landed = True
@@ -375,54 +435,58 @@ class Vehicle:
     def control(self) -> np.ndarray:
         """Motor commands for this control period (zeros when disarmed or without state)."""
         if not self.armed or self.measurement is None or not self.sim_link_ok:
+            self._shaping = False
             self.last_commands = np.zeros(4)
             return self.last_commands
-        ref, position_mode = self._reference()
+        ref, position_mode, thrust_n = self._reference()
         entries = self.perturbations.entries
         kick = np.array(kick_at(entries, self.sim_t_s)) if entries else np.zeros(2)
         self.last_ref, self.last_kick = ref, kick
-        self.last_commands = self.controller.step(self.measurement, ref, position_mode, kick)
+        self.last_commands = self.controller.step(self.measurement, ref, position_mode, kick,
+                                                  thrust_n)
         return self.last_commands
 
-    def _reference(self) -> tuple[np.ndarray, bool]:
+    def _reference(self) -> tuple[np.ndarray, bool, float]:
+        """This period's reference, whether the position loop is on, and a collective
+        thrust [N] that replaces the altitude loop (NaN: it does not)."""
         if self.mode == FlightMode.REFERENCE:
+            self._shaping = False
             t = self.sim_t_s - self.reference_start_s
-            return self.reference.at(t), self.reference.position_mode
-        dt = self.period_s
+            return self.reference.at(t), self.reference.position_mode, math.nan
+        if self.attitude_target is not None and self.mode not in (
+                FlightMode.HOLD, FlightMode.LAND, FlightMode.TAKEOFF):
+            self._shaping = False
+            return self._attitude_reference(self.attitude_target)
+        if not self._shaping:
+            m = self.measurement
+            self.shaper.reset(m[0:3], m[3:6], m[8])
+            self._shaping = True
         p = self.parameters
-        tg = self.target
-        ref = np.zeros(REF_SIZE)
-        if self.mode == FlightMode.TAKEOFF or self.takeoff_altitude_m is not None:
-            goal = -self.takeoff_altitude_m
-            speed = p["MPC_TKO_SPEED"]
-            z = tg.position_ned_m[2]
-            tg.position_ned_m[2] = max(goal, z - speed * dt)
-            tg.velocity_ned_mps[:] = 0.0
-            if tg.position_ned_m[2] > goal:
-                tg.velocity_ned_mps[2] = -speed
-            elif abs(self.measurement[2] - goal) < TAKEOFF_REACHED_M:
-                self.say("take-off complete")
-                self.takeoff_altitude_m = None
-                if self.mode == FlightMode.TAKEOFF:
-                    self._enter(FlightMode.HOLD)
+        limits = self.limits
+        if self.takeoff_altitude_m is not None:
+            limits = limits._replace(z_vel_max_up_mps=min(limits.z_vel_max_up_mps,
+                                                          p["MPC_TKO_SPEED"]))
         elif self.mode == FlightMode.LAND:
-            speed = p["MPC_LAND_SPEED"]
-            tg.position_ned_m[2] = min(tg.position_ned_m[2] + speed * dt, 0.5)
-            tg.velocity_ned_mps[:] = 0.0
-            tg.velocity_ned_mps[2] = speed if tg.position_ned_m[2] < 0.5 else 0.0
-        elif tg.attitude_rad is not None:
-            tg.position_ned_m[2] -= tg.climb_rate_mps * dt
-            ref[REF_POS:REF_POS + 3] = tg.position_ned_m
-            ref[REF_VEL + 2] = -tg.climb_rate_mps
-            ref[REF_EULER:REF_EULER + 3] = tg.attitude_rad
-            return ref, False
-        elif tg.velocity_only:
-            tg.position_ned_m += tg.velocity_ned_mps * dt
-        ref[REF_POS:REF_POS + 3] = tg.position_ned_m
-        ref[REF_VEL:REF_VEL + 3] = tg.velocity_ned_mps
-        ref[REF_ACC:REF_ACC + 3] = tg.accel_ned_mps2
-        ref[REF_EULER + 2] = tg.yaw_rad
-        return ref, True
+            limits = limits._replace(z_vel_max_dn_mps=p["MPC_LAND_SPEED"])
+        ref = self.shaper.step(self.setpoint, limits, self.period_s)
+        if self.takeoff_altitude_m is not None and \
+                abs(self.measurement[2] + self.takeoff_altitude_m) < TAKEOFF_REACHED_M:
+            self.say("take-off complete")
+            self.takeoff_altitude_m = None
+            if self.mode == FlightMode.TAKEOFF:
+                self._enter(FlightMode.HOLD)
+        return ref, True, math.nan
+
+    def _attitude_reference(self, target: AttitudeTarget) -> tuple[np.ndarray, bool, float]:
+        ref = np.zeros(REF_SIZE)
+        ref[REF_POS:REF_POS + 3] = self.measurement[0:3]
+        ref[REF_EULER:REF_EULER + 3] = target.euler_rad
+        if math.isfinite(target.thrust_fraction):
+            return ref, False, target.thrust_fraction * max_thrust_n(self.controller.airframe)
+        target.altitude_ref_ned_m -= target.climb_rate_mps * self.period_s
+        ref[REF_POS + 2] = target.altitude_ref_ned_m
+        ref[REF_VEL + 2] = -target.climb_rate_mps
+        return ref, False, math.nan
 
     def step(self, sim_t_s: float, measurement: np.ndarray) -> np.ndarray:
         """One control period: take the sample, then compute the motor commands."""

@@ -107,6 +107,12 @@ def hover_rotor_speed_rps(af: Airframe) -> float:
 
 
 @njit(cache=True)
+def max_thrust_n(af: Airframe) -> float:
+    """Total thrust with every rotor at its top speed: 4 b W_max^2."""
+    return 4.0 * af.thrust_coeff_ns2 * af.rotor_max_rps**2
+
+
+@njit(cache=True)
 def rotor_forces(
     rotor_rps: np.ndarray, efficiency: np.ndarray, af: Airframe
 ) -> tuple[float, float, float, float, float]:

@@ -14,6 +14,35 @@ import numpy as np
 from numba import njit
 
 GRAVITY_MPS2 = 9.81
+TWO_PI = 2.0 * math.pi
+
+
+@njit(cache=True)
+def wrap_pi(angle_rad: float) -> float:
+    """The same angle in [-pi, pi): the one wrapping every angle difference goes through.
+
+    Angles already in range come back unchanged, bit for bit, so wrapping an error that
+    never leaves the range changes no result. Any finite input is taken: [0, 2 pi),
+    (-pi, pi], several turns. NaN stays NaN.
+    """
+    if -math.pi <= angle_rad < math.pi:
+        return angle_rad
+    wrapped = angle_rad - TWO_PI * math.floor((angle_rad + math.pi) / TWO_PI)
+    if wrapped >= math.pi:  # rounding at the upper edge
+        wrapped -= TWO_PI
+    elif wrapped < -math.pi:
+        wrapped += TWO_PI
+    return wrapped
+
+
+@njit(cache=True)
+def wrap_pi_array(angles_rad: np.ndarray) -> np.ndarray:
+    """:func:`wrap_pi` of every element (metrics, logs)."""
+    out = np.empty_like(angles_rad)
+    flat_in, flat_out = angles_rad.ravel(), out.ravel()
+    for i in range(flat_in.size):
+        flat_out[i] = wrap_pi(flat_in[i])
+    return out
 
 
 @njit(cache=True)
@@ -108,6 +137,13 @@ def body_rates_from_euler_rates(
     out[1] = cphi * theta_dot + sphi * ctheta * psi_dot
     out[2] = -sphi * theta_dot + cphi * ctheta * psi_dot
     return out
+
+
+def heading_to_ned(forward: float, right: float, heading_rad: float) -> tuple[float, float]:
+    """(north, east) of a horizontal vector given along the vehicle's heading (forward,
+    right): the "body" frame of setpoints, turned by yaw only."""
+    c, s = math.cos(heading_rad), math.sin(heading_rad)
+    return c * forward - s * right, s * forward + c * right
 
 
 def altitude_m(z_ned_m):  # float or array

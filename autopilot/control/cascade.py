@@ -20,7 +20,12 @@ from autopilot.control.parameters import channel_gains, validate_parameters
 from autopilot.control.sliding_mode import TELEMETRY_FIELDS, adaptive_channel_step
 from autopilot.identification.ts_model import it2_regressor, t1_regressor
 from autopilot.reference import REF_ACC, REF_EULER, REF_EULER_ACC, REF_EULER_RATE, REF_POS, REF_VEL
-from contracts.airframe import Airframe, attitude_coefficients, paper_attitude_drift
+from contracts.airframe import (
+    Airframe,
+    attitude_coefficients,
+    max_thrust_n,
+    paper_attitude_drift,
+)
 
 CHANNELS = ("phi", "theta", "psi", "z", "x", "y")
 CH_PHI, CH_THETA, CH_PSI, CH_Z, CH_X, CH_Y = range(6)
@@ -47,7 +52,9 @@ def attitude_regressor_inputs(meas: np.ndarray, w_r: float, channel: int) -> np.
 
 @njit(cache=True)
 def desired_angles(u_x: float, u_y: float, psi_d: float, max_tilt: float) -> tuple[float, float]:
-    """phi_d, theta_d that point the thrust along (u_x, u_y) (SPEC section 5)."""
+    """phi_d, theta_d that point the thrust along (u_x, u_y) (SPEC section 5), each clipped
+    to ``max_tilt`` (MPC_TILTMAX_AIR; the paper scenarios are tuned to this per-axis clip,
+    and the setpoint shaper's acceleration limit keeps the total tilt below it)."""
     s, c = math.sin(psi_d), math.cos(psi_d)
     phi_d = math.asin(max(-1.0, min(1.0, u_x * s - u_y * c)))
     theta_d = math.asin(max(-1.0, min(1.0, (u_x * c + u_y * s) / math.cos(phi_d))))
@@ -76,19 +83,28 @@ def cascade_step(
     w_r: float,
     period_s: float,
     telemetry: np.ndarray,
+    collective_thrust_n: float,
 ) -> np.ndarray:
-    """One control period: altitude, position (if active), attitude, mixer -> c_i."""
+    """One control period: altitude, position (if active), attitude, mixer -> c_i.
+
+    ``collective_thrust_n``: NaN to run the altitude loop, else the total thrust a tool
+    asked for (attitude setpoints in PX4's reading).
+    """
     one = np.ones(1)
     phi, theta = meas[M_EULER], meas[M_EULER + 1]
-    # Altitude: z'' = f_z + g_z v with v = -c.phi c.theta U_z.
-    v_z, theta_g[CH_Z] = adaptive_channel_step(
-        meas[M_POS + 2], meas[M_VEL + 2], ref[REF_POS + 2], ref[REF_VEL + 2], ref[REF_ACC + 2],
-        one, theta_f[CH_Z], theta_min[CH_Z], theta_max[CH_Z], one, 0.0, theta_g[CH_Z],
-        gains[CH_Z], period_s, telemetry[CH_Z],
-    )
-    tilt = max(math.cos(phi) * math.cos(theta), MIN_TILT_COSINE)
-    max_thrust = 4.0 * af.thrust_coeff_ns2 * af.rotor_max_rps**2
-    u_z = min(max(-v_z / tilt, 0.0), max_thrust)
+    max_thrust = max_thrust_n(af)
+    if math.isnan(collective_thrust_n):
+        # Altitude: z'' = f_z + g_z v with v = -c.phi c.theta U_z.
+        v_z, theta_g[CH_Z] = adaptive_channel_step(
+            meas[M_POS + 2], meas[M_VEL + 2], ref[REF_POS + 2], ref[REF_VEL + 2],
+            ref[REF_ACC + 2], one, theta_f[CH_Z], theta_min[CH_Z], theta_max[CH_Z], one, 0.0,
+            theta_g[CH_Z], gains[CH_Z], period_s, telemetry[CH_Z],
+        )
+        tilt = max(math.cos(phi) * math.cos(theta), MIN_TILT_COSINE)
+        u_z = min(max(-v_z / tilt, 0.0), max_thrust)
+    else:
+        telemetry[CH_Z, :] = np.nan
+        u_z = min(max(collective_thrust_n, 0.0), max_thrust)
 
     yd = np.empty(3)
     yd_dot = np.empty(3)
@@ -146,8 +162,7 @@ def cascade_step(
         u_att[ch], theta_g[ch] = adaptive_channel_step(
             meas[M_EULER + ch], rates[ch], yd[ch], yd_dot[ch], yd_ddot[ch], phi_f,
             theta_f[ch], theta_min[ch], theta_max[ch], eta_scale[ch], offset, theta_g[ch],
-            gains[ch],
-            period_s, telemetry[ch],
+            gains[ch], period_s, telemetry[ch], True,
         )
     return mix(u_z, u_att[0], u_att[1], u_att[2], af)
 
@@ -226,7 +241,7 @@ class SlidingModeCascade:
                                                                   strict=True))
         self._filter_limits = np.array(
             [p["CMDF_OMEGA"], p["CMDF_ZETA"], p["CMDF_RATE_MAX"], p["CMDF_ACC_MAX"]])
-        self._max_tilt = p["MAX_TILT"]
+        self._max_tilt = math.radians(p["MPC_TILTMAX_AIR"])
 
     @property
     def theta_f(self) -> tuple[np.ndarray, ...]:
@@ -238,14 +253,15 @@ class SlidingModeCascade:
         return float(w[0] - w[1] + w[2] - w[3])
 
     def step(self, meas: np.ndarray, ref: np.ndarray, position_mode: bool,
-             kick: np.ndarray | None = None) -> np.ndarray:
+             kick: np.ndarray | None = None,
+             collective_thrust_n: float = math.nan) -> np.ndarray:
         """Motor commands c_i in [0, 1] for this control period."""
         commands = cascade_step(
             meas, ref, position_mode, np.zeros(2) if kick is None else kick,
             self.model.basis_kind, self.model.mf_lower, self.model.mf_upper, self._theta_f,
             self._theta_min, self._theta_max, self.model.eta_scale, self.theta_g, self._gains,
             self.airframe, self._filter_state, self._filter_limits, self._max_tilt,
-            self.residual_rotor_speed(), self.period_s, self.telemetry,
+            self.residual_rotor_speed(), self.period_s, self.telemetry, collective_thrust_n,
         )
         self._last_commands = commands
         return commands

@@ -56,7 +56,9 @@ def _smc_specs() -> list[ParamSpec]:
 
 PARAMETERS: tuple[ParamSpec, ...] = (
     *_smc_specs(),
-    ParamSpec("MAX_TILT", 0.35, 0.05, 1.4, "rad", "largest desired roll/pitch from position"),
+    # 0.35 rad, the limit the paper scenarios are tuned with, exactly.
+    ParamSpec("MPC_TILTMAX_AIR", math.degrees(0.35), 3.0, 80.0, "deg",
+              "largest roll and pitch the position loop asks for"),
     ParamSpec("CMDF_OMEGA", 10.0, 1.0, 200.0, "rad/s", "command filter natural frequency"),
     ParamSpec("CMDF_ZETA", 1.0, 0.3, 2.0, "", "command filter damping ratio"),
     ParamSpec("CMDF_RATE_MAX", 2.0, 0.1, 20.0, "rad/s", "command filter angle rate limit"),
@@ -86,6 +88,17 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("COM_OF_LOSS_T", 1.0, 0.1, 60.0, "s", "offboard setpoint loss timeout"),
     ParamSpec("COM_OBL_ACT", 1.0, 0.0, 1.0, "", "on setpoint loss: 0 land, 1 hold",
               choices=(0.0, 1.0)),
+    # Setpoint shaping (autopilot/shaping.py): PX4's names, meanings and units; defaults
+    # for the paper airframe (PX4's own defaults are for a 450-class quadrotor).
+    ParamSpec("MPC_XY_VEL_MAX", 5.0, 0.5, 20.0, "m/s", "largest horizontal speed"),
+    ParamSpec("MPC_Z_VEL_MAX_UP", 3.0, 0.5, 8.0, "m/s", "largest climb rate"),
+    ParamSpec("MPC_Z_VEL_MAX_DN", 1.5, 0.5, 4.0, "m/s", "largest descent rate"),
+    ParamSpec("MPC_ACC_HOR", 3.0, 0.5, 15.0, "m/s^2", "largest horizontal acceleration"),
+    ParamSpec("MPC_ACC_UP_MAX", 4.0, 1.0, 15.0, "m/s^2", "largest upward acceleration"),
+    ParamSpec("MPC_ACC_DOWN_MAX", 3.0, 1.0, 15.0, "m/s^2", "largest downward acceleration"),
+    ParamSpec("MPC_JERK_AUTO", 4.0, 1.0, 80.0, "m/s^3", "largest jerk of the reference"),
+    ParamSpec("MPC_YAWRAUTO_MAX", 45.0, 5.0, 360.0, "deg/s", "largest yaw rate"),
+    ParamSpec("MPC_YAWRAUTO_ACC", 60.0, 5.0, 1000.0, "deg/s^2", "largest yaw acceleration"),
     ParamSpec("COM_SIM_LOSS_T", 0.5, 0.05, 60.0, "s", "simulator link loss timeout (-> land)"),
 )
 PARAMETER_SPECS: dict[str, ParamSpec] = {spec.name: spec for spec in PARAMETERS}

@@ -17,7 +17,8 @@ from autopilot.control.cascade import M_EULER, M_POS, M_RATE, M_VEL, desired_ang
 from autopilot.control.mixer import mix
 from autopilot.control.parameters import validate_parameters
 from autopilot.reference import REF_ACC, REF_EULER, REF_EULER_RATE, REF_POS, REF_VEL
-from contracts.airframe import Airframe
+from contracts.airframe import Airframe, max_thrust_n
+from contracts.frames import wrap_pi
 
 # Integrator clamps (anti-windup), as PX4 bounds its integrators.
 RATE_INTEGRATOR_LIMIT = 0.3  # rad (x RATE_I 10 -> 3 rad/s^2)
@@ -45,7 +46,8 @@ def pid_gains(p: dict[str, float]) -> PidGains:
     return PidGains(
         p["PID_ATT_P"], p["PID_RATE_P"], p["PID_RATE_I"], p["PID_RATE_D"], p["PID_YAW_P"],
         p["PID_YAWRATE_P"], p["PID_XY_P"], p["PID_XY_VEL_P"], p["PID_XY_VEL_I"],
-        p["PID_XY_VEL_D"], p["PID_Z_P"], p["PID_Z_VEL_P"], p["PID_Z_VEL_I"], p["MAX_TILT"],
+        p["PID_XY_VEL_D"], p["PID_Z_P"], p["PID_Z_VEL_P"], p["PID_Z_VEL_I"],
+        math.radians(p["MPC_TILTMAX_AIR"]),
     )
 
 
@@ -66,7 +68,9 @@ def pid_step(
     af: Airframe,
     period_s: float,
     telemetry: np.ndarray,
+    collective_thrust_n: float,
 ) -> np.ndarray:
+    """One period; ``collective_thrust_n`` NaN runs the altitude loop (else the thrust)."""
     g = af.gravity_mps2
     m = af.mass_kg
     phi, theta = meas[M_EULER], meas[M_EULER + 1]
@@ -98,13 +102,15 @@ def pid_step(
         rate_ff[1] = 0.0
     else:
         u_z = m * (g - az) / max(math.cos(phi) * math.cos(theta), 0.3)
-    u_z = min(max(u_z, 0.0), 4.0 * af.thrust_coeff_ns2 * af.rotor_max_rps**2)
+    if not math.isnan(collective_thrust_n):
+        u_z = collective_thrust_n
+    u_z = min(max(u_z, 0.0), max_thrust_n(af))
     att_d[0] += kick[0]
     att_d[1] += kick[1]
     # Attitude P -> rate PID -> angular acceleration -> torque.
     alpha = np.empty(3)
     for k in range(3):
-        err = att_d[k] - meas[M_EULER + k]
+        err = wrap_pi(att_d[k] - meas[M_EULER + k])
         rate = meas[M_RATE + k]
         p_gain = gains.yaw_p if k == 2 else gains.att_p
         rate_err = p_gain * err + rate_ff[k] - rate
@@ -145,7 +151,8 @@ class PidCascade:
         self._gains = pid_gains(self.parameters)
 
     def step(self, meas: np.ndarray, ref: np.ndarray, position_mode: bool,
-             kick: np.ndarray | None = None) -> np.ndarray:
+             kick: np.ndarray | None = None,
+             collective_thrust_n: float = math.nan) -> np.ndarray:
         return pid_step(meas, ref, position_mode, np.zeros(2) if kick is None else kick,
                         self._gains, self._integrators, self._previous, self.airframe,
-                        self.period_s, self.telemetry)
+                        self.period_s, self.telemetry, collective_thrust_n)

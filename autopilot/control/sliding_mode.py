@@ -2,6 +2,7 @@
 
 For a channel y'' = f(x) + g v with e = y_d - y:
 
+    e     = wrap(y_d - y) for angles   (contracts.frames.wrap_pi)
     e_s   = e' + lam e                 sliding_surface
     e_eps = e_s - eps sat(e_s / eps)   boundary_layer_distance
     u_eq  = (-f^ + y_d'' + gam e_eps + lam e') / g^          equivalent_control
@@ -17,6 +18,7 @@ import numpy as np
 from numba import njit
 
 from autopilot.control.parameters import ChannelGains
+from contracts.frames import wrap_pi
 
 
 @njit(cache=True)
@@ -122,13 +124,16 @@ def adaptive_channel_step(
     gains: ChannelGains,
     period_s: float,
     telemetry: np.ndarray,
+    angular: bool = False,
 ) -> tuple[float, float]:
     """One control period of one channel: returns (v, updated theta_g).
 
     f^ = theta_f . phi_f + f_offset (the offset carries a known, non-adapted model part).
     theta_f is updated in place, after the control is computed with the current values.
+    ``angular``: y is an angle, so e = y_d - y is wrapped to [-pi, pi) and a heading
+    across +-180 deg is reached the short way round.
     """
-    e = yd - y
+    e = wrap_pi(yd - y) if angular else yd - y
     e_dot = yd_dot - y_dot
     e_s = sliding_surface(e, e_dot, gains.lam)
     e_eps = boundary_layer_distance(e_s, gains.eps)

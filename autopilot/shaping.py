@@ -1,0 +1,340 @@
+"""Setpoint shaping: what ground tools ask for, turned into a reference the controller can fly.
+
+Tools send steps: a position 50 m away, a velocity out of the blue, a heading across
++-180 deg. The paper's controller tracks smooth references (its tuning is for 1 m
+sinusoids), so, as PX4 puts a flight task with velocity, acceleration and jerk limits in
+front of its position controller, every setpoint from a tool passes through here first.
+
+The shaper keeps a kinematic reference (position, velocity, acceleration in NED; yaw,
+yaw rate, yaw acceleration) and moves it each control period towards the setpoint:
+
+    position error  --sqrt_controller(k_p, braking accel)-->  velocity wanted (<= limit)
+    velocity error  --sqrt_controller(k_v, jerk)-->           acceleration wanted (<= limit)
+    acceleration    --at most jerk * dt per period-->         acceleration
+    then integrated exactly over the period at constant jerk.
+
+Horizontal motion is shaped as one 2-D vector, so a vehicle at rest flies to a new
+position on the straight line; vertical motion has PX4's separate up / down limits;
+yaw goes the short way round at MPC_YAWRAUTO_MAX. The sqrt controller (linear near
+zero, sqrt(2 a d) beyond) is the speed from which a constant deceleration stops exactly
+at the target: references arrive without overshoot (tests/test_shaping.py).
+
+Pure: no clocks, no I/O; the vehicle calls :meth:`SetpointShaper.step` once per control
+period with the period length.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+from autopilot.reference import (
+    REF_ACC,
+    REF_EULER,
+    REF_EULER_ACC,
+    REF_EULER_RATE,
+    REF_POS,
+    REF_SIZE,
+    REF_VEL,
+)
+from contracts.frames import wrap_pi
+
+# Gains of the reference's own loops (1/s). Near the target the position loop is linear
+# (v = K_POS e) and the velocity loop too (a = K_VEL dv): with K_VEL = 4 K_POS the pair is
+# critically damped, so small steps do not overshoot either.
+K_POS = 1.5
+K_VEL = 4.0 * K_POS
+K_YAW = 2.0
+K_YAW_RATE = 4.0 * K_YAW
+# Braking in the position loop uses this fraction of the acceleration limit: the rest
+# covers the jerk-limited build-up of the deceleration, so the reference still stops at
+# the target rather than past it.
+BRAKING_FRACTION = 0.7
+
+
+class ShapingLimits(NamedTuple):
+    """Kinematic limits of the reference, SI units (PX4's MPC_* parameters)."""
+
+    xy_vel_max_mps: float  # MPC_XY_VEL_MAX
+    z_vel_max_up_mps: float  # MPC_Z_VEL_MAX_UP
+    z_vel_max_dn_mps: float  # MPC_Z_VEL_MAX_DN
+    acc_hor_mps2: float  # MPC_ACC_HOR
+    acc_up_mps2: float  # MPC_ACC_UP_MAX
+    acc_down_mps2: float  # MPC_ACC_DOWN_MAX
+    jerk_mps3: float  # MPC_JERK_AUTO
+    yaw_rate_max_rps: float  # MPC_YAWRAUTO_MAX, in rad/s
+    yaw_acc_max_rps2: float  # MPC_YAWRAUTO_ACC, in rad/s^2
+
+
+def limits_from_parameters(p: dict[str, float]) -> ShapingLimits:
+    """The limits in SI units from the vehicle's parameters (angles there in degrees)."""
+    return ShapingLimits(
+        p["MPC_XY_VEL_MAX"], p["MPC_Z_VEL_MAX_UP"], p["MPC_Z_VEL_MAX_DN"], p["MPC_ACC_HOR"],
+        p["MPC_ACC_UP_MAX"], p["MPC_ACC_DOWN_MAX"], p["MPC_JERK_AUTO"],
+        math.radians(p["MPC_YAWRAUTO_MAX"]), math.radians(p["MPC_YAWRAUTO_ACC"]))
+
+
+@dataclass
+class Setpoint:
+    """What a tool asked for, in local NED. NaN marks what it left out.
+
+    Per axis group (horizontal x-y, vertical z): a position (with the velocity and
+    acceleration as feed-forward), or else a velocity, or else nothing (stop and hold).
+    Yaw: an angle, or else a rate, or else keep the heading.
+    """
+
+    position_ned_m: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    velocity_ned_mps: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    accel_ned_mps2: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    yaw_rad: float = math.nan
+    yaw_rate_rps: float = math.nan
+
+    @classmethod
+    def hold(cls, position_ned_m, yaw_rad: float) -> Setpoint:
+        return cls(position_ned_m=np.array(position_ned_m, dtype=float),
+                   yaw_rad=wrap_pi(float(yaw_rad)))
+
+
+def sqrt_controller(error: float, gain: float, second_order_limit: float) -> float:
+    """The rate that closes ``error``: gain * error near zero, and beyond the point where
+    the two meet, sqrt(2 a |error|) less a constant (the speed from which deceleration a
+    stops exactly at zero error). Continuous, with a continuous slope."""
+    if second_order_limit <= 0.0:
+        return gain * error
+    linear_span = second_order_limit / (gain * gain)
+    if abs(error) <= linear_span:
+        return gain * error
+    return math.copysign(math.sqrt(2.0 * second_order_limit * (abs(error) - 0.5 * linear_span)),
+                         error)
+
+
+def _norm(v: np.ndarray) -> float:
+    return math.sqrt(float(v @ v))
+
+
+def _limit_norm(v: np.ndarray, limit: float) -> np.ndarray:
+    n = _norm(v)
+    return v * (limit / n) if n > limit else v
+
+
+def _wanted_velocity(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, target: np.ndarray,
+                     feed_forward: np.ndarray, speed_max: float, braking_mps2: float,
+                     jerk: float) -> tuple[np.ndarray, np.ndarray]:
+    """Velocity towards ``target`` on the straight line that can still stop there (plus
+    the tool's feed-forward), and its rate of change along the reference's motion.
+
+    The rate is the velocity loop's feed-forward: without it the loop lags the braking
+    profile and the reference stops past the target.
+    """
+    error = target - pos
+    distance = _norm(error)
+    wanted = feed_forward.copy()
+    wanted_rate = np.zeros_like(pos)
+    if distance > 0.0:
+        direction = error / distance
+        # Still accelerating towards the target: that takes a / jerk to undo, and the
+        # distance covered meanwhile is no longer there to brake in.
+        pushing = max(0.0, float(acc @ direction))
+        unwind_s = pushing / jerk
+        ahead = max(0.0, float(vel @ direction)) * unwind_s + pushing * unwind_s ** 2 / 3.0
+        speed = sqrt_controller(max(0.0, distance - ahead), K_POS, braking_mps2)
+        if speed < speed_max:
+            # d(speed)/d(distance): K_POS in the linear part, braking / speed beyond.
+            slope = K_POS if speed <= braking_mps2 / K_POS else braking_mps2 / speed
+            closing = float(vel @ direction)
+            # d/dt of speed * direction, with d(distance)/dt = -closing and the direction
+            # turning by the motion across it.
+            wanted_rate = (-slope * closing) * direction - (vel - closing * direction) * (
+                speed / distance)
+        else:
+            speed = speed_max
+        wanted = wanted + error * (speed / distance)
+    return _limit_norm(wanted, speed_max), wanted_rate
+
+
+def _wanted_acceleration(vel: np.ndarray, wanted_vel: np.ndarray, feed_forward: np.ndarray,
+                         acc_max: float, jerk: float) -> np.ndarray:
+    """Acceleration that closes the velocity error and can still ease off at the jerk
+    limit by the time it is closed, plus the feed-forward; at most ``acc_max``."""
+    error = wanted_vel - vel
+    n = _norm(error)
+    wanted = feed_forward.copy()
+    if n > 0.0:
+        wanted += error * (min(acc_max, sqrt_controller(n, K_VEL, jerk)) / n)
+    return _limit_norm(wanted, acc_max)
+
+
+def _advance(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, jerk: np.ndarray,
+             dt: float) -> None:
+    """Integrate one period exactly at constant jerk (in place)."""
+    pos += vel * dt + acc * (0.5 * dt * dt) + jerk * (dt * dt * dt / 6.0)
+    vel += acc * dt + jerk * (0.5 * dt * dt)
+    acc += jerk * dt
+
+
+class AxisGroup:
+    """One group of axes shaped together (horizontal: 2, vertical: 1): its reference
+    position, velocity, acceleration, and the commanded position a velocity setpoint
+    integrates."""
+
+    def __init__(self, size: int) -> None:
+        self.pos = np.zeros(size)
+        self.vel = np.zeros(size)
+        self.acc = np.zeros(size)
+        self.commanded = np.zeros(size)
+        self.following_velocity = False
+
+    def reset(self, pos, vel) -> None:
+        self.pos[:] = pos
+        self.vel[:] = vel
+        self.acc[:] = 0.0
+        self.following_velocity = False
+
+    def to_position(self, target: np.ndarray, ff_vel: np.ndarray, ff_acc: np.ndarray,
+                    speed_max: float, acc_max: float, braking: float, jerk: float,
+                    dt: float) -> None:
+        """Time-optimal-like approach of a position: cruise at ``speed_max``, brake at
+        ``braking``, change acceleration at most at ``jerk``."""
+        self.following_velocity = False
+        wanted_vel, wanted_rate = _wanted_velocity(self.pos, self.vel, self.acc, target,
+                                                   ff_vel, speed_max, braking, jerk)
+        wanted_acc = _wanted_acceleration(self.vel, wanted_vel, wanted_rate + ff_acc, acc_max,
+                                          jerk)
+        _advance(self.pos, self.vel, self.acc,
+                 _limit_norm(wanted_acc - self.acc, jerk * dt) / dt, dt)
+
+    def at_velocity(self, velocity: np.ndarray, omega: float, acc_max: float, jerk: float,
+                    dt: float) -> None:
+        """Follow a velocity setpoint through a linear, critically damped third-order
+        filter of the commanded position (the integral of the setpoint).
+
+        Linear on purpose: every change of velocity then takes the same time, so the
+        reference ends exactly where the commanded velocities add up to, and its impulse
+        response is never negative, so the reference stays inside the commanded path
+        (a 2 m/s box flown as four legs ends where it began). Limits bound the filter
+        only as a safety net for steps beyond what ``omega`` was chosen for.
+        """
+        if not self.following_velocity:
+            # Start in the filter's steady state for the present velocity (lag 3 v / w):
+            # no jump, and no coming back to where the velocity setpoint began.
+            self.commanded[:] = self.pos + self.vel * (3.0 / omega)
+            self.following_velocity = True
+        self.commanded += velocity * dt
+        jerk_wanted = (omega ** 3 * (self.commanded - self.pos) - 3.0 * omega ** 2 * self.vel
+                       - 3.0 * omega * self.acc)
+        j = _limit_norm(jerk_wanted, jerk)
+        # Keep the acceleration within its limit at the end of the period.
+        next_acc = _limit_norm(self.acc + j * dt, acc_max)
+        _advance(self.pos, self.vel, self.acc, (next_acc - self.acc) / dt, dt)
+
+
+def velocity_filter_omega(speed_max: float, acc_max: float, jerk_max: float) -> float:
+    """The velocity filter's bandwidth [rad/s]: the largest at which starting or stopping
+    at ``speed_max`` stays within the acceleration and jerk limits (the step response of
+    w^3 / (s + w)^3 peaks at 0.271 w dv in acceleration and 0.231 w^2 dv in jerk)."""
+    return min(acc_max / (PEAK_ACC_PER_OMEGA * speed_max),
+               math.sqrt(jerk_max / (PEAK_JERK_PER_OMEGA2 * speed_max)))
+
+
+PEAK_ACC_PER_OMEGA = 2.0 * math.exp(-2.0)  # 0.2707
+PEAK_JERK_PER_OMEGA2 = (2.0 - math.sqrt(2.0)) * (math.sqrt(2.0) - 1.0) * math.exp(
+    math.sqrt(2.0) - 2.0)  # 0.2306
+
+
+class SetpointShaper:
+    """The reference state and its update. ``reset`` starts it from the vehicle's state."""
+
+    def __init__(self) -> None:
+        self.horizontal = AxisGroup(2)
+        self.vertical = AxisGroup(1)
+        self.yaw_rad = 0.0
+        self.yaw_rate_rps = 0.0
+        self.yaw_acc_rps2 = 0.0
+
+    @property
+    def position_ned_m(self) -> np.ndarray:
+        return np.concatenate((self.horizontal.pos, self.vertical.pos))
+
+    @property
+    def velocity_ned_mps(self) -> np.ndarray:
+        return np.concatenate((self.horizontal.vel, self.vertical.vel))
+
+    def reset(self, position_ned_m, velocity_ned_mps, yaw_rad: float) -> None:
+        """Start from where the vehicle is and how it moves (bumpless hand-over)."""
+        self.horizontal.reset(position_ned_m[0:2], velocity_ned_mps[0:2])
+        self.vertical.reset(position_ned_m[2:3], velocity_ned_mps[2:3])
+        self.yaw_rad = wrap_pi(float(yaw_rad))
+        self.yaw_rate_rps = 0.0
+        self.yaw_acc_rps2 = 0.0
+
+    def stopping_point(self, limits: ShapingLimits) -> np.ndarray:
+        """Where the reference comes to rest if it brakes now (a hold begins there)."""
+        out = self.position_ned_m
+        v = self.velocity_ned_mps
+        speed = _norm(v[0:2])
+        if speed > 0.0:
+            out[0:2] += v[0:2] * (speed / (2.0 * BRAKING_FRACTION * limits.acc_hor_mps2))
+        brake_z = BRAKING_FRACTION * min(limits.acc_up_mps2, limits.acc_down_mps2)
+        out[2] += v[2] * abs(v[2]) / (2.0 * brake_z)
+        return out
+
+    def step(self, setpoint: Setpoint, limits: ShapingLimits, dt: float) -> np.ndarray:
+        """Advance one period towards ``setpoint``; returns the reference vector."""
+        lim = limits
+        sp = setpoint
+        h, v = self.horizontal, self.vertical
+        if np.all(np.isfinite(sp.position_ned_m[0:2])):
+            h.to_position(sp.position_ned_m[0:2], _finite_or_zero(sp.velocity_ned_mps[0:2]),
+                          _finite_or_zero(sp.accel_ned_mps2[0:2]), lim.xy_vel_max_mps,
+                          lim.acc_hor_mps2, BRAKING_FRACTION * lim.acc_hor_mps2,
+                          lim.jerk_mps3, dt)
+        else:
+            h.at_velocity(
+                _limit_norm(_finite_or_zero(sp.velocity_ned_mps[0:2]), lim.xy_vel_max_mps),
+                velocity_filter_omega(lim.xy_vel_max_mps, lim.acc_hor_mps2, lim.jerk_mps3),
+                lim.acc_hor_mps2, lim.jerk_mps3, dt)
+        slow_acc = min(lim.acc_up_mps2, lim.acc_down_mps2)
+        if math.isfinite(sp.position_ned_m[2]):
+            up = sp.position_ned_m[2] < v.pos[0]
+            v.to_position(sp.position_ned_m[2:3], _finite_or_zero(sp.velocity_ned_mps[2:3]),
+                          _finite_or_zero(sp.accel_ned_mps2[2:3]),
+                          lim.z_vel_max_up_mps if up else lim.z_vel_max_dn_mps, slow_acc,
+                          BRAKING_FRACTION * slow_acc, lim.jerk_mps3, dt)
+        else:
+            vz = float(_finite_or_zero(sp.velocity_ned_mps[2:3])[0])
+            vz = max(-lim.z_vel_max_up_mps, min(lim.z_vel_max_dn_mps, vz))
+            v.at_velocity(np.array([vz]), velocity_filter_omega(
+                max(lim.z_vel_max_up_mps, lim.z_vel_max_dn_mps), slow_acc, lim.jerk_mps3),
+                slow_acc, lim.jerk_mps3, dt)
+        self._step_yaw(sp, lim, dt)
+        ref = np.zeros(REF_SIZE)
+        ref[REF_POS:REF_POS + 2], ref[REF_POS + 2] = h.pos, v.pos[0]
+        ref[REF_VEL:REF_VEL + 2], ref[REF_VEL + 2] = h.vel, v.vel[0]
+        ref[REF_ACC:REF_ACC + 2], ref[REF_ACC + 2] = h.acc, v.acc[0]
+        ref[REF_EULER + 2] = self.yaw_rad
+        ref[REF_EULER_RATE + 2] = self.yaw_rate_rps
+        ref[REF_EULER_ACC + 2] = self.yaw_acc_rps2
+        return ref
+
+    def _step_yaw(self, sp: Setpoint, lim: ShapingLimits, dt: float) -> None:
+        rate_max, acc_max = lim.yaw_rate_max_rps, lim.yaw_acc_max_rps2
+        if math.isfinite(sp.yaw_rad):
+            # The short way round: the error is wrapped, so +170 -> -170 deg is +20 deg.
+            error = wrap_pi(sp.yaw_rad - self.yaw_rad)
+            wanted_rate = max(-rate_max, min(rate_max, sqrt_controller(
+                error, K_YAW, BRAKING_FRACTION * acc_max)))
+        elif math.isfinite(sp.yaw_rate_rps):
+            wanted_rate = max(-rate_max, min(rate_max, sp.yaw_rate_rps))
+        else:
+            wanted_rate = 0.0
+        acc = max(-acc_max, min(acc_max, K_YAW_RATE * (wanted_rate - self.yaw_rate_rps)))
+        self.yaw_rad = wrap_pi(self.yaw_rad + self.yaw_rate_rps * dt + 0.5 * acc * dt * dt)
+        self.yaw_rate_rps += acc * dt
+        self.yaw_acc_rps2 = acc
+
+
+def _finite_or_zero(values: np.ndarray) -> np.ndarray:
+    return np.where(np.isfinite(values), values, 0.0)

@@ -43,10 +43,11 @@ from autopilot.reference import (
 from contracts.frames import wrap_pi
 
 # Gains of the reference's own loops (1/s). Near the target the position loop is linear
-# (v = K_POS e) and the velocity loop too (a = K_VEL dv): with K_VEL = 4 K_POS the pair is
-# critically damped, so small steps do not overshoot either.
+# (v = k e) and the velocity loop too (a = 4 k dv): the pair is critically damped, so
+# small steps do not overshoot either. k is K_POS unless the jerk limit is too low for
+# it: the exponential approach asks for a jerk of up to k * braking, so k <= jerk / braking.
 K_POS = 1.5
-K_VEL = 4.0 * K_POS
+K_VEL_PER_K_POS = 4.0
 K_YAW = 2.0
 K_YAW_RATE = 4.0 * K_YAW
 # Braking in the position loop uses this fraction of the acceleration limit: the rest
@@ -120,16 +121,41 @@ def _limit_norm(v: np.ndarray, limit: float) -> np.ndarray:
     return v * (limit / n) if n > limit else v
 
 
+def braking_speed(distance_m: float, gain: float, braking_mps2: float, jerk_mps3: float
+                  ) -> tuple[float, float]:
+    """The speed from which a jerk-limited stop ends exactly ``distance_m`` ahead, and its
+    slope d(speed)/d(distance); ``gain * distance`` where that is lower (the last stretch).
+
+    The stop builds the deceleration up to ``braking`` at the jerk limit, holds it, and
+    eases it off again: it needs v^2 / 2a + v a / 2j, which inverted gives the speed.
+    """
+    lead = braking_mps2 * braking_mps2 / (2.0 * jerk_mps3)
+    root = math.sqrt(lead * lead + 2.0 * braking_mps2 * distance_m)
+    speed = root - lead
+    linear = gain * distance_m
+    if linear <= speed:
+        return linear, gain
+    return speed, braking_mps2 / root
+
+
+def stopping_distance(speed_mps: float, braking_mps2: float, jerk_mps3: float) -> float:
+    """Distance of the jerk-limited stop :func:`braking_speed` plans (its inverse)."""
+    return speed_mps * speed_mps / (2.0 * braking_mps2) + speed_mps * braking_mps2 / (
+        2.0 * jerk_mps3)
+
+
 def _wanted_velocity(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, target: np.ndarray,
                      feed_forward: np.ndarray, speed_max: float, braking_mps2: float,
-                     jerk: float) -> tuple[np.ndarray, np.ndarray]:
+                     jerk: float, gain: float) -> tuple[np.ndarray, np.ndarray]:
     """Velocity towards ``target`` on the straight line that can still stop there (plus
     the tool's feed-forward), and its rate of change along the reference's motion.
 
     The rate is the velocity loop's feed-forward: without it the loop lags the braking
-    profile and the reference stops past the target.
+    profile and the reference stops past the target. The target moves at the
+    feed-forward velocity, so distances close at the velocity relative to it.
     """
     error = target - pos
+    relative = vel - feed_forward
     distance = _norm(error)
     wanted = feed_forward.copy()
     wanted_rate = np.zeros_like(pos)
@@ -139,15 +165,13 @@ def _wanted_velocity(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, target: 
         # distance covered meanwhile is no longer there to brake in.
         pushing = max(0.0, float(acc @ direction))
         unwind_s = pushing / jerk
-        ahead = max(0.0, float(vel @ direction)) * unwind_s + pushing * unwind_s ** 2 / 3.0
-        speed = sqrt_controller(max(0.0, distance - ahead), K_POS, braking_mps2)
+        ahead = max(0.0, float(relative @ direction)) * unwind_s + pushing * unwind_s**2 / 3.0
+        speed, slope = braking_speed(max(0.0, distance - ahead), gain, braking_mps2, jerk)
         if speed < speed_max:
-            # d(speed)/d(distance): K_POS in the linear part, braking / speed beyond.
-            slope = K_POS if speed <= braking_mps2 / K_POS else braking_mps2 / speed
-            closing = float(vel @ direction)
+            closing = float(relative @ direction)
             # d/dt of speed * direction, with d(distance)/dt = -closing and the direction
             # turning by the motion across it.
-            wanted_rate = (-slope * closing) * direction - (vel - closing * direction) * (
+            wanted_rate = (-slope * closing) * direction - (relative - closing * direction) * (
                 speed / distance)
         else:
             speed = speed_max
@@ -156,14 +180,14 @@ def _wanted_velocity(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, target: 
 
 
 def _wanted_acceleration(vel: np.ndarray, wanted_vel: np.ndarray, feed_forward: np.ndarray,
-                         acc_max: float, jerk: float) -> np.ndarray:
+                         acc_max: float, jerk: float, gain: float) -> np.ndarray:
     """Acceleration that closes the velocity error and can still ease off at the jerk
     limit by the time it is closed, plus the feed-forward; at most ``acc_max``."""
     error = wanted_vel - vel
     n = _norm(error)
     wanted = feed_forward.copy()
     if n > 0.0:
-        wanted += error * (min(acc_max, sqrt_controller(n, K_VEL, jerk)) / n)
+        wanted += error * (min(acc_max, sqrt_controller(n, gain, jerk)) / n)
     return _limit_norm(wanted, acc_max)
 
 
@@ -199,10 +223,11 @@ class AxisGroup:
         """Time-optimal-like approach of a position: cruise at ``speed_max``, brake at
         ``braking``, change acceleration at most at ``jerk``."""
         self.following_velocity = False
+        gain = min(K_POS, jerk / braking)
         wanted_vel, wanted_rate = _wanted_velocity(self.pos, self.vel, self.acc, target,
-                                                   ff_vel, speed_max, braking, jerk)
+                                                   ff_vel, speed_max, braking, jerk, gain)
         wanted_acc = _wanted_acceleration(self.vel, wanted_vel, wanted_rate + ff_acc, acc_max,
-                                          jerk)
+                                          jerk, K_VEL_PER_K_POS * gain)
         _advance(self.pos, self.vel, self.acc,
                  _limit_norm(wanted_acc - self.acc, jerk * dt) / dt, dt)
 
@@ -240,8 +265,7 @@ def velocity_filter_omega(speed_max: float, acc_max: float, jerk_max: float) -> 
 
 
 PEAK_ACC_PER_OMEGA = 2.0 * math.exp(-2.0)  # 0.2707
-PEAK_JERK_PER_OMEGA2 = (2.0 - math.sqrt(2.0)) * (math.sqrt(2.0) - 1.0) * math.exp(
-    math.sqrt(2.0) - 2.0)  # 0.2306
+PEAK_JERK_PER_OMEGA2 = (math.sqrt(2.0) - 1.0) * math.exp(math.sqrt(2.0) - 2.0)  # 0.2306
 
 
 class SetpointShaper:
@@ -276,9 +300,10 @@ class SetpointShaper:
         v = self.velocity_ned_mps
         speed = _norm(v[0:2])
         if speed > 0.0:
-            out[0:2] += v[0:2] * (speed / (2.0 * BRAKING_FRACTION * limits.acc_hor_mps2))
-        brake_z = BRAKING_FRACTION * min(limits.acc_up_mps2, limits.acc_down_mps2)
-        out[2] += v[2] * abs(v[2]) / (2.0 * brake_z)
+            out[0:2] += v[0:2] * (stopping_distance(
+                speed, BRAKING_FRACTION * limits.acc_hor_mps2, limits.jerk_mps3) / speed)
+        braking_z = BRAKING_FRACTION * min(limits.acc_up_mps2, limits.acc_down_mps2)
+        out[2] += math.copysign(stopping_distance(abs(v[2]), braking_z, limits.jerk_mps3), v[2])
         return out
 
     def step(self, setpoint: Setpoint, limits: ShapingLimits, dt: float) -> np.ndarray:

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from autopilot.reference import REF_EULER, REF_POS
+from contracts.frames import wrap_pi_array
 from ground.inprocess import RunRecord
 from ground.scenarios import Scenario
 
@@ -37,7 +38,7 @@ def axis_error(record: RunRecord, axis: str) -> np.ndarray:
         reference += record.kick[:, 0 if axis == "phi" else 1]
     error = reference - record.measurement[:, meas_index]
     if axis in ("phi", "theta", "psi"):
-        error = (error + math.pi) % (2.0 * math.pi) - math.pi
+        error = wrap_pi_array(error)
     return error
 
 

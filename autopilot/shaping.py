@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
 from autopilot.reference import (
     REF_ACC,
@@ -54,6 +55,10 @@ K_YAW_RATE = 4.0 * K_YAW
 # covers the jerk-limited build-up of the deceleration, so the reference still stops at
 # the target rather than past it.
 BRAKING_FRACTION = 0.7
+# Peaks of the step response of w^3 / (s + w)^3 per unit step: acceleration 2 e^-2 w,
+# jerk (sqrt 2 - 1) e^(sqrt 2 - 2) w^2 (at w t = 2 and 2 - sqrt 2).
+PEAK_ACC_PER_OMEGA = 2.0 * math.exp(-2.0)  # 0.2707
+PEAK_JERK_PER_OMEGA2 = (math.sqrt(2.0) - 1.0) * math.exp(math.sqrt(2.0) - 2.0)  # 0.2306
 
 
 class ShapingLimits(NamedTuple):
@@ -93,12 +98,18 @@ class Setpoint:
     yaw_rad: float = math.nan
     yaw_rate_rps: float = math.nan
 
+    def __post_init__(self) -> None:
+        self.position_ned_m = np.asarray(self.position_ned_m, dtype=float)
+        self.velocity_ned_mps = np.asarray(self.velocity_ned_mps, dtype=float)
+        self.accel_ned_mps2 = np.asarray(self.accel_ned_mps2, dtype=float)
+
     @classmethod
     def hold(cls, position_ned_m, yaw_rad: float) -> Setpoint:
         return cls(position_ned_m=np.array(position_ned_m, dtype=float),
                    yaw_rad=wrap_pi(float(yaw_rad)))
 
 
+@njit(cache=True)
 def sqrt_controller(error: float, gain: float, second_order_limit: float) -> float:
     """The rate that closes ``error``: gain * error near zero, and beyond the point where
     the two meet, sqrt(2 a |error|) less a constant (the speed from which deceleration a
@@ -112,15 +123,7 @@ def sqrt_controller(error: float, gain: float, second_order_limit: float) -> flo
                          error)
 
 
-def _norm(v: np.ndarray) -> float:
-    return math.sqrt(float(v @ v))
-
-
-def _limit_norm(v: np.ndarray, limit: float) -> np.ndarray:
-    n = _norm(v)
-    return v * (limit / n) if n > limit else v
-
-
+@njit(cache=True)
 def braking_speed(distance_m: float, gain: float, braking_mps2: float, jerk_mps3: float
                   ) -> tuple[float, float]:
     """The speed from which a jerk-limited stop ends exactly ``distance_m`` ahead, and its
@@ -138,12 +141,33 @@ def braking_speed(distance_m: float, gain: float, braking_mps2: float, jerk_mps3
     return speed, braking_mps2 / root
 
 
+@njit(cache=True)
 def stopping_distance(speed_mps: float, braking_mps2: float, jerk_mps3: float) -> float:
     """Distance of the jerk-limited stop :func:`braking_speed` plans (its inverse)."""
     return speed_mps * speed_mps / (2.0 * braking_mps2) + speed_mps * braking_mps2 / (
         2.0 * jerk_mps3)
 
 
+@njit(cache=True)
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
+    total = 0.0
+    for i in range(a.shape[0]):
+        total += a[i] * b[i]
+    return total
+
+
+@njit(cache=True)
+def _norm(v: np.ndarray) -> float:
+    return math.sqrt(_dot(v, v))
+
+
+@njit(cache=True)
+def _limit_norm(v: np.ndarray, limit: float) -> np.ndarray:
+    n = _norm(v)
+    return v * (limit / n) if n > limit else v.copy()
+
+
+@njit(cache=True)
 def _wanted_velocity(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, target: np.ndarray,
                      feed_forward: np.ndarray, speed_max: float, braking_mps2: float,
                      jerk: float, gain: float) -> tuple[np.ndarray, np.ndarray]:
@@ -163,12 +187,12 @@ def _wanted_velocity(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, target: 
         direction = error / distance
         # Still accelerating towards the target: that takes a / jerk to undo, and the
         # distance covered meanwhile is no longer there to brake in.
-        pushing = max(0.0, float(acc @ direction))
+        pushing = max(0.0, _dot(acc, direction))
         unwind_s = pushing / jerk
-        ahead = max(0.0, float(relative @ direction)) * unwind_s + pushing * unwind_s**2 / 3.0
+        ahead = max(0.0, _dot(relative, direction)) * unwind_s + pushing * unwind_s**2 / 3.0
         speed, slope = braking_speed(max(0.0, distance - ahead), gain, braking_mps2, jerk)
         if speed < speed_max:
-            closing = float(relative @ direction)
+            closing = _dot(relative, direction)
             # d/dt of speed * direction, with d(distance)/dt = -closing and the direction
             # turning by the motion across it.
             wanted_rate = (-slope * closing) * direction - (relative - closing * direction) * (
@@ -179,6 +203,7 @@ def _wanted_velocity(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, target: 
     return _limit_norm(wanted, speed_max), wanted_rate
 
 
+@njit(cache=True)
 def _wanted_acceleration(vel: np.ndarray, wanted_vel: np.ndarray, feed_forward: np.ndarray,
                          acc_max: float, jerk: float, gain: float) -> np.ndarray:
     """Acceleration that closes the velocity error and can still ease off at the jerk
@@ -191,6 +216,7 @@ def _wanted_acceleration(vel: np.ndarray, wanted_vel: np.ndarray, feed_forward: 
     return _limit_norm(wanted, acc_max)
 
 
+@njit(cache=True)
 def _advance(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, jerk: np.ndarray,
              dt: float) -> None:
     """Integrate one period exactly at constant jerk (in place)."""
@@ -199,63 +225,51 @@ def _advance(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, jerk: np.ndarray
     acc += jerk * dt
 
 
-class AxisGroup:
-    """One group of axes shaped together (horizontal: 2, vertical: 1): its reference
-    position, velocity, acceleration, and the commanded position a velocity setpoint
-    integrates."""
-
-    def __init__(self, size: int) -> None:
-        self.pos = np.zeros(size)
-        self.vel = np.zeros(size)
-        self.acc = np.zeros(size)
-        self.commanded = np.zeros(size)
-        self.following_velocity = False
-
-    def reset(self, pos, vel) -> None:
-        self.pos[:] = pos
-        self.vel[:] = vel
-        self.acc[:] = 0.0
-        self.following_velocity = False
-
-    def to_position(self, target: np.ndarray, ff_vel: np.ndarray, ff_acc: np.ndarray,
-                    speed_max: float, acc_max: float, braking: float, jerk: float,
-                    dt: float) -> None:
-        """Time-optimal-like approach of a position: cruise at ``speed_max``, brake at
-        ``braking``, change acceleration at most at ``jerk``."""
-        self.following_velocity = False
-        gain = min(K_POS, jerk / braking)
-        wanted_vel, wanted_rate = _wanted_velocity(self.pos, self.vel, self.acc, target,
-                                                   ff_vel, speed_max, braking, jerk, gain)
-        wanted_acc = _wanted_acceleration(self.vel, wanted_vel, wanted_rate + ff_acc, acc_max,
-                                          jerk, K_VEL_PER_K_POS * gain)
-        _advance(self.pos, self.vel, self.acc,
-                 _limit_norm(wanted_acc - self.acc, jerk * dt) / dt, dt)
-
-    def at_velocity(self, velocity: np.ndarray, omega: float, acc_max: float, jerk: float,
-                    dt: float) -> None:
-        """Follow a velocity setpoint through a linear, critically damped third-order
-        filter of the commanded position (the integral of the setpoint).
-
-        Linear on purpose: every change of velocity then takes the same time, so the
-        reference ends exactly where the commanded velocities add up to, and its impulse
-        response is never negative, so the reference stays inside the commanded path
-        (a 2 m/s box flown as four legs ends where it began). Limits bound the filter
-        only as a safety net for steps beyond what ``omega`` was chosen for.
-        """
-        if not self.following_velocity:
-            # Start in the filter's steady state for the present velocity (lag 3 v / w):
-            # no jump, and no coming back to where the velocity setpoint began.
-            self.commanded[:] = self.pos + self.vel * (3.0 / omega)
-            self.following_velocity = True
-        self.commanded += velocity * dt
-        jerk_wanted = (omega ** 3 * (self.commanded - self.pos) - 3.0 * omega ** 2 * self.vel
-                       - 3.0 * omega * self.acc)
-        j = _limit_norm(jerk_wanted, jerk)
-        # Keep the acceleration within its limit at the end of the period.
-        next_acc = _limit_norm(self.acc + j * dt, acc_max)
-        _advance(self.pos, self.vel, self.acc, (next_acc - self.acc) / dt, dt)
+@njit(cache=True)
+def to_position(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, target: np.ndarray,
+                ff_vel: np.ndarray, ff_acc: np.ndarray, speed_max: float, acc_max: float,
+                braking: float, jerk: float, dt: float) -> None:
+    """One period of the approach of a position by one axis group (in place): cruise at
+    ``speed_max``, brake at ``braking``, change acceleration at most at ``jerk``."""
+    gain = min(K_POS, jerk / braking)
+    wanted_vel, wanted_rate = _wanted_velocity(pos, vel, acc, target, ff_vel, speed_max,
+                                               braking, jerk, gain)
+    wanted_acc = _wanted_acceleration(vel, wanted_vel, wanted_rate + ff_acc, acc_max, jerk,
+                                      K_VEL_PER_K_POS * gain)
+    _advance(pos, vel, acc, _limit_norm(wanted_acc - acc, jerk * dt) / dt, dt)
 
 
+@njit(cache=True)
+def at_velocity(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, commanded: np.ndarray,
+                velocity: np.ndarray, omega: float, acc_max: float, jerk: float,
+                dt: float) -> None:
+    """One period of a velocity setpoint for one axis group (in place): the commanded
+    position (its integral) through a linear, critically damped third-order filter.
+
+    Linear on purpose: every change of velocity then takes the same time, so the
+    reference ends exactly where the commanded velocities add up to, and its impulse
+    response is never negative, so the reference stays inside the commanded path (a
+    2 m/s box flown as four legs ends where it began). The limits bound the filter only
+    as a safety net for steps beyond what ``omega`` was chosen for.
+    """
+    commanded += velocity * dt
+    jerk_wanted = (omega**3 * (commanded - pos) - 3.0 * omega**2 * vel - 3.0 * omega * acc)
+    j = _limit_norm(jerk_wanted, jerk)
+    # Keep the acceleration within its limit at the end of the period.
+    next_acc = _limit_norm(acc + j * dt, acc_max)
+    _advance(pos, vel, acc, (next_acc - acc) / dt, dt)
+
+
+@njit(cache=True)
+def _finite_or_zero(values: np.ndarray) -> np.ndarray:
+    out = values.copy()
+    for i in range(out.shape[0]):
+        if not math.isfinite(out[i]):
+            out[i] = 0.0
+    return out
+
+
+@njit(cache=True)
 def velocity_filter_omega(speed_max: float, acc_max: float, jerk_max: float) -> float:
     """The velocity filter's bandwidth [rad/s]: the largest at which starting or stopping
     at ``speed_max`` stays within the acceleration and jerk limits (the step response of
@@ -264,41 +278,80 @@ def velocity_filter_omega(speed_max: float, acc_max: float, jerk_max: float) -> 
                math.sqrt(jerk_max / (PEAK_JERK_PER_OMEGA2 * speed_max)))
 
 
-PEAK_ACC_PER_OMEGA = 2.0 * math.exp(-2.0)  # 0.2707
-PEAK_JERK_PER_OMEGA2 = (math.sqrt(2.0) - 1.0) * math.exp(math.sqrt(2.0) - 2.0)  # 0.2306
+
+
+@njit(cache=True)
+def shape_translation(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray,
+                      commanded: np.ndarray, following: np.ndarray, sp_pos: np.ndarray,
+                      sp_vel: np.ndarray, sp_acc: np.ndarray, lim: ShapingLimits,
+                      dt: float) -> None:
+    """One period of the horizontal (x-y, one vector) and vertical (z) reference, in
+    place. ``following[g]``: group g is following a velocity setpoint (its commanded
+    position is live); a position setpoint clears it."""
+    ff_vel, ff_acc = _finite_or_zero(sp_vel), _finite_or_zero(sp_acc)
+    h, v = slice(0, 2), slice(2, 3)
+    if math.isfinite(sp_pos[0]) and math.isfinite(sp_pos[1]):
+        following[0] = False
+        to_position(pos[h], vel[h], acc[h], sp_pos[h], ff_vel[h], ff_acc[h],
+                    lim.xy_vel_max_mps, lim.acc_hor_mps2, BRAKING_FRACTION * lim.acc_hor_mps2,
+                    lim.jerk_mps3, dt)
+    else:
+        omega = velocity_filter_omega(lim.xy_vel_max_mps, lim.acc_hor_mps2, lim.jerk_mps3)
+        if not following[0]:
+            # Start in the filter's steady state for the present velocity (lag 3 v / w):
+            # no jump, and no coming back to where the velocity setpoint began.
+            commanded[h] = pos[h] + vel[h] * (3.0 / omega)
+            following[0] = True
+        at_velocity(pos[h], vel[h], acc[h], commanded[h],
+                    _limit_norm(ff_vel[h], lim.xy_vel_max_mps), omega, lim.acc_hor_mps2,
+                    lim.jerk_mps3, dt)
+    slow_acc = min(lim.acc_up_mps2, lim.acc_down_mps2)
+    if math.isfinite(sp_pos[2]):
+        following[1] = False
+        up = sp_pos[2] < pos[2]
+        to_position(pos[v], vel[v], acc[v], sp_pos[v], ff_vel[v], ff_acc[v],
+                    lim.z_vel_max_up_mps if up else lim.z_vel_max_dn_mps, slow_acc,
+                    BRAKING_FRACTION * slow_acc, lim.jerk_mps3, dt)
+    else:
+        omega = velocity_filter_omega(max(lim.z_vel_max_up_mps, lim.z_vel_max_dn_mps),
+                                      slow_acc, lim.jerk_mps3)
+        if not following[1]:
+            commanded[v] = pos[v] + vel[v] * (3.0 / omega)
+            following[1] = True
+        wanted = np.empty(1)
+        wanted[0] = max(-lim.z_vel_max_up_mps, min(lim.z_vel_max_dn_mps, ff_vel[2]))
+        at_velocity(pos[v], vel[v], acc[v], commanded[v], wanted, omega, slow_acc,
+                    lim.jerk_mps3, dt)
 
 
 class SetpointShaper:
     """The reference state and its update. ``reset`` starts it from the vehicle's state."""
 
     def __init__(self) -> None:
-        self.horizontal = AxisGroup(2)
-        self.vertical = AxisGroup(1)
+        self.position_ned_m = np.zeros(3)
+        self.velocity_ned_mps = np.zeros(3)
+        self.accel_ned_mps2 = np.zeros(3)
+        self._commanded = np.zeros(3)  # a velocity setpoint's integral, per group
+        self._following = np.zeros(2, dtype=np.bool_)  # horizontal, vertical
         self.yaw_rad = 0.0
         self.yaw_rate_rps = 0.0
         self.yaw_acc_rps2 = 0.0
 
-    @property
-    def position_ned_m(self) -> np.ndarray:
-        return np.concatenate((self.horizontal.pos, self.vertical.pos))
-
-    @property
-    def velocity_ned_mps(self) -> np.ndarray:
-        return np.concatenate((self.horizontal.vel, self.vertical.vel))
-
     def reset(self, position_ned_m, velocity_ned_mps, yaw_rad: float) -> None:
         """Start from where the vehicle is and how it moves (bumpless hand-over)."""
-        self.horizontal.reset(position_ned_m[0:2], velocity_ned_mps[0:2])
-        self.vertical.reset(position_ned_m[2:3], velocity_ned_mps[2:3])
+        self.position_ned_m[:] = position_ned_m
+        self.velocity_ned_mps[:] = velocity_ned_mps
+        self.accel_ned_mps2[:] = 0.0
+        self._following[:] = False
         self.yaw_rad = wrap_pi(float(yaw_rad))
         self.yaw_rate_rps = 0.0
         self.yaw_acc_rps2 = 0.0
 
     def stopping_point(self, limits: ShapingLimits) -> np.ndarray:
         """Where the reference comes to rest if it brakes now (a hold begins there)."""
-        out = self.position_ned_m
+        out = self.position_ned_m.copy()
         v = self.velocity_ned_mps
-        speed = _norm(v[0:2])
+        speed = math.hypot(v[0], v[1])
         if speed > 0.0:
             out[0:2] += v[0:2] * (stopping_distance(
                 speed, BRAKING_FRACTION * limits.acc_hor_mps2, limits.jerk_mps3) / speed)
@@ -308,37 +361,14 @@ class SetpointShaper:
 
     def step(self, setpoint: Setpoint, limits: ShapingLimits, dt: float) -> np.ndarray:
         """Advance one period towards ``setpoint``; returns the reference vector."""
-        lim = limits
-        sp = setpoint
-        h, v = self.horizontal, self.vertical
-        if np.all(np.isfinite(sp.position_ned_m[0:2])):
-            h.to_position(sp.position_ned_m[0:2], _finite_or_zero(sp.velocity_ned_mps[0:2]),
-                          _finite_or_zero(sp.accel_ned_mps2[0:2]), lim.xy_vel_max_mps,
-                          lim.acc_hor_mps2, BRAKING_FRACTION * lim.acc_hor_mps2,
-                          lim.jerk_mps3, dt)
-        else:
-            h.at_velocity(
-                _limit_norm(_finite_or_zero(sp.velocity_ned_mps[0:2]), lim.xy_vel_max_mps),
-                velocity_filter_omega(lim.xy_vel_max_mps, lim.acc_hor_mps2, lim.jerk_mps3),
-                lim.acc_hor_mps2, lim.jerk_mps3, dt)
-        slow_acc = min(lim.acc_up_mps2, lim.acc_down_mps2)
-        if math.isfinite(sp.position_ned_m[2]):
-            up = sp.position_ned_m[2] < v.pos[0]
-            v.to_position(sp.position_ned_m[2:3], _finite_or_zero(sp.velocity_ned_mps[2:3]),
-                          _finite_or_zero(sp.accel_ned_mps2[2:3]),
-                          lim.z_vel_max_up_mps if up else lim.z_vel_max_dn_mps, slow_acc,
-                          BRAKING_FRACTION * slow_acc, lim.jerk_mps3, dt)
-        else:
-            vz = float(_finite_or_zero(sp.velocity_ned_mps[2:3])[0])
-            vz = max(-lim.z_vel_max_up_mps, min(lim.z_vel_max_dn_mps, vz))
-            v.at_velocity(np.array([vz]), velocity_filter_omega(
-                max(lim.z_vel_max_up_mps, lim.z_vel_max_dn_mps), slow_acc, lim.jerk_mps3),
-                slow_acc, lim.jerk_mps3, dt)
-        self._step_yaw(sp, lim, dt)
+        shape_translation(self.position_ned_m, self.velocity_ned_mps, self.accel_ned_mps2,
+                          self._commanded, self._following, setpoint.position_ned_m,
+                          setpoint.velocity_ned_mps, setpoint.accel_ned_mps2, limits, dt)
+        self._step_yaw(setpoint, limits, dt)
         ref = np.zeros(REF_SIZE)
-        ref[REF_POS:REF_POS + 2], ref[REF_POS + 2] = h.pos, v.pos[0]
-        ref[REF_VEL:REF_VEL + 2], ref[REF_VEL + 2] = h.vel, v.vel[0]
-        ref[REF_ACC:REF_ACC + 2], ref[REF_ACC + 2] = h.acc, v.acc[0]
+        ref[REF_POS:REF_POS + 3] = self.position_ned_m
+        ref[REF_VEL:REF_VEL + 3] = self.velocity_ned_mps
+        ref[REF_ACC:REF_ACC + 3] = self.accel_ned_mps2
         ref[REF_EULER + 2] = self.yaw_rad
         ref[REF_EULER_RATE + 2] = self.yaw_rate_rps
         ref[REF_EULER_ACC + 2] = self.yaw_acc_rps2
@@ -360,6 +390,3 @@ class SetpointShaper:
         self.yaw_rate_rps += acc * dt
         self.yaw_acc_rps2 = acc
 
-
-def _finite_or_zero(values: np.ndarray) -> np.ndarray:
-    return np.where(np.isfinite(values), values, 0.0)

@@ -146,11 +146,15 @@ def test_mavsdk_position_square_with_headings_through_0_and_180_deg():
     p, a = track.between(marks["square"], marks["turn"])
     outside = np.maximum.reduce([-p[:, 1], p[:, 1] - 5.0, -p[:, 2], p[:, 2] - 5.0,
                                  np.zeros(len(p))])
+    print(f"square: {outside.max():.3f} m outside at most; quarter turns "
+          f"{_travel_deg(a[:, 3]):.1f} deg")
     assert outside.max() <= 0.5, f"{outside.max():.3f} m outside the square"
     assert np.allclose(p[-1, 1:4], (0.0, 0.0, -5.0), atol=0.1)
     # Four quarter turns: 0 -> 90 -> 180 -> 270 (through 180) -> 360 (through 0).
     assert _travel_deg(a[:, 3]) == pytest.approx(360.0, abs=10.0)
     _, a = track.between(marks["across"], marks["end"])
+    print(f"+170 -> -170 deg: turned {_travel_deg(a[:, 3]):.1f} deg, settled "
+          f"{abs(math.degrees(wrap_pi(a[-1, 3] - math.radians(-170.0)))):.2f} deg off")
     assert _travel_deg(a[:, 3]) < 30.0  # +170 -> -170: the short way, 20 deg
     assert abs(math.degrees(wrap_pi(a[-1, 3] - math.radians(-170.0)))) < 2.0
 
@@ -182,10 +186,12 @@ def test_mavsdk_velocity_box_with_yaw_changes_and_body_velocity():
     low, high = np.array([0.0, -8.0, -8.0]), np.array([8.0, 0.0, 0.0])
     outside = np.maximum(low - rel, 0.0) + np.maximum(rel - high, 0.0)
     end = np.linalg.norm(rel[-1] - (0.0, 0.0, -8.0))
+    print(f"velocity box: ended {end:.3f} m from the start, {outside.max():.3f} m outside")
     assert end <= 1.0, f"ended {end:.2f} m from the start (8 m up)"
     assert outside.max() <= 1.0, f"{outside.max():.2f} m outside the commanded box"
     assert abs(math.degrees(wrap_pi(a[-1, 3] - math.pi))) < 2.0
     p, a = track.between(marks["end"] - 2.0, marks["end"])
+    print(f"body velocity: north {p[:, 4].mean():.3f} east {p[:, 5].mean():.3f} m/s")
     assert np.allclose(p[:, 4], -1.5, atol=0.15)  # forward: south
     assert np.allclose(p[:, 5], -0.5, atol=0.15)  # right: west
 
@@ -207,6 +213,8 @@ def test_mavsdk_50_m_step_with_feed_forward_within_the_limits():
     p, a = track.between(marks["step"], marks["end"])
     speed = np.hypot(p[:, 4], p[:, 5])
     tilt = np.degrees(np.arccos(np.cos(a[:, 1]) * np.cos(a[:, 2])))
+    print(f"50 m step: overshoot {p[:, 1].max() - 50.0:.3f} m, peak speed "
+          f"{speed.max():.3f} m/s, tilt at most {tilt.max():.2f} deg")
     assert p[:, 1].max() - 50.0 <= 1.0, f"overshoot {p[:, 1].max() - 50.0:.2f} m"
     assert speed.max() == pytest.approx(limits["MPC_XY_VEL_MAX"], rel=0.05)
     assert tilt.max() <= limits["MPC_TILTMAX_AIR"], f"tilt {tilt.max():.1f} deg"

@@ -21,7 +21,13 @@ from autopilot.control.factory import (
     load_models,  # noqa: E402
     make_controller,  # noqa: E402
 )
+from autopilot.control.parameters import default_parameters  # noqa: E402
 from autopilot.identification.identify import identify_dataset  # noqa: E402
+from autopilot.shaping import (  # noqa: E402
+    Setpoint,
+    SetpointShaper,
+    limits_from_parameters,  # noqa: E402
+)
 from contracts.airframe import PAPER, hover_rotor_speed_rps  # noqa: E402
 from ground.excitation import excitation_dataset  # noqa: E402
 from ground.inprocess import run_inprocess  # noqa: E402
@@ -53,6 +59,16 @@ def main() -> None:
         att = per_call_us(lambda c=ctrl: c.step(meas, ref, False), 20000)
         pos = per_call_us(lambda c=ctrl: c.step(meas, pos_ref, True), 20000)
         print(f"  {kind:<5} attitude mode {att:6.2f} us   position mode {pos:6.2f} us")
+    print("Setpoint shaper step (autopilot/shaping.py), median us per call:")
+    limits = limits_from_parameters(default_parameters())
+    for what, setpoint in (
+            ("position 50 m away", Setpoint(np.array([50.0, 0.0, -10.0]), yaw_rad=1.0)),
+            ("velocity", Setpoint(velocity_ned_mps=np.array([2.0, 1.0, -0.5]),
+                                  yaw_rate_rps=0.3))):
+        shaper = SetpointShaper()
+        shaper.reset(np.zeros(3), np.zeros(3), 0.0)
+        us = per_call_us(lambda s=shaper, sp=setpoint: s.step(sp, limits, 0.01), 20000)
+        print(f"  {what:<20} {us:6.2f} us")
     print("Plant step, median us:")
     for fidelity in ("paper", "rigid-body"):
         p = Plant(PAPER, fidelity, rotor_rps=hover_rotor_speed_rps(PAPER))

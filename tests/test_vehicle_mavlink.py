@@ -107,6 +107,46 @@ def test_offboard_needs_a_stream_and_follows_setpoints(vehicle):
     assert _custom_mode(tool.wait_type("HEARTBEAT", also=stream)) == (6, 0)
 
 
+def test_offboard_global_and_body_offset_setpoints(vehicle):
+    """SET_POSITION_TARGET_GLOBAL_INT (altitude above home) and a one-off BODY_OFFSET_NED
+    position, then a frame the vehicle does not take (refused, nothing changes)."""
+    from contracts.frames import geodetic_from_ned
+
+    procs, tool = vehicle
+    _take_off(tool)
+    lat, lon, _ = geodetic_from_ned(3.0, 2.0, 0.0)
+
+    def global_target() -> None:
+        tool.mav.set_position_target_global_int_send(
+            0, 1, 1, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, 0x9F8, round(lat * 1e7),
+            round(lon * 1e7), 4.0, 0, 0, 0, 0, 0, 0, math.radians(90.0), 0)
+    stream = _streamer(tool, global_target)
+    tool.wait_type("HEARTBEAT", 2, also=stream)
+    assert tool.command(M.MAV_CMD_DO_SET_MODE, *OFFBOARD).result == ACCEPTED
+    tool.wait_type("LOCAL_POSITION_NED", 20, lambda m: abs(m.x - 3.0) < 0.05 and abs(
+        m.y - 2.0) < 0.05 and abs(m.z + 4.0) < 0.05, also=stream)
+    tool.wait_type("ATTITUDE", 10, lambda m: abs(m.yaw - math.radians(90.0)) < 0.02,
+                   also=stream)
+    # Heading east: 2 m forward and 1 m right of here is 2 m east and 1 m south.
+    here = tool.position()
+    goal = (here.x - 1.0, here.y + 2.0)
+    tool.mav.set_position_target_local_ned_send(
+        0, 1, 1, M.MAV_FRAME_BODY_OFFSET_NED, 0x9F8, 2.0, 1.0, 0.0, 0, 0, 0, 0, 0, 0,
+        math.radians(90.0), 0)
+    # One message only (the stream may pause 1 s): the vehicle sets off towards the goal.
+    moving = tool.wait_type("LOCAL_POSITION_NED", 0.9, lambda m: math.hypot(m.vx, m.vy) > 0.3)
+    heading = math.atan2(moving.vy, moving.vx)
+    assert abs(heading - math.atan2(2.0, -1.0)) < math.radians(10.0)
+    hold = _streamer(tool, lambda: tool.send_position_setpoint(*goal, -4.0, math.radians(90.0)))
+    tool.wait_type("LOCAL_POSITION_NED", 20, lambda m: abs(m.x - goal[0]) < 0.05 and abs(
+        m.y - goal[1]) < 0.05, also=hold)
+    flu = _streamer(tool, lambda: tool.mav.set_position_target_local_ned_send(
+        0, 1, 1, M.MAV_FRAME_LOCAL_FLU, 0x9F8, 9.0, 9.0, -9.0, 0, 0, 0, 0, 0, 0, 0, 0))
+    assert "frame 21" in tool.wait_text("setpoint refused", 5, also=flu)
+    position = tool.position()
+    assert abs(position.x - goal[0]) < 0.1 and abs(position.y - goal[1]) < 0.1
+
+
 def _streamer(tool: GroundTool, send, rate_hz: float = 20.0):
     last = [0.0]
 

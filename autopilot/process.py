@@ -25,9 +25,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from autopilot import shaping
 from autopilot.ground_link import GroundStation
 from autopilot.reference import REF_SIZE
 from autopilot.vehicle import Vehicle
+from contracts.airframe import max_thrust_n
+from contracts.frames import euler_from_quat, wrap_pi
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
@@ -385,13 +388,18 @@ class Autopilot:
         return 0
 
     def _warm_up(self) -> None:
-        """Load the compiled control law before the loop: its first call takes ~0.1 s,
-        which would otherwise be the first real-time step's deadline miss."""
+        """Load the compiled control law and setpoint shaper before the loop: a first
+        call takes ~0.1 s from numba's cache (seconds to compile on a fresh install),
+        which would otherwise be a deadline miss, or a simulator-link loss in real time."""
         scratch = self.vehicle._make_controller(self.vehicle.parameters)
         hover = np.zeros(12)
         hover[2] = -1.0
         scratch.step(hover, np.zeros(REF_SIZE), True, np.zeros(2))
-        scratch.step(hover, np.zeros(REF_SIZE), False, np.zeros(2))
+        scratch.step(hover, np.zeros(REF_SIZE), False, np.zeros(2), 10.0)
+        shaping.warm_up(self.vehicle.limits, self.period_us / 1e6)
+        wrap_pi(1.0)
+        euler_from_quat(np.array([1.0, 0.0, 0.0, 0.0]))
+        max_thrust_n(scratch.airframe)
 
     def _poll(self, timeout_s: float) -> None:
         for key, _ in self.sel.select(max(0.0, timeout_s)):

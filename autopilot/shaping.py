@@ -32,6 +32,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from autopilot.control.command_filter import command_filter_step
 from autopilot.reference import (
     REF_ACC,
     REF_EULER,
@@ -336,6 +337,7 @@ class SetpointShaper:
         self.yaw_rad = 0.0
         self.yaw_rate_rps = 0.0
         self.yaw_acc_rps2 = 0.0
+        self._tilt = np.zeros((2, 2))  # attitude setpoints: roll, pitch filter (angle, rate)
 
     def reset(self, position_ned_m, velocity_ned_mps, yaw_rad: float) -> None:
         """Start from where the vehicle is and how it moves (bumpless hand-over)."""
@@ -374,6 +376,31 @@ class SetpointShaper:
         ref[REF_EULER_ACC + 2] = self.yaw_acc_rps2
         return ref
 
+    def reset_attitude(self, euler_rad, euler_rate_rps) -> None:
+        """Start attitude shaping from the vehicle's attitude and its rates."""
+        self._tilt[:, 0] = euler_rad[0:2]
+        self._tilt[:, 1] = euler_rate_rps[0:2]
+        self.yaw_rad = wrap_pi(float(euler_rad[2]))
+        self.yaw_rate_rps = float(euler_rate_rps[2])
+        self.yaw_acc_rps2 = 0.0
+
+    def step_attitude(self, euler_rad: np.ndarray, limits: ShapingLimits,
+                      tilt_filter: np.ndarray, dt: float) -> np.ndarray:
+        """Attitude setpoints: roll and pitch through the controller's command filter
+        (``tilt_filter`` = omega, zeta, rate and acceleration limits), yaw the short way
+        within MPC_YAWRAUTO_*. Returns a reference vector holding the Euler part."""
+        ref = np.zeros(REF_SIZE)
+        omega, zeta, rate_max, acc_max = tilt_filter
+        for k in range(2):
+            ref[REF_EULER + k], ref[REF_EULER_RATE + k], ref[REF_EULER_ACC + k] = \
+                command_filter_step(self._tilt[k], float(euler_rad[k]), dt, omega, zeta,
+                                    rate_max, acc_max)
+        self._step_yaw(Setpoint(yaw_rad=float(euler_rad[2])), limits, dt)
+        ref[REF_EULER + 2] = self.yaw_rad
+        ref[REF_EULER_RATE + 2] = self.yaw_rate_rps
+        ref[REF_EULER_ACC + 2] = self.yaw_acc_rps2
+        return ref
+
     def _step_yaw(self, sp: Setpoint, lim: ShapingLimits, dt: float) -> None:
         rate_max, acc_max = lim.yaw_rate_max_rps, lim.yaw_acc_max_rps2
         if math.isfinite(sp.yaw_rad):
@@ -390,3 +417,16 @@ class SetpointShaper:
         self.yaw_rate_rps += acc * dt
         self.yaw_acc_rps2 = acc
 
+
+
+def warm_up(limits: ShapingLimits, dt: float) -> None:
+    """Run every compiled path once. The first call of each loads it from numba's cache
+    (or compiles it, seconds on a fresh install): a process calls this before its loop,
+    so that the first shaped control step is not the one that pays."""
+    shaper = SetpointShaper()
+    shaper.reset(np.zeros(3), np.zeros(3), 0.0)
+    shaper.step(Setpoint(np.array([1.0, 1.0, -1.0]), np.zeros(3), np.zeros(3), 0.5), limits, dt)
+    shaper.step(Setpoint(velocity_ned_mps=np.ones(3), yaw_rate_rps=0.1), limits, dt)
+    shaper.stopping_point(limits)
+    shaper.reset_attitude(np.zeros(3), np.zeros(3))
+    shaper.step_attitude(np.array([0.1, -0.1, 3.0]), limits, (10.0, 1.0, 2.0, 8.0), dt)

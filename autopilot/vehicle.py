@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot.control.parameters import validate_parameters
-from autopilot.reference import REF_EULER, REF_POS, REF_SIZE, REF_VEL, Reference
+from autopilot.reference import REF_POS, REF_SIZE, REF_VEL, Reference
 from autopilot.shaping import Setpoint, SetpointShaper, ShapingLimits, limits_from_parameters
 from contracts.airframe import max_thrust_n
 from contracts.frames import euler_from_quat, wrap_pi
@@ -107,7 +107,8 @@ class Vehicle:
         self.setpoint = Setpoint.hold((0.0, 0.0, 0.0), 0.0)
         self.attitude_target: AttitudeTarget | None = None
         self.shaper = SetpointShaper()
-        self._shaping = False  # the shaper produced the last reference
+        # Which shaper path produced the last reference: None, "translation", "attitude".
+        self._shaped: str | None = None
         self._streamed: Setpoint | AttitudeTarget | None = None  # newest, before offboard
         self._tool_position: np.ndarray | None = None
         self._tool_position_moved_s = -math.inf
@@ -158,7 +159,7 @@ class Vehicle:
         """Hold where the vehicle can stop: the shaped reference's stopping point when it
         is moving one, else the measured position; the heading it has."""
         m = self.measurement
-        if self._shaping:
+        if self._shaped == "translation":
             position, yaw = self.shaper.stopping_point(self.limits), self.shaper.yaw_rad
         else:
             position = m[0:3].copy() if m is not None else np.zeros(3)
@@ -184,7 +185,7 @@ class Vehicle:
     def _arm(self) -> None:
         self.controller = self._make_controller(self.parameters)
         self.armed = True
-        self._shaping = False
+        self._shaped = None
         self.last_ref = np.zeros(REF_SIZE)
         if self.mode != FlightMode.OFFBOARD:
             self._hold_here()
@@ -211,7 +212,7 @@ class Vehicle:
 
     def _disarm(self, text: str) -> None:
         self.armed = False
-        self._shaping = False
+        self._shaped = None
         self.takeoff_altitude_m = None
         if self.mode in (FlightMode.LAND, FlightMode.TAKEOFF, FlightMode.REFERENCE):
             self.mode = FlightMode.GUIDED if self.flavour == "ardupilot" else FlightMode.HOLD
@@ -435,7 +436,7 @@ class Vehicle:
     def control(self) -> np.ndarray:
         """Motor commands for this control period (zeros when disarmed or without state)."""
         if not self.armed or self.measurement is None or not self.sim_link_ok:
-            self._shaping = False
+            self._shaped = None
             self.last_commands = np.zeros(4)
             return self.last_commands
         ref, position_mode, thrust_n = self._reference()
@@ -450,17 +451,16 @@ class Vehicle:
         """This period's reference, whether the position loop is on, and a collective
         thrust [N] that replaces the altitude loop (NaN: it does not)."""
         if self.mode == FlightMode.REFERENCE:
-            self._shaping = False
+            self._shaped = None
             t = self.sim_t_s - self.reference_start_s
             return self.reference.at(t), self.reference.position_mode, math.nan
         if self.attitude_target is not None and self.mode not in (
                 FlightMode.HOLD, FlightMode.LAND, FlightMode.TAKEOFF):
-            self._shaping = False
             return self._attitude_reference(self.attitude_target)
-        if not self._shaping:
+        if self._shaped != "translation":
             m = self.measurement
             self.shaper.reset(m[0:3], m[3:6], m[8])
-            self._shaping = True
+            self._shaped = "translation"
         p = self.parameters
         limits = self.limits
         if self.takeoff_altitude_m is not None:
@@ -478,9 +478,16 @@ class Vehicle:
         return ref, True, math.nan
 
     def _attitude_reference(self, target: AttitudeTarget) -> tuple[np.ndarray, bool, float]:
-        ref = np.zeros(REF_SIZE)
-        ref[REF_POS:REF_POS + 3] = self.measurement[0:3]
-        ref[REF_EULER:REF_EULER + 3] = target.euler_rad
+        m = self.measurement
+        if self._shaped != "attitude":
+            self.shaper.reset_attitude(m[6:9], m[9:12])
+            self._shaped = "attitude"
+        p = self.parameters
+        ref = self.shaper.step_attitude(
+            target.euler_rad, self.limits,
+            (p["CMDF_OMEGA"], p["CMDF_ZETA"], p["CMDF_RATE_MAX"], p["CMDF_ACC_MAX"]),
+            self.period_s)
+        ref[REF_POS:REF_POS + 3] = m[0:3]
         if math.isfinite(target.thrust_fraction):
             return ref, False, target.thrust_fraction * max_thrust_n(self.controller.airframe)
         target.altitude_ref_ned_m -= target.climb_rate_mps * self.period_s

@@ -228,6 +228,9 @@ def test_px4_attitude_thrust_is_the_collective_fraction():
     log = flight.since(t0)
     assert abs(log[-1, ROLL] - roll) < 0.01
     assert np.abs(log[:, 3] - log[0, 3]).max() < 0.3  # hover thrust: altitude about held
+    # The step to 0.1 rad is shaped by the command filter (CMDF_*): no jump in the reference.
+    ref_roll = log[:, 13 + REF_EULER]
+    assert np.abs(np.diff(ref_roll)).max() / flight.period_s <= 2.0 + 1e-9
     t1 = flight.t_s
     flight.run(2.0, lambda t: flight.vehicle.attitude_setpoint(t, q, 2.0 * hover))
     assert flight.since(t1)[-1, 3] < log[-1, 3] - 1.0  # twice hover: climbs

@@ -395,7 +395,8 @@ class Autopilot:
         hover = np.zeros(12)
         hover[2] = -1.0
         scratch.step(hover, np.zeros(REF_SIZE), True, np.zeros(2))
-        scratch.step(hover, np.zeros(REF_SIZE), False, np.zeros(2), 10.0)
+        scratch.step(hover, np.zeros(REF_SIZE), True, np.zeros(2), math.nan, True)
+        scratch.step(hover, np.zeros(REF_SIZE), False, np.zeros(2), 10.0, True)
         shaping.warm_up(self.vehicle.limits, self.period_us / 1e6)
         wrap_pi(1.0)
         euler_from_quat(np.array([1.0, 0.0, 0.0, 0.0]))

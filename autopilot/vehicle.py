@@ -443,8 +443,11 @@ class Vehicle:
         entries = self.perturbations.entries
         kick = np.array(kick_at(entries, self.sim_t_s)) if entries else np.zeros(2)
         self.last_ref, self.last_kick = ref, kick
-        self.last_commands = self.controller.step(self.measurement, ref, position_mode, kick,
-                                                  thrust_n)
+        # Flights from tools limit the total tilt (PX4's MPC_TILTMAX_AIR); the paper's
+        # reference keeps the per-axis clip it is tuned with.
+        self.last_commands = self.controller.step(
+            self.measurement, ref, position_mode, kick, thrust_n,
+            self.mode != FlightMode.REFERENCE)
         return self.last_commands
 
     def _reference(self) -> tuple[np.ndarray, bool, float]:

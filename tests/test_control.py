@@ -87,6 +87,21 @@ def test_desired_angles_invert_the_thrust_direction() -> None:
     assert desired_angles(0.0, -0.9, 0.0, 0.3) == pytest.approx((0.3, 0.0))
 
 
+def test_desired_angles_limit_the_total_tilt_or_each_axis() -> None:
+    """Diagonal: per-axis clipping lets the tilt reach acos(cos^2 0.3) = 0.421 rad; the
+    total limit keeps it at 0.3 rad and keeps the direction (45 deg)."""
+    phi, theta = desired_angles(0.6, -0.6, 0.0, 0.3)
+    assert (phi, theta) == pytest.approx((0.3, 0.3))
+    per_axis_tilt = math.acos(math.cos(0.3) ** 2)
+    assert math.acos(math.cos(phi) * math.cos(theta)) == pytest.approx(per_axis_tilt)
+    phi, theta = desired_angles(0.6, -0.6, 0.0, 0.3, True)
+    assert math.acos(math.cos(phi) * math.cos(theta)) == pytest.approx(0.3, abs=1e-12)
+    u_x = math.cos(phi) * math.sin(theta)
+    u_y = -math.sin(phi)
+    assert math.atan2(u_y, u_x) == pytest.approx(math.atan2(-0.6, 0.6), abs=1e-12)
+    assert desired_angles(0.1, 0.05, 0.3, 0.3, True) == desired_angles(0.1, 0.05, 0.3, 0.3)
+
+
 def test_command_filter_respects_its_limits_and_converges() -> None:
     state = np.zeros(2)
     rates, accs = [], []

@@ -1,9 +1,10 @@
 """MAVSDK 4.x offboard scripts of the kind PX4's documentation teaches, flown against the
 real processes in real time; the path is judged from the vehicle's own telemetry.
 
-A position square with headings through 0 and 180 deg (and a +170 -> -170 deg turn), a
-2 m/s velocity box with yaw changes, a 50 m step with velocity feed-forward, and
-body-frame velocity: each asserts the targets of docs/mavlink.md's setpoint shaping.
+A position square with headings through 0 and 180 deg, a +170 -> -170 deg turn and a
+50 m step with velocity feed-forward in one flight; a 2 m/s velocity box with yaw changes
+and body-frame velocity in another: each asserts the targets of docs/mavlink.md's
+setpoint shaping.
 """
 
 from __future__ import annotations
@@ -122,27 +123,32 @@ def _travel_deg(yaw: np.ndarray) -> float:
 
 
 @pytest.mark.slow
-def test_mavsdk_position_square_with_headings_through_0_and_180_deg():
+def test_mavsdk_square_with_headings_through_0_and_180_deg_then_a_50_m_step():
+    """One flight (start-up and take-off are a third of each): the square and the turns,
+    then the 50 m step with set_position_velocity_ned."""
     marks: dict[str, float] = {}
 
-    async def square(offboard: OffboardAsync) -> None:
-        corners = [(0.0, 0.0, 0.0), (5.0, 0.0, 90.0), (5.0, 5.0, 180.0), (0.0, 5.0, 270.0),
-                   (0.0, 0.0, 360.0)]
+    async def script(offboard: OffboardAsync) -> None:
+        corners = [(5.0, 0.0, 90.0), (5.0, 5.0, 180.0), (0.0, 5.0, 270.0), (0.0, 0.0, 360.0)]
         await offboard.set_position_ned(PositionNedYaw(0.0, 0.0, -5.0, 0.0))
-        await asyncio.sleep(5.0)
+        await asyncio.sleep(4.0)
         marks["square"] = time.monotonic()
-        for north, east, yaw_deg in corners[1:]:
+        for north, east, yaw_deg in corners:
             await offboard.set_position_ned(PositionNedYaw(north, east, -5.0, yaw_deg))
-            await asyncio.sleep(7.0)
+            await asyncio.sleep(6.0)
         marks["turn"] = time.monotonic()
         await offboard.set_position_ned(PositionNedYaw(0.0, 0.0, -5.0, 170.0))
-        await asyncio.sleep(6.0)
+        await asyncio.sleep(5.0)
         marks["across"] = time.monotonic()
         await offboard.set_position_ned(PositionNedYaw(0.0, 0.0, -5.0, -170.0))
-        await asyncio.sleep(5.0)
+        await asyncio.sleep(4.0)
+        marks["step"] = time.monotonic()
+        await offboard.set_position_velocity_ned(PositionNedYaw(50.0, 0.0, -10.0, -170.0),
+                                                 VelocityNedYaw(1.0, 0.0, 0.0, -170.0))
+        await asyncio.sleep(20.0)
         marks["end"] = time.monotonic()
 
-    track, _ = _fly_script(square)
+    track, limits = _fly_script(script)
     p, a = track.between(marks["square"], marks["turn"])
     outside = np.maximum.reduce([-p[:, 1], p[:, 1] - 5.0, -p[:, 2], p[:, 2] - 5.0,
                                  np.zeros(len(p))])
@@ -157,6 +163,15 @@ def test_mavsdk_position_square_with_headings_through_0_and_180_deg():
           f"{abs(math.degrees(wrap_pi(a[-1, 3] - math.radians(-170.0)))):.2f} deg off")
     assert _travel_deg(a[:, 3]) < 30.0  # +170 -> -170: the short way, 20 deg
     assert abs(math.degrees(wrap_pi(a[-1, 3] - math.radians(-170.0)))) < 2.0
+    p, a = track.between(marks["step"], marks["end"])
+    speed = np.hypot(p[:, 4], p[:, 5])
+    tilt = np.degrees(np.arccos(np.cos(a[:, 1]) * np.cos(a[:, 2])))
+    print(f"50 m step: overshoot {p[:, 1].max() - 50.0:.3f} m, peak speed "
+          f"{speed.max():.3f} m/s, tilt at most {tilt.max():.2f} deg")
+    assert p[:, 1].max() - 50.0 <= 1.0, f"overshoot {p[:, 1].max() - 50.0:.2f} m"
+    assert speed.max() == pytest.approx(limits["MPC_XY_VEL_MAX"], rel=0.05)
+    assert tilt.max() <= limits["MPC_TILTMAX_AIR"], f"tilt {tilt.max():.1f} deg"
+    assert np.allclose(p[-1, 1:4], (50.0, 0.0, -10.0), atol=0.1)
 
 
 @pytest.mark.slow
@@ -167,16 +182,16 @@ def test_mavsdk_velocity_box_with_yaw_changes_and_body_velocity():
 
     async def box(offboard: OffboardAsync) -> None:
         await offboard.set_velocity_ned(VelocityNedYaw(0.0, 0.0, 0.0, 0.0))
-        await asyncio.sleep(3.0)
+        await asyncio.sleep(2.0)
         marks["box"] = time.monotonic()
         for (north, east, down), yaw_deg in legs:
             await offboard.set_velocity_ned(VelocityNedYaw(north, east, down, yaw_deg))
             await asyncio.sleep(4.0)
-        await asyncio.sleep(4.0)  # the last leg is zero velocity: settle
+        await asyncio.sleep(3.0)  # the last leg is zero velocity: settle
         marks["body"] = time.monotonic()
         # Body frame, heading 180 deg (south): forward 1.5 m/s is south, right is west.
         await offboard.set_velocity_body(VelocityBodyYawspeed(1.5, 0.5, 0.0, 0.0))
-        await asyncio.sleep(6.0)
+        await asyncio.sleep(5.0)
         marks["end"] = time.monotonic()
 
     track, _ = _fly_script(box)
@@ -194,28 +209,3 @@ def test_mavsdk_velocity_box_with_yaw_changes_and_body_velocity():
     print(f"body velocity: north {p[:, 4].mean():.3f} east {p[:, 5].mean():.3f} m/s")
     assert np.allclose(p[:, 4], -1.5, atol=0.15)  # forward: south
     assert np.allclose(p[:, 5], -0.5, atol=0.15)  # right: west
-
-
-@pytest.mark.slow
-def test_mavsdk_50_m_step_with_feed_forward_within_the_limits():
-    from mavsdk.asyncio.plugins.offboard import PositionNedYaw as P
-
-    marks: dict[str, float] = {}
-
-    async def step(offboard: OffboardAsync) -> None:
-        marks["step"] = time.monotonic()
-        await offboard.set_position_velocity_ned(P(50.0, 0.0, -10.0, 0.0),
-                                                 VelocityNedYaw(1.0, 0.0, 0.0, 0.0))
-        await asyncio.sleep(22.0)
-        marks["end"] = time.monotonic()
-
-    track, limits = _fly_script(step)
-    p, a = track.between(marks["step"], marks["end"])
-    speed = np.hypot(p[:, 4], p[:, 5])
-    tilt = np.degrees(np.arccos(np.cos(a[:, 1]) * np.cos(a[:, 2])))
-    print(f"50 m step: overshoot {p[:, 1].max() - 50.0:.3f} m, peak speed "
-          f"{speed.max():.3f} m/s, tilt at most {tilt.max():.2f} deg")
-    assert p[:, 1].max() - 50.0 <= 1.0, f"overshoot {p[:, 1].max() - 50.0:.2f} m"
-    assert speed.max() == pytest.approx(limits["MPC_XY_VEL_MAX"], rel=0.05)
-    assert tilt.max() <= limits["MPC_TILTMAX_AIR"], f"tilt {tilt.max():.1f} deg"
-    assert np.allclose(p[-1, 1:4], (50.0, 0.0, -10.0), atol=0.1)

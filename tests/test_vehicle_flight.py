@@ -102,6 +102,19 @@ def test_a_50_m_step_with_feed_forward_keeps_every_limit():
     assert np.allclose(log[-1, 1:4], (50.0, 0.0, -10.0), atol=0.01)
 
 
+@pytest.mark.parametrize("yaw_deg", [0.0, 45.0, -170.0])
+def test_diagonal_steps_keep_the_total_tilt_within_mpc_tiltmax_air(yaw_deg):
+    """Roll and pitch together: a step along the diagonal of the heading would tilt
+    acos(cos^2 20 deg) = 28 deg with the roll and pitch clipped each."""
+    flight = _airborne(yaw_rad=math.radians(yaw_deg))
+    t0 = flight.t_s
+    flight.stream(position_setpoint(30.0, 30.0, -2.5, yaw_deg), 20.0)
+    log = flight.since(t0)
+    tilt = np.degrees(np.arccos(np.cos(log[:, ROLL]) * np.cos(log[:, PITCH])))
+    assert tilt.max() <= flight.vehicle.parameters["MPC_TILTMAX_AIR"]
+    assert np.allclose(log[-1, 1:3], (30.0, 30.0), atol=0.01)
+
+
 def test_velocity_box_with_yaw_changes_ends_where_it_began():
     flight = _airborne()
     flight.stream(velocity_setpoint(0.0, 0.0, 0.0, 0.0), 1.0)

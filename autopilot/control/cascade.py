@@ -51,10 +51,22 @@ def attitude_regressor_inputs(meas: np.ndarray, w_r: float, channel: int) -> np.
 
 
 @njit(cache=True)
-def desired_angles(u_x: float, u_y: float, psi_d: float, max_tilt: float) -> tuple[float, float]:
-    """phi_d, theta_d that point the thrust along (u_x, u_y) (SPEC section 5), each clipped
-    to ``max_tilt`` (MPC_TILTMAX_AIR; the paper scenarios are tuned to this per-axis clip,
-    and the setpoint shaper's acceleration limit keeps the total tilt below it)."""
+def desired_angles(u_x: float, u_y: float, psi_d: float, max_tilt: float,
+                   total_tilt: bool = False) -> tuple[float, float]:
+    """phi_d, theta_d that point the thrust along (u_x, u_y) (the paper's desired angles,
+    signs corrected), within ``max_tilt`` (MPC_TILTMAX_AIR).
+
+    (u_x, u_y) is the horizontal part of the unit thrust direction: |u| = sin(tilt) with
+    cos(tilt) = c.phi c.theta. ``total_tilt`` limits the tilt itself, as PX4 does, by
+    shortening u and keeping its direction (flights from tools); otherwise roll and pitch
+    are clipped each (the paper's scenarios are tuned with that clip and keep it).
+    """
+    if total_tilt:
+        reach = math.sqrt(u_x * u_x + u_y * u_y)
+        largest = math.sin(max_tilt)
+        if reach > largest:
+            u_x *= largest / reach
+            u_y *= largest / reach
     s, c = math.sin(psi_d), math.cos(psi_d)
     phi_d = math.asin(max(-1.0, min(1.0, u_x * s - u_y * c)))
     theta_d = math.asin(max(-1.0, min(1.0, (u_x * c + u_y * s) / math.cos(phi_d))))
@@ -84,11 +96,12 @@ def cascade_step(
     period_s: float,
     telemetry: np.ndarray,
     collective_thrust_n: float,
+    total_tilt: bool,
 ) -> np.ndarray:
     """One control period: altitude, position (if active), attitude, mixer -> c_i.
 
     ``collective_thrust_n``: NaN to run the altitude loop, else the total thrust a tool
-    asked for (attitude setpoints in PX4's reading).
+    asked for (attitude setpoints in PX4's reading). ``total_tilt``: see desired_angles.
     """
     one = np.ones(1)
     phi, theta = meas[M_EULER], meas[M_EULER + 1]
@@ -124,7 +137,8 @@ def cascade_step(
                 theta_g[ch], gains[ch], period_s, telemetry[ch],
             )
             u_xy[k] = -v / thrust_floor
-        phi_c, theta_c = desired_angles(u_xy[0], u_xy[1], ref[REF_EULER + 2], max_tilt)
+        phi_c, theta_c = desired_angles(u_xy[0], u_xy[1], ref[REF_EULER + 2], max_tilt,
+                                        total_tilt)
         # Kicks on the desired angles enter before the command filter, as any change of
         # the desired angle does.
         phi_c += kick[0]
@@ -253,8 +267,8 @@ class SlidingModeCascade:
         return float(w[0] - w[1] + w[2] - w[3])
 
     def step(self, meas: np.ndarray, ref: np.ndarray, position_mode: bool,
-             kick: np.ndarray | None = None,
-             collective_thrust_n: float = math.nan) -> np.ndarray:
+             kick: np.ndarray | None = None, collective_thrust_n: float = math.nan,
+             total_tilt: bool = False) -> np.ndarray:
         """Motor commands c_i in [0, 1] for this control period."""
         commands = cascade_step(
             meas, ref, position_mode, np.zeros(2) if kick is None else kick,
@@ -262,6 +276,7 @@ class SlidingModeCascade:
             self._theta_min, self._theta_max, self.model.eta_scale, self.theta_g, self._gains,
             self.airframe, self._filter_state, self._filter_limits, self._max_tilt,
             self.residual_rotor_speed(), self.period_s, self.telemetry, collective_thrust_n,
+            total_tilt,
         )
         self._last_commands = commands
         return commands

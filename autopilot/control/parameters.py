@@ -58,7 +58,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     *_smc_specs(),
     # 0.35 rad, the limit the paper scenarios are tuned with, exactly.
     ParamSpec("MPC_TILTMAX_AIR", math.degrees(0.35), 3.0, 80.0, "deg",
-              "largest roll and pitch the position loop asks for"),
+              "largest tilt the position loop asks for"),
     ParamSpec("CMDF_OMEGA", 10.0, 1.0, 200.0, "rad/s", "command filter natural frequency"),
     ParamSpec("CMDF_ZETA", 1.0, 0.3, 2.0, "", "command filter damping ratio"),
     ParamSpec("CMDF_RATE_MAX", 2.0, 0.1, 20.0, "rad/s", "command filter angle rate limit"),

@@ -69,8 +69,10 @@ def pid_step(
     period_s: float,
     telemetry: np.ndarray,
     collective_thrust_n: float,
+    total_tilt: bool,
 ) -> np.ndarray:
-    """One period; ``collective_thrust_n`` NaN runs the altitude loop (else the thrust)."""
+    """One period; ``collective_thrust_n`` NaN runs the altitude loop (else the thrust);
+    ``total_tilt`` as in :func:`cascade.desired_angles`."""
     g = af.gravity_mps2
     m = af.mass_kg
     phi, theta = meas[M_EULER], meas[M_EULER + 1]
@@ -97,7 +99,7 @@ def pid_step(
                       - gains.xy_vel_d * vel_rate + ref[REF_ACC + k])
         u_z = m * math.sqrt(acc[0] ** 2 + acc[1] ** 2 + (g - az) ** 2)
         att_d[0], att_d[1] = desired_angles(-m * acc[0] / u_z, -m * acc[1] / u_z, att_d[2],
-                                            gains.max_tilt)
+                                            gains.max_tilt, total_tilt)
         rate_ff[0] = 0.0
         rate_ff[1] = 0.0
     else:
@@ -151,8 +153,8 @@ class PidCascade:
         self._gains = pid_gains(self.parameters)
 
     def step(self, meas: np.ndarray, ref: np.ndarray, position_mode: bool,
-             kick: np.ndarray | None = None,
-             collective_thrust_n: float = math.nan) -> np.ndarray:
+             kick: np.ndarray | None = None, collective_thrust_n: float = math.nan,
+             total_tilt: bool = False) -> np.ndarray:
         return pid_step(meas, ref, position_mode, np.zeros(2) if kick is None else kick,
                         self._gains, self._integrators, self._previous, self.airframe,
-                        self.period_s, self.telemetry, collective_thrust_n)
+                        self.period_s, self.telemetry, collective_thrust_n, total_tilt)

@@ -138,7 +138,7 @@ def test_mavsdk_square_with_headings_through_0_and_180_deg_then_a_50_m_step():
             await asyncio.sleep(6.0)
         marks["turn"] = time.monotonic()
         await offboard.set_position_ned(PositionNedYaw(0.0, 0.0, -5.0, 170.0))
-        await asyncio.sleep(5.0)
+        await asyncio.sleep(6.0)  # 170 deg at 45 deg/s, and settled
         marks["across"] = time.monotonic()
         await offboard.set_position_ned(PositionNedYaw(0.0, 0.0, -5.0, -170.0))
         await asyncio.sleep(4.0)

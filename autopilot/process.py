@@ -27,6 +27,7 @@ import numpy as np
 
 from autopilot import shaping
 from autopilot.ground_link import GroundStation
+from autopilot.loop_timing import LoopTiming
 from autopilot.reference import REF_SIZE
 from autopilot.vehicle import Vehicle
 from contracts.airframe import max_thrust_n
@@ -85,35 +86,6 @@ class AutopilotConfig:
         if self.state_source not in STATE_SOURCES:
             raise ValueError(f"unknown state source {self.state_source!r}; known: "
                              f"{', '.join(STATE_SOURCES)}")
-
-
-@dataclass
-class Timing:
-    """Real-time loop statistics (seconds)."""
-
-    period_s: float
-    periods: list[float] = field(default_factory=list)  # between consecutive control steps
-    compute: list[float] = field(default_factory=list)
-    misses: int = 0
-
-    def summary(self) -> dict[str, float | int]:
-        if len(self.periods) < 2:
-            return {"steps": len(self.compute), "deadline_misses": self.misses}
-        periods = np.array(self.periods)
-        jitter = np.abs(periods - self.period_s)
-        compute = np.array(self.compute)
-        return {
-            "steps": len(self.compute),
-            "nominal_period_ms": self.period_s * 1e3,
-            "period_mean_ms": float(np.mean(periods)) * 1e3,
-            "jitter_p50_ms": float(np.percentile(jitter, 50)) * 1e3,
-            "jitter_p99_ms": float(np.percentile(jitter, 99)) * 1e3,
-            "jitter_max_ms": float(np.max(jitter)) * 1e3,
-            "compute_p50_ms": float(np.percentile(compute, 50)) * 1e3,
-            "compute_p99_ms": float(np.percentile(compute, 99)) * 1e3,
-            "compute_max_ms": float(np.max(compute)) * 1e3,
-            "deadline_misses": self.misses,
-        }
 
 
 class SimLink:
@@ -194,7 +166,7 @@ class Autopilot:
         self.log = log or (lambda text: print(f"autopilot: {text}", file=sys.stderr, flush=True))
         self.period_us = round(1e6 / config.rate_hz)
         self.sim = SimLink(config.sim_host, config.sim_port, config.state_source, config.sysid)
-        self.timing = Timing(self.period_us / 1e6)
+        self.timing = LoopTiming(self.period_us / 1e6)
         self.node = TelemetryNode(config.zenoh, config.sysid, AUTOPILOT, self.log)
         self._control_pub = self.node.publisher("control")
         self._timing_pub = self.node.publisher("timing")
@@ -307,10 +279,12 @@ class Autopilot:
             request.reply(True, sim_time_us=round(now_s * 1e6), **answer)
 
     def _status(self, final: bool = False) -> None:
-        summary = self.timing.summary() if not self.config.lockstep else {}
+        # The timing summary only goes into the final status: computing it for every
+        # status (every 5 ms) would cost the loop for nothing.
+        summary = self.timing.summary() if final and not self.config.lockstep else {}
         self.node.status(round(self.vehicle.sim_t_s * 1e6), final=final, steps=self.steps,
                          armed=self.vehicle.armed, mode=self.vehicle.mode.value,
-                         timing=summary if final else {})
+                         timing=summary)
 
     def _sim_lost(self) -> None:
         self.sim.close()
@@ -453,9 +427,9 @@ class Autopilot:
                 time_us, measurement = self.latest
                 commands = self._control(time_us, measurement)
                 self._answer(time_us, commands)
-                self.timing.compute.append(time.perf_counter() - start)
+                self.timing.record_compute(time.perf_counter() - start)
                 if previous_start is not None:
-                    self.timing.periods.append(start - previous_start)
+                    self.timing.record_period(start - previous_start)
                 previous_start = start
                 if self.steps >= self.max_steps:
                     break

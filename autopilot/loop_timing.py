@@ -1,0 +1,81 @@
+"""Real-time loop statistics in fixed memory: the same cost per period after an hour as
+after a second.
+
+Periods and compute times go into histograms of 1 us bins (up to 50 ms, then one
+overflow bin) with running counts, sums and maxima; percentiles are read off the
+cumulative histogram only when a summary is asked for. Nothing grows with run time.
+Percentiles are the upper edge of their bin: at most 1 us above the exact value.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+BIN_S = 1e-6
+BINS = 50_000  # 50 ms of 1 us bins; longer values land in the overflow bin
+
+
+class Histogram:
+    """Counts of non-negative durations in 1 us bins, with count, sum and maximum."""
+
+    def __init__(self) -> None:
+        self.counts = np.zeros(BINS + 1, dtype=np.int64)
+        self.n = 0
+        self.total_s = 0.0
+        self.max_s = 0.0
+
+    def add(self, value_s: float) -> None:
+        index = int(value_s / BIN_S)
+        self.counts[index if index < BINS else BINS] += 1
+        self.n += 1
+        self.total_s += value_s
+        if value_s > self.max_s:
+            self.max_s = value_s
+
+    def percentile(self, q: float) -> float:
+        """The q-th percentile (0-100) [s]: the upper edge of the bin it falls in, or the
+        maximum if that is smaller (and for values past the last bin)."""
+        if self.n == 0:
+            return float("nan")
+        rank = max(1, int(np.ceil(q / 100.0 * self.n)))
+        index = int(np.searchsorted(np.cumsum(self.counts), rank))
+        if index >= BINS:
+            return self.max_s
+        return min((index + 1) * BIN_S, self.max_s)
+
+
+class LoopTiming:
+    """Jitter (|period - nominal|), compute time and deadline misses of a periodic loop."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = period_s
+        self.jitter = Histogram()
+        self.compute = Histogram()
+        self.period_total_s = 0.0
+        self.misses = 0
+
+    def record_period(self, period_s: float) -> None:
+        self.period_total_s += period_s
+        self.jitter.add(abs(period_s - self.period_s))
+
+    def record_compute(self, compute_s: float) -> None:
+        self.compute.add(compute_s)
+
+    def summary(self) -> dict[str, float | int]:
+        """Statistics so far, in milliseconds (computed now: call it when asked, not per
+        period)."""
+        if self.jitter.n < 1:
+            return {"steps": self.compute.n, "deadline_misses": self.misses}
+        j, c = self.jitter, self.compute
+        return {
+            "steps": c.n,
+            "nominal_period_ms": self.period_s * 1e3,
+            "period_mean_ms": self.period_total_s / j.n * 1e3,
+            "jitter_p50_ms": j.percentile(50) * 1e3,
+            "jitter_p99_ms": j.percentile(99) * 1e3,
+            "jitter_max_ms": j.max_s * 1e3,
+            "compute_p50_ms": c.percentile(50) * 1e3,
+            "compute_p99_ms": c.percentile(99) * 1e3,
+            "compute_max_ms": c.max_s * 1e3,
+            "deadline_misses": self.misses,
+        }

@@ -6,18 +6,21 @@ sinusoids), so, as PX4 puts a flight task with velocity, acceleration and jerk l
 front of its position controller, every setpoint from a tool passes through here first.
 
 The shaper keeps a kinematic reference (position, velocity, acceleration in NED; yaw,
-yaw rate, yaw acceleration) and moves it each control period towards the setpoint:
+yaw rate, yaw acceleration) and moves it each control period towards the setpoint.
+For a position setpoint:
 
-    position error  --sqrt_controller(k_p, braking accel)-->  velocity wanted (<= limit)
-    velocity error  --sqrt_controller(k_v, jerk)-->           acceleration wanted (<= limit)
-    acceleration    --at most jerk * dt per period-->         acceleration
+    position error  --braking_speed(k, braking accel, jerk)-->  velocity wanted (<= limit)
+    velocity error  --sqrt_controller(4 k, jerk)-->             acceleration wanted (<= limit)
+    acceleration    --at most jerk * dt per period-->           acceleration
     then integrated exactly over the period at constant jerk.
 
-Horizontal motion is shaped as one 2-D vector, so a vehicle at rest flies to a new
-position on the straight line; vertical motion has PX4's separate up / down limits;
-yaw goes the short way round at MPC_YAWRAUTO_MAX. The sqrt controller (linear near
-zero, sqrt(2 a d) beyond) is the speed from which a constant deceleration stops exactly
-at the target: references arrive without overshoot (tests/test_shaping.py).
+braking_speed is the speed from which a jerk-limited stop ends exactly at the target
+(k * distance on the last stretch): references arrive without overshoot
+(tests/test_shaping.py). A velocity setpoint is integrated into a commanded position
+and passed through a linear third-order filter (:func:`at_velocity`). Horizontal motion
+is shaped as one 2-D vector, so a vehicle at rest flies to a new position on the
+straight line; vertical motion has PX4's separate up / down limits; yaw goes the short
+way round at MPC_YAWRAUTO_MAX.
 
 Pure: no clocks, no I/O; the vehicle calls :meth:`SetpointShaper.step` once per control
 period with the period length.

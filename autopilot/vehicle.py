@@ -39,8 +39,6 @@ MAX_TILT_SETPOINT_RAD = 1.0
 # a setpoint that stands still is a place to stop at, not to fly past.
 FEED_FORWARD_HOLD_S = 0.5
 ARMABLE_MODES = (FlightMode.HOLD, FlightMode.GUIDED, FlightMode.OFFBOARD, FlightMode.TAKEOFF)
-SHAPED_MODES = (FlightMode.HOLD, FlightMode.GUIDED, FlightMode.OFFBOARD, FlightMode.TAKEOFF,
-                FlightMode.LAND)
 
 
 class RefusedError(Exception):

@@ -277,3 +277,27 @@ def test_paper_scenarios_are_unchanged(plant, scenario, expected):
     axes = compute_metrics(record, SCENARIOS[scenario], "paper")["axes"]
     for axis, rmse in expected.items():
         assert axes[axis]["rmse"] == pytest.approx(rmse, rel=1e-9), axis
+
+
+# -- bad setpoints ---------------------------------------------------------------------
+@pytest.mark.parametrize("bad, reason", [
+    (Setpoint(np.array([1.0, math.nan, -2.0])), "x without y"),
+    (Setpoint(np.array([math.nan, math.nan, -2.0]), np.array([1.0, math.nan, 0.0])),
+     "neither position nor velocity"),
+    (Setpoint(np.array([2000.0, 0.0, -2.0])), "beyond"),
+    (Setpoint(np.array([0.0, 0.0, -2.0]), np.array([math.inf, 0.0, 0.0])), "infinity"),
+    (Setpoint(velocity_ned_mps=np.array([30.0, 0.0, 0.0])), "beyond"),
+    (Setpoint(np.array([0.0, 0.0, -2.0]), yaw_rad=math.inf), "infinity"),
+    (Setpoint(np.zeros(3), yaw_rate_rps=50.0), "beyond"),
+])
+def test_bad_setpoints_are_refused_and_change_nothing(bad, reason):
+    from autopilot.vehicle import RefusedError
+
+    flight = _airborne()
+    vehicle = flight.vehicle
+    before, heard = vehicle.setpoint, vehicle.setpoint_heard_s
+    with pytest.raises(RefusedError, match=reason):
+        vehicle.position_setpoint(flight.t_s, bad)
+    assert vehicle.setpoint is before and vehicle.setpoint_heard_s == heard
+    flight.run(1.0)
+    assert np.allclose(flight.log[-1, 1:4], (0.0, 0.0, -2.5), atol=0.02)

@@ -73,6 +73,12 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--api", type=_address, default=("127.0.0.1", API_UDP_PORT),
                    metavar="HOST:PORT", help="offboard-API link target (or none)")
     p.add_argument("--api-bind", type=int, default=API_LOCAL_PORT, metavar="PORT")
+    p.add_argument("--max-peers", type=int, default=4, metavar="N",
+                   help="addresses per ground link that get telemetry (0-64; a newcomer "
+                        "takes the place of one silent for 3 s)")
+    p.add_argument("--rt-priority", type=int, default=50, metavar="N",
+                   help="real time: SCHED_FIFO priority of the control loop (1-99; 0: "
+                        "normal scheduling; needs CAP_SYS_NICE, else normal with a note)")
     p.add_argument("--signing-key", metavar="HEX",
                    help="MAVLink 2 signing: 64 hex digits (32 bytes); unsigned commands are "
                         "then ignored")
@@ -108,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
     config = AutopilotConfig(sim_host=args.sim[0], sim_port=args.sim[1], lockstep=args.lockstep,
                              rate_hz=args.rate_hz, state_source=args.state_source,
                              duration_s=args.duration, sysid=check_vehicle_id(args.sysid),
+                             rt_priority=args.rt_priority,
                              zenoh=zenoh_options_from_args(args))
     airframe = airframe_by_name(args.airframe)
     parameters = validate_parameters(dict(args.param))
@@ -143,7 +150,8 @@ def run(args: argparse.Namespace) -> int:
     if args.api is not None or args.api_bind:
         links.append(open_link("api", ("0.0.0.0", args.api_bind), args.api, key, 1,
                                config.sysid))
-    ground = GroundStation(vehicle, links, args.flavour, sysid=config.sysid)
+    ground = GroundStation(vehicle, links, args.flavour, sysid=config.sysid,
+                           max_peers=args.max_peers)
     return Autopilot(config, vehicle, ground, arm_in_reference=args.arm_in_reference).run()
 
 

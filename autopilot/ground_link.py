@@ -12,7 +12,9 @@ from __future__ import annotations
 import contextlib
 import math
 import socket
+import sys
 import time
+from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -31,6 +33,7 @@ from contracts.mavlink import (
     mavlink,
     mode_from_custom,
     new_mavlink,
+    split_frames,
 )
 
 FORCE_DISARM_MAGIC = 21196
@@ -69,10 +72,40 @@ DEFAULT_STREAMS: dict[int, float] = {
 PRODUCIBLE = set(DEFAULT_STREAMS) | {mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION}
 
 
+# Bounded ground work (SPEC section 8): a link reads what its budget allows and leaves
+# the rest to the kernel, which drops what overflows its buffer; nothing a tool or a
+# flood sends can cost the control loop more than the budget.
+PEERS_MAX = 4  # telemetry peers per link (default of --max-peers)
+PEER_SILENT_S = 3.0  # a peer not heard for this long gives its place to a newcomer
+PEER_FORGET_S = 10.0  # ... and is forgotten
+HEARTBEAT_SHED_S = 0.2  # heartbeats closer than this from one address are not decoded
+HEARD_MAX = 256  # addresses whose last heartbeat time is remembered for that
+DROP_WINDOW_S = 1.0  # drop_rate_comm is measured over this window
+DROP_WARNING_S = 60.0  # at most one STATUSTEXT about drops per link per minute
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: kernel drop count per datagram
+DATAGRAM_MAX = 2048  # MAVLink frames are at most 280 bytes; a datagram holds a few
+
+
 @dataclass
 class Peer:
     address: tuple[str, int]
     heard_s: float
+
+
+@dataclass
+class LinkCounters:
+    """What a link has read, refused, shed and lost (cumulative)."""
+
+    datagrams: int = 0  # read from the socket
+    frames: int = 0  # valid frames decoded
+    rejected: int = 0  # not MAVLink, bad CRC, unsigned or wrongly signed, unknown message
+    shed: int = 0  # heartbeats not decoded (the same address was heard just now)
+    not_for_us: int = 0  # valid frames for another system
+    kernel_drops: int = 0  # datagrams the kernel dropped: its buffer was full
+    peers_refused: int = 0  # newcomers turned away while every peer was talking
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(self.__dict__)
 
 
 @dataclass
@@ -86,7 +119,15 @@ class GroundLink:
     intervals_s: dict[int, float] = field(default_factory=lambda: dict(DEFAULT_STREAMS))
     next_due_s: dict[int, float] = field(default_factory=dict)
     peers: dict[tuple[str, int], Peer] = field(default_factory=dict)
-    rejected: int = 0
+    counters: LinkCounters = field(default_factory=LinkCounters)
+    heartbeat_heard_s: OrderedDict[tuple[str, int], float] = field(default_factory=OrderedDict)
+    drop_rate: float = 0.0  # lost / arrived over the last window (0-1)
+    window: tuple[float, int, int] | None = None  # (start, arrived, lost) at its start
+    warned_s: float = -math.inf
+
+    @property
+    def signing(self) -> bool:
+        return self.mav.signing.secret_key is not None
 
     def targets(self) -> list[tuple[str, int]]:
         out = list(self.peers)
@@ -94,12 +135,20 @@ class GroundLink:
             out.append(self.default_remote)
         return out
 
+    def lost(self) -> tuple[int, int]:
+        """(arrived, lost): datagrams that reached the socket, and those the kernel dropped
+        or the link refused."""
+        c = self.counters
+        return c.datagrams + c.kernel_drops, c.kernel_drops + c.rejected
+
 
 def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
               signing_key: bytes | None, link_id: int,
               sysid: int = AUTOPILOT_SYSID) -> GroundLink:
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    with contextlib.suppress(OSError):  # Linux: count the datagrams the kernel drops
+        sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
     sock.bind(bind)
     sock.setblocking(False)
     mav = new_mavlink(sysid, AUTOPILOT_COMPID)
@@ -113,13 +162,50 @@ def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
     return GroundLink(name, sock, remote, mav)
 
 
+def decode_datagram(mav: mavlink.MAVLink, data: bytes) -> list | None:
+    """The messages of one datagram, or None if any part of it is not a valid frame (or,
+    with signing on, not validly signed).
+
+    Each datagram is decoded on its own, never through pymavlink's stream buffer, so a
+    broken datagram cannot spoil the next one. pymavlink records a signed frame's
+    timestamp before it checks the signature; a forged frame would then make the real
+    stream's next frames look old, so the record is undone when the signature fails.
+    """
+    frames, rest = split_frames(data)
+    if rest or not frames:
+        return None
+    signing = mav.signing.secret_key is not None
+    msgs = []
+    for msgid, frame in frames:
+        if msgid < 0 or (signing and not (frame[0] == 0xFD and frame[2] & 1)):
+            return None
+        stream = (frame[-13], frame[5], frame[6]) if signing else None
+        before = mav.signing.stream_timestamps.get(stream) if signing else None
+        try:
+            msg = mav.decode(bytearray(frame))
+        except mavlink.MAVError:
+            if signing:
+                if before is None:
+                    mav.signing.stream_timestamps.pop(stream, None)
+                else:
+                    mav.signing.stream_timestamps[stream] = before
+            return None
+        if isinstance(msg, mavlink.MAVLink_unknown):
+            return None  # no CRC extra to check it against: not trusted
+        msgs.append(msg)
+    return msgs
+
+
 class GroundStation:
     """Serves every ground link: commands, parameters, setpoints, telemetry."""
 
     def __init__(self, vehicle: Vehicle, links: list[GroundLink], flavour: str = "px4",
                  clock: Callable[[], float] = time.monotonic,
-                 sysid: int = AUTOPILOT_SYSID) -> None:
+                 sysid: int = AUTOPILOT_SYSID, max_peers: int = PEERS_MAX) -> None:
+        if not 0 <= max_peers <= 64:
+            raise ValueError(f"max peers must be in [0, 64], got {max_peers}")
         self.vehicle = vehicle
+        self.max_peers = max_peers
         self.sysid = sysid
         # Called once per message sent to tools (the Zenoh MAVLink mirror listens here).
         self.on_sent: Callable[[GroundLink, object, bytes], None] | None = None
@@ -130,40 +216,93 @@ class GroundStation:
         self.mav_autopilot = (mavlink.MAV_AUTOPILOT_PX4 if flavour == "px4"
                               else mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)
         self.commands_handled = 0
+        self._shown: tuple | None = None  # (armed, mode) last announced
+        self._last_refusal_s = -math.inf
 
     # -- receiving -----------------------------------------------------------------------
-    def receive(self, link: GroundLink) -> None:
-        """Read and handle every datagram waiting on the link."""
-        while True:
+    def receive(self, link: GroundLink, budget_s: float = math.inf,
+                max_datagrams: int = 10_000) -> int:
+        """Read and handle datagrams waiting on the link until ``budget_s`` of wall time
+        (or ``max_datagrams``) is spent; what is left waits in the kernel's buffer.
+        Returns the number of datagrams read."""
+        end = time.perf_counter() + budget_s
+        c = link.counters
+        n = 0
+        while n < max_datagrams:
             try:
-                data, address = link.sock.recvfrom(65535)
+                data, ancillary, _flags, address = link.sock.recvmsg(DATAGRAM_MAX, 64)
             except (BlockingIOError, InterruptedError):
-                return
+                break
             except OSError:  # ICMP port unreachable from a tool that went away
                 continue
-            try:
-                msgs = link.mav.parse_buffer(data) or []
-            except mavlink.MAVError:
-                link.rejected += 1
+            n += 1
+            c.datagrams += 1
+            for level, kind, value in ancillary:
+                if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
+                    c.kernel_drops = int.from_bytes(value[:4], sys.byteorder)
+            self._datagram(link, data, address)
+            if time.perf_counter() >= end:
+                break
+        return n
+
+    def _datagram(self, link: GroundLink, data: bytes, address: tuple[str, int]) -> None:
+        c = link.counters
+        now = self.clock()
+        # A HEARTBEAT only says "still here": one per address per HEARTBEAT_SHED_S is
+        # decoded, the rest cost a dictionary lookup (a flood of them stays cheap).
+        heartbeat = (len(data) >= 12 and data[0] == 0xFD and data[7:10] == b"\0\0\0"
+                     and len(data) == 12 + data[1] + (13 if data[2] & 1 else 0))
+        if heartbeat:
+            heard = link.heartbeat_heard_s.get(address)
+            if heard is not None and now - heard < HEARTBEAT_SHED_S:
+                c.shed += 1
+                return
+        msgs = decode_datagram(link.mav, data)
+        if msgs is None:
+            c.rejected += 1
+            return
+        if heartbeat:
+            link.heartbeat_heard_s[address] = now
+            link.heartbeat_heard_s.move_to_end(address)
+            if len(link.heartbeat_heard_s) > HEARD_MAX:
+                link.heartbeat_heard_s.popitem(last=False)
+        for msg in msgs:
+            c.frames += 1
+            if not self._for_us(msg):
+                c.not_for_us += 1
                 continue
-            now = self.clock()
-            for msg in msgs:
-                if msg.get_type() == "BAD_DATA":  # includes unsigned / wrongly signed
-                    link.rejected += 1
-                    continue
-                link.peers[address] = Peer(address, now)
-                self.handle(link, address, msg, now)
+            self._admit(link, address, now)
+            self.handle(link, address, msg, now)
+
+    def _admit(self, link: GroundLink, address: tuple[str, int], now: float) -> None:
+        """``address`` sent a valid frame for us: it hears our telemetry, within
+        ``max_peers``. A full table gives up its quietest peer only if that one has been
+        silent for PEER_SILENT_S, so a burst of new addresses cannot push out a tool
+        that keeps talking."""
+        peer = link.peers.get(address)
+        if peer is not None:
+            peer.heard_s = now
+            return
+        if len(link.peers) >= self.max_peers:
+            quietest = min(link.peers.values(), key=lambda p: p.heard_s, default=None)
+            if quietest is None or now - quietest.heard_s < PEER_SILENT_S:
+                link.counters.peers_refused += 1
+                return
+            del link.peers[quietest.address]
+        link.peers[address] = Peer(address, now)
 
     def _for_us(self, msg) -> bool:
+        """Broadcast (no target, or system 0) or addressed to this system; never our own
+        frames coming back."""
+        if msg.get_srcSystem() == self.sysid and msg.get_srcComponent() == AUTOPILOT_COMPID:
+            return False
         target = getattr(msg, "target_system", 0)
         return target in (0, self.sysid)
 
     def handle(self, link: GroundLink, address, msg, now: float) -> None:
-        kind = msg.get_type()
-        handler = getattr(self, f"_on_{kind.lower()}", None)
-        if handler is None or not self._for_us(msg):
-            return
-        handler(link, address, msg, now)
+        handler = getattr(self, f"_on_{msg.get_type().lower()}", None)
+        if handler is not None and self._for_us(msg):
+            handler(link, address, msg, now)
 
     def _send(self, link: GroundLink, msg, address=None) -> None:
         data = msg.pack(link.mav)
@@ -324,7 +463,7 @@ class GroundStation:
     def _refuse_setpoint(self, link, address, text: str) -> None:
         # Setpoints stream (20 Hz+): one STATUSTEXT per second at most.
         now = self.clock()
-        if now - getattr(self, "_last_refusal_s", -math.inf) >= 1.0:
+        if now - self._last_refusal_s >= 1.0:
             self._last_refusal_s = now
             self._send(link, mavlink.MAVLink_statustext_message(
                 4, f"setpoint refused: {text}".encode()[:50]), address)
@@ -408,7 +547,7 @@ class GroundStation:
         now = self.clock()
         self.vehicle.check_links(now)
         shown = (self.vehicle.armed, self.vehicle.mode)
-        if shown != getattr(self, "_shown", None):  # tools read arming and mode off heartbeats
+        if shown != self._shown:  # tools read arming and mode off heartbeats
             self._shown = shown
             for link in self.links:
                 link.next_due_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now
@@ -418,13 +557,39 @@ class GroundStation:
             self.broadcast(lambda s=severity, t=text: mavlink.MAVLink_statustext_message(
                 s, t.encode()))
         for link in self.links:
-            for peer in [a for a, p in link.peers.items() if now - p.heard_s > 10.0]:
+            for peer in [a for a, p in link.peers.items() if now - p.heard_s > PEER_FORGET_S]:
                 del link.peers[peer]
+            self._measure_drops(link, now)
             for msg_id, interval in link.intervals_s.items():
                 due = link.next_due_s.get(msg_id, now)
                 if now >= due:
                     self._send(link, self._telemetry(msg_id))
                     link.next_due_s[msg_id] = max(due + interval, now)
+
+    def _measure_drops(self, link: GroundLink, now: float) -> None:
+        """drop_rate_comm over the last window; a STATUSTEXT at most once a minute."""
+        arrived, lost = link.lost()
+        if link.window is None:
+            link.window = (now, arrived, lost)
+            return
+        start, arrived0, lost0 = link.window
+        if now - start < DROP_WINDOW_S:
+            return
+        link.window = (now, arrived, lost)
+        new_lost = lost - lost0
+        link.drop_rate = new_lost / max(1, arrived - arrived0)
+        if new_lost and now - link.warned_s >= DROP_WARNING_S:
+            link.warned_s = now
+            c = link.counters
+            self.broadcast(lambda: mavlink.MAVLink_statustext_message(
+                mavlink.MAV_SEVERITY_WARNING,
+                f"{link.name} link: {100 * link.drop_rate:.0f}% of datagrams lost "
+                f"({c.kernel_drops} dropped, {c.rejected} bad)".encode()[:50]))
+
+    def link_status(self) -> dict[str, dict]:
+        """Per link: counters, drop rate and peers (for status records and logs)."""
+        return {link.name: {**link.counters.as_dict(), "drop_rate": round(link.drop_rate, 4),
+                            "peers": len(link.peers)} for link in self.links}
 
     def _telemetry(self, msg_id: int, boot_ms: int | None = None):
         """A telemetry message; ``boot_ms`` defaults to the link clock (the Zenoh mirror
@@ -447,8 +612,15 @@ class GroundStation:
             health = SENSORS if v.sim_link_ok else 0
             if v.sim_link_ok and (v.armed or v.landed):
                 health |= PREARM
+            # drop_rate_comm in centi-percent, errors_comm the frames refused (PX4's
+            # meanings), summed over the links.
+            arrived = sum(ln.lost()[0] for ln in self.links)
+            drop = max((ln.drop_rate for ln in self.links), default=0.0)
+            errors = sum(ln.counters.rejected for ln in self.links)
             return mavlink.MAVLink_sys_status_message(
-                SENSORS | PREARM, SENSORS | PREARM, health, 0, 12000, -1, -1, 0, 0, 0, 0, 0, 0)
+                SENSORS | PREARM, SENSORS | PREARM, health, 0, 12000, -1, -1,
+                min(10_000, round(10_000 * drop)) if arrived else 0, min(errors, 65535),
+                0, 0, 0, 0)
         if msg_id == mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
             return mavlink.MAVLink_extended_sys_state_message(
                 mavlink.MAV_VTOL_STATE_MC, self._landed_state())

@@ -27,7 +27,6 @@ import numpy as np
 
 from autopilot import shaping
 from autopilot.ground_link import GroundStation
-from autopilot.loop_timing import LoopTiming
 from autopilot.reference import REF_SIZE
 from autopilot.vehicle import Vehicle
 from contracts.airframe import max_thrust_n
@@ -44,6 +43,7 @@ from contracts.mavlink import (
     new_mavlink,
     split_frames,
 )
+from contracts.realtime import LoopTiming, set_realtime_priority
 from contracts.telemetry import (
     AUTOPILOT,
     CONTROL,
@@ -58,6 +58,11 @@ STATE_SOURCES = {"odometry": "ODOMETRY", "hil-state": "HIL_STATE_QUATERNION"}
 RECONNECT_S = 0.5
 SPIN_S = 0.0002  # the last stretch before a real-time deadline is busy-waited
 POLL_MIN_S = 0.0012  # below this, sleep (ns resolution) instead of epoll (ms resolution)
+# Ground links get a bounded share of each period, after the control step (SPEC 8).
+GROUND_SHARE = 0.25  # of the period, for reading ground links
+GROUND_GUARD_S = 0.0005  # ground work ends at least this long before the next spin
+SERVICE_PERIOD_S = 0.005  # telemetry out, link failsafes, Zenoh requests, status
+LOCKSTEP_GROUND_BUDGET_S = 0.001  # per service period in lockstep
 MODE_INDEX = {mode: i for i, mode in enumerate(FlightMode)}
 # The MAVLink mirror's sim-time streams (message, period in microseconds of sim time).
 MIRROR_STREAMS_US = ((mavlink.MAVLINK_MSG_ID_HEARTBEAT, 1_000_000),
@@ -76,6 +81,7 @@ class AutopilotConfig:
     state_source: str = "odometry"
     duration_s: float = math.inf  # stop after this much sim time of control
     sysid: int = AUTOPILOT_SYSID  # also the vehicle id in telemetry keys
+    rt_priority: int = 50  # SCHED_FIFO priority of the real-time loop (0: normal)
     zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(enabled=False))
 
     def __post_init__(self) -> None:
@@ -83,6 +89,8 @@ class AutopilotConfig:
             raise ValueError(f"control rate must be in [1, 1000] Hz, got {self.rate_hz!r}")
         if abs(1e6 / self.rate_hz - round(1e6 / self.rate_hz)) > 1e-6:
             raise ValueError(f"rate {self.rate_hz} Hz does not give a whole microsecond period")
+        if not 0 <= self.rt_priority <= 99:
+            raise ValueError(f"real-time priority must be in [0, 99], got {self.rt_priority}")
         if self.state_source not in STATE_SOURCES:
             raise ValueError(f"unknown state source {self.state_source!r}; known: "
                              f"{', '.join(STATE_SOURCES)}")
@@ -182,10 +190,12 @@ class Autopilot:
         self.max_steps = (math.inf if math.isinf(config.duration_s)
                           else round(config.duration_s * 1e6 / self.period_us))
         self.next_control_us: int | None = None
+        self._compute_s = 0.0  # the last control step's compute time [s] ...
+        self._step_start = 0.0  # ... and its start (perf_counter)
+        self._command_sent = 0.0  # when the last motor command went out (perf_counter)
         self.latest: tuple[int, np.ndarray] | None = None
-        self.sel = selectors.DefaultSelector()
-        for link in ground.links:
-            self.sel.register(link.sock, selectors.EVENT_READ, link)
+        self.sel = selectors.DefaultSelector()  # the simulator link only: ground links
+        self._next_service = 0.0               # are read within a budget (_ground_work)
         self._stop = False
         self._progress_at = 0.1
 
@@ -202,23 +212,28 @@ class Autopilot:
             self.log(f"flying the {self.vehicle.reference.kind} reference from "
                      f"t={time_us / 1e6:.3f} s")
         commands = self.vehicle.control()
-        compute_s = time.perf_counter() - start
-        if self.node.enabled:
-            self._publish_step(time_us, compute_s, start)
+        self._compute_s = time.perf_counter() - start
+        self._step_start = start
         self.steps += 1
         if self.max_steps < math.inf and self.steps >= self._progress_at * self.max_steps:
             self.log(f"{100 * self._progress_at:.0f} % ({time_us / 1e6:.1f} s sim)")
             self._progress_at += 0.1
         return commands
 
-    def _answer(self, time_us: int, commands: np.ndarray) -> None:
+    def _answer(self, time_us: int, commands: np.ndarray, stepped: bool) -> None:
+        """The motor command goes out first; telemetry of the step after it."""
         msg = actuator_message(time_us, commands, self.vehicle.armed, self.config.lockstep)
         frame = msg.pack(self.sim.mav)
         if not self.sim.send(frame):
             self._sim_lost()
-        elif self.node.enabled:
-            self.node.mirror(self.config.sysid, AUTOPILOT_COMPID, "HIL_ACTUATOR_CONTROLS",
-                             frame, time_us)
+            return
+        self._command_sent = time.perf_counter()
+        if not self.node.enabled:
+            return
+        if stepped:
+            self._publish_step(time_us, self._compute_s, self._step_start)
+        self.node.mirror(self.config.sysid, AUTOPILOT_COMPID, "HIL_ACTUATOR_CONTROLS",
+                         frame, time_us)
 
     # -- Zenoh ---------------------------------------------------------------------------
     def _publish_step(self, time_us: int, compute_s: float, start_wall_s: float) -> None:
@@ -284,7 +299,7 @@ class Autopilot:
         summary = self.timing.summary() if final and not self.config.lockstep else {}
         self.node.status(round(self.vehicle.sim_t_s * 1e6), final=final, steps=self.steps,
                          armed=self.vehicle.armed, mode=self.vehicle.mode.value,
-                         timing=summary)
+                         timing=summary, links=self.ground.link_status())
 
     def _sim_lost(self) -> None:
         self.sim.close()
@@ -315,12 +330,13 @@ class Autopilot:
             if not self.config.lockstep:
                 self.vehicle.sample(time_us / 1e6, measurement)
                 continue
-            if self.next_control_us is None or time_us >= self.next_control_us:
+            stepped = self.next_control_us is None or time_us >= self.next_control_us
+            if stepped:
                 self.next_control_us = time_us + self.period_us
                 commands = self._control(time_us, measurement)
             else:
                 commands = self.vehicle.last_commands
-            self._answer(time_us, commands)
+            self._answer(time_us, commands, stepped)
             if self.steps >= self.max_steps:
                 self._stop = True
                 return
@@ -358,6 +374,7 @@ class Autopilot:
         summary = self.timing.summary() if not self.config.lockstep else {}
         if summary:
             self.log("timing " + json.dumps(summary))
+        self.log("ground links " + json.dumps(self.ground.link_status()))
         self.log(f"stopped after {self.steps} control steps")
         return 0
 
@@ -377,41 +394,47 @@ class Autopilot:
         max_thrust_n(scratch.airframe)
 
     def _poll(self, timeout_s: float) -> None:
-        for key, _ in self.sel.select(max(0.0, timeout_s)):
-            if key.data == "sim":
-                if self.sim.sock is not None:
-                    self._on_sim_readable()
-                    self._last_sample_wall = time.monotonic()
-            else:
-                self.ground.receive(key.data)
+        """Wait up to ``timeout_s`` for the simulator and read what it sent."""
+        for _key, _ in self.sel.select(max(0.0, timeout_s)):
+            if self.sim.sock is not None:
+                self._on_sim_readable()
+                self._last_sample_wall = time.monotonic()
+
+    def _ground_work(self, budget_s: float) -> None:
+        """Ground links within ``budget_s`` (shared by the links, each read in turn), and
+        every SERVICE_PERIOD_S the telemetry out, Zenoh requests and status."""
+        links = self.ground.links
+        end = time.perf_counter() + budget_s
+        for i, link in enumerate(links):
+            left = end - time.perf_counter()
+            if left <= 0:
+                break
+            self.ground.receive(link, left / (len(links) - i))
+        now = time.monotonic()
+        if now >= self._next_service:
+            self._next_service = now + SERVICE_PERIOD_S
+            self.ground.service()
+            self._service_requests()
+            self._status()
 
     def _run_lockstep(self) -> None:
-        next_service = 0.0
         while not self._stop:
             now = time.monotonic()
             self._connect(now)
-            self._poll(0.02)
-            now = time.monotonic()
-            if now >= next_service:  # ground links: a few hundred Hz at most
-                self.ground.service()
-                self._service_requests()
-                self._status()
-                next_service = now + 0.005
+            self._poll(max(0.0, min(0.02, self._next_service - now)))
+            if time.monotonic() >= self._next_service:
+                self._ground_work(LOCKSTEP_GROUND_BUDGET_S)
 
     def _run_realtime(self) -> None:
+        self.log(set_realtime_priority(self.config.rt_priority))
         period_s = self.period_us / 1e6
+        ground_share_s = GROUND_SHARE * period_s
         next_deadline = time.perf_counter()
-        next_service = 0.0
         previous_start: float | None = None
         while not self._stop:
             now = time.monotonic()
             self._connect(now)
             self._sim_watchdog(now)
-            if now >= next_service:
-                self.ground.service()
-                self._service_requests()
-                self._status()
-                next_service = now + 0.005
             remaining = next_deadline - time.perf_counter()
             if remaining > POLL_MIN_S:
                 # epoll counts whole milliseconds and rounds up: ask for whole ones, early.
@@ -426,8 +449,8 @@ class Autopilot:
             if self.latest is not None and self.vehicle.sim_link_ok:
                 time_us, measurement = self.latest
                 commands = self._control(time_us, measurement)
-                self._answer(time_us, commands)
-                self.timing.record_compute(time.perf_counter() - start)
+                self._answer(time_us, commands, stepped=True)
+                self.timing.record_compute(max(0.0, self._command_sent - start))
                 if previous_start is not None:
                     self.timing.record_period(start - previous_start)
                 previous_start = start
@@ -436,6 +459,8 @@ class Autopilot:
             else:
                 previous_start = None
             next_deadline += period_s
+            self._ground_work(min(ground_share_s, next_deadline - SPIN_S - GROUND_GUARD_S
+                                  - time.perf_counter()))
             late = time.perf_counter() - next_deadline
             if late > 0:  # a whole period lost: count it and re-anchor
                 skipped = int(late // period_s) + 1

@@ -44,6 +44,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--hold", action="store_true",
                    help="lockstep: wait for a start request over Zenoh before the first sample")
     p.add_argument("--seed", type=int, default=0, help="seed of sensor noise and link loss")
+    p.add_argument("--rt-priority", type=int, default=40, metavar="N",
+                   help="real time: SCHED_FIFO priority (1-99; 0: normal scheduling)")
     add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT)
     return p
 
@@ -58,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
         schedule=load_schedule(args.schedule) if args.schedule else (),
         exit_on_disconnect=args.exit_on_disconnect, duration_s=args.duration,
         vehicle_id=args.vehicle, zenoh=zenoh_options_from_args(args), hold=args.hold,
-        seed=args.seed)
+        seed=args.seed, rt_priority=args.rt_priority)
     return Simulator(config).run()
 
 

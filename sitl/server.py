@@ -48,6 +48,7 @@ from contracts.perturbations import (
     plant_perturbations_at,
     sensor_effects_at,
 )
+from contracts.realtime import Histogram, set_realtime_priority
 from contracts.telemetry import SITL, STATE, json_record
 from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
 from sitl.plant import Plant, VehicleState
@@ -71,6 +72,7 @@ class SimulatorConfig:
     zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(enabled=False))
     hold: bool = False  # wait for a start request before the first sample
     seed: int = 0  # sensor noise and link loss
+    rt_priority: int = 40  # real time: SCHED_FIFO priority (0: normal), below the autopilot's
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.rate_hz) and 1.0 <= self.rate_hz <= 2000.0):
@@ -95,7 +97,7 @@ class LinkStats:
     commands_received: int = 0
     bad_messages: int = 0
     periods_without_command: int = 0
-    latency_s: list[float] = field(default_factory=list)
+    latency: Histogram = field(default_factory=Histogram)  # sample -> its answer [s]
 
 
 class Simulator:
@@ -281,11 +283,11 @@ class Simulator:
         return 0
 
     def _latency_summary(self) -> dict:
-        if not self.stats.latency_s:
+        h = self.stats.latency
+        if h.n == 0:
             return {}
-        latency = np.array(self.stats.latency_s) * 1e3
-        return {"p50_ms": float(np.percentile(latency, 50)),
-                "p99_ms": float(np.percentile(latency, 99)), "max_ms": float(latency.max())}
+        return {"p50_ms": h.percentile(50) * 1e3, "p99_ms": h.percentile(99) * 1e3,
+                "max_ms": h.max_s * 1e3}
 
     def _idle(self) -> None:
         """While sim time stands still: take requests, say we are here."""
@@ -370,6 +372,7 @@ class Simulator:
                 return
 
     def _run_realtime(self, server: socket.socket) -> None:
+        self.log(set_realtime_priority(self.config.rt_priority))
         server.setblocking(False)
         conn: socket.socket | None = None
         sel = selectors.DefaultSelector()
@@ -421,7 +424,7 @@ class Simulator:
                         if answered is not None:
                             got_command = True
                             last_command_time = self.time_us / 1e6
-                            self.stats.latency_s.append(max(0, self.time_us - answered) / 1e6)
+                            self.stats.latency.add(max(0, self.time_us - answered) / 1e6)
                             if timed_out:
                                 self.log(f"actuator commands flowing at t="
                                          f"{self.time_us / 1e6:.3f} s")

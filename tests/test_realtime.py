@@ -1,11 +1,11 @@
-"""Loop statistics in fixed memory (autopilot/loop_timing.py)."""
+"""Loop statistics in fixed memory (contracts/realtime.py)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from autopilot.loop_timing import BIN_S, BINS, Histogram, LoopTiming
+from contracts.realtime import BIN_S, BINS, Histogram, LoopTiming
 
 
 def test_percentiles_match_numpy_within_a_bin() -> None:

@@ -1,5 +1,5 @@
-"""Real-time loop statistics in fixed memory: the same cost per period after an hour as
-after a second.
+"""What the two vehicle processes need to keep a real-time loop: scheduling priority, and
+loop statistics in fixed memory (the same cost per period after an hour as after a second).
 
 Periods and compute times go into histograms of 1 us bins (up to 50 ms, then one
 overflow bin) with running counts, sums and maxima; percentiles are read off the
@@ -8,6 +8,8 @@ Percentiles are the upper edge of their bin: at most 1 us above the exact value.
 """
 
 from __future__ import annotations
+
+import os
 
 import numpy as np
 
@@ -79,3 +81,18 @@ class LoopTiming:
             "compute_max_ms": c.max_s * 1e3,
             "deadline_misses": self.misses,
         }
+
+
+def set_realtime_priority(priority: int) -> str:
+    """Ask for SCHED_FIFO at ``priority`` (1-99) for the calling thread, as PX4 does for its
+    tasks on Linux; 0 leaves the scheduler alone. Returns what was done, for the log: a
+    process without the right (CAP_SYS_NICE) keeps the normal scheduler and says so."""
+    if priority <= 0:
+        return "normal scheduling (real-time priority not asked for)"
+    if not 1 <= priority <= 99:
+        raise ValueError(f"real-time priority must be in [1, 99] (0: off), got {priority}")
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError) as exc:
+        return f"normal scheduling: SCHED_FIFO {priority} refused ({exc})"
+    return f"SCHED_FIFO priority {priority}"

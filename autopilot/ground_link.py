@@ -30,10 +30,10 @@ from contracts.mavlink import (
     AUTOPILOT_SYSID,
     FlightMode,
     custom_mode,
+    datagram_frames,
     mavlink,
     mode_from_custom,
     new_mavlink,
-    split_frames,
 )
 
 FORCE_DISARM_MAGIC = 21196
@@ -83,6 +83,8 @@ HEARD_MAX = 256  # addresses whose last heartbeat time is remembered for that
 DROP_WINDOW_S = 1.0  # drop_rate_comm is measured over this window
 DROP_WARNING_S = 60.0  # at most one STATUSTEXT about drops per link per minute
 SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: kernel drop count per datagram
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
+RCVBUF_BYTES = 1 << 20
 DATAGRAM_MAX = 2048  # MAVLink frames are at most 280 bytes; a datagram holds a few
 
 
@@ -90,6 +92,7 @@ DATAGRAM_MAX = 2048  # MAVLink frames are at most 280 bytes; a datagram holds a 
 class Peer:
     address: tuple[str, int]
     heard_s: float
+    interactive: bool = False  # has sent more than HEARTBEATs: a tool, not a bystander
 
 
 @dataclass
@@ -149,6 +152,10 @@ def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     with contextlib.suppress(OSError):  # Linux: count the datagrams the kernel drops
         sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+    try:  # room for a burst between two reads (privileged: past the system's rmem_max)
+        sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RCVBUF_BYTES)
+    except OSError:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
     sock.bind(bind)
     sock.setblocking(False)
     mav = new_mavlink(sysid, AUTOPILOT_COMPID)
@@ -171,13 +178,13 @@ def decode_datagram(mav: mavlink.MAVLink, data: bytes) -> list | None:
     timestamp before it checks the signature; a forged frame would then make the real
     stream's next frames look old, so the record is undone when the signature fails.
     """
-    frames, rest = split_frames(data)
-    if rest or not frames:
+    frames = datagram_frames(data)
+    if frames is None:
         return None
     signing = mav.signing.secret_key is not None
     msgs = []
-    for msgid, frame in frames:
-        if msgid < 0 or (signing and not (frame[0] == 0xFD and frame[2] & 1)):
+    for frame in frames:
+        if signing and not (frame[0] == 0xFD and frame[2] & 1):
             return None
         stream = (frame[-13], frame[5], frame[6]) if signing else None
         before = mav.signing.stream_timestamps.get(stream) if signing else None
@@ -226,28 +233,39 @@ class GroundStation:
         (or ``max_datagrams``) is spent; what is left waits in the kernel's buffer.
         Returns the number of datagrams read."""
         end = time.perf_counter() + budget_s
+        now = self.clock()  # one reading for the batch: the link clock counts seconds
         c = link.counters
+        sock = link.sock
         n = 0
         while n < max_datagrams:
             try:
-                data, ancillary, _flags, address = link.sock.recvmsg(DATAGRAM_MAX, 64)
+                if n == 0:  # the first carries the kernel's drop count (SO_RXQ_OVFL)
+                    data, ancillary, _flags, address = sock.recvmsg(DATAGRAM_MAX, 64)
+                    for level, kind, value in ancillary:
+                        if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL:
+                            c.kernel_drops = int.from_bytes(value[:4], sys.byteorder)
+                else:
+                    data, address = sock.recvfrom(DATAGRAM_MAX)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError:  # ICMP port unreachable from a tool that went away
+                n += 1
                 continue
             n += 1
             c.datagrams += 1
-            for level, kind, value in ancillary:
-                if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(value) >= 4:
-                    c.kernel_drops = int.from_bytes(value[:4], sys.byteorder)
-            self._datagram(link, data, address)
-            if time.perf_counter() >= end:
+            if data and (data[0] == 0xFD or data[0] == 0xFE):
+                if self._datagram(link, data, address, now) and time.perf_counter() >= end:
+                    break  # a decoded datagram may have cost a reply: look at the clock
+            else:
+                c.rejected += 1  # not MAVLink: refused at its first byte
+            if n % 8 == 0 and time.perf_counter() >= end:
                 break
         return n
 
-    def _datagram(self, link: GroundLink, data: bytes, address: tuple[str, int]) -> None:
+    def _datagram(self, link: GroundLink, data: bytes, address: tuple[str, int],
+                  now: float) -> bool:
+        """Handle one datagram; False if it was refused or shed without decoding."""
         c = link.counters
-        now = self.clock()
         # A HEARTBEAT only says "still here": one per address per HEARTBEAT_SHED_S is
         # decoded, the rest cost a dictionary lookup (a flood of them stays cheap).
         heartbeat = (len(data) >= 12 and data[0] == 0xFD and data[7:10] == b"\0\0\0"
@@ -256,11 +274,11 @@ class GroundStation:
             heard = link.heartbeat_heard_s.get(address)
             if heard is not None and now - heard < HEARTBEAT_SHED_S:
                 c.shed += 1
-                return
+                return False
         msgs = decode_datagram(link.mav, data)
         if msgs is None:
             c.rejected += 1
-            return
+            return True
         if heartbeat:
             link.heartbeat_heard_s[address] = now
             link.heartbeat_heard_s.move_to_end(address)
@@ -271,25 +289,30 @@ class GroundStation:
             if not self._for_us(msg):
                 c.not_for_us += 1
                 continue
-            self._admit(link, address, now)
+            self._admit(link, address, now, interactive=not heartbeat)
             self.handle(link, address, msg, now)
+        return True
 
-    def _admit(self, link: GroundLink, address: tuple[str, int], now: float) -> None:
+    def _admit(self, link: GroundLink, address: tuple[str, int], now: float,
+               interactive: bool) -> None:
         """``address`` sent a valid frame for us: it hears our telemetry, within
-        ``max_peers``. A full table gives up its quietest peer only if that one has been
-        silent for PEER_SILENT_S, so a burst of new addresses cannot push out a tool
-        that keeps talking."""
+        ``max_peers``. A full table gives a newcomer the place of its quietest peer only
+        if that one has been silent for PEER_SILENT_S (PEER_FORGET_S for a peer that has
+        sent commands or requests), so a burst of new addresses cannot push out a tool
+        that keeps talking, even when the burst costs it a few datagrams."""
         peer = link.peers.get(address)
         if peer is not None:
             peer.heard_s = now
+            peer.interactive = peer.interactive or interactive
             return
         if len(link.peers) >= self.max_peers:
-            quietest = min(link.peers.values(), key=lambda p: p.heard_s, default=None)
-            if quietest is None or now - quietest.heard_s < PEER_SILENT_S:
+            silent = [p for p in link.peers.values() if now - p.heard_s >= (
+                PEER_FORGET_S if p.interactive else PEER_SILENT_S)]
+            if not silent:
                 link.counters.peers_refused += 1
                 return
-            del link.peers[quietest.address]
-        link.peers[address] = Peer(address, now)
+            del link.peers[min(silent, key=lambda p: p.heard_s).address]
+        link.peers[address] = Peer(address, now, interactive)
 
     def _for_us(self, msg) -> bool:
         """Broadcast (no target, or system 0) or addressed to this system; never our own

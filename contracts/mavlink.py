@@ -266,6 +266,22 @@ def mode_from_custom(flavour: str, number: int) -> FlightMode | None:
     return None
 
 
+def frame_size(buffer: bytes, i: int) -> int:
+    """Length of the MAVLink frame starting at ``buffer[i]`` from its header (signature
+    included); 0 if its header is incomplete, -1 if no frame starts there."""
+    magic = buffer[i]
+    if magic == 0xFD:
+        return 12 + buffer[i + 1] + (13 if buffer[i + 2] & 1 else 0) if i + 10 <= len(buffer) \
+            else 0
+    if magic == 0xFE:
+        return 8 + buffer[i + 1] if i + 6 <= len(buffer) else 0
+    return -1
+
+
+def frame_msgid(frame: bytes) -> int:
+    return frame[7] | frame[8] << 8 | frame[9] << 16 if frame[0] == 0xFD else frame[5]
+
+
 def split_frames(buffer: bytes) -> tuple[list[tuple[int, bytes]], bytes]:
     """Cut a byte stream into whole MAVLink frames ``(msgid, frame)`` and the remainder.
 
@@ -276,24 +292,30 @@ def split_frames(buffer: bytes) -> tuple[list[tuple[int, bytes]], bytes]:
     frames = []
     i, n = 0, len(buffer)
     while i < n:
-        magic = buffer[i]
-        if magic == 0xFD and i + 10 <= n:
-            size = 12 + buffer[i + 1] + (13 if buffer[i + 2] & 1 else 0)
-            msgid = buffer[i + 7] | buffer[i + 8] << 8 | buffer[i + 9] << 16
-        elif magic == 0xFE and i + 6 <= n:
-            size = 8 + buffer[i + 1]
-            msgid = buffer[i + 5]
-        elif magic in (0xFD, 0xFE):
-            break  # header incomplete
-        else:
+        size = frame_size(buffer, i)
+        if size < 0:
             j = i + 1
             while j < n and buffer[j] not in (0xFD, 0xFE):
                 j += 1
             frames.append((-1, buffer[i:j]))
             i = j
             continue
-        if i + size > n:
-            break
-        frames.append((msgid, buffer[i:i + size]))
+        if size == 0 or i + size > n:
+            break  # incomplete
+        frames.append((frame_msgid(buffer[i:i + 10]), buffer[i:i + size]))
         i += size
     return frames, buffer[i:]
+
+
+def datagram_frames(datagram: bytes) -> list[bytes] | None:
+    """The frames of one datagram, or None unless it is whole frames end to end (a check
+    on headers only: cheap enough to run on every datagram of a flood)."""
+    frames = []
+    i, n = 0, len(datagram)
+    while i < n:
+        size = frame_size(datagram, i)
+        if size <= 0 or i + size > n:
+            return None
+        frames.append(datagram[i:i + size])
+        i += size
+    return frames or None

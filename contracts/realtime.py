@@ -9,6 +9,7 @@ Percentiles are the upper edge of their bin: at most 1 us above the exact value.
 
 from __future__ import annotations
 
+import collections
 import os
 
 import numpy as np
@@ -55,6 +56,12 @@ class LoopTiming:
         self.compute = Histogram()
         self.period_total_s = 0.0
         self.misses = 0
+        # The last few misses (step index, how late [s]): where to look, in fixed memory.
+        self.recent_misses: collections.deque[tuple[int, float]] = collections.deque(maxlen=8)
+
+    def record_miss(self, periods: int, late_s: float) -> None:
+        self.misses += periods
+        self.recent_misses.append((self.compute.n, late_s))
 
     def record_period(self, period_s: float) -> None:
         self.period_total_s += period_s
@@ -80,6 +87,8 @@ class LoopTiming:
             "compute_p99_ms": c.percentile(99) * 1e3,
             "compute_max_ms": c.max_s * 1e3,
             "deadline_misses": self.misses,
+            "recent_misses": [{"step": step, "late_ms": round(late * 1e3, 3)}
+                              for step, late in self.recent_misses],
         }
 
 

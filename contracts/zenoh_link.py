@@ -228,12 +228,17 @@ class TelemetryNode:
         """A MAVLink frame onto ``mavlink/sysid/compid/NAME`` (sim time in the attachment)."""
         if self.session is None:
             return
+        pub = self.mirror_publisher(sysid, compid, message_name)
+        pub.put(frame, MIRROR_ATTACHMENT.pack(self.mirror_seq, sim_time_us))
+        self.mirror_seq += 1
+
+    def mirror_publisher(self, sysid: int, compid: int, message_name: str) -> Publisher:
+        """The publisher of a mirror key (declared on first use, or ahead of a loop)."""
         key = mavlink_key(sysid, compid, message_name)
         pub = self._mirror.get(key)
         if pub is None:
             pub = self._mirror[key] = Publisher(self.session, key)
-        pub.put(frame, MIRROR_ATTACHMENT.pack(self.mirror_seq, sim_time_us))
-        self.mirror_seq += 1
+        return pub
 
     def counts(self) -> dict[str, int]:
         out = {pub.key: pub.count for pub in self.publishers.values() if pub is not self._status}

@@ -92,7 +92,12 @@ def generate(kind: str, rate: float, ports: list[int], sources: int, duration_s:
 
 # -- the tool --------------------------------------------------------------------------
 class Tool:
-    """A pymavlink client on its own port: asks once a second, times the answers."""
+    """A pymavlink client on its own port. Once a second it sends a HEARTBEAT, asks for a
+    parameter and sends a command; it times PARAM_VALUE and COMMAND_ACK (a request not
+    answered within a second counts as unanswered, and is asked again) and the longest
+    gap between the vehicle's HEARTBEATs."""
+
+    ANSWERS = ("PARAM_VALUE", "COMMAND_ACK")
 
     def __init__(self, vehicle_port: int) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -100,18 +105,23 @@ class Tool:
         self.sock.setblocking(False)
         self.vehicle = ("127.0.0.1", vehicle_port)
         self.mav = new_mavlink(245, 190)
+        self.reset(None)
+
+    def reset(self, now: float | None) -> None:
         self.asked_s: dict[str, float] = {}
-        self.worst_s = {"HEARTBEAT": 0.0, "PARAM_VALUE": 0.0, "COMMAND_ACK": 0.0}
-        self.unanswered = {k: 0 for k in self.worst_s}
+        self.worst_s = dict.fromkeys(self.ANSWERS, 0.0)
+        self.answered = dict.fromkeys(self.ANSWERS, 0)
+        self.unanswered = dict.fromkeys(self.ANSWERS, 0)
+        self.last_heartbeat_s = now
+        self.heartbeat_gap_s = 0.0
 
     def send(self, msg) -> None:
         self.sock.sendto(msg.pack(self.mav), self.vehicle)
 
     def ask(self, now: float) -> None:
         for kind, when in list(self.asked_s.items()):
-            if now - when > 1.0:  # not answered within a second
+            if now - when > 1.0:
                 self.unanswered[kind] += 1
-                self.worst_s[kind] = max(self.worst_s[kind], now - when)
                 del self.asked_s[kind]
         self.send(mavlink.MAVLink_heartbeat_message(
             mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
@@ -119,22 +129,35 @@ class Tool:
         self.send(mavlink.MAVLink_command_long_message(
             1, 1, mavlink.MAV_CMD_REQUEST_MESSAGE, 0,
             mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION, 0, 0, 0, 0, 0, 0))
-        for kind in self.worst_s:
+        for kind in self.ANSWERS:
             self.asked_s.setdefault(kind, now)
 
-    def read(self, now: float) -> set[str]:
-        got = set()
+    def read(self, now: float) -> bool:
+        """Read what came; True if the vehicle's HEARTBEAT was among it."""
+        heartbeat = False
         parser = new_mavlink(245, 190)
         while True:
             try:
                 data = self.sock.recv(65535)
             except BlockingIOError:
-                return got
+                return heartbeat
             for msg in parser.parse_buffer(data) or []:
                 kind = msg.get_type()
-                if kind in self.asked_s:
+                if kind == "HEARTBEAT":
+                    heartbeat = True
+                    if self.last_heartbeat_s is not None:
+                        self.heartbeat_gap_s = max(self.heartbeat_gap_s,
+                                                   now - self.last_heartbeat_s)
+                    self.last_heartbeat_s = now
+                elif kind in self.asked_s:
                     self.worst_s[kind] = max(self.worst_s[kind], now - self.asked_s.pop(kind))
-                    got.add(kind)
+                    self.answered[kind] += 1
+
+    def summary(self, now: float) -> dict:
+        gap = max(self.heartbeat_gap_s, now - (self.last_heartbeat_s or now))
+        return {"heartbeat_gap_max_s": round(gap, 3),
+                **{f"{k.lower()}_worst_s": round(v, 3) for k, v in self.worst_s.items()},
+                "answered": self.answered, "unanswered": self.unanswered}
 
 
 def run_row(name: str, rate_hz: float, flood_s: float, folder: Path) -> dict:
@@ -157,6 +180,7 @@ def run_row(name: str, rate_hz: float, flood_s: float, folder: Path) -> dict:
          "--api-bind", str(api_port), "--api", "none", *zenoh_args],
         stdout=ap_log, stderr=subprocess.STDOUT)
     tool = Tool(gcs_port)
+    tool_summary: dict = {}
     flood = None
     next_ask = 0.0
     connected = False
@@ -164,11 +188,9 @@ def run_row(name: str, rate_hz: float, flood_s: float, folder: Path) -> dict:
         deadline = time.monotonic() + 120.0
         while autopilot.poll() is None and time.monotonic() < deadline:
             now = time.monotonic()
-            got = tool.read(now)
-            if not connected and got:
+            if tool.read(now) and not connected:
                 connected = True
-                tool.worst_s = {k: 0.0 for k in tool.worst_s}  # count from the flood on
-                tool.unanswered = {k: 0 for k in tool.unanswered}
+                tool.reset(now)  # count from the flood on
                 if kind is not None:
                     ports = [gcs_port if p == "gcs" else api_port for p in flooded]
                     flood = subprocess.Popen(
@@ -178,7 +200,10 @@ def run_row(name: str, rate_hz: float, flood_s: float, folder: Path) -> dict:
             if now >= next_ask:
                 tool.ask(now)
                 next_ask = now + 1.0
+            if flood is not None and flood.poll() is not None and not tool_summary:
+                tool_summary = tool.summary(now)  # the flood is over
             time.sleep(0.01)
+        tool_summary = tool_summary or tool.summary(time.monotonic())
         autopilot.wait(timeout=30.0)
         sim.wait(timeout=30.0)
     finally:
@@ -196,7 +221,7 @@ def run_row(name: str, rate_hz: float, flood_s: float, folder: Path) -> dict:
         if line.startswith("autopilot: ground links "):
             links = json.loads(line.removeprefix("autopilot: ground links "))
     return {"row": name, "timing": timing, "flood": flood_stats, "links": links,
-            "tool_worst_s": tool.worst_s, "tool_unanswered": tool.unanswered}
+            "tool": tool_summary}
 
 
 def main() -> None:
@@ -207,6 +232,7 @@ def main() -> None:
     parser.add_argument("--rate-hz", type=float, default=250.0)
     parser.add_argument("--flood-s", type=float, default=10.0)
     parser.add_argument("--json", type=Path, help="also write the results here")
+    parser.add_argument("--keep", type=Path, help="keep the processes' logs in this folder")
     parser.add_argument("--generate", nargs=5, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.generate:
@@ -217,6 +243,7 @@ def main() -> None:
         return
     results = []
     with tempfile.TemporaryDirectory() as tmp:
+        tmp = args.keep or tmp
         for name in args.rows.split(","):
             if name not in ROWS:
                 parser.error(f"unknown row {name!r}")
@@ -229,8 +256,8 @@ def main() -> None:
                   f"{t.get('jitter_max_ms', float('nan')):.3f} ms"
                   f"  compute p99 {t.get('compute_p99_ms', float('nan')):.3f} ms"
                   f"  flood {r['flood'].get('rate_per_s', 0):8.0f}/s"
-                  f"  tool worst {max(r['tool_worst_s'].values()):.3f} s"
-                  f" unanswered {sum(r['tool_unanswered'].values())}", flush=True)
+                  , flush=True)
+            print(f"{'':14s} tool {json.dumps(r['tool'])}", flush=True)
             if r["links"]:
                 print(f"{'':14s} links {json.dumps(r['links'])}", flush=True)
     if args.json:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import contextlib
 import math
 import socket
-import sys
+import struct
 import time
 from collections import OrderedDict
 from collections.abc import Callable
@@ -82,7 +82,8 @@ HEARTBEAT_SHED_S = 0.2  # heartbeats closer than this from one address are not d
 HEARD_MAX = 256  # addresses whose last heartbeat time is remembered for that
 DROP_WINDOW_S = 1.0  # drop_rate_comm is measured over this window
 DROP_WARNING_S = 60.0  # at most one STATUSTEXT about drops per link per minute
-SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)  # Linux: kernel drop count per datagram
+SO_MEMINFO = 55  # Linux: the socket's memory figures; index 8 counts the datagrams dropped
+SK_MEMINFO_DROPS = 8
 SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
 RCVBUF_BYTES = 1 << 20
 DATAGRAM_MAX = 2048  # MAVLink frames are at most 280 bytes; a datagram holds a few
@@ -138,9 +139,18 @@ class GroundLink:
             out.append(self.default_remote)
         return out
 
+    def read_kernel_drops(self) -> None:
+        """Datagrams the kernel dropped for want of buffer (Linux; elsewhere 0)."""
+        try:
+            info = self.sock.getsockopt(socket.SOL_SOCKET, SO_MEMINFO, 4 * (SK_MEMINFO_DROPS + 1))
+        except OSError:
+            return
+        if len(info) >= 4 * (SK_MEMINFO_DROPS + 1):
+            self.counters.kernel_drops = struct.unpack_from("I", info, 4 * SK_MEMINFO_DROPS)[0]
+
     def lost(self) -> tuple[int, int]:
         """(arrived, lost): datagrams that reached the socket, and those the kernel dropped
-        or the link refused."""
+        or the link refused (as of the last read_kernel_drops)."""
         c = self.counters
         return c.datagrams + c.kernel_drops, c.kernel_drops + c.rejected
 
@@ -150,8 +160,6 @@ def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
               sysid: int = AUTOPILOT_SYSID) -> GroundLink:
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    with contextlib.suppress(OSError):  # Linux: count the datagrams the kernel drops
-        sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
     try:  # room for a burst between two reads (privileged: past the system's rmem_max)
         sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RCVBUF_BYTES)
     except OSError:
@@ -239,13 +247,7 @@ class GroundStation:
         n = 0
         while n < max_datagrams:
             try:
-                if n == 0:  # the first carries the kernel's drop count (SO_RXQ_OVFL)
-                    data, ancillary, _flags, address = sock.recvmsg(DATAGRAM_MAX, 64)
-                    for level, kind, value in ancillary:
-                        if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL:
-                            c.kernel_drops = int.from_bytes(value[:4], sys.byteorder)
-                else:
-                    data, address = sock.recvfrom(DATAGRAM_MAX)
+                data, address = sock.recvfrom(DATAGRAM_MAX)
             except (BlockingIOError, InterruptedError):
                 break
             except OSError:  # ICMP port unreachable from a tool that went away
@@ -591,6 +593,7 @@ class GroundStation:
 
     def _measure_drops(self, link: GroundLink, now: float) -> None:
         """drop_rate_comm over the last window; a STATUSTEXT at most once a minute."""
+        link.read_kernel_drops()
         arrived, lost = link.lost()
         if link.window is None:
             link.window = (now, arrived, lost)
@@ -606,11 +609,13 @@ class GroundStation:
             c = link.counters
             self.broadcast(lambda: mavlink.MAVLink_statustext_message(
                 mavlink.MAV_SEVERITY_WARNING,
-                f"{link.name} link: {100 * link.drop_rate:.0f}% of datagrams lost "
+                f"{link.name}: {100 * link.drop_rate:.0f}% of datagrams lost "
                 f"({c.kernel_drops} dropped, {c.rejected} bad)".encode()[:50]))
 
     def link_status(self) -> dict[str, dict]:
         """Per link: counters, drop rate and peers (for status records and logs)."""
+        for link in self.links:
+            link.read_kernel_drops()
         return {link.name: {**link.counters.as_dict(), "drop_rate": round(link.drop_rate, 4),
                             "peers": len(link.peers)} for link in self.links}
 

@@ -90,10 +90,12 @@ def _ground_parsers(ground: argparse.ArgumentParser) -> None:
     log.add_argument("--out", type=Path, required=True, help="folder for the .mcap files")
     log.add_argument("--name", default="logger", help="logger name (status key, token)")
     log.add_argument("--prefix", default="telemetry", help="file name prefix")
-    log.add_argument("--chunk-kib", type=int, default=32, help="MCAP chunk size [KiB]")
+    log.add_argument("--chunk-kib", type=int, default=256, help="MCAP chunk size [KiB]")
     log.add_argument("--flush-s", type=float, default=0.25,
                      help="close a chunk at least this often [s]")
     log.add_argument("--rotate-mib", type=int, default=512, help="start a new file past this")
+    log.add_argument("--rotate-chunks", type=int, default=4096,
+                     help="... or past this many chunks (bounds the logger's memory)")
     log.add_argument("--compression", default="zstd", choices=["zstd", "lz4", "none"])
     add_zenoh_arguments(log, [DEFAULT_GROUND_ENDPOINT], [])
 

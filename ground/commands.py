@@ -219,6 +219,7 @@ def ground_log_command(args: argparse.Namespace) -> int:
     config = LoggerConfig(args.out, zenoh_options_from_args(args), name=args.name,
                           prefix=args.prefix, chunk_bytes=args.chunk_kib * 1024,
                           flush_period_s=args.flush_s, rotate_bytes=args.rotate_mib * 2**20,
+                          rotate_chunks=args.rotate_chunks,
                           compression=args.compression)
     return Logger(config).run()
 

@@ -9,7 +9,9 @@
 * The file being written is ``NAME.mcap.active``; it becomes ``NAME.mcap`` when finished.
   At start the logger salvages any ``.active`` file left by a crash: every complete record
   is copied into a finished file.
-* Past ``rotate_bytes`` the file is finished and the next one started.
+* Past ``rotate_bytes``, or ``rotate_chunks`` chunks, the file is finished and the next
+  one started: the writer keeps each chunk's index in memory until its file is finished,
+  so the chunk cap is what keeps the logger's memory flat over a long run.
 * A record that does not fit its key's schema is refused (counted, reported on stderr and
   in the status reply), not written.
 """
@@ -60,9 +62,10 @@ class LoggerConfig:
     zenoh: ZenohOptions
     name: str = "logger"
     prefix: str = "telemetry"
-    chunk_bytes: int = 32 * 1024
+    chunk_bytes: int = 256 * 1024
     flush_period_s: float = 0.25
     rotate_bytes: int = 512 * 1024 * 1024
+    rotate_chunks: int = 4096  # ~3 MB of chunk index; at 4 chunks/s, a file per 17 min
     compression: str = "zstd"
 
     def __post_init__(self) -> None:
@@ -76,6 +79,9 @@ class LoggerConfig:
             raise ValueError(f"flush period must be in [0.01, 1] s, got {self.flush_period_s}")
         if self.rotate_bytes < 1024 * 1024:
             raise ValueError(f"rotation size must be at least 1 MiB, got {self.rotate_bytes}")
+        if self.rotate_chunks < 16:
+            raise ValueError(f"rotation chunk count must be at least 16, got "
+                             f"{self.rotate_chunks}")
         if self.compression not in ("zstd", "lz4", "none"):
             raise ValueError(f"compression must be zstd, lz4 or none, got {self.compression!r}")
 
@@ -148,6 +154,11 @@ class McapFile:
     @property
     def size(self) -> int:
         return self.stream.tell()
+
+    @property
+    def chunks(self) -> int:
+        """Chunks written so far (each holds an index entry in memory until finish)."""
+        return len(self.writer._Writer__chunk_indices)  # noqa: SLF001
 
     def finish(self) -> Path:
         self.writer.finish()
@@ -316,7 +327,8 @@ class Logger:
                 if now >= next_flush:
                     self._file.flush()
                     next_flush = now + self.config.flush_period_s
-                    if self._file.size >= self.config.rotate_bytes:
+                    if (self._file.size >= self.config.rotate_bytes
+                            or self._file.chunks >= self.config.rotate_chunks):
                         self._rotate()
                 if not wrote:
                     self._stop.wait(0.005)

@@ -384,6 +384,9 @@ def load_schedule(path: Path) -> tuple[Perturbation, ...]:
     return schedule_from_json(Path(path).read_text())
 
 
+MAX_PERTURBATIONS = 1000  # per process: each step's cost grows with the count
+
+
 class PerturbationBook:
     """A process's schedule: the entries it was started with plus those requested since.
 
@@ -414,6 +417,9 @@ class PerturbationBook:
         return entry.to_request()
 
     def _accept(self, data: dict[str, Any], now_s: float) -> Perturbation:
+        if len(self.entries) >= MAX_PERTURBATIONS:
+            raise ValueError(f"{MAX_PERTURBATIONS} perturbations already: every control step "
+                             "looks at each, so no more are taken")
         entry = parse_request(data)
         if entry.target != self.target:
             raise ValueError(f"{entry.kind} acts in the {entry.target}, not the {self.target}")

@@ -236,6 +236,13 @@ class Logger:
         self._file = McapFile(path, self.config)
         self.log(f"writing {path.name}")
 
+    def _flush(self) -> None:
+        """Close the open chunk; start the next file past the size or chunk limit."""
+        self._file.flush()
+        if (self._file.size >= self.config.rotate_bytes
+                or self._file.chunks >= self.config.rotate_chunks):
+            self._rotate()
+
     def _rotate(self) -> None:
         done = self._file.finish()
         self.counters.files.append(str(done))
@@ -325,11 +332,8 @@ class Logger:
                 self._answer_queries()
                 now = time.monotonic()
                 if now >= next_flush:
-                    self._file.flush()
+                    self._flush()
                     next_flush = now + self.config.flush_period_s
-                    if (self._file.size >= self.config.rotate_bytes
-                            or self._file.chunks >= self.config.rotate_chunks):
-                        self._rotate()
                 if not wrote:
                     self._stop.wait(0.005)
         finally:

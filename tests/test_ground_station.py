@@ -16,6 +16,9 @@ import pytest
 from autopilot.control.factory import load_models
 from contracts.airframe import PAPER
 from contracts.perturbations import (
+    MAX_PERTURBATIONS,
+    SIMULATOR,
+    PerturbationBook,
     parse_request,
     parse_schedule,
     plant_perturbations_at,
@@ -96,6 +99,15 @@ def test_now_requests_take_the_receivers_time():
     assert (fixed.start_s, fixed.end_s) == (7.25, 7.75)
     with pytest.raises(ValueError, match="duration_s, not end_s"):
         parse_request({"kind": "kick", "start_s": "now", "end_s": 3})
+
+
+def test_a_process_takes_a_bounded_number_of_perturbations():
+    book = PerturbationBook(SIMULATOR)
+    for _ in range(MAX_PERTURBATIONS):
+        book.handle({"kind": "wind", "ned_mps": [1, 0, 0], "start_s": 1.0}, 0.0)
+    with pytest.raises(ValueError, match="no more are taken"):
+        book.handle({"kind": "wind", "ned_mps": [1, 0, 0], "start_s": 1.0}, 0.0)
+    assert len(book.entries) == MAX_PERTURBATIONS
 
 
 @pytest.mark.parametrize("request_, text", [

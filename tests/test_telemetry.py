@@ -359,3 +359,24 @@ def test_a_logger_on_a_taken_port_says_so(tmp_path):
             logger.stop()
             s.close()
     assert "cannot open a zenoh session" in (tmp_path / "logger.log").read_text()
+
+
+def test_the_logger_starts_a_new_file_past_its_chunk_cap(tmp_path):
+    """The MCAP writer keeps each chunk's index in memory until its file is finished: the
+    chunk cap is what keeps a long run's logger memory flat. In process, no Zenoh."""
+    from contracts.telemetry import json_record
+    from ground.logger import Logger, LoggerConfig
+
+    config = LoggerConfig(tmp_path, ZenohOptions(enabled=False), rotate_chunks=16)
+    logger = Logger(config, log=lambda _text: None)
+    logger._start_files()
+    key = vehicle_key(1, "autopilot", "status")
+    for seq in range(40):  # one record per chunk: files of 16, 16 and 8 records
+        logger._write(key, json_record(seq, seq * 1000, final=False), None, seq)
+        logger._flush()
+    logger._file.finish()
+    files = sorted(tmp_path.glob("*.mcap"))
+    assert [p.name for p in files] == [f"telemetry-00{i}.mcap" for i in range(3)]
+    assert [len(list(iter_messages(p))) for p in files] == [16, 16, 8]
+    with pytest.raises(ValueError, match="at least 16"):
+        LoggerConfig(tmp_path, ZenohOptions(enabled=False), rotate_chunks=15)

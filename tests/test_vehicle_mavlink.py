@@ -5,7 +5,10 @@ Real processes (simulator + autopilot, real time, rigid-body plant) on real sock
 
 from __future__ import annotations
 
+import json
 import math
+import random
+import socket
 import time
 
 import pytest
@@ -353,3 +356,49 @@ def test_stalled_simulator_triggers_the_link_loss_failsafe_after_its_timeout(veh
     tool.texts.clear()
     tool.wait_text("simulator link up", 5)
     assert _custom_mode(tool.heartbeat()) == (4, 6)  # landing once state is back
+
+
+def test_a_flooded_vehicle_answers_and_shows_its_drops(vehicle):
+    """Garbage and valid heartbeats from 50 ports on the vehicle's port: the tool is
+    still answered, the loss shows in SYS_STATUS and one
+    STATUSTEXT, and the counters reach the log. (The timing under 100k datagrams/s is
+    measured by tests/benchmarks/bench_flood.py, not here.)"""
+    procs, tool = vehicle
+    target = ("127.0.0.1", procs.vehicle_port)
+    flood = [socket.socket(socket.AF_INET, socket.SOCK_DGRAM) for _ in range(50)]
+    beats = [M.MAVLink_heartbeat_message(M.MAV_TYPE_GCS, M.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
+             .pack(M.MAVLink(None, 100 + i, 190)) for i in range(50)]
+    rng = random.Random(7)
+    garbage = [rng.randbytes(rng.randint(1, 200)) for _ in range(64)]
+    try:
+        start = time.monotonic()
+        sent = 0
+
+        def burst() -> None:  # ~20k datagrams/s while the tool waits
+            nonlocal sent
+            for _ in range(200):
+                i = sent % 50
+                flood[i].sendto(beats[i] if sent % 2 else garbage[sent % 64], target)
+                sent += 1
+
+        tool.mav.param_request_read_send(1, 1, b"MPC_XY_VEL_MAX", -1)
+        value = tool.wait(lambda m: m.get_type() == "PARAM_VALUE", 3.0, "PARAM_VALUE", burst)
+        assert value.param_id == "MPC_XY_VEL_MAX"
+        status = tool.wait(lambda m: m.get_type() == "SYS_STATUS" and m.drop_rate_comm > 0,
+                           5.0, "SYS_STATUS with drops", burst)
+        assert status.errors_comm > 0
+        tool.wait_text("gcs: ", 5.0)
+        ack = tool.command(M.MAV_CMD_REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+        assert ack.result == ACCEPTED
+        tool.wait_type("HEARTBEAT", 2.0)  # still hears the vehicle
+        assert time.monotonic() - start < 15.0 and sent > 0
+    finally:
+        for s in flood:
+            s.close()
+    procs.autopilot.terminate()
+    procs.autopilot.wait(10)
+    line = next(ln for ln in procs.autopilot_log().splitlines()
+                if ln.startswith("autopilot: ground links {"))
+    gcs = json.loads(line.removeprefix("autopilot: ground links "))["gcs"]
+    assert gcs["rejected"] > 0 and gcs["peers_refused"] > 0 and gcs["peers"] <= 4
+    assert sum(t.startswith("gcs: ") for t in tool.texts) == 1  # once a minute at most

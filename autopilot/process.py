@@ -462,10 +462,12 @@ class Autopilot:
                 continue
             if remaining > SPIN_S:
                 time.sleep(remaining - SPIN_S)  # nanosecond sleep; I/O waits in the buffers
-            self._poll(0.0)  # the newest sample
             while time.perf_counter() < next_deadline:
                 pass
+            # The step starts on the deadline by reading its input: the newest sample's
+            # decoding counts as compute, and cannot make the start late.
             start = time.perf_counter()
+            self._poll(0.0)
             stepped = self.latest is not None and self.vehicle.sim_link_ok
             if stepped:
                 time_us, measurement = self.latest

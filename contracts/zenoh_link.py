@@ -93,6 +93,10 @@ VEHICLE_LISTEN = ["tcp/127.0.0.1:0"]
 VEHICLE_CONNECT = [DEFAULT_GROUND_ENDPOINT]
 
 
+TX_QUEUE_BATCHES = 16  # of up to 64 KiB: about 3 s of one vehicle's telemetry
+WAIT_BEFORE_DROP_US = 20
+
+
 def session_config(options: ZenohOptions, exit_on_listen_failure: bool = False) -> zenoh.Config:
     config = zenoh.Config()
     config.insert_json5("mode", json.dumps(options.mode))
@@ -104,6 +108,13 @@ def session_config(options: ZenohOptions, exit_on_listen_failure: bool = False) 
     config.insert_json5("connect/retry", json.dumps(
         {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 1.5}))
     config.insert_json5("scouting/multicast/enabled", "false")
+    # A put into a full transmit queue waits up to wait_before_drop before dropping; at
+    # Zenoh's default (1 ms, 2 batches) a subscriber that stalls for a moment would make
+    # each of a control step's puts wait a millisecond: deadline misses. A deeper queue
+    # absorbs the stall instead, and a full one drops at once (counted as lost records).
+    config.insert_json5("transport/link/tx/queue/size/data", str(TX_QUEUE_BATCHES))
+    config.insert_json5("transport/link/tx/queue/congestion_control/drop/wait_before_drop",
+                        str(WAIT_BEFORE_DROP_US))
     return config
 
 

@@ -94,7 +94,7 @@ def _ground_parsers(ground: argparse.ArgumentParser) -> None:
     log.add_argument("--flush-s", type=float, default=0.25,
                      help="close a chunk at least this often [s]")
     log.add_argument("--rotate-mib", type=int, default=512, help="start a new file past this")
-    log.add_argument("--rotate-chunks", type=int, default=4096,
+    log.add_argument("--rotate-chunks", type=int, default=2048,
                      help="... or past this many chunks (bounds the logger's memory)")
     log.add_argument("--compression", default="zstd", choices=["zstd", "lz4", "none"])
     add_zenoh_arguments(log, [DEFAULT_GROUND_ENDPOINT], [])

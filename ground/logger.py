@@ -65,7 +65,7 @@ class LoggerConfig:
     chunk_bytes: int = 256 * 1024
     flush_period_s: float = 0.25
     rotate_bytes: int = 512 * 1024 * 1024
-    rotate_chunks: int = 4096  # ~3 MB of chunk index; at 4 chunks/s, a file per 17 min
+    rotate_chunks: int = 2048  # ~2 MB of chunk index; at 4 chunks/s, a file per 8.5 min
     compression: str = "zstd"
 
     def __post_init__(self) -> None:

@@ -197,8 +197,7 @@ class Autopilot:
         self.max_steps = (math.inf if math.isinf(config.duration_s)
                           else round(config.duration_s * 1e6 / self.period_us))
         self.next_control_us: int | None = None
-        self._compute_s = 0.0  # the last control step's compute time [s] ...
-        self._step_start = 0.0  # ... and its start (perf_counter)
+        self._step_start = 0.0  # when the last control step began (perf_counter)
         self._command_sent = 0.0  # when the last motor command went out (perf_counter)
         self.latest: tuple[int, np.ndarray] | None = None
         self.sel = selectors.DefaultSelector()  # the simulator link only: ground links
@@ -209,8 +208,11 @@ class Autopilot:
     def stop(self, *_args) -> None:
         self._stop = True
 
-    def _control(self, time_us: int, measurement: np.ndarray) -> np.ndarray:
-        start = time.perf_counter()
+    def _control(self, time_us: int, measurement: np.ndarray,
+                 step_start: float | None = None) -> np.ndarray:
+        """One control step; ``step_start`` is when the step began (real time: its
+        deadline, before the newest sample was read), for the timing record."""
+        start = time.perf_counter() if step_start is None else step_start
         if not self.node.requests.empty():
             self._service_requests()
         self.vehicle.sample(time_us / 1e6, measurement)
@@ -219,7 +221,6 @@ class Autopilot:
             self.log(f"flying the {self.vehicle.reference.kind} reference from "
                      f"t={time_us / 1e6:.3f} s")
         commands = self.vehicle.control()
-        self._compute_s = time.perf_counter() - start
         self._step_start = start
         self.steps += 1
         if self.max_steps < math.inf and self.steps >= self._progress_at * self.max_steps:
@@ -238,7 +239,8 @@ class Autopilot:
         if not self.node.enabled:
             return
         if stepped:
-            self._publish_step(time_us, self._compute_s, self._step_start)
+            self._publish_step(time_us, self._command_sent - self._step_start,
+                               self._step_start)
         self.node.mirror(self.config.sysid, AUTOPILOT_COMPID, "HIL_ACTUATOR_CONTROLS",
                          frame, time_us)
 
@@ -471,7 +473,7 @@ class Autopilot:
             stepped = self.latest is not None and self.vehicle.sim_link_ok
             if stepped:
                 time_us, measurement = self.latest
-                commands = self._control(time_us, measurement)
+                commands = self._control(time_us, measurement, start)
                 self._answer(time_us, commands, stepped=True)
                 self.timing.record_compute(max(0.0, self._command_sent - start))
                 if previous_start is not None:

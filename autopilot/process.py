@@ -420,9 +420,15 @@ class Autopilot:
                 self._last_sample_wall = time.monotonic()
 
     def _ground_work(self, budget_s: float) -> None:
-        """Ground links within ``budget_s`` (shared by the links, each read in turn), and
-        every SERVICE_PERIOD_S the telemetry out, Zenoh requests and status."""
+        """Every SERVICE_PERIOD_S the telemetry out, Zenoh requests and status; then the
+        ground links with what is left of ``budget_s`` (shared by the links in turn)."""
         end = time.perf_counter() + budget_s
+        now = time.monotonic()
+        if now >= self._next_service:
+            self._next_service = now + SERVICE_PERIOD_S
+            self.ground.service()
+            self._service_requests()
+            self._status()
         busy = list(self.ground.links)  # round robin in slices: a flooded link cannot
         while busy:                      # take a quiet one's turn, nor leave budget unused
             for link in tuple(busy):
@@ -432,12 +438,6 @@ class Autopilot:
                     break
                 if self.ground.receive(link, left, GROUND_SLICE) < GROUND_SLICE:
                     busy.remove(link)  # read empty
-        now = time.monotonic()
-        if now >= self._next_service:
-            self._next_service = now + SERVICE_PERIOD_S
-            self.ground.service()
-            self._service_requests()
-            self._status()
 
     def _run_lockstep(self) -> None:
         while not self._stop:

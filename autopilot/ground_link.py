@@ -129,10 +129,6 @@ class GroundLink:
     window: tuple[float, int, int] | None = None  # (start, arrived, lost) at its start
     warned_s: float = -math.inf
 
-    @property
-    def signing(self) -> bool:
-        return self.mav.signing.secret_key is not None
-
     def targets(self) -> list[tuple[str, int]]:
         out = list(self.peers)
         if self.default_remote is not None and self.default_remote not in self.peers:
@@ -292,7 +288,9 @@ class GroundStation:
                 c.not_for_us += 1
                 continue
             self._admit(link, address, now, interactive=not heartbeat)
-            self.handle(link, address, msg, now)
+            handler = getattr(self, f"_on_{msg.get_type().lower()}", None)
+            if handler is not None:
+                handler(link, address, msg, now)
         return True
 
     def _admit(self, link: GroundLink, address: tuple[str, int], now: float,
@@ -323,11 +321,6 @@ class GroundStation:
             return False
         target = getattr(msg, "target_system", 0)
         return target in (0, self.sysid)
-
-    def handle(self, link: GroundLink, address, msg, now: float) -> None:
-        handler = getattr(self, f"_on_{msg.get_type().lower()}", None)
-        if handler is not None and self._for_us(msg):
-            handler(link, address, msg, now)
 
     def _send(self, link: GroundLink, msg, address=None) -> None:
         data = msg.pack(link.mav)
@@ -593,14 +586,14 @@ class GroundStation:
 
     def _measure_drops(self, link: GroundLink, now: float) -> None:
         """drop_rate_comm over the last window; a STATUSTEXT at most once a minute."""
+        if link.window is not None and now - link.window[0] < DROP_WINDOW_S:
+            return
         link.read_kernel_drops()
         arrived, lost = link.lost()
         if link.window is None:
             link.window = (now, arrived, lost)
             return
-        start, arrived0, lost0 = link.window
-        if now - start < DROP_WINDOW_S:
-            return
+        _start, arrived0, lost0 = link.window
         link.window = (now, arrived, lost)
         new_lost = lost - lost0
         link.drop_rate = new_lost / max(1, arrived - arrived0)
@@ -640,14 +633,13 @@ class GroundStation:
             health = SENSORS if v.sim_link_ok else 0
             if v.sim_link_ok and (v.armed or v.landed):
                 health |= PREARM
-            # drop_rate_comm in centi-percent, errors_comm the frames refused (PX4's
-            # meanings), summed over the links.
-            arrived = sum(ln.lost()[0] for ln in self.links)
+            # PX4's meanings: drop_rate_comm in centi-percent (the worst link's, over the
+            # last window), errors_comm the datagrams refused (all links).
             drop = max((ln.drop_rate for ln in self.links), default=0.0)
             errors = sum(ln.counters.rejected for ln in self.links)
             return mavlink.MAVLink_sys_status_message(
                 SENSORS | PREARM, SENSORS | PREARM, health, 0, 12000, -1, -1,
-                min(10_000, round(10_000 * drop)) if arrived else 0, min(errors, 65535),
+                min(10_000, round(10_000 * drop)), min(errors, 65535),
                 0, 0, 0, 0)
         if msg_id == mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
             return mavlink.MAVLink_extended_sys_state_message(

@@ -303,8 +303,9 @@ class Autopilot:
             request.reply(True, sim_time_us=round(now_s * 1e6), **answer)
 
     def _status(self, final: bool = False) -> None:
-        # The timing summary only goes into the final status: computing it for every
-        # status (every 5 ms) would cost the loop for nothing.
+        if not self.node.status_due(final):
+            return  # asked every 5 ms, published once a second: gather nothing till then
+        # The timing summary only goes into the final status (it reads whole histograms).
         summary = self.timing.summary() if final and not self.config.lockstep else {}
         self.node.status(round(self.vehicle.sim_t_s * 1e6), final=final, steps=self.steps,
                          armed=self.vehicle.armed, mode=self.vehicle.mode.value,

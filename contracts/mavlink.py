@@ -278,8 +278,11 @@ def frame_size(buffer: bytes, i: int) -> int:
     return -1
 
 
-def frame_msgid(frame: bytes) -> int:
-    return frame[7] | frame[8] << 8 | frame[9] << 16 if frame[0] == 0xFD else frame[5]
+def frame_msgid(buffer: bytes, i: int) -> int:
+    """Message id of the frame whose header starts at ``buffer[i]``."""
+    if buffer[i] == 0xFD:
+        return buffer[i + 7] | buffer[i + 8] << 8 | buffer[i + 9] << 16
+    return buffer[i + 5]
 
 
 def split_frames(buffer: bytes) -> tuple[list[tuple[int, bytes]], bytes]:
@@ -302,7 +305,7 @@ def split_frames(buffer: bytes) -> tuple[list[tuple[int, bytes]], bytes]:
             continue
         if size == 0 or i + size > n:
             break  # incomplete
-        frames.append((frame_msgid(buffer[i:i + 10]), buffer[i:i + size]))
+        frames.append((frame_msgid(buffer, i), buffer[i:i + size]))
         i += size
     return frames, buffer[i:]
 

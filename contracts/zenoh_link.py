@@ -259,14 +259,18 @@ class TelemetryNode:
     def status(self, sim_time_us: int, final: bool = False, force: bool = False,
                **extra: Any) -> None:
         """Counters at most once a second of wall time (always when final or forced)."""
-        now = time.monotonic()
-        if self.session is None or not (final or force or now >= self._status_due_s):
+        if not self.status_due(final or force):
             return
+        now = time.monotonic()
         self._status_due_s = now + STATUS_PERIOD_S
         failed = sum(p.failed for p in [*self.publishers.values(), *self._mirror.values()])
         self._status.put(json_record(self._status.count, sim_time_us, process=self.process,
                                      vehicle=self.vehicle, final=final,
                                      published=self.counts(), failed_puts=failed, **extra))
+
+    def status_due(self, final: bool = False) -> bool:
+        """Whether ``status`` would publish now: callers skip gathering its fields."""
+        return self.session is not None and (final or time.monotonic() >= self._status_due_s)
 
     def close(self) -> None:
         if self.session is None:

@@ -75,6 +75,8 @@ class SimulatorConfig:
     rt_priority: int = 40  # real time: SCHED_FIFO priority (0: normal), below the autopilot's
 
     def __post_init__(self) -> None:
+        if not 0 <= self.rt_priority <= 99:
+            raise ValueError(f"real-time priority must be in [0, 99], got {self.rt_priority}")
         if not (math.isfinite(self.rate_hz) and 1.0 <= self.rate_hz <= 2000.0):
             raise ValueError(f"rate must be in [1, 2000] Hz, got {self.rate_hz!r}")
         period_us = 1e6 / self.rate_hz

@@ -35,6 +35,7 @@ from contracts.mavlink import (
     mode_from_custom,
     new_mavlink,
 )
+from contracts.vectors import MEAS_EULER, MEAS_VEL, MEAS_VZ, MEAS_YAW, MEAS_Z, MEASUREMENT
 
 FORCE_DISARM_MAGIC = 21196
 PARAM_COUNT = len(PARAMETERS)
@@ -448,7 +449,8 @@ class GroundStation:
 
     def _on_set_position_target_local_ned(self, link, address, msg, now) -> None:
         v = self.vehicle
-        here = v.measurement[0:3] if v.measurement is not None else np.zeros(3)
+        here = (v.measurement[MEASUREMENT.position_ned_m] if v.measurement is not None
+                else np.zeros(3))
         try:
             setpoint = local_setpoint(
                 msg.coordinate_frame, msg.type_mask, (msg.x, msg.y, msg.z),
@@ -645,28 +647,30 @@ class GroundStation:
             return mavlink.MAVLink_extended_sys_state_message(
                 mavlink.MAV_VTOL_STATE_MC, self._landed_state())
         if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE:
-            return mavlink.MAVLink_attitude_message(boot_ms, *m[6:9], *m[9:12])
+            return mavlink.MAVLink_attitude_message(boot_ms, *m[MEASUREMENT.euler_rad],
+                                                    *m[MEASUREMENT.euler_rate_rad_s])
         if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION:
-            q = _quat_from_euler(m[6], m[7], m[8])
-            return mavlink.MAVLink_attitude_quaternion_message(boot_ms, *q, *m[9:12],
-                                                               [0.0, 0.0, 0.0, 0.0])
+            q = _quat_from_euler(m[MEAS_EULER], m[MEAS_EULER + 1], m[MEAS_YAW])
+            return mavlink.MAVLink_attitude_quaternion_message(
+                boot_ms, *q, *m[MEASUREMENT.euler_rate_rad_s], [0.0, 0.0, 0.0, 0.0])
         if msg_id == mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
-            return mavlink.MAVLink_local_position_ned_message(boot_ms, *m[0:6])
+            return mavlink.MAVLink_local_position_ned_message(
+                boot_ms, *m[MEASUREMENT.position_ned_m], *m[MEASUREMENT.velocity_ned_mps])
         if msg_id == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
-            lat, lon, alt = geodetic_from_ned(*m[0:3])
-            heading = int(math.degrees(m[8]) % 360.0 * 100) % 36000
+            lat, lon, alt = geodetic_from_ned(*m[MEASUREMENT.position_ned_m])
+            heading = int(math.degrees(m[MEAS_YAW]) % 360.0 * 100) % 36000
             return mavlink.MAVLink_global_position_int_message(
                 boot_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),
-                int(round(-m[2] * 1000)), *(int(np.clip(round(c * 100), -32768, 32767))
-                                            for c in m[3:6]), heading)
+                int(round(-m[MEAS_Z] * 1000)), *(int(np.clip(round(c * 100), -32768, 32767))
+                                            for c in m[MEASUREMENT.velocity_ned_mps]), heading)
         if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
             return self._home_position()
         if msg_id == mavlink.MAVLINK_MSG_ID_VFR_HUD:
-            speed = float(np.hypot(m[3], m[4]))
-            heading = int(math.degrees(m[8]) % 360.0)
+            speed = float(np.hypot(m[MEAS_VEL], m[MEAS_VEL + 1]))
+            heading = int(math.degrees(m[MEAS_YAW]) % 360.0)
             throttle = int(round(100 * float(np.mean(v.last_commands))))
             return mavlink.MAVLink_vfr_hud_message(speed, speed, heading, throttle,
-                                                   HOME_ALT_AMSL_M - m[2], -m[5])
+                                                   HOME_ALT_AMSL_M - m[MEAS_Z], -m[MEAS_VZ])
         raise ValueError(f"no telemetry for message {msg_id}")
 
     def _landed_state(self) -> int:

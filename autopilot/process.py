@@ -28,7 +28,6 @@ import numpy as np
 
 from autopilot import shaping
 from autopilot.ground_link import GroundStation
-from autopilot.reference import REF_SIZE
 from autopilot.vehicle import Vehicle
 from contracts.airframe import max_thrust_n
 from contracts.frames import euler_from_quat, wrap_pi
@@ -54,6 +53,7 @@ from contracts.telemetry import (
     TIMING,
     json_record,
 )
+from contracts.vectors import CHANNEL_INTERNALS, MEAS_Z, REF_SIZE
 from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
 
 STATE_SOURCES = {"odometry": "ODOMETRY", "hil-state": "HIL_STATE_QUATERNION"}
@@ -183,7 +183,8 @@ class Autopilot:
         self._timing_pub = self.node.publisher("timing")
         self._event_pub = self.node.publisher("perturbation")
         self.node.serve("perturb")
-        self._control_floats = np.zeros(CONTROL.dtype.itemsize // 8 - CONTROL.float_offset())
+        self._control_record = CONTROL.buffer()
+        self._timing_record = TIMING.buffer()
         self._mirror_mav = new_mavlink(config.sysid, AUTOPILOT_COMPID)
         self._mirror_due_us = [0] * len(MIRROR_STREAMS_US)
         self._previous_control_wall: float | None = None
@@ -249,23 +250,27 @@ class Autopilot:
         """The control record, the timing record, kick events and the mirror streams."""
         v = self.vehicle
         c = v.controller
-        f = self._control_floats
-        f[0] = time_us / 1e6 - v.reference_start_s
-        f[1:13], f[13:31], f[31:33], f[33:37] = (v.measurement, v.last_ref, v.last_kick,
-                                                 v.last_commands)
-        f[37:97] = c.telemetry.T.ravel()
+        record = self._control_record
+        record["seq"], record["sim_time_us"] = self._control_pub.count, time_us
+        record["mode"] = MODE_INDEX[v.mode]
+        record["flags"] = (FLAG_ARMED if v.armed else 0) | (FLAG_FAILSAFE if v.failsafe else 0)
+        record["reference_time_s"] = time_us / 1e6 - v.reference_start_s
+        record["measurement"], record["reference"] = v.measurement, v.last_ref
+        record["kick_rad"], record["motor_commands"] = v.last_kick, v.last_commands
+        for i, name in enumerate(CHANNEL_INTERNALS):
+            record[f"ch_{name}"] = c.telemetry[:, i]
         theta_g = getattr(c, "theta_g", None)
-        f[97:103] = np.nan if theta_g is None else theta_g
+        record["theta_g"] = np.nan if theta_g is None else theta_g
         theta_f = getattr(c, "theta_f", None)
-        flags = (FLAG_ARMED if v.armed else 0) | (FLAG_FAILSAFE if v.failsafe else 0)
-        pub = self._control_pub
-        pub.put(CONTROL.encode((pub.count, time_us, MODE_INDEX[v.mode], flags), f,
-                               tuple(theta_f[:3]) if theta_f is not None else ((), (), ())))
+        self._control_pub.put(record.encode(
+            tuple(theta_f[:3]) if theta_f is not None else ((), (), ())))
         previous, self._previous_control_wall = self._previous_control_wall, start_wall_s
-        period_s = math.nan if previous is None else start_wall_s - previous
-        pub = self._timing_pub
-        pub.put(TIMING.encode((pub.count, time_us, self.timing.misses),
-                              np.array((compute_s, period_s))))
+        record = self._timing_record
+        record["seq"], record["sim_time_us"] = self._timing_pub.count, time_us
+        record["deadline_misses"] = self.timing.misses
+        record["compute_s"] = compute_s
+        record["period_s"] = math.nan if previous is None else start_wall_s - previous
+        self._timing_pub.put(record.encode())
         if v.perturbations.entries:
             for event, e in v.perturbations.changes(time_us / 1e6):
                 self._event_pub.put(json_record(self._event_pub.count, time_us, event=event,
@@ -394,7 +399,7 @@ class Autopilot:
         which would otherwise be a deadline miss, or a simulator-link loss in real time."""
         scratch = self.vehicle._make_controller(self.vehicle.parameters)
         hover = np.zeros(12)
-        hover[2] = -1.0
+        hover[MEAS_Z] = -1.0
         scratch.step(hover, np.zeros(REF_SIZE), True, np.zeros(2))
         scratch.step(hover, np.zeros(REF_SIZE), True, np.zeros(2), math.nan, True)
         scratch.step(hover, np.zeros(REF_SIZE), False, np.zeros(2), 10.0, True)

@@ -1,7 +1,8 @@
 """Reference trajectories in sim time (SPEC section 6), with analytic derivatives.
 
 The autopilot generates these itself so that a lockstep scenario is deterministic.
-A reference is a flat array (see ``REF_*``) plus whether the position loop is active.
+A reference is a flat array (``contracts.vectors.REFERENCE``) plus whether the position
+loop is active.
 """
 
 from __future__ import annotations
@@ -12,11 +13,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-# Layout of the reference vector: position NED, its two derivatives, then Euler angles
-# and their two derivatives (the latter ignored for roll/pitch in position mode).
-REF_POS, REF_VEL, REF_ACC = 0, 3, 6
-REF_EULER, REF_EULER_RATE, REF_EULER_ACC = 9, 12, 15
-REF_SIZE = 18
+from contracts.vectors import (
+    REF_ACC,
+    REF_EULER,
+    REF_EULER_ACC,
+    REF_EULER_RATE,
+    REF_POS,
+    REF_SIZE,
+    REF_VEL,
+)
 
 REFERENCE_KINDS = ("attitude-sine", "attitude-hold", "position-sine", "hover", "excitation")
 

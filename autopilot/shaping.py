@@ -36,7 +36,8 @@ import numpy as np
 from numba import njit
 
 from autopilot.control.command_filter import command_filter_step
-from autopilot.reference import (
+from contracts.frames import wrap_pi
+from contracts.vectors import (
     REF_ACC,
     REF_EULER,
     REF_EULER_ACC,
@@ -45,7 +46,6 @@ from autopilot.reference import (
     REF_SIZE,
     REF_VEL,
 )
-from contracts.frames import wrap_pi
 
 # Gains of the reference's own loops (1/s). Near the target the position loop is linear
 # (v = k e) and the velocity loop too (a = 4 k dv): the pair is critically damped, so
@@ -75,8 +75,8 @@ class ShapingLimits(NamedTuple):
     acc_up_mps2: float  # MPC_ACC_UP_MAX
     acc_down_mps2: float  # MPC_ACC_DOWN_MAX
     jerk_mps3: float  # MPC_JERK_AUTO
-    yaw_rate_max_rps: float  # MPC_YAWRAUTO_MAX, in rad/s
-    yaw_acc_max_rps2: float  # MPC_YAWRAUTO_ACC, in rad/s^2
+    yaw_rate_max_rad_s: float  # MPC_YAWRAUTO_MAX, in rad/s
+    yaw_acc_max_rad_s2: float  # MPC_YAWRAUTO_ACC, in rad/s^2
 
 
 def limits_from_parameters(p: dict[str, float]) -> ShapingLimits:
@@ -100,7 +100,7 @@ class Setpoint:
     velocity_ned_mps: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     accel_ned_mps2: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
     yaw_rad: float = math.nan
-    yaw_rate_rps: float = math.nan
+    yaw_rate_rad_s: float = math.nan
 
     def __post_init__(self) -> None:
         self.position_ned_m = np.asarray(self.position_ned_m, dtype=float)
@@ -338,8 +338,8 @@ class SetpointShaper:
         self._commanded = np.zeros(3)  # a velocity setpoint's integral, per group
         self._following = np.zeros(2, dtype=np.bool_)  # horizontal, vertical
         self.yaw_rad = 0.0
-        self.yaw_rate_rps = 0.0
-        self.yaw_acc_rps2 = 0.0
+        self.yaw_rate_rad_s = 0.0
+        self.yaw_acc_rad_s2 = 0.0
         self._tilt = np.zeros((2, 2))  # attitude setpoints: roll, pitch filter (angle, rate)
 
     def reset(self, position_ned_m, velocity_ned_mps, yaw_rad: float) -> None:
@@ -349,8 +349,8 @@ class SetpointShaper:
         self.accel_ned_mps2[:] = 0.0
         self._following[:] = False
         self.yaw_rad = wrap_pi(float(yaw_rad))
-        self.yaw_rate_rps = 0.0
-        self.yaw_acc_rps2 = 0.0
+        self.yaw_rate_rad_s = 0.0
+        self.yaw_acc_rad_s2 = 0.0
 
     def stopping_point(self, limits: ShapingLimits) -> np.ndarray:
         """Where the reference comes to rest if it brakes now (a hold begins there)."""
@@ -375,17 +375,17 @@ class SetpointShaper:
         ref[REF_VEL:REF_VEL + 3] = self.velocity_ned_mps
         ref[REF_ACC:REF_ACC + 3] = self.accel_ned_mps2
         ref[REF_EULER + 2] = self.yaw_rad
-        ref[REF_EULER_RATE + 2] = self.yaw_rate_rps
-        ref[REF_EULER_ACC + 2] = self.yaw_acc_rps2
+        ref[REF_EULER_RATE + 2] = self.yaw_rate_rad_s
+        ref[REF_EULER_ACC + 2] = self.yaw_acc_rad_s2
         return ref
 
-    def reset_attitude(self, euler_rad, euler_rate_rps) -> None:
+    def reset_attitude(self, euler_rad, euler_rate_rad_s) -> None:
         """Start attitude shaping from the vehicle's attitude and its rates."""
         self._tilt[:, 0] = euler_rad[0:2]
-        self._tilt[:, 1] = euler_rate_rps[0:2]
+        self._tilt[:, 1] = euler_rate_rad_s[0:2]
         self.yaw_rad = wrap_pi(float(euler_rad[2]))
-        self.yaw_rate_rps = float(euler_rate_rps[2])
-        self.yaw_acc_rps2 = 0.0
+        self.yaw_rate_rad_s = float(euler_rate_rad_s[2])
+        self.yaw_acc_rad_s2 = 0.0
 
     def step_attitude(self, euler_rad: np.ndarray, limits: ShapingLimits,
                       tilt_filter: np.ndarray, dt: float) -> np.ndarray:
@@ -400,25 +400,25 @@ class SetpointShaper:
                                     rate_max, acc_max)
         self._step_yaw(Setpoint(yaw_rad=float(euler_rad[2])), limits, dt)
         ref[REF_EULER + 2] = self.yaw_rad
-        ref[REF_EULER_RATE + 2] = self.yaw_rate_rps
-        ref[REF_EULER_ACC + 2] = self.yaw_acc_rps2
+        ref[REF_EULER_RATE + 2] = self.yaw_rate_rad_s
+        ref[REF_EULER_ACC + 2] = self.yaw_acc_rad_s2
         return ref
 
     def _step_yaw(self, sp: Setpoint, lim: ShapingLimits, dt: float) -> None:
-        rate_max, acc_max = lim.yaw_rate_max_rps, lim.yaw_acc_max_rps2
+        rate_max, acc_max = lim.yaw_rate_max_rad_s, lim.yaw_acc_max_rad_s2
         if math.isfinite(sp.yaw_rad):
             # The short way round: the error is wrapped, so +170 -> -170 deg is +20 deg.
             error = wrap_pi(sp.yaw_rad - self.yaw_rad)
             wanted_rate = max(-rate_max, min(rate_max, sqrt_controller(
                 error, K_YAW, BRAKING_FRACTION * acc_max)))
-        elif math.isfinite(sp.yaw_rate_rps):
-            wanted_rate = max(-rate_max, min(rate_max, sp.yaw_rate_rps))
+        elif math.isfinite(sp.yaw_rate_rad_s):
+            wanted_rate = max(-rate_max, min(rate_max, sp.yaw_rate_rad_s))
         else:
             wanted_rate = 0.0
-        acc = max(-acc_max, min(acc_max, K_YAW_RATE * (wanted_rate - self.yaw_rate_rps)))
-        self.yaw_rad = wrap_pi(self.yaw_rad + self.yaw_rate_rps * dt + 0.5 * acc * dt * dt)
-        self.yaw_rate_rps += acc * dt
-        self.yaw_acc_rps2 = acc
+        acc = max(-acc_max, min(acc_max, K_YAW_RATE * (wanted_rate - self.yaw_rate_rad_s)))
+        self.yaw_rad = wrap_pi(self.yaw_rad + self.yaw_rate_rad_s * dt + 0.5 * acc * dt * dt)
+        self.yaw_rate_rad_s += acc * dt
+        self.yaw_acc_rad_s2 = acc
 
 
 
@@ -429,7 +429,7 @@ def warm_up(limits: ShapingLimits, dt: float) -> None:
     shaper = SetpointShaper()
     shaper.reset(np.zeros(3), np.zeros(3), 0.0)
     shaper.step(Setpoint(np.array([1.0, 1.0, -1.0]), np.zeros(3), np.zeros(3), 0.5), limits, dt)
-    shaper.step(Setpoint(velocity_ned_mps=np.ones(3), yaw_rate_rps=0.1), limits, dt)
+    shaper.step(Setpoint(velocity_ned_mps=np.ones(3), yaw_rate_rad_s=0.1), limits, dt)
     shaper.stopping_point(limits)
     shaper.reset_attitude(np.zeros(3), np.zeros(3))
     shaper.step_attitude(np.array([0.1, -0.1, 3.0]), limits, (10.0, 1.0, 2.0, 8.0), dt)

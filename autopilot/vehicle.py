@@ -18,12 +18,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot.control.parameters import validate_parameters
-from autopilot.reference import REF_POS, REF_SIZE, REF_VEL, Reference
+from autopilot.reference import Reference
 from autopilot.shaping import Setpoint, SetpointShaper, ShapingLimits, limits_from_parameters
 from contracts.airframe import max_thrust_n
 from contracts.frames import euler_from_quat, wrap_pi
 from contracts.mavlink import FlightMode
 from contracts.perturbations import AUTOPILOT, Perturbation, PerturbationBook, kick_at
+from contracts.vectors import MEAS_VZ, MEAS_YAW, MEAS_Z, MEASUREMENT, REF_POS, REF_SIZE, REF_VEL
 
 LANDED_ALTITUDE_M = 0.05  # the plant's ground is z = 0
 LANDED_SPEED_MPS = 0.1
@@ -32,7 +33,7 @@ LAND_REFERENCE_Z_M = 0.5  # landing descends towards 0.5 m below the ground: it 
 MAX_SETPOINT_DISTANCE_M = 1000.0
 MAX_SETPOINT_SPEED_MPS = 20.0
 MAX_SETPOINT_ACCEL_MPS2 = 20.0
-MAX_SETPOINT_YAW_RATE_RPS = 20.0
+MAX_SETPOINT_YAW_RATE_RAD_S = 20.0
 MAX_TILT_SETPOINT_RAD = 1.0
 # A position setpoint's velocity / acceleration feed-forward is the setpoint's own motion:
 # it applies while the streamed position moves, and lapses this long after it stops, so
@@ -146,12 +147,12 @@ class Vehicle:
     # -- state from the simulator --------------------------------------------------------
     @property
     def altitude_m(self) -> float:
-        return 0.0 if self.measurement is None else -float(self.measurement[2])
+        return 0.0 if self.measurement is None else -float(self.measurement[MEAS_Z])
 
     @property
     def heading_rad(self) -> float:
         """The vehicle's yaw now (0 before any state arrived)."""
-        return 0.0 if self.measurement is None else wrap_pi(float(self.measurement[8]))
+        return 0.0 if self.measurement is None else wrap_pi(float(self.measurement[MEAS_YAW]))
 
     def _hold_here(self) -> None:
         """Hold where the vehicle can stop: the shaped reference's stopping point when it
@@ -160,7 +161,7 @@ class Vehicle:
         if self._shaped == "translation":
             position, yaw = self.shaper.stopping_point(self.limits), self.shaper.yaw_rad
         else:
-            position = m[0:3].copy() if m is not None else np.zeros(3)
+            position = m[MEASUREMENT.position_ned_m].copy() if m is not None else np.zeros(3)
             yaw = self.heading_rad
         self.setpoint = Setpoint.hold(position, yaw)
         self.attitude_target = None
@@ -282,7 +283,7 @@ class Vehicle:
         sp = Setpoint(np.array(setpoint.position_ned_m, dtype=float),
                       np.array(setpoint.velocity_ned_mps, dtype=float),
                       np.array(setpoint.accel_ned_mps2, dtype=float),
-                      float(setpoint.yaw_rad), float(setpoint.yaw_rate_rps))
+                      float(setpoint.yaw_rad), float(setpoint.yaw_rate_rad_s))
         pos, vel = sp.position_ned_m, sp.velocity_ned_mps
         if np.isnan(pos[0]) != np.isnan(pos[1]):
             raise RefusedError("setpoint gives x without y or y without x")
@@ -293,7 +294,7 @@ class Vehicle:
         _check_given("setpoint velocity", vel, MAX_SETPOINT_SPEED_MPS)
         _check_given("setpoint acceleration", sp.accel_ned_mps2, MAX_SETPOINT_ACCEL_MPS2)
         _check_given("setpoint yaw", (sp.yaw_rad,), math.inf)
-        _check_given("setpoint yaw rate", (sp.yaw_rate_rps,), MAX_SETPOINT_YAW_RATE_RPS)
+        _check_given("setpoint yaw rate", (sp.yaw_rate_rad_s,), MAX_SETPOINT_YAW_RATE_RAD_S)
         sp.yaw_rad = wrap_pi(sp.yaw_rad)
         self.setpoint_heard_s = link_t_s
         given = np.isfinite(pos)
@@ -351,7 +352,7 @@ class Vehicle:
             if previous is not None:
                 streamed.altitude_ref_ned_m = previous.altitude_ref_ned_m
             elif self.measurement is not None:
-                streamed.altitude_ref_ned_m = float(self.measurement[2])
+                streamed.altitude_ref_ned_m = float(self.measurement[MEAS_Z])
             self.attitude_target = streamed
 
     # -- links ---------------------------------------------------------------------------
@@ -401,7 +402,7 @@ class Vehicle:
         """New state from the simulator. A clock going back means a new simulator."""
         if self.measurement is not None and sim_t_s < self.sim_t_s:
             self.say("simulator restarted", 5)
-            if self.armed and -measurement[2] < LANDED_ALTITUDE_M:
+            if self.armed and -measurement[MEAS_Z] < LANDED_ALTITUDE_M:
                 self._disarm("simulator restarted: disarmed on the ground")
         if not self.sim_link_ok:
             self.say("simulator link up", 6)
@@ -412,7 +413,7 @@ class Vehicle:
 
     def _detect_landing(self) -> None:
         m = self.measurement
-        on_ground = (-m[2] < LANDED_ALTITUDE_M and abs(m[5]) < LANDED_SPEED_MPS
+        on_ground = (-m[MEAS_Z] < LANDED_ALTITUDE_M and abs(m[MEAS_VZ]) < LANDED_SPEED_MPS
                      and not (self.armed and self.mode == FlightMode.TAKEOFF)
                      and not (self.armed and self.takeoff_altitude_m is not None))
         if on_ground and self.armed and self.mode not in (FlightMode.LAND,) and \
@@ -460,7 +461,8 @@ class Vehicle:
             return self._attitude_reference(self.attitude_target)
         if self._shaped != "translation":
             m = self.measurement
-            self.shaper.reset(m[0:3], m[3:6], m[8])
+            self.shaper.reset(m[MEASUREMENT.position_ned_m], m[MEASUREMENT.velocity_ned_mps],
+                              m[MEAS_YAW])
             self._shaped = "translation"
         p = self.parameters
         limits = self.limits
@@ -471,7 +473,7 @@ class Vehicle:
             limits = limits._replace(z_vel_max_dn_mps=p["MPC_LAND_SPEED"])
         ref = self.shaper.step(self.setpoint, limits, self.period_s)
         if self.takeoff_altitude_m is not None and \
-                abs(self.measurement[2] + self.takeoff_altitude_m) < TAKEOFF_REACHED_M:
+                abs(self.measurement[MEAS_Z] + self.takeoff_altitude_m) < TAKEOFF_REACHED_M:
             self.say("take-off complete")
             self.takeoff_altitude_m = None
             if self.mode == FlightMode.TAKEOFF:
@@ -481,14 +483,14 @@ class Vehicle:
     def _attitude_reference(self, target: AttitudeTarget) -> tuple[np.ndarray, bool, float]:
         m = self.measurement
         if self._shaped != "attitude":
-            self.shaper.reset_attitude(m[6:9], m[9:12])
+            self.shaper.reset_attitude(m[MEASUREMENT.euler_rad], m[MEASUREMENT.euler_rate_rad_s])
             self._shaped = "attitude"
         p = self.parameters
         ref = self.shaper.step_attitude(
             target.euler_rad, self.limits,
             (p["CMDF_OMEGA"], p["CMDF_ZETA"], p["CMDF_RATE_MAX"], p["CMDF_ACC_MAX"]),
             self.period_s)
-        ref[REF_POS:REF_POS + 3] = m[0:3]
+        ref[REF_POS:REF_POS + 3] = m[MEASUREMENT.position_ned_m]
         if math.isfinite(target.thrust_fraction):
             return ref, False, target.thrust_fraction * max_thrust_n(self.controller.airframe)
         target.altitude_ref_ned_m -= target.climb_rate_mps * self.period_s

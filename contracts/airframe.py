@@ -26,7 +26,7 @@ class Airframe(NamedTuple):
     thrust_coeff_ns2: float  # b: rotor thrust = b W^2
     drag_coeff_nms2: float  # d: rotor drag torque = d W^2
     rotor_inertia_kgm2: float  # Jr
-    rotor_max_rps: float  # W_max [rad/s]
+    rotor_max_rad_s: float  # W_max [rad/s]
     motor_tau_s: float  # first-order rotor lag, 0 = ideal (the paper)
     linear_drag_nspm: float  # airframe drag against air-relative velocity [N/(m/s)]
     gravity_mps2: float = GRAVITY_MPS2
@@ -42,7 +42,7 @@ PAPER = Airframe(
     thrust_coeff_ns2=54.2e-6,
     drag_coeff_nms2=1.1e-6,
     rotor_inertia_kgm2=1.32e-3,
-    rotor_max_rps=500.0,
+    rotor_max_rad_s=500.0,
     motor_tau_s=0.0,
     linear_drag_nspm=0.0,
 )
@@ -58,7 +58,7 @@ REALISTIC = Airframe(
     thrust_coeff_ns2=1.22e-5,
     drag_coeff_nms2=1.9e-7,
     rotor_inertia_kgm2=6.0e-5,
-    rotor_max_rps=1100.0,
+    rotor_max_rad_s=1100.0,
     motor_tau_s=0.02,
     linear_drag_nspm=0.25,
 )
@@ -89,19 +89,20 @@ class AttitudeCoefficients(NamedTuple):
 
 
 def attitude_coefficients(af: Airframe) -> AttitudeCoefficients:
+    b1, b2, b3 = input_gains(af)
     return AttitudeCoefficients(
         a1=(af.iyy_kgm2 - af.izz_kgm2) / af.ixx_kgm2,
         a2=af.rotor_inertia_kgm2 / af.ixx_kgm2,
         a3=(af.izz_kgm2 - af.ixx_kgm2) / af.iyy_kgm2,
         a4=af.rotor_inertia_kgm2 / af.iyy_kgm2,
         a5=(af.ixx_kgm2 - af.iyy_kgm2) / af.izz_kgm2,
-        b1=af.arm_m / af.ixx_kgm2,
-        b2=af.arm_m / af.iyy_kgm2,
-        b3=1.0 / af.izz_kgm2,
+        b1=b1,
+        b2=b2,
+        b3=b3,
     )
 
 
-def hover_rotor_speed_rps(af: Airframe) -> float:
+def hover_rotor_speed_rad_s(af: Airframe) -> float:
     """Rotor speed at which four rotors carry the weight: sqrt(m g / 4b)."""
     return math.sqrt(af.mass_kg * af.gravity_mps2 / (4.0 * af.thrust_coeff_ns2))
 
@@ -109,33 +110,20 @@ def hover_rotor_speed_rps(af: Airframe) -> float:
 @njit(cache=True)
 def max_thrust_n(af: Airframe) -> float:
     """Total thrust with every rotor at its top speed: 4 b W_max^2."""
-    return 4.0 * af.thrust_coeff_ns2 * af.rotor_max_rps**2
+    return 4.0 * af.thrust_coeff_ns2 * af.rotor_max_rad_s**2
 
 
 @njit(cache=True)
-def rotor_forces(
-    rotor_rps: np.ndarray, efficiency: np.ndarray, af: Airframe
-) -> tuple[float, float, float, float, float]:
-    """SPEC section 3's rotor map: (U_z, U_phi, U_theta, U_psi, W_r) from rotor speeds.
+def residual_rotor_speed(rotor_rad_s: np.ndarray) -> float:
+    """W_r = W1 - W2 + W3 - W4 [rad/s]: the rotors' net spin in the gyroscopic terms."""
+    return rotor_rad_s[0] - rotor_rad_s[1] + rotor_rad_s[2] - rotor_rad_s[3]
 
-    ``efficiency`` scales each rotor's thrust and drag (1 = healthy, 0 = failed).
-    """
-    t1 = efficiency[0] * af.thrust_coeff_ns2 * rotor_rps[0] ** 2
-    t2 = efficiency[1] * af.thrust_coeff_ns2 * rotor_rps[1] ** 2
-    t3 = efficiency[2] * af.thrust_coeff_ns2 * rotor_rps[2] ** 2
-    t4 = efficiency[3] * af.thrust_coeff_ns2 * rotor_rps[3] ** 2
-    u_z = t1 + t2 + t3 + t4
-    u_phi = t4 - t2
-    u_theta = t1 - t3
-    d = af.drag_coeff_nms2
-    u_psi = d * (
-        efficiency[1] * rotor_rps[1] ** 2
-        + efficiency[3] * rotor_rps[3] ** 2
-        - efficiency[0] * rotor_rps[0] ** 2
-        - efficiency[2] * rotor_rps[2] ** 2
-    )
-    w_r = rotor_rps[0] - rotor_rps[1] + rotor_rps[2] - rotor_rps[3]
-    return u_z, u_phi, u_theta, u_psi, w_r
+
+@njit(cache=True)
+def input_gains(af: Airframe) -> tuple[float, float, float]:
+    """b1, b2, b3 of phi'' = f_phi + b1 U_phi, theta'' = f_theta + b2 U_theta,
+    psi'' = f_psi + b3 U_psi: arm / Ixx, arm / Iyy, 1 / Izz."""
+    return af.arm_m / af.ixx_kgm2, af.arm_m / af.iyy_kgm2, 1.0 / af.izz_kgm2
 
 
 @njit(cache=True)

@@ -74,7 +74,7 @@ def sample_messages(
     position_ned_m: np.ndarray,
     velocity_ned_mps: np.ndarray,
     quaternion: np.ndarray,
-    body_rate_rps: np.ndarray,
+    body_rate_rad_s: np.ndarray,
     accel_ned_mps2: np.ndarray,
 ) -> list[mavlink.MAVLink_message]:
     """The four messages the simulator sends each sample, from the true state.
@@ -89,7 +89,7 @@ def sample_messages(
     n, e, d = (float(v) for v in position_ned_m)
     vn, ve, vd = (float(v) for v in velocity_ned_mps)
     lat, lon, alt = geodetic_from_ned(n, e, d)
-    p, q, r = (float(v) for v in body_rate_rps)
+    p, q, r = (float(v) for v in body_rate_rad_s)
     ground_speed = math.hypot(vn, ve)
     course_cdeg = math.degrees(math.atan2(ve, vn)) % 360.0 * 100.0
     accel_mg = (fx * MG_PER_MPS2, fy * MG_PER_MPS2, fz * MG_PER_MPS2)

@@ -83,12 +83,12 @@ KINDS: dict[str, Kind] = {
     "sensor_noise": Kind(SIMULATOR, {"position_m": Param(0.0, 10.0, 0.0),
                                      "velocity_mps": Param(0.0, 10.0, 0.0),
                                      "angle_rad": Param(0.0, 0.5, 0.0),
-                                     "rate_rps": Param(0.0, 5.0, 0.0)},
+                                     "rate_rad_s": Param(0.0, 5.0, 0.0)},
                          "Gaussian noise (standard deviations) on the state sent"),
     "sensor_bias": Kind(SIMULATOR, {"position_m": _vec3(-100.0, 100.0),
                                     "velocity_mps": _vec3(-10.0, 10.0),
                                     "angle_rad": _vec3(-0.5, 0.5),
-                                    "rate_rps": _vec3(-5.0, 5.0)},
+                                    "rate_rad_s": _vec3(-5.0, 5.0)},
                         "constant offsets on the state sent"),
     "link_delay": Kind(SIMULATOR, {"samples": _needed(0, 100, integer=True)},
                        "the state sent is this many samples old"),
@@ -248,11 +248,11 @@ class SensorEffects:
     noise_position_m: float = 0.0
     noise_velocity_mps: float = 0.0
     noise_angle_rad: float = 0.0
-    noise_rate_rps: float = 0.0
+    noise_rate_rad_s: float = 0.0
     bias_position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
     bias_velocity_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
     bias_angle_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    bias_rate_rps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    bias_rate_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
     delay_samples: int = 0
     loss_fraction: float = 0.0
 
@@ -315,7 +315,7 @@ def sensor_effects_at(entries: tuple[Perturbation, ...] | list[Perturbation],
     active = [e for e in entries if e.kind in _SENSOR_KINDS and e.active(t_s)]
     if not active:
         return NO_SENSOR_EFFECTS
-    noise = {"position_m": 0.0, "velocity_mps": 0.0, "angle_rad": 0.0, "rate_rps": 0.0}
+    noise = {"position_m": 0.0, "velocity_mps": 0.0, "angle_rad": 0.0, "rate_rad_s": 0.0}
     bias = {k: [0.0, 0.0, 0.0] for k in noise}
     delay, loss = 0, 0.0
     for e in active:
@@ -330,9 +330,9 @@ def sensor_effects_at(entries: tuple[Perturbation, ...] | list[Perturbation],
         else:
             loss = max(loss, e.params["fraction"])
     return SensorEffects(noise["position_m"], noise["velocity_mps"], noise["angle_rad"],
-                         noise["rate_rps"], tuple(bias["position_m"]),
+                         noise["rate_rad_s"], tuple(bias["position_m"]),
                          tuple(bias["velocity_mps"]), tuple(bias["angle_rad"]),
-                         tuple(bias["rate_rps"]), delay, loss)
+                         tuple(bias["rate_rad_s"]), delay, loss)
 
 
 def kick_at(entries: tuple[Perturbation, ...] | list[Perturbation],

@@ -34,6 +34,8 @@ from typing import Any
 
 import numpy as np
 
+from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT, REFERENCE
+
 ROOT = "ivfm"
 SITL, AUTOPILOT = "sitl", "autopilot"
 DEFAULT_PORT = 7447
@@ -105,19 +107,9 @@ class RecordSchema:
         lines.extend(f"float64[] {n}" for n in self.sequences)
         return "\n".join(lines) + "\n"
 
-    def float_offset(self) -> int:
-        """Where the float64 part starts (after the leading integer fields), in values."""
-        return sum(1 for _n, t, _c in self.fields if t != "f8")
-
-    def encode(self, ints: tuple[int, ...], floats: np.ndarray,
-               sequences: tuple[np.ndarray, ...] = ()) -> bytes:
-        """Payload from the integer fields (in order), the float64 part laid out flat, and
-        the sequences."""
-        out = [CDR_HEADER, struct.pack(f"<{len(ints)}q", *ints), floats.tobytes()]
-        for seq in sequences:
-            out.append(struct.pack("<I4x", len(seq)))
-            out.append(np.asarray(seq, dtype="<f8").tobytes())
-        return b"".join(out)
+    def buffer(self) -> RecordBuffer:
+        """A reusable record to fill by field name and encode."""
+        return RecordBuffer(self)
 
     def decode(self, payload: bytes) -> dict[str, Any]:
         """Fields by name; raises ValueError on a payload that does not fit the schema."""
@@ -155,18 +147,42 @@ class RecordSchema:
             raise ValueError(f"{self.name}: {size} bytes where the record says {at}")
 
 
-# Columns of the controller's per-channel internals (autopilot/control/sliding_mode.py's
-# TELEMETRY_FIELDS), each published as one array over the channels below.
-CHANNELS = ("phi", "theta", "psi", "z", "x", "y")
-CHANNEL_INTERNALS = ("ref", "y", "e", "e_s", "e_eps", "f_hat", "u_eq", "u_s", "v",
-                     "theta_g_channel")
+class RecordBuffer:
+    """One record of a schema, filled by field name (``record["seq"] = 3``) and encoded;
+    kept between publications so a publisher allocates nothing per record."""
+
+    def __init__(self, schema: RecordSchema) -> None:
+        self.schema = schema
+        self._row = np.zeros((), dtype=schema.dtype)
+        self._fields = {name: self._row[name] for name, _t, _c in schema.fields}
+
+    def __setitem__(self, name: str, value: Any) -> None:
+        self._fields[name][...] = value
+
+    def __getitem__(self, name: str) -> np.ndarray:
+        return self._fields[name]
+
+    def encode(self, sequences: tuple[np.ndarray, ...] = ()) -> bytes:
+        """The CDR payload: the fixed fields as filled, then ``sequences`` in schema order."""
+        if len(sequences) != len(self.schema.sequences):
+            raise ValueError(f"{self.schema.name} takes {len(self.schema.sequences)} "
+                             f"sequences, got {len(sequences)}")
+        out = [CDR_HEADER, self._row.tobytes()]
+        for seq in sequences:
+            out.append(struct.pack("<I4x", len(seq)))
+            out.append(np.asarray(seq, dtype="<f8").tobytes())
+        return b"".join(out)
+
+
+# The controller's per-channel internals, each one array over the channels (CHANNELS).
 
 CONTROL = RecordSchema(
     "ivfm_msgs/msg/Control",
     (("seq", "u8", 0), ("sim_time_us", "i8", 0), ("mode", "i8", 0), ("flags", "i8", 0),
-     ("reference_time_s", "f8", 0), ("measurement", "f8", 12), ("reference", "f8", 18),
-     ("kick_rad", "f8", 2), ("motor_commands", "f8", 4),
-     *((f"ch_{name}", "f8", 6) for name in CHANNEL_INTERNALS), ("theta_g", "f8", 6)),
+     ("reference_time_s", "f8", 0), ("measurement", "f8", MEASUREMENT.size),
+     ("reference", "f8", REFERENCE.size), ("kick_rad", "f8", 2), ("motor_commands", "f8", 4),
+     *((f"ch_{name}", "f8", len(CHANNELS)) for name in CHANNEL_INTERNALS),
+     ("theta_g", "f8", len(CHANNELS))),
     sequences=("theta_f_phi", "theta_f_theta", "theta_f_psi"),
     comment="IVFM autopilot, one control step. measurement: x y z vx vy vz phi theta psi "
             "and Euler rates (NED/FRD, SI). ch_*: per channel phi theta psi z x y. "
@@ -184,7 +200,7 @@ STATE = RecordSchema(
     "ivfm_msgs/msg/TruthState",
     (("seq", "u8", 0), ("sim_time_us", "i8", 0), ("position_ned_m", "f8", 3),
      ("velocity_ned_mps", "f8", 3), ("quaternion", "f8", 4), ("euler_rad", "f8", 3),
-     ("euler_rate_rps", "f8", 3), ("body_rate_rps", "f8", 3), ("rotor_rps", "f8", 4),
+     ("euler_rate_rad_s", "f8", 3), ("body_rate_rad_s", "f8", 3), ("rotor_rad_s", "f8", 4),
      ("motor_commands", "f8", 4), ("inertia_scale", "f8", 0),
      ("rotor_inertia_scale", "f8", 0), ("mass_scale", "f8", 0),
      ("motor_efficiency", "f8", 4), ("wind_ned_mps", "f8", 3), ("force_ned_n", "f8", 3),

@@ -4,36 +4,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 import time
-from pathlib import Path
 from typing import Any
 
 from autopilot.control.factory import load_models
 from autopilot.control.parameters import PARAMETERS, validate_parameters
 from autopilot.identification.ts_model import FuzzyModelSet
 from contracts.airframe import airframe_by_name
+from ground.run_files import write_json
 from ground.scenarios import SCENARIOS, scenario_by_name
 
 
 class UsageError(Exception):
     """Bad input from the command line: reported in one line, exit code 2."""
-
-
-def write_json(path: Path, data: Any) -> None:
-    """Write JSON atomically (temp file + rename) so no half-written file is left."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(data, f, indent=2, allow_nan=False)
-            f.write("\n")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def run_command(args: argparse.Namespace) -> int:
@@ -43,7 +27,8 @@ def run_command(args: argparse.Namespace) -> int:
     from ground.inprocess import run_inprocess
     from ground.metrics import compute_metrics
     from ground.processes import RunSettings, run_processes
-    from ground.report import RUN_FILE, SCENARIO_FILE, report
+    from ground.report import report
+    from ground.run_files import RUN_FILE, SCENARIO_FILE
 
     scenario = scenario_by_name(args.scenario)
     controller = args.controller or scenario.controller

@@ -18,6 +18,7 @@ from contracts.frames import altitude_m  # noqa: E402
 from ground.inprocess import run_inprocess  # noqa: E402
 from ground.metrics import AXES, axis_error, compute_metrics  # noqa: E402
 from ground.paper_tables import PAPER_MSE_BY_SCENARIO  # noqa: E402
+from ground.run_files import write_json  # noqa: E402
 from ground.scenarios import scenario_by_name  # noqa: E402
 
 
@@ -30,7 +31,7 @@ def run_comparison(
     parameters: dict[str, float],
     out_dir: Path,
 ) -> int:
-    from ground.commands import write_json
+
 
     airframe = airframe_by_name(airframe_name)
     total = len(scenarios) * len(controllers) * len(plants)

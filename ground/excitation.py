@@ -13,24 +13,51 @@ from pathlib import Path
 import numpy as np
 
 from autopilot.control.factory import make_controller
-from autopilot.identification.dataset import Dataset
-from autopilot.reference import (
+from autopilot.identification.dataset import ALL_COLUMNS, CHANNEL_INPUT, Dataset
+from autopilot.reference import evaluate_multisine, excitation_sines
+from contracts.airframe import Airframe, hover_rotor_speed_rad_s, input_gains, paper_attitude_drift
+from contracts.vectors import (
+    MEASUREMENT,
     REF_EULER,
     REF_EULER_ACC,
     REF_EULER_RATE,
     REF_POS,
     REF_SIZE,
-    evaluate_multisine,
-    excitation_sines,
 )
-from contracts.airframe import Airframe, hover_rotor_speed_rps, paper_attitude_drift, rotor_forces
+from ground.run_files import control_records
+from sitl.dynamics import rotor_forces
 from sitl.plant import Plant
 
-DATASET_COLUMNS = ("time_s", "phi_rad", "theta_rad", "psi_rad", "phi_rate_rps",
-                   "theta_rate_rps", "psi_rate_rps", "w_r_rps", "u_phi_n", "u_theta_n",
-                   "u_psi_nm", "phi_acc_rps2", "theta_acc_rps2", "psi_acc_rps2", "f_phi",
-                   "f_theta", "f_psi")
 WARM_UP_SAMPLES = 200  # flown, not recorded: the start-up transient is not excitation
+# The dataset's outputs: the paper adds noise to every one.
+OUTPUT_COLUMNS = ("phi_acc_rad_s2", "theta_acc_rad_s2", "psi_acc_rad_s2", "f_phi", "f_theta",
+                  "f_psi")
+
+
+def _columns(rows: list[dict[str, float | np.ndarray]]) -> dict[str, np.ndarray]:
+    return {name: np.array([row[name] for row in rows]) for name in ALL_COLUMNS}
+
+
+def _add_output_noise(columns: dict[str, np.ndarray], noise_fraction: float,
+                      rng: np.random.Generator) -> None:
+    """Gaussian noise of ``noise_fraction`` of each output's amplitude max |y|."""
+    noise = rng.normal(size=(len(columns["time_s"]), len(OUTPUT_COLUMNS)))
+    for i, name in enumerate(OUTPUT_COLUMNS):
+        columns[name] = columns[name] + noise[:, i] * noise_fraction * np.max(
+            np.abs(columns[name]))
+
+
+def _sample(t_s: float, euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray, w_r: float,
+            u: np.ndarray, acc: np.ndarray, f: np.ndarray) -> dict[str, float]:
+    """One dataset row by column name."""
+    row = {"time_s": t_s, "w_r_rad_s": w_r}
+    for i, ch in enumerate(("phi", "theta", "psi")):
+        row[f"{ch}_rad"] = euler_rad[i]
+        row[f"{ch}_rate_rad_s"] = euler_rate_rad_s[i]
+        row[CHANNEL_INPUT[ch]] = u[i]
+        row[f"{ch}_acc_rad_s2"] = acc[i]
+        row[f"f_{ch}"] = f[i]
+    return row
 
 
 def excitation_dataset(
@@ -49,10 +76,11 @@ def excitation_dataset(
     rng = np.random.default_rng(seed)
     sines = excitation_sines(rng)
     plant = Plant(airframe, "paper", position_ned_m=(0.0, 0.0, -10.0),
-                  rotor_rps=hover_rotor_speed_rps(airframe))
+                  rotor_rad_s=hover_rotor_speed_rad_s(airframe))
     controller = make_controller("smc", airframe, period_s)
-    rows = np.zeros((n_samples, 17))
+    rows = []
     efficiency = np.ones(4)
+    b = np.array(input_gains(airframe))
     ref = np.zeros(REF_SIZE)
     ref[REF_POS + 2] = -10.0
     for k in range(-WARM_UP_SAMPLES, n_samples):
@@ -62,21 +90,18 @@ def excitation_dataset(
                 evaluate_multisine(sines[axis], t))
         meas = plant.measurement()
         commands = controller.step(meas, ref, False)
-        rotor_rps = commands * airframe.rotor_max_rps
-        u_z, u_phi, u_theta, u_psi, w_r = rotor_forces(rotor_rps, efficiency, airframe)
-        rates = meas[9:12]
-        f = paper_attitude_drift(rates[0], rates[1], rates[2], w_r, airframe)
-        acc = (f[0] + airframe.arm_m / airframe.ixx_kgm2 * u_phi,
-               f[1] + airframe.arm_m / airframe.iyy_kgm2 * u_theta,
-               f[2] + u_psi / airframe.izz_kgm2)
+        _u_z, u_phi, u_theta, u_psi, w_r = rotor_forces(
+            commands * airframe.rotor_max_rad_s, efficiency, airframe)
+        rates = meas[MEASUREMENT.euler_rate_rad_s]
+        f = np.array(paper_attitude_drift(rates[0], rates[1], rates[2], w_r, airframe))
+        u = np.array((u_phi, u_theta, u_psi))
         if k >= 0:
-            rows[k] = (t, *meas[6:9], *rates, w_r, u_phi, u_theta, u_psi, *acc, *f)
+            rows.append(_sample(t, meas[MEASUREMENT.euler_rad], rates, w_r, u, f + b * u, f))
         plant.set_motor_commands(commands)
         plant.advance(period_s)
-    outputs = slice(11, 17)  # accelerations and f: the paper adds noise to every output
-    amplitude = np.max(np.abs(rows[:, outputs]), axis=0)
-    rows[:, outputs] += rng.normal(size=(n_samples, 6)) * noise_fraction * amplitude
-    return Dataset({name: rows[:, i] for i, name in enumerate(DATASET_COLUMNS)},
+    columns = _columns(rows)
+    _add_output_noise(columns, noise_fraction, rng)
+    return Dataset(columns,
                    source=f"excitation(seed={seed}, n={n_samples}, noise={noise_fraction})")
 
 
@@ -89,8 +114,6 @@ def dataset_from_log(log: Path, vehicle: int, airframe: Airframe, skip_s: float 
     of the logged rates (the command of step k acts over [t_k, t_k+1]); and
     f_i = acceleration - b_i u_i, the paper's drift the IVFM learns.
     """
-    from ground.report import control_records
-
     r = control_records(log, vehicle)
     if len(r["missing"]):
         raise ValueError(f"the log lacks {len(r['missing'])} control records of vehicle "
@@ -101,22 +124,18 @@ def dataset_from_log(log: Path, vehicle: int, airframe: Airframe, skip_s: float 
     if np.count_nonzero(keep) < 21:
         raise ValueError(f"the log has {np.count_nonzero(keep)} samples after {skip_s:g} s; "
                          f"identification needs at least 21")
-    period = np.diff(t)
-    rates = meas[:, 9:12]
-    acc = np.diff(rates, axis=0) / period[:, None]
-    rows = []
+    rates = meas[:, MEASUREMENT.euler_rate_rad_s]
+    acc = np.diff(rates, axis=0) / np.diff(t)[:, None]
     efficiency = np.ones(4)
-    b = np.array([airframe.arm_m / airframe.ixx_kgm2, airframe.arm_m / airframe.iyy_kgm2,
-                  1.0 / airframe.izz_kgm2])
+    b = np.array(input_gains(airframe))
+    rows = []
     for k in np.flatnonzero(keep[:-1]):
-        _u_z, u_phi, u_theta, u_psi, w_r = rotor_forces(commands[k] * airframe.rotor_max_rps,
-                                                        efficiency, airframe)
+        _u_z, u_phi, u_theta, u_psi, w_r = rotor_forces(
+            commands[k] * airframe.rotor_max_rad_s, efficiency, airframe)
         u = np.array([u_phi, u_theta, u_psi])
-        rows.append((t[k], *meas[k, 6:9], *rates[k], w_r, *u, *acc[k], *(acc[k] - b * u)))
-    rows = np.array(rows)
+        rows.append(_sample(t[k], meas[k, MEASUREMENT.euler_rad], rates[k], w_r, u, acc[k],
+                            acc[k] - b * u))
+    columns = _columns(rows)
     if noise_fraction > 0:
-        rng = np.random.default_rng(seed)
-        amplitude = np.max(np.abs(rows[:, 11:17]), axis=0)
-        rows[:, 11:17] += rng.normal(size=(len(rows), 6)) * noise_fraction * amplitude
-    return Dataset({name: rows[:, i] for i, name in enumerate(DATASET_COLUMNS)},
-                   source=f"log({log}, vehicle {vehicle}, {len(rows)} samples)")
+        _add_output_noise(columns, noise_fraction, np.random.default_rng(seed))
+    return Dataset(columns, source=f"log({log}, vehicle {vehicle}, {len(rows)} samples)")

@@ -11,11 +11,11 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from autopilot.control.cascade import CHANNELS  # noqa: E402
 from autopilot.control.sliding_mode import TEL_ES  # noqa: E402
 from contracts.frames import altitude_m  # noqa: E402
-from ground.inprocess import RunRecord  # noqa: E402
+from contracts.vectors import CHANNELS  # noqa: E402
 from ground.metrics import AXES, axis_error  # noqa: E402
+from ground.run_files import RunRecord  # noqa: E402
 from ground.scenarios import Scenario  # noqa: E402
 
 UNITS = {"x": "m", "y": "m", "z": "m", "phi": "rad", "theta": "rad", "psi": "rad"}

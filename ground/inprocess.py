@@ -7,41 +7,21 @@ same arguments give the same arrays bit for bit.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 
 import numpy as np
 
 from autopilot.control.cascade import SlidingModeCascade
 from autopilot.control.factory import make_controller
 from autopilot.identification.ts_model import FuzzyModelSet
-from contracts.airframe import Airframe, hover_rotor_speed_rps
+from contracts.airframe import Airframe, hover_rotor_speed_rad_s
 from contracts.perturbations import Perturbations
+from ground.run_files import RunRecord, left_the_envelope
 from ground.scenarios import Scenario
 from sitl.plant import Plant
 
 # What the in-process runner applies: the plant and the reference, not the link.
 IN_PROCESS_KINDS = frozenset({"inertia", "rotor_inertia", "mass", "motor_efficiency",
                               "motor_failure", "wind", "gust", "force", "torque", "kick"})
-
-
-@dataclass
-class RunRecord:
-    """Time series of one run, one row per control period (values before the step)."""
-
-    scenario: str
-    controller: str
-    plant: str
-    period_s: float
-    time_s: np.ndarray  # (N,)
-    measurement: np.ndarray  # (N, 12) position, velocity, Euler, Euler rates
-    reference: np.ndarray  # (N, 18)
-    kick: np.ndarray  # (N, 2)
-    motor_commands: np.ndarray  # (N, 4) in [0, 1]
-    channel_telemetry: np.ndarray  # (N, 6, 10) per channel internals (NaN where unused)
-    theta_g: np.ndarray  # (N, 6)
-    theta_f: list[np.ndarray]  # per attitude channel (N, len)
-    wall_time_s: float
-    diverged: bool
 
 
 def run_inprocess(
@@ -66,7 +46,7 @@ def run_inprocess(
     # tests are about tracking, not take-off.
     plant = Plant(airframe, plant_fidelity, plant_step_s,
                   position_ned_m=(0.0, 0.0, -scenario.reference.altitude_m),
-                  rotor_rps=hover_rotor_speed_rps(airframe))
+                  rotor_rad_s=hover_rotor_speed_rad_s(airframe))
     ctrl = make_controller(controller, airframe, period_s, models, parameters)
     adaptive = isinstance(ctrl, SlidingModeCascade)
     meas_log = np.zeros((n, 12))
@@ -97,7 +77,7 @@ def run_inprocess(
             theta_g_log[k] = ctrl.theta_g
             for i in range(3):
                 theta_f_log[i][k] = ctrl.theta_f[i]
-        if not np.all(np.isfinite(meas)) or np.max(np.abs(meas[0:3])) > 1e3:
+        if left_the_envelope(meas):
             diverged = True
             n = k + 1
             break

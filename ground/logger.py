@@ -27,14 +27,13 @@ import struct
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import zenoh
 from mcap.exceptions import McapError
-from mcap.reader import make_reader
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
@@ -49,6 +48,7 @@ from contracts.telemetry import (
     schema_for_key,
 )
 from contracts.zenoh_link import ZenohOptions, open_session
+from ground.run_files import iter_messages
 
 ACTIVE_SUFFIX = ".mcap.active"
 SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
@@ -372,32 +372,6 @@ class Logger:
 
 
 # -- reading logs back ------------------------------------------------------------------
-
-def log_files(path: Path) -> list[Path]:
-    """The finished MCAP files of a run folder (in order), or the one file given."""
-    path = Path(path)
-    if path.is_dir():
-        files = sorted(path.glob("*.mcap"))
-        if not files:
-            raise ValueError(f"no .mcap file in {path}")
-        return files
-    if not path.exists():
-        raise ValueError(f"no such log: {path}")
-    return [path]
-
-
-def iter_messages(path: Path, topic_prefix: str = "") -> Iterator[tuple[str, Any, bytes]]:
-    """(topic, MCAP message, data) over the log files of ``path``."""
-    for file in log_files(path):
-        with open(file, "rb") as f:
-            try:
-                reader = make_reader(f)
-                for _schema, channel, message in reader.iter_messages(log_time_order=False):
-                    if channel.topic.startswith(topic_prefix):
-                        yield channel.topic, message, message.data
-            except McapError as exc:
-                raise ValueError(f"{file} is not a readable MCAP file: {exc}") from None
-
 
 def export_tlog(path: Path, out: Path) -> int:
     """The MAVLink mirror as a .tlog (8-byte big-endian microseconds, then the frame), the

@@ -14,9 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from autopilot.reference import REF_EULER, REF_POS
 from contracts.frames import wrap_pi_array
-from ground.inprocess import RunRecord
+from contracts.vectors import REF_EULER, REF_POS
+from ground.run_files import RunRecord
 from ground.scenarios import Scenario
 
 # axis -> (index into the reference vector, index into the measurement vector)

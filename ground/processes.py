@@ -250,7 +250,7 @@ def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen], vehicle:
 
 def fly(scenario: Scenario, settings: RunSettings, out_dir: Path):
     """Run the processes and read the run back from its log: (RunRecord, accounting)."""
-    from ground.report import record_from_log
+    from ground.run_files import record_from_log
 
     accounting = run_processes(scenario, settings, out_dir)
     record = record_from_log(out_dir, settings.vehicle, scenario, settings.controller,

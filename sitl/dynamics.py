@@ -20,7 +20,7 @@ import math
 import numpy as np
 from numba import njit
 
-from contracts.airframe import Airframe, paper_attitude_drift, rotor_forces
+from contracts.airframe import Airframe, input_gains, paper_attitude_drift, residual_rotor_speed
 from contracts.frames import rotation_from_quat
 
 FIDELITY_PAPER = 0
@@ -46,17 +46,43 @@ def no_disturbance() -> np.ndarray:
 
 
 @njit(cache=True)
+def rotor_forces(
+    rotor_rad_s: np.ndarray, efficiency: np.ndarray, af: Airframe
+) -> tuple[float, float, float, float, float]:
+    """The rotor map: (U_z, U_phi, U_theta, U_psi, W_r) from rotor speeds.
+
+    ``efficiency`` scales each rotor's thrust and drag (1 = healthy, 0 = failed).
+    """
+    t1 = efficiency[0] * af.thrust_coeff_ns2 * rotor_rad_s[0] ** 2
+    t2 = efficiency[1] * af.thrust_coeff_ns2 * rotor_rad_s[1] ** 2
+    t3 = efficiency[2] * af.thrust_coeff_ns2 * rotor_rad_s[2] ** 2
+    t4 = efficiency[3] * af.thrust_coeff_ns2 * rotor_rad_s[3] ** 2
+    u_z = t1 + t2 + t3 + t4
+    u_phi = t4 - t2
+    u_theta = t1 - t3
+    d = af.drag_coeff_nms2
+    u_psi = d * (
+        efficiency[1] * rotor_rad_s[1] ** 2
+        + efficiency[3] * rotor_rad_s[3] ** 2
+        - efficiency[0] * rotor_rad_s[0] ** 2
+        - efficiency[2] * rotor_rad_s[2] ** 2
+    )
+    w_r = residual_rotor_speed(rotor_rad_s)
+    return u_z, u_phi, u_theta, u_psi, w_r
+
+
+@njit(cache=True)
 def _rotor_derivative(
-    rotor_rps: np.ndarray, command_rps: np.ndarray, af: Airframe, out: np.ndarray
+    rotor_rad_s: np.ndarray, command_rad_s: np.ndarray, af: Airframe, out: np.ndarray
 ) -> None:
     """First-order rotor lag; with tau = 0 the speeds are set, not integrated."""
     for i in range(4):
-        out[i] = (command_rps[i] - rotor_rps[i]) / af.motor_tau_s if af.motor_tau_s > 0 else 0.0
+        out[i] = (command_rad_s[i] - rotor_rad_s[i]) / af.motor_tau_s if af.motor_tau_s > 0 else 0.0
 
 
 @njit(cache=True)
 def paper_derivative(
-    state: np.ndarray, command_rps: np.ndarray, af: Airframe, dist: np.ndarray
+    state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray
 ) -> np.ndarray:
     """The paper's Eq. (sys) with SPEC section 3's signs, plus disturbances."""
     out = np.zeros(PAPER_STATE_SIZE)
@@ -85,16 +111,17 @@ def paper_derivative(
         + (dist[DIST_FORCE + 2] - k * (state[5] - dist[DIST_WIND + 2])) / m
     )
     out[6:9] = state[9:12]
-    out[9] = f_phi + af.arm_m / af.ixx_kgm2 * u_phi + dist[DIST_TORQUE] / af.ixx_kgm2
-    out[10] = f_theta + af.arm_m / af.iyy_kgm2 * u_theta + dist[DIST_TORQUE + 1] / af.iyy_kgm2
-    out[11] = f_psi + u_psi / af.izz_kgm2 + dist[DIST_TORQUE + 2] / af.izz_kgm2
-    _rotor_derivative(rotor, command_rps, af, out[PAPER_ROTOR:])
+    b1, b2, b3 = input_gains(af)
+    out[9] = f_phi + b1 * u_phi + dist[DIST_TORQUE] / af.ixx_kgm2
+    out[10] = f_theta + b2 * u_theta + dist[DIST_TORQUE + 1] / af.iyy_kgm2
+    out[11] = f_psi + b3 * u_psi + dist[DIST_TORQUE + 2] / af.izz_kgm2
+    _rotor_derivative(rotor, command_rad_s, af, out[PAPER_ROTOR:])
     return out
 
 
 @njit(cache=True)
 def rigid_body_derivative(
-    state: np.ndarray, command_rps: np.ndarray, af: Airframe, dist: np.ndarray
+    state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray
 ) -> np.ndarray:
     """Newton-Euler: I w' = -w x I w + tau + tau_gyro, v' = g e_z + R(-U_z e_z)/m + ..."""
     out = np.zeros(RIGID_STATE_SIZE)
@@ -125,24 +152,24 @@ def rigid_body_derivative(
     out[10] = ((iyy - izz) * qr * r + tau_x) / ixx
     out[11] = ((izz - ixx) * p * r + tau_y) / iyy
     out[12] = ((ixx - iyy) * p * qr + tau_z) / izz
-    _rotor_derivative(rotor, command_rps, af, out[RIGID_ROTOR:])
+    _rotor_derivative(rotor, command_rad_s, af, out[RIGID_ROTOR:])
     return out
 
 
 @njit(cache=True)
 def _derivative(
-    fidelity: int, state: np.ndarray, command_rps: np.ndarray, af: Airframe, dist: np.ndarray
+    fidelity: int, state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray
 ) -> np.ndarray:
     if fidelity == FIDELITY_PAPER:
-        return paper_derivative(state, command_rps, af, dist)
-    return rigid_body_derivative(state, command_rps, af, dist)
+        return paper_derivative(state, command_rad_s, af, dist)
+    return rigid_body_derivative(state, command_rad_s, af, dist)
 
 
 @njit(cache=True)
 def rk4_integrate(
     fidelity: int,
     state: np.ndarray,
-    command_rps: np.ndarray,
+    command_rad_s: np.ndarray,
     af: Airframe,
     dist: np.ndarray,
     step_s: float,
@@ -157,11 +184,11 @@ def rk4_integrate(
     rotor_at = PAPER_ROTOR if fidelity == FIDELITY_PAPER else RIGID_ROTOR
     for _ in range(n_steps):
         if af.motor_tau_s <= 0.0:
-            x[rotor_at:rotor_at + 4] = command_rps
-        k1 = _derivative(fidelity, x, command_rps, af, dist)
-        k2 = _derivative(fidelity, x + 0.5 * step_s * k1, command_rps, af, dist)
-        k3 = _derivative(fidelity, x + 0.5 * step_s * k2, command_rps, af, dist)
-        k4 = _derivative(fidelity, x + step_s * k3, command_rps, af, dist)
+            x[rotor_at:rotor_at + 4] = command_rad_s
+        k1 = _derivative(fidelity, x, command_rad_s, af, dist)
+        k2 = _derivative(fidelity, x + 0.5 * step_s * k1, command_rad_s, af, dist)
+        k3 = _derivative(fidelity, x + 0.5 * step_s * k2, command_rad_s, af, dist)
+        k4 = _derivative(fidelity, x + step_s * k3, command_rad_s, af, dist)
         x += (step_s / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
         if fidelity == FIDELITY_RIGID_BODY:
             x[6:10] /= math.sqrt(x[6] ** 2 + x[7] ** 2 + x[8] ** 2 + x[9] ** 2)

@@ -32,10 +32,10 @@ class VehicleState:
     position_ned_m: np.ndarray
     velocity_ned_mps: np.ndarray
     euler_rad: np.ndarray
-    euler_rate_rps: np.ndarray
-    body_rate_rps: np.ndarray
+    euler_rate_rad_s: np.ndarray
+    body_rate_rad_s: np.ndarray
     quaternion: np.ndarray
-    rotor_rps: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    rotor_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(4))
 
 
 class Plant:
@@ -48,7 +48,7 @@ class Plant:
         step_s: float = 0.001,
         position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
         euler_rad: tuple[float, float, float] = (0.0, 0.0, 0.0),
-        rotor_rps: float = 0.0,
+        rotor_rad_s: float = 0.0,
         ground_contact: bool = False,
     ) -> None:
         if fidelity not in dynamics.FIDELITIES:
@@ -75,8 +75,8 @@ class Plant:
             self._state[6:10] = quat_from_euler(*euler_rad)
             self._rotor_at = dynamics.RIGID_ROTOR
         self._state[0:3] = position_ned_m
-        self._state[self._rotor_at:self._rotor_at + 4] = rotor_rps
-        self._command_rps = np.full(4, float(rotor_rps))
+        self._state[self._rotor_at:self._rotor_at + 4] = rotor_rad_s
+        self._command_rad_s = np.full(4, float(rotor_rad_s))
 
     @property
     def airframe(self) -> Airframe:
@@ -106,7 +106,7 @@ class Plant:
         c = np.asarray(commands, dtype=float)
         if c.shape != (4,) or not np.all(np.isfinite(c)):
             raise ValueError(f"motor commands must be 4 finite numbers, got {commands!r}")
-        self._command_rps = np.clip(c, 0.0, 1.0) * self._airframe.rotor_max_rps
+        self._command_rad_s = np.clip(c, 0.0, 1.0) * self._airframe.rotor_max_rad_s
 
     def advance(self, duration_s: float) -> None:
         """Integrate for a whole number of plant steps with the commands held."""
@@ -118,7 +118,7 @@ class Plant:
         self._state = dynamics.rk4_integrate(
             self._fidelity_code,
             self._state,
-            self._command_rps,
+            self._command_rad_s,
             self._airframe,
             self._disturbance,
             self.step_s,
@@ -166,8 +166,8 @@ class Plant:
             position_ned_m=s[0:3].copy(),
             velocity_ned_mps=s[3:6].copy(),
             euler_rad=euler,
-            euler_rate_rps=euler_rate,
-            body_rate_rps=body_rate,
+            euler_rate_rad_s=euler_rate,
+            body_rate_rad_s=body_rate,
             quaternion=quat,
-            rotor_rps=s[self._rotor_at:self._rotor_at + 4].copy(),
+            rotor_rad_s=s[self._rotor_at:self._rotor_at + 4].copy(),
         )

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contracts.airframe import Airframe, hover_rotor_speed_rps
+from contracts.airframe import Airframe, hover_rotor_speed_rad_s
 from contracts.frames import quat_from_euler
 from contracts.mavlink import (
     SIM_TCP_PORT,
@@ -52,6 +52,12 @@ from contracts.realtime import Histogram, set_realtime_priority
 from contracts.telemetry import SITL, STATE, json_record
 from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
 from sitl.plant import Plant, VehicleState
+
+# STATE record fields that are VehicleState's and Perturbations' fields of the same name.
+STATE_FROM_PLANT = ("position_ned_m", "velocity_ned_mps", "quaternion", "euler_rad",
+                    "euler_rate_rad_s", "body_rate_rad_s", "rotor_rad_s")
+STATE_FROM_PERTURBATIONS = ("inertia_scale", "rotor_inertia_scale", "mass_scale",
+                            "motor_efficiency", "wind_ned_mps", "force_ned_n", "torque_frd_nm")
 
 
 @dataclass
@@ -109,7 +115,7 @@ class Simulator:
         alt = config.start_altitude_m
         self.plant = Plant(config.airframe, config.fidelity, config.plant_step_s,
                            position_ned_m=(0.0, 0.0, -alt),
-                           rotor_rps=hover_rotor_speed_rps(config.airframe) if alt > 0 else 0.0,
+                           rotor_rad_s=hover_rotor_speed_rad_s(config.airframe) if alt > 0 else 0.0,
                            ground_contact=True)
         self.period_us = round(1e6 / config.rate_hz)
         self.period_s = self.period_us / 1e6
@@ -132,7 +138,7 @@ class Simulator:
         self._event_pub = self.node.publisher("perturbation")
         self.node.serve("perturb")
         self.node.serve("start")
-        self._state_floats = np.zeros(STATE.dtype.itemsize // 8 - STATE.float_offset())
+        self._state_record = STATE.buffer()
 
     @property
     def time_us(self) -> int:
@@ -154,7 +160,7 @@ class Simulator:
         if sensor is NO_SENSOR_EFFECTS:
             s = self._state
             return self._encode(s.position_ned_m, s.velocity_ned_mps, s.quaternion,
-                                s.body_rate_rps)
+                                s.body_rate_rad_s)
         if sensor.loss_fraction > 0.0 and self.rng.random() < sensor.loss_fraction:
             return None
         return self._encode(*self._sensed_state(sensor))
@@ -171,13 +177,13 @@ class Simulator:
         noise = self.rng.normal(size=12) if (sensor.noise_position_m or
                                              sensor.noise_velocity_mps or
                                              sensor.noise_angle_rad or
-                                             sensor.noise_rate_rps) else np.zeros(12)
+                                             sensor.noise_rate_rad_s) else np.zeros(12)
         position = s.position_ned_m + sensor.bias_position_m + \
             sensor.noise_position_m * noise[0:3]
         velocity = s.velocity_ned_mps + sensor.bias_velocity_mps + \
             sensor.noise_velocity_mps * noise[3:6]
         euler = s.euler_rad + sensor.bias_angle_rad + sensor.noise_angle_rad * noise[6:9]
-        rates = s.body_rate_rps + sensor.bias_rate_rps + sensor.noise_rate_rps * noise[9:12]
+        rates = s.body_rate_rad_s + sensor.bias_rate_rad_s + sensor.noise_rate_rad_s * noise[9:12]
         return position, velocity, quat_from_euler(*euler), rates
 
     def _update_perturbations(self, t_s: float) -> None:
@@ -195,15 +201,14 @@ class Simulator:
     def _publish_state(self) -> None:
         if not self.node.enabled:
             return
-        s, p = self._state, self._active
-        f = self._state_floats
-        f[0:3], f[3:6], f[6:10] = s.position_ned_m, s.velocity_ned_mps, s.quaternion
-        f[10:13], f[13:16], f[16:19] = s.euler_rad, s.euler_rate_rps, s.body_rate_rps
-        f[19:23], f[23:27] = s.rotor_rps, self._commands
-        f[27:30] = p.inertia_scale, p.rotor_inertia_scale, p.mass_scale
-        f[30:34], f[34:37] = p.motor_efficiency, p.wind_ned_mps
-        f[37:40], f[40:43] = p.force_ned_n, p.torque_frd_nm
-        self._state_pub.put(STATE.encode((self._state_pub.count, self.time_us), f))
+        s, p, record = self._state, self._active, self._state_record
+        record["seq"], record["sim_time_us"] = self._state_pub.count, self.time_us
+        for name in STATE_FROM_PLANT:
+            record[name] = getattr(s, name)
+        for name in STATE_FROM_PERTURBATIONS:
+            record[name] = getattr(p, name)
+        record["motor_commands"] = self._commands
+        self._state_pub.put(record.encode())
 
     def _advance(self) -> None:
         self.plant.advance(self.period_s)

@@ -104,8 +104,8 @@ def test_identify_prints_table_2_and_writes_a_loadable_model(tmp_path: Path) -> 
 
 def test_identify_refuses_a_malformed_data_file(tmp_path: Path) -> None:
     data = tmp_path / "bad.csv"
-    header = ("time_s,phi_rad,theta_rad,psi_rad,phi_rate_rps,theta_rate_rps,psi_rate_rps,"
-              "w_r_rps,u_phi_n,u_theta_n,u_psi_nm,phi_acc_rps2,theta_acc_rps2,psi_acc_rps2")
+    header = ("time_s,phi_rad,theta_rad,psi_rad,phi_rate_rad_s,theta_rate_rad_s,psi_rate_rad_s,"
+              "w_r_rad_s,u_phi_n,u_theta_n,u_psi_nm,phi_acc_rad_s2,theta_acc_rad_s2,psi_acc_rad_s2")
     rows = [",".join(["0.0"] * 14).replace("0.0", f"{k * 0.01}", 1) for k in range(50)]
     rows[20] = rows[20].replace(",0.0,", ",nan,", 1)
     data.write_text(header + "\n" + "\n".join(rows) + "\n")

@@ -22,11 +22,13 @@ from autopilot.control.sliding_mode import (
     boundary_layer_distance,
     lyapunov,
 )
-from contracts.airframe import PAPER, hover_rotor_speed_rps, rotor_forces
+from contracts.airframe import PAPER, hover_rotor_speed_rad_s
+from sitl.dynamics import rotor_forces
 
 
 def forward(commands: np.ndarray) -> tuple[float, float, float, float]:
-    u_z, u_phi, u_theta, u_psi, _ = rotor_forces(commands * PAPER.rotor_max_rps, np.ones(4), PAPER)
+    u_z, u_phi, u_theta, u_psi, _ = rotor_forces(commands * PAPER.rotor_max_rad_s, np.ones(4),
+                                                 PAPER)
     return u_z, u_phi, u_theta, u_psi
 
 
@@ -47,11 +49,11 @@ def test_mixer_inverts_the_rotor_map_when_unsaturated() -> None:
 
 def test_mixer_hover() -> None:
     c = mix(PAPER.mass_kg * PAPER.gravity_mps2, 0.0, 0.0, 0.0, PAPER)
-    assert np.allclose(c, hover_rotor_speed_rps(PAPER) / PAPER.rotor_max_rps)
+    assert np.allclose(c, hover_rotor_speed_rad_s(PAPER) / PAPER.rotor_max_rad_s)
 
 
 def test_mixer_saturation_keeps_roll_pitch_before_thrust_and_yaw() -> None:
-    top_thrust = 4 * PAPER.thrust_coeff_ns2 * PAPER.rotor_max_rps**2
+    top_thrust = 4 * PAPER.thrust_coeff_ns2 * PAPER.rotor_max_rad_s**2
     # Near full thrust with a roll demand: roll is delivered, thrust gives way, yaw is cut.
     c = mix(0.98 * top_thrust, 3.0, 0.0, 0.3, PAPER)
     u_z, u_phi, u_theta, u_psi = forward(c)

@@ -34,7 +34,7 @@ from ground.inprocess import run_inprocess
 from ground.metrics import compute_metrics
 from ground.perturb import PerturbationClient
 from ground.processes import RunSettings, fly, free_tcp_port, vehicle_commands
-from ground.report import control_records, perturbation_events
+from ground.run_files import control_records, perturbation_events
 from ground.scenarios import load_scenario, scenario_by_name
 
 # -- perturbation requests (pure) ---------------------------------------------------------
@@ -69,13 +69,13 @@ def test_sensor_and_link_effects_combine():
     entries = parse_schedule([
         {"kind": "sensor_noise", "angle_rad": 0.03, "start_s": 0},
         {"kind": "sensor_noise", "angle_rad": 0.04, "start_s": 0},
-        {"kind": "sensor_bias", "rate_rps": [0.1, 0, 0], "start_s": 0},
+        {"kind": "sensor_bias", "rate_rad_s": [0.1, 0, 0], "start_s": 0},
         {"kind": "link_delay", "samples": 2, "start_s": 0},
         {"kind": "link_delay", "samples": 5, "start_s": 0, "end_s": 1},
         {"kind": "link_loss", "fraction": 0.2, "start_s": 5},
     ])
     e = sensor_effects_at(entries, 0.5)
-    assert e.noise_angle_rad == pytest.approx(0.05) and e.bias_rate_rps == (0.1, 0.0, 0.0)
+    assert e.noise_angle_rad == pytest.approx(0.05) and e.bias_rate_rad_s == (0.1, 0.0, 0.0)
     assert e.delay_samples == 5 and e.loss_fraction == 0.0
     assert sensor_effects_at(entries, 6.0).delay_samples == 2
     assert sensor_effects_at(entries, 6.0).loss_fraction == 0.2
@@ -191,7 +191,7 @@ def test_random_perturbations_are_deterministic_in_lockstep(tmp_path):
 [[perturbation]]
 kind = "sensor_noise"
 angle_rad = 0.002
-rate_rps = 0.01
+rate_rad_s = 0.01
 start_s = 2.0
 [[perturbation]]
 kind = "link_loss"

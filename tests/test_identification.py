@@ -559,15 +559,15 @@ def synthetic_dataset(n: int = 1200, seed: int = 0, with_f: bool = True) -> Data
         cols[name] = smooth_signal(rng, n, 0.5)
     p, q, r = (smooth_signal(rng, n, 2.0) for _ in range(3))
     w_r = smooth_signal(rng, n, 40.0)
-    cols |= {"phi_rate_rps": p, "theta_rate_rps": q, "psi_rate_rps": r, "w_r_rps": w_r}
+    cols |= {"phi_rate_rad_s": p, "theta_rate_rad_s": q, "psi_rate_rad_s": r, "w_r_rad_s": w_r}
     u = {k: smooth_signal(rng, n, 1.0, fmax_hz=2.0) for k in ("u_phi_n", "u_theta_n", "u_psi_nm")}
     cols |= u
     f_phi = a1 * q * r - a2 * q * w_r
     f_theta = a3 * p * r + a4 * p * w_r
     f_psi = a5 * p * q
-    cols["phi_acc_rps2"] = f_phi + b1 * u["u_phi_n"]
-    cols["theta_acc_rps2"] = f_theta + b2 * u["u_theta_n"]
-    cols["psi_acc_rps2"] = f_psi + b3 * u["u_psi_nm"]
+    cols["phi_acc_rad_s2"] = f_phi + b1 * u["u_phi_n"]
+    cols["theta_acc_rad_s2"] = f_theta + b2 * u["u_theta_n"]
+    cols["psi_acc_rad_s2"] = f_psi + b3 * u["u_psi_nm"]
     if with_f:
         cols |= {"f_phi": f_phi, "f_theta": f_theta, "f_psi": f_psi}
     return Dataset(columns=cols, source="synthetic")
@@ -592,7 +592,7 @@ def test_identify_dataset_and_model_round_trip(tmp_path: Path):
     # g = least squares of (acc - f^(x)) on U over the identification half
     x = ds.matrix(CHANNEL_REGRESSORS["phi"])[:600]
     u = ds.column("u_phi_n")[:600]
-    residual = ds.column("phi_acc_rps2")[:600] - phi.ivfm.predict_f(x)
+    residual = ds.column("phi_acc_rad_s2")[:600] - phi.ivfm.predict_f(x)
     assert phi.g == pytest.approx(np.dot(u, residual) / np.dot(u, u), rel=1e-12)
     # f^'s error leaks into g where it correlates with U: a few % with 600 samples
     assert phi.g == pytest.approx(0.23 / 0.18, rel=0.05)
@@ -623,7 +623,7 @@ def test_identify_dataset_without_f_fits_f_and_g_together():
     # within 3 % over the data sets tried while choosing the defaults
     assert phi.ivfm.g == pytest.approx(0.23 / 0.18, rel=0.05)
     assert phi.t1fm.g == pytest.approx(0.23 / 0.18, rel=0.05)
-    assert phi.rmse_valid_ivfm < 0.5 * np.std(ds.column("phi_acc_rps2")[2000:])
+    assert phi.rmse_valid_ivfm < 0.5 * np.std(ds.column("phi_acc_rad_s2")[2000:])
 
 
 CSV_HEADER = ",".join(REQUIRED_COLUMNS)
@@ -645,11 +645,11 @@ def _mutate(rows, row, col, text):
 @pytest.mark.parametrize(
     ("header", "rows", "fragments"),
     [
-        (CSV_HEADER.replace(",w_r_rps", ""), [r[:-1] for r in _csv_rows()], ["w_r_rps"]),
+        (CSV_HEADER.replace(",w_r_rad_s", ""), [r[:-1] for r in _csv_rows()], ["w_r_rad_s"]),
         (CSV_HEADER + ",extra", [r + ["1"] for r in _csv_rows()], ["unknown", "extra"]),
         (CSV_HEADER + ",phi_rad", [r + ["1"] for r in _csv_rows()], ["duplicate", "phi_rad"]),
         (CSV_HEADER, _mutate(_csv_rows(), 4, 2, "abc"), ["line 6", "theta_rad", "abc"]),
-        (CSV_HEADER, _mutate(_csv_rows(), 3, 5, "nan"), ["line 5", "theta_rate_rps"]),
+        (CSV_HEADER, _mutate(_csv_rows(), 3, 5, "nan"), ["line 5", "theta_rate_rad_s"]),
         (CSV_HEADER, _mutate(_csv_rows(), 7, 1, "inf"), ["line 9", "phi_rad"]),
         (CSV_HEADER, _mutate(_csv_rows(), 6, 0, "0.01"), ["line 8", "time_s"]),
         (CSV_HEADER, _mutate(_csv_rows(), 2, 3, ""), ["line 4", "psi_rad"]),

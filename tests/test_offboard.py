@@ -44,7 +44,7 @@ def test_local_ned_is_taken_as_it_is() -> None:
     sp = local(mavlink.MAV_FRAME_LOCAL_NED, POSITION_ONLY)
     assert np.array_equal(sp.position_ned_m, [1.0, 2.0, -5.0])
     assert np.all(np.isnan(sp.velocity_ned_mps)) and np.all(np.isnan(sp.accel_ned_mps2))
-    assert sp.yaw_rad == 0.3 and math.isnan(sp.yaw_rate_rps)
+    assert sp.yaw_rad == 0.3 and math.isnan(sp.yaw_rate_rad_s)
 
 
 def test_local_offset_is_added_to_the_vehicle_position() -> None:
@@ -59,7 +59,7 @@ def test_body_frames_turn_vectors_by_the_heading(frame) -> None:
     sp = local(frame, BODY_VELOCITY, velocity=(2.0, 1.0, -0.5), yaw_rate=0.4)
     # Forward 2 m/s and right 1 m/s while heading east: east 2, south 1; down unchanged.
     assert np.allclose(sp.velocity_ned_mps, (-1.0, 2.0, -0.5))
-    assert math.isnan(sp.yaw_rad) and sp.yaw_rate_rps == 0.4
+    assert math.isnan(sp.yaw_rad) and sp.yaw_rate_rad_s == 0.4
     assert np.all(np.isnan(sp.position_ned_m))
 
 
@@ -78,9 +78,9 @@ def test_mask_leaves_groups_out_and_yaw_wins_over_its_rate() -> None:
     sp = local(mavlink.MAV_FRAME_LOCAL_NED, ALL_POSITION | ALL_ACCEL)
     assert np.all(np.isnan(sp.position_ned_m))
     assert np.allclose(sp.velocity_ned_mps, (0.5, 1.0, -0.2))
-    assert sp.yaw_rad == 0.3 and math.isnan(sp.yaw_rate_rps)
+    assert sp.yaw_rad == 0.3 and math.isnan(sp.yaw_rate_rad_s)
     no_yaw = local(mavlink.MAV_FRAME_LOCAL_NED, YAW_IGNORE | YAW_RATE_IGNORE)
-    assert math.isnan(no_yaw.yaw_rad) and math.isnan(no_yaw.yaw_rate_rps)
+    assert math.isnan(no_yaw.yaw_rad) and math.isnan(no_yaw.yaw_rate_rad_s)
     xy_only = local(mavlink.MAV_FRAME_LOCAL_NED, POSITION_BITS[2] | ALL_ACCEL,
                     velocity=(0.0, 0.0, 1.0))
     assert np.isnan(xy_only.position_ned_m[2]) and xy_only.velocity_ned_mps[2] == 1.0

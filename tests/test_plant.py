@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from contracts.airframe import PAPER, REALISTIC, hover_rotor_speed_rps
+from contracts.airframe import PAPER, REALISTIC, hover_rotor_speed_rad_s
 from contracts.frames import (
     body_rates_from_euler_rates,
     euler_from_quat,
@@ -24,14 +24,14 @@ FIDELITIES = ("paper", "rigid-body")
 
 
 def hover_fraction(af=PAPER) -> float:
-    return hover_rotor_speed_rps(af) / af.rotor_max_rps
+    return hover_rotor_speed_rad_s(af) / af.rotor_max_rad_s
 
 
 @pytest.mark.parametrize("fidelity", FIDELITIES)
 @pytest.mark.parametrize("af", [PAPER, REALISTIC], ids=["paper", "realistic"])
 def test_hover_is_an_equilibrium(fidelity: str, af) -> None:
     plant = Plant(
-        af, fidelity, position_ned_m=(0.0, 0.0, -1.0), rotor_rps=hover_rotor_speed_rps(af)
+        af, fidelity, position_ned_m=(0.0, 0.0, -1.0), rotor_rad_s=hover_rotor_speed_rad_s(af)
     )
     plant.set_motor_commands(np.full(4, hover_fraction(af)))
     plant.advance(5.0)
@@ -42,7 +42,7 @@ def test_hover_is_an_equilibrium(fidelity: str, af) -> None:
 
 
 def _accelerate(fidelity: str, euler, commands) -> np.ndarray:
-    plant = Plant(PAPER, fidelity, euler_rad=euler, rotor_rps=hover_rotor_speed_rps(PAPER))
+    plant = Plant(PAPER, fidelity, euler_rad=euler, rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
     plant.set_motor_commands(np.asarray(commands))
     plant.advance(0.05)
     return plant.state()
@@ -74,20 +74,20 @@ def test_rotor_layout_signs(fidelity: str) -> None:
     h = hover_fraction()
     # Rotor 4 (left) faster than rotor 2 (right): positive roll rate (right wing down).
     s = _accelerate(fidelity, (0, 0, 0), [h, h * 0.99, h, h * 1.01])
-    assert s.body_rate_rps[0] > 0
+    assert s.body_rate_rad_s[0] > 0
     # Rotor 1 (front) faster than rotor 3 (rear): nose up, positive pitch rate.
     s = _accelerate(fidelity, (0, 0, 0), [h * 1.01, h, h * 0.99, h])
-    assert s.body_rate_rps[1] > 0
+    assert s.body_rate_rad_s[1] > 0
     # Rotors 2, 4 faster (they spin along -z_b, reaction along +z_b): positive yaw rate.
     s = _accelerate(fidelity, (0, 0, 0), [h * 0.99, h * 1.01, h * 0.99, h * 1.01])
-    assert s.body_rate_rps[2] > 0
+    assert s.body_rate_rad_s[2] > 0
 
 
 def test_gyroscopic_terms_have_opposite_signs_on_roll_and_pitch() -> None:
     state = np.zeros(dynamics.PAPER_STATE_SIZE)
     state[9] = 1.0  # phi'
     state[10] = 1.0  # theta'
-    w = hover_rotor_speed_rps(PAPER)
+    w = hover_rotor_speed_rad_s(PAPER)
     state[12:16] = [w + 10, w, w + 10, w]  # W_r = +20 rad/s
     d = dynamics.paper_derivative(state, state[12:16].copy(), PAPER, dynamics.no_disturbance())
     a2 = PAPER.rotor_inertia_kgm2 / PAPER.ixx_kgm2
@@ -107,17 +107,17 @@ def test_rk4_matches_scipy_reference_integration(fidelity: str) -> None:
         fidelity,
         step_s=0.001,
         euler_rad=(0.3, -0.2, 0.5),
-        rotor_rps=600.0,
+        rotor_rad_s=600.0,
     )
     plant.set_perturbations(Perturbations(wind_ned_mps=(2.0, -1.0, 0.0)))
     x0 = plant.raw_state
     cmd = np.array([0.62, 0.55, 0.58, 0.66])
-    command_rps = cmd * REALISTIC.rotor_max_rps
+    command_rad_s = cmd * REALISTIC.rotor_max_rad_s
     dist = dynamics.no_disturbance()
     dist[dynamics.DIST_WIND : dynamics.DIST_WIND + 3] = (2.0, -1.0, 0.0)
 
     def rhs(_t, x):
-        return dynamics._derivative(code, x, command_rps, plant.airframe, dist)
+        return dynamics._derivative(code, x, command_rad_s, plant.airframe, dist)
 
     plant.set_motor_commands(cmd)
     plant.advance(0.5)
@@ -131,7 +131,7 @@ def test_rk4_matches_scipy_reference_integration(fidelity: str) -> None:
 def test_fidelities_agree_at_small_angles() -> None:
     h = hover_fraction()
     plants = [
-        Plant(PAPER, f, euler_rad=(0.01, -0.01, 0.0), rotor_rps=hover_rotor_speed_rps(PAPER))
+        Plant(PAPER, f, euler_rad=(0.01, -0.01, 0.0), rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
         for f in FIDELITIES
     ]
     for p in plants:
@@ -185,12 +185,12 @@ def test_perturbations_change_the_plant_and_are_validated() -> None:
 
 def test_motor_failure_and_external_torque_act() -> None:
     h = hover_fraction()
-    plant = Plant(PAPER, "rigid-body", rotor_rps=hover_rotor_speed_rps(PAPER))
+    plant = Plant(PAPER, "rigid-body", rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
     plant.set_perturbations(Perturbations(motor_efficiency=(1.0, 0.0, 1.0, 1.0)))
     plant.set_motor_commands(np.full(4, h))
     plant.advance(0.1)
-    assert plant.state().body_rate_rps[0] > 0.1  # rotor 2 (right) out: rolls right
+    assert plant.state().body_rate_rad_s[0] > 0.1  # rotor 2 (right) out: rolls right
     plant = Plant(PAPER, "paper")
     plant.set_perturbations(Perturbations(torque_frd_nm=(0.0, 0.0, 0.09)))
     plant.advance(0.1)
-    assert plant.state().euler_rate_rps[2] == pytest.approx(0.1, rel=1e-9)  # tau / Izz * t
+    assert plant.state().euler_rate_rad_s[2] == pytest.approx(0.1, rel=1e-9)  # tau / Izz * t

@@ -12,7 +12,7 @@ from contracts.airframe import PAPER
 from ground.inprocess import run_inprocess
 from ground.metrics import compute_metrics
 from ground.processes import RunSettings, fly
-from ground.report import control_records, perturbation_events
+from ground.run_files import control_records, perturbation_events
 from ground.scenarios import scenario_by_name
 
 IVFC = RunSettings("ivfc", "paper", "paper")

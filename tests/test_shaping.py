@@ -7,7 +7,6 @@ import math
 import numpy as np
 import pytest
 
-from autopilot.reference import REF_ACC, REF_EULER, REF_EULER_RATE, REF_POS, REF_VEL
 from autopilot.shaping import (
     Setpoint,
     SetpointShaper,
@@ -16,6 +15,7 @@ from autopilot.shaping import (
     velocity_filter_omega,
 )
 from contracts.frames import wrap_pi, wrap_pi_array
+from contracts.vectors import REF_ACC, REF_EULER, REF_EULER_RATE, REF_POS, REF_VEL
 
 DT = 0.01
 DEFAULT = ShapingLimits(5.0, 3.0, 1.5, 3.0, 4.0, 3.0, 4.0, math.radians(45), math.radians(60))
@@ -200,13 +200,13 @@ def test_yaw_goes_the_short_way_within_its_rate_limit(start_deg, goal_deg):
     yaw = ref[:, REF_EULER + 2]
     travelled = np.sum(np.abs(np.diff(np.unwrap(np.concatenate(([start], yaw))))))
     assert travelled == pytest.approx(abs(wrap_pi(goal - start)), abs=1e-6)
-    assert np.abs(ref[:, REF_EULER_RATE + 2]).max() <= DEFAULT.yaw_rate_max_rps + 1e-9
+    assert np.abs(ref[:, REF_EULER_RATE + 2]).max() <= DEFAULT.yaw_rate_max_rad_s + 1e-9
     assert abs(wrap_pi(yaw[-1] - goal)) < 1e-6
     assert np.all((yaw >= -math.pi) & (yaw < math.pi))
 
 
 def test_yaw_rate_setpoints_turn_at_that_rate() -> None:
-    ref = fly(lambda t: Setpoint(np.zeros(3), yaw_rate_rps=0.5), 10.0)
+    ref = fly(lambda t: Setpoint(np.zeros(3), yaw_rate_rad_s=0.5), 10.0)
     assert ref[-1, REF_EULER_RATE + 2] == pytest.approx(0.5)
-    fast = fly(lambda t: Setpoint(np.zeros(3), yaw_rate_rps=5.0), 10.0)
-    assert fast[-1, REF_EULER_RATE + 2] == pytest.approx(DEFAULT.yaw_rate_max_rps)
+    fast = fly(lambda t: Setpoint(np.zeros(3), yaw_rate_rad_s=5.0), 10.0)
+    assert fast[-1, REF_EULER_RATE + 2] == pytest.approx(DEFAULT.yaw_rate_max_rad_s)

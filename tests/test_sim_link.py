@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from contracts.airframe import PAPER, hover_rotor_speed_rps
+from contracts.airframe import PAPER, hover_rotor_speed_rad_s
 from contracts.mavlink import (
     LinkDataError,
     actuator_message,
@@ -28,7 +28,7 @@ from tests.harness import free_port
 
 def _flying_plant(fidelity: str) -> Plant:
     plant = Plant(PAPER, fidelity, position_ned_m=(1.0, -2.0, -3.0), euler_rad=(0.3, -0.2, 1.0),
-                  rotor_rps=hover_rotor_speed_rps(PAPER))
+                  rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
     plant.set_motor_commands(np.array([0.5, 0.45, 0.48, 0.47]))
     plant.advance(0.5)
     return plant
@@ -38,7 +38,7 @@ def _decoded(plant: Plant) -> dict[str, object]:
     s = plant.state()
     mav = mavlink.MAVLink(None, 1, 51)
     data = b"".join(m.pack(mav) for m in sample_messages(
-        123456, s.position_ned_m, s.velocity_ned_mps, s.quaternion, s.body_rate_rps,
+        123456, s.position_ned_m, s.velocity_ned_mps, s.quaternion, s.body_rate_rad_s,
         np.zeros(3)))
     return {m.get_type(): m for m in mavlink.MAVLink(None, 1, 1).parse_buffer(data)}
 
@@ -96,7 +96,7 @@ def test_split_frames_keeps_partial_frames_for_later():
     s = plant.state()
     mav = mavlink.MAVLink(None, 1, 51)
     data = b"".join(m.pack(mav) for m in sample_messages(
-        1, s.position_ned_m, s.velocity_ned_mps, s.quaternion, s.body_rate_rps, np.zeros(3)))
+        1, s.position_ned_m, s.velocity_ned_mps, s.quaternion, s.body_rate_rad_s, np.zeros(3)))
     frames, rest = split_frames(b"\x00\x01" + data + data[:20])
     assert [i for i, _ in frames] == [-1, 107, 113, 115, 331] and rest == data[:20]
 
@@ -170,12 +170,12 @@ def test_autopilot_refuses_bad_simulator_data_and_keeps_serving(tmp_path):
         plant = Plant(PAPER, "paper", ground_contact=True)
         s = plant.state()
         msgs = sample_messages(0, s.position_ned_m, s.velocity_ned_mps, s.quaternion,
-                               s.body_rate_rps, np.zeros(3))
+                               s.body_rate_rad_s, np.zeros(3))
         msgs[3].vx = math.nan
         conn.sendall(b"".join(m.pack(mav) for m in msgs))
         time.sleep(0.5)
         good = sample_messages(10000, s.position_ned_m, s.velocity_ned_mps, s.quaternion,
-                               s.body_rate_rps, np.zeros(3))
+                               s.body_rate_rad_s, np.zeros(3))
         conn.sendall(b"".join(m.pack(mav) for m in good))
         reply = []
         reader = mavlink.MAVLink(None, 1, 51)

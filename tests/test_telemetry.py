@@ -21,7 +21,6 @@ from mcap_ros2.decoder import DecoderFactory
 
 from contracts.telemetry import CONTROL, STATE, TIMING, vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
-from ground.logger import iter_messages
 from ground.perturb import PerturbationClient, PerturbationError
 from ground.processes import (
     LoggerProcess,
@@ -30,7 +29,7 @@ from ground.processes import (
     free_tcp_port,
     vehicle_commands,
 )
-from ground.report import control_records
+from ground.run_files import control_records, iter_messages
 from ground.scenarios import scenario_by_name
 
 os.environ["MAVLINK20"] = "1"
@@ -236,7 +235,7 @@ def test_bad_requests_and_payloads_are_refused_and_change_nothing(tmp_path, sess
         pub.put(b"\x00\x01\x00\x00garbage")
         s.put(vehicle_key(9, "sitl", "status"), b"{not json")
         s.put("mavlink/9/1/HEARTBEAT", b"\xfd\x09")  # no attachment
-        good_payload = CONTROL.encode((0, 0, 0, 0), np.zeros(103), ((), (), ()))
+        good_payload = CONTROL.buffer().encode(((), (), ()))
         pub.put(good_payload)
         deadline = time.monotonic() + 10
         while True:

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from autopilot.control.factory import CONTROLLERS, make_controller
-from autopilot.reference import REF_EULER, REF_POS, REF_SIZE
 from autopilot.shaping import Setpoint
-from contracts.airframe import PAPER, hover_rotor_speed_rps, max_thrust_n
+from contracts.airframe import PAPER, hover_rotor_speed_rad_s, max_thrust_n
 from contracts.frames import wrap_pi
 from contracts.mavlink import FlightMode
+from contracts.vectors import REF_EULER, REF_POS, REF_SIZE
 from ground.inprocess import run_inprocess
 from ground.metrics import compute_metrics
 from ground.scenarios import SCENARIOS
@@ -50,7 +50,7 @@ def test_every_controller_turns_across_180_deg_the_short_way(controller, plant):
     """The controller alone, the reference stepped: the error is wrapped in every law."""
     for start, goal in TURNS:
         sim = Plant(PAPER, plant, 0.001, position_ned_m=(0.0, 0.0, -2.0),
-                    euler_rad=(0.0, 0.0, start), rotor_rps=hover_rotor_speed_rps(PAPER))
+                    euler_rad=(0.0, 0.0, start), rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
         models = shipped_models() if controller in ("ivfc", "t1fc") else None
         law = make_controller(controller, PAPER, 0.01, models)
         ref = np.zeros(REF_SIZE)
@@ -151,15 +151,15 @@ def test_position_square_with_headings_through_0_and_180_deg():
     assert math.degrees(yaw_travel_rad(log[:, YAW])) == pytest.approx(590.0, abs=2.0)
 
 
-def _forward(flight: Flight, speed_mps: float, yaw_rate_rps: float):
+def _forward(flight: Flight, speed_mps: float, yaw_rate_rad_s: float):
     """What a body-frame velocity setpoint becomes: forward along the heading now."""
     def send(t: float) -> None:
         heading = flight.vehicle.heading_rad
         flight.vehicle.position_setpoint(t, Setpoint(
             velocity_ned_mps=np.array([speed_mps * math.cos(heading),
                                        speed_mps * math.sin(heading), 0.0]),
-            yaw_rad=math.nan if yaw_rate_rps else heading,
-            yaw_rate_rps=yaw_rate_rps if yaw_rate_rps else math.nan))
+            yaw_rad=math.nan if yaw_rate_rad_s else heading,
+            yaw_rate_rad_s=yaw_rate_rad_s if yaw_rate_rad_s else math.nan))
     return send
 
 
@@ -288,7 +288,7 @@ def test_paper_scenarios_are_unchanged(plant, scenario, expected):
     (Setpoint(np.array([0.0, 0.0, -2.0]), np.array([math.inf, 0.0, 0.0])), "infinity"),
     (Setpoint(velocity_ned_mps=np.array([30.0, 0.0, 0.0])), "beyond"),
     (Setpoint(np.array([0.0, 0.0, -2.0]), yaw_rad=math.inf), "infinity"),
-    (Setpoint(np.zeros(3), yaw_rate_rps=50.0), "beyond"),
+    (Setpoint(np.zeros(3), yaw_rate_rad_s=50.0), "beyond"),
 ])
 def test_bad_setpoints_are_refused_and_change_nothing(bad, reason):
     from autopilot.vehicle import RefusedError

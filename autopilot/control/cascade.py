@@ -17,22 +17,33 @@ from numba import njit
 from autopilot.control.command_filter import command_filter_step
 from autopilot.control.mixer import mix
 from autopilot.control.parameters import channel_gains, validate_parameters
-from autopilot.control.sliding_mode import TELEMETRY_FIELDS, adaptive_channel_step
+from autopilot.control.sliding_mode import adaptive_channel_step
 from autopilot.identification.ts_model import it2_regressor, t1_regressor
-from autopilot.reference import REF_ACC, REF_EULER, REF_EULER_ACC, REF_EULER_RATE, REF_POS, REF_VEL
 from contracts.airframe import (
     Airframe,
     attitude_coefficients,
     max_thrust_n,
     paper_attitude_drift,
+    residual_rotor_speed,
+)
+from contracts.vectors import (
+    CHANNEL_INTERNALS,
+    CHANNELS,
+    MEAS_EULER,
+    MEAS_EULER_RATE,
+    MEAS_POS,
+    MEAS_VEL,
+    REF_ACC,
+    REF_EULER,
+    REF_EULER_ACC,
+    REF_EULER_RATE,
+    REF_POS,
+    REF_VEL,
 )
 
-CHANNELS = ("phi", "theta", "psi", "z", "x", "y")
 CH_PHI, CH_THETA, CH_PSI, CH_Z, CH_X, CH_Y = range(6)
 BASIS_IT2, BASIS_T1, BASIS_NOMINAL = 0, 1, 2
 
-# Measurement layout (sitl.plant.MEASUREMENT_SIZE): position, velocity, Euler, Euler rates.
-M_POS, M_VEL, M_EULER, M_RATE = 0, 3, 6, 9
 
 MIN_TILT_COSINE = 0.3  # altitude loop: c.phi c.theta is bounded away from 0
 MIN_THRUST_FRACTION = 0.1  # position loop: U_z floor (fraction of weight) in u = -v / U_z
@@ -42,7 +53,7 @@ MIN_THRUST_FRACTION = 0.1  # position loop: U_z floor (fraction of weight) in u 
 def attitude_regressor_inputs(meas: np.ndarray, w_r: float, channel: int) -> np.ndarray:
     """The regressors of SPEC section 4: f_phi(theta', psi', W_r), f_theta(phi', psi', W_r),
     f_psi(phi', theta')."""
-    rates = meas[M_RATE:M_RATE + 3]
+    rates = meas[MEAS_EULER_RATE:MEAS_EULER_RATE + 3]
     if channel == CH_PHI:
         return np.array([rates[1], rates[2], w_r])
     if channel == CH_THETA:
@@ -104,12 +115,12 @@ def cascade_step(
     asked for (attitude setpoints in PX4's reading). ``total_tilt``: see desired_angles.
     """
     one = np.ones(1)
-    phi, theta = meas[M_EULER], meas[M_EULER + 1]
+    phi, theta = meas[MEAS_EULER], meas[MEAS_EULER + 1]
     max_thrust = max_thrust_n(af)
     if math.isnan(collective_thrust_n):
         # Altitude: z'' = f_z + g_z v with v = -c.phi c.theta U_z.
         v_z, theta_g[CH_Z] = adaptive_channel_step(
-            meas[M_POS + 2], meas[M_VEL + 2], ref[REF_POS + 2], ref[REF_VEL + 2],
+            meas[MEAS_POS + 2], meas[MEAS_VEL + 2], ref[REF_POS + 2], ref[REF_VEL + 2],
             ref[REF_ACC + 2], one, theta_f[CH_Z], theta_min[CH_Z], theta_max[CH_Z], one, 0.0,
             theta_g[CH_Z], gains[CH_Z], period_s, telemetry[CH_Z],
         )
@@ -132,7 +143,7 @@ def cascade_step(
         thrust_floor = max(u_z, MIN_THRUST_FRACTION * af.mass_kg * af.gravity_mps2)
         for k, ch in ((0, CH_X), (1, CH_Y)):
             v, theta_g[ch] = adaptive_channel_step(
-                meas[M_POS + k], meas[M_VEL + k], ref[REF_POS + k], ref[REF_VEL + k],
+                meas[MEAS_POS + k], meas[MEAS_VEL + k], ref[REF_POS + k], ref[REF_VEL + k],
                 ref[REF_ACC + k], one, theta_f[ch], theta_min[ch], theta_max[ch], one, 0.0,
                 theta_g[ch], gains[ch], period_s, telemetry[ch],
             )
@@ -159,7 +170,7 @@ def cascade_step(
             filter_state[k, 1] = yd_dot[k]
 
     # Attitude: y'' = f(x) + g U.
-    rates = meas[M_RATE:M_RATE + 3]
+    rates = meas[MEAS_EULER_RATE:MEAS_EULER_RATE + 3]
     f_nominal = paper_attitude_drift(rates[0], rates[1], rates[2], w_r, af)
     u_att = np.empty(3)
     for ch in range(3):
@@ -174,7 +185,7 @@ def cascade_step(
             phi_f = np.empty(0)
             offset = f_nominal[ch]
         u_att[ch], theta_g[ch] = adaptive_channel_step(
-            meas[M_EULER + ch], rates[ch], yd[ch], yd_dot[ch], yd_ddot[ch], phi_f,
+            meas[MEAS_EULER + ch], rates[ch], yd[ch], yd_dot[ch], yd_ddot[ch], phi_f,
             theta_f[ch], theta_min[ch], theta_max[ch], eta_scale[ch], offset, theta_g[ch],
             gains[ch], period_s, telemetry[ch], True,
         )
@@ -228,7 +239,7 @@ class SlidingModeCascade:
         self.period_s = period_s
         self.adaptive = adaptive
         self.parameters = validate_parameters(parameters or {})
-        self.telemetry = np.zeros((6, len(TELEMETRY_FIELDS)))
+        self.telemetry = np.zeros((len(CHANNELS), len(CHANNEL_INTERNALS)))
         self._theta_f = tuple(np.array(t, dtype=float) for t in model.theta_f) + (
             np.array([airframe.gravity_mps2]), np.zeros(1), np.zeros(1))
         self._theta_f_initial = tuple(t.copy() for t in self._theta_f)
@@ -263,8 +274,7 @@ class SlidingModeCascade:
 
     def residual_rotor_speed(self) -> float:
         """W_r = W1 - W2 + W3 - W4 of the last command (the controller knows what it sent)."""
-        w = self._last_commands * self.airframe.rotor_max_rps
-        return float(w[0] - w[1] + w[2] - w[3])
+        return float(residual_rotor_speed(self._last_commands * self.airframe.rotor_max_rad_s))
 
     def step(self, meas: np.ndarray, ref: np.ndarray, position_mode: bool,
              kick: np.ndarray | None = None, collective_thrust_n: float = math.nan,

@@ -20,7 +20,7 @@ def command_filter_step(
     state: np.ndarray,
     command: float,
     period_s: float,
-    omega_rps: float,
+    omega_rad_s: float,
     zeta: float,
     rate_max: float,
     acc_max: float,
@@ -29,7 +29,7 @@ def command_filter_step(
     h = period_s / SUBSTEPS
     acc = 0.0
     for _ in range(SUBSTEPS):
-        acc = omega_rps * omega_rps * (command - state[0]) - 2.0 * zeta * omega_rps * state[1]
+        acc = omega_rad_s * omega_rad_s * (command - state[0]) - 2.0 * zeta * omega_rad_s * state[1]
         acc = max(-acc_max, min(acc_max, acc))
         state[1] = max(-rate_max, min(rate_max, state[1] + h * acc))
         state[0] += h * state[1]

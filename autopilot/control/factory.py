@@ -18,9 +18,9 @@ from autopilot.control.cascade import (
 from autopilot.control.pid import PidCascade
 from autopilot.identification.ts_model import FuzzyModelSet
 from contracts.airframe import Airframe, attitude_coefficients
+from contracts.vectors import ATTITUDE_CHANNELS
 
 CONTROLLERS = ("ivfc", "t1fc", "smc", "pid")
-ATTITUDE_CHANNELS = ("phi", "theta", "psi")
 
 
 def attitude_model_from_fuzzy(models: FuzzyModelSet, kind: str, af: Airframe) -> AttitudeModel:

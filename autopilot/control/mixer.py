@@ -22,7 +22,7 @@ def mix(
     gives up yaw first).
     """
     b, d = af.thrust_coeff_ns2, af.drag_coeff_nms2
-    top = af.rotor_max_rps * af.rotor_max_rps
+    top = af.rotor_max_rad_s * af.rotor_max_rad_s
     a = u_z / (4.0 * b)
     r = u_phi / (2.0 * b)
     p = u_theta / (2.0 * b)
@@ -49,5 +49,5 @@ def mix(
     out[2] = a - p - y
     out[3] = a + r + y
     for i in range(4):
-        out[i] = math.sqrt(min(max(out[i], 0.0), top)) / af.rotor_max_rps
+        out[i] = math.sqrt(min(max(out[i], 0.0), top)) / af.rotor_max_rad_s
     return out

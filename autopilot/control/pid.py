@@ -13,12 +13,22 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from autopilot.control.cascade import M_EULER, M_POS, M_RATE, M_VEL, desired_angles
+from autopilot.control.cascade import desired_angles
 from autopilot.control.mixer import mix
 from autopilot.control.parameters import validate_parameters
-from autopilot.reference import REF_ACC, REF_EULER, REF_EULER_RATE, REF_POS, REF_VEL
 from contracts.airframe import Airframe, max_thrust_n
 from contracts.frames import wrap_pi
+from contracts.vectors import (
+    MEAS_EULER,
+    MEAS_EULER_RATE,
+    MEAS_POS,
+    MEAS_VEL,
+    REF_ACC,
+    REF_EULER,
+    REF_EULER_RATE,
+    REF_POS,
+    REF_VEL,
+)
 
 # Integrator clamps (anti-windup), as PX4 bounds its integrators.
 RATE_INTEGRATOR_LIMIT = 0.3  # rad (x RATE_I 10 -> 3 rad/s^2)
@@ -75,10 +85,10 @@ def pid_step(
     ``total_tilt`` as in :func:`cascade.desired_angles`."""
     g = af.gravity_mps2
     m = af.mass_kg
-    phi, theta = meas[M_EULER], meas[M_EULER + 1]
+    phi, theta = meas[MEAS_EULER], meas[MEAS_EULER + 1]
     # Vertical: position P -> velocity PI -> acceleration (NED, plus feedforward).
-    vz_sp = gains.z_p * (ref[REF_POS + 2] - meas[M_POS + 2]) + ref[REF_VEL + 2]
-    vz_err = vz_sp - meas[M_VEL + 2]
+    vz_sp = gains.z_p * (ref[REF_POS + 2] - meas[MEAS_POS + 2]) + ref[REF_VEL + 2]
+    vz_err = vz_sp - meas[MEAS_VEL + 2]
     integrators[5] = _clip(integrators[5] + vz_err * period_s, VELOCITY_INTEGRATOR_LIMIT)
     az = gains.z_vel_p * vz_err + gains.z_vel_i * integrators[5] + ref[REF_ACC + 2]
     att_d = np.empty(3)
@@ -89,12 +99,12 @@ def pid_step(
     if position_mode:
         acc = np.empty(2)
         for k in range(2):
-            v_sp = gains.xy_p * (ref[REF_POS + k] - meas[M_POS + k]) + ref[REF_VEL + k]
-            v_err = v_sp - meas[M_VEL + k]
+            v_sp = gains.xy_p * (ref[REF_POS + k] - meas[MEAS_POS + k]) + ref[REF_VEL + k]
+            v_err = v_sp - meas[MEAS_VEL + k]
             integrators[3 + k] = _clip(integrators[3 + k] + v_err * period_s,
                                         VELOCITY_INTEGRATOR_LIMIT)
-            vel_rate = (meas[M_VEL + k] - previous[3 + k]) / period_s
-            previous[3 + k] = meas[M_VEL + k]
+            vel_rate = (meas[MEAS_VEL + k] - previous[3 + k]) / period_s
+            previous[3 + k] = meas[MEAS_VEL + k]
             acc[k] = (gains.xy_vel_p * v_err + gains.xy_vel_i * integrators[3 + k]
                       - gains.xy_vel_d * vel_rate + ref[REF_ACC + k])
         u_z = m * math.sqrt(acc[0] ** 2 + acc[1] ** 2 + (g - az) ** 2)
@@ -112,8 +122,8 @@ def pid_step(
     # Attitude P -> rate PID -> angular acceleration -> torque.
     alpha = np.empty(3)
     for k in range(3):
-        err = wrap_pi(att_d[k] - meas[M_EULER + k])
-        rate = meas[M_RATE + k]
+        err = wrap_pi(att_d[k] - meas[MEAS_EULER + k])
+        rate = meas[MEAS_EULER_RATE + k]
         p_gain = gains.yaw_p if k == 2 else gains.att_p
         rate_err = p_gain * err + rate_ff[k] - rate
         integrators[k] = _clip(integrators[k] + rate_err * period_s, RATE_INTEGRATOR_LIMIT)
@@ -125,11 +135,11 @@ def pid_step(
                         - gains.rate_d * d_rate)
         previous[k] = rate
         telemetry[k, 0] = att_d[k]
-        telemetry[k, 1] = meas[M_EULER + k]
+        telemetry[k, 1] = meas[MEAS_EULER + k]
         telemetry[k, 2] = err
     telemetry[3, 0] = ref[REF_POS + 2]
-    telemetry[3, 1] = meas[M_POS + 2]
-    telemetry[3, 2] = ref[REF_POS + 2] - meas[M_POS + 2]
+    telemetry[3, 1] = meas[MEAS_POS + 2]
+    telemetry[3, 2] = ref[REF_POS + 2] - meas[MEAS_POS + 2]
     u_phi = af.ixx_kgm2 * alpha[0] / af.arm_m
     u_theta = af.iyy_kgm2 * alpha[1] / af.arm_m
     u_psi = af.izz_kgm2 * alpha[2]

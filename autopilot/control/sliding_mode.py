@@ -19,6 +19,7 @@ from numba import njit
 
 from autopilot.control.parameters import ChannelGains
 from contracts.frames import wrap_pi
+from contracts.vectors import CHANNEL_INTERNALS
 
 
 @njit(cache=True)
@@ -102,9 +103,10 @@ def lyapunov(e_eps: float, theta_f_err: np.ndarray, theta_g_err: float,
     return v
 
 
-# Indices into a channel's telemetry row, written by adaptive_channel_step.
-TEL_REF, TEL_Y, TEL_E, TEL_ES, TEL_EEPS, TEL_FHAT, TEL_UEQ, TEL_US, TEL_V, TEL_THETA_G = range(10)
-TELEMETRY_FIELDS = ("ref", "y", "e", "e_s", "e_eps", "f_hat", "u_eq", "u_s", "v", "theta_g")
+# Indices into a channel's telemetry row (contracts.vectors.CHANNEL_INTERNALS), written by
+# adaptive_channel_step.
+TEL_REF, TEL_Y, TEL_E, TEL_ES, TEL_EEPS, TEL_FHAT, TEL_UEQ, TEL_US, TEL_V, TEL_THETA_G = range(
+    len(CHANNEL_INTERNALS))
 
 
 @njit(cache=True)

@@ -5,11 +5,11 @@ columns, then one row per sample. Units SI, frames NED / FRD (SPEC section 2):
 
     time_s                                   sample time [s], strictly increasing
     phi_rad, theta_rad, psi_rad              Euler angles [rad]
-    phi_rate_rps, theta_rate_rps, psi_rate_rps   Euler angle rates [rad/s]
-    w_r_rps                                  residual rotor speed W1 - W2 + W3 - W4 [rad/s]
+    phi_rate_rad_s, theta_rate_rad_s, psi_rate_rad_s   Euler angle rates [rad/s]
+    w_r_rad_s                                  residual rotor speed W1 - W2 + W3 - W4 [rad/s]
     u_phi_n, u_theta_n                       roll / pitch force pairs U_phi, U_theta [N]
     u_psi_nm                                 yaw torque U_psi [N m]
-    phi_acc_rps2, theta_acc_rps2, psi_acc_rps2   angular accelerations [rad/s^2]
+    phi_acc_rad_s2, theta_acc_rad_s2, psi_acc_rad_s2   angular accelerations [rad/s^2]
     f_phi, f_theta, f_psi                    optional: the unknown functions f_i(x)
                                              [rad/s^2], when a simulator hands them over
 
@@ -29,39 +29,46 @@ from pathlib import Path
 
 import numpy as np
 
+from contracts.vectors import ATTITUDE_CHANNELS
+
 REQUIRED_COLUMNS: tuple[str, ...] = (
     "time_s",
     "phi_rad",
     "theta_rad",
     "psi_rad",
-    "phi_rate_rps",
-    "theta_rate_rps",
-    "psi_rate_rps",
-    "w_r_rps",
+    "phi_rate_rad_s",
+    "theta_rate_rad_s",
+    "psi_rate_rad_s",
+    "w_r_rad_s",
     "u_phi_n",
     "u_theta_n",
     "u_psi_nm",
-    "phi_acc_rps2",
-    "theta_acc_rps2",
-    "psi_acc_rps2",
+    "phi_acc_rad_s2",
+    "theta_acc_rad_s2",
+    "psi_acc_rad_s2",
 )
 OPTIONAL_COLUMNS: tuple[str, ...] = ("f_phi", "f_theta", "f_psi")
 ALL_COLUMNS: tuple[str, ...] = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
 
-CHANNELS: tuple[str, ...] = ("phi", "theta", "psi")
+CHANNELS: tuple[str, ...] = ATTITUDE_CHANNELS
 # The one place that says which regressors each channel's f uses (SPEC section 4).
 CHANNEL_REGRESSORS: dict[str, tuple[str, ...]] = {
-    "phi": ("theta_rate_rps", "psi_rate_rps", "w_r_rps"),
-    "theta": ("phi_rate_rps", "psi_rate_rps", "w_r_rps"),
-    "psi": ("phi_rate_rps", "theta_rate_rps"),
+    "phi": ("theta_rate_rad_s", "psi_rate_rad_s", "w_r_rad_s"),
+    "theta": ("phi_rate_rad_s", "psi_rate_rad_s", "w_r_rad_s"),
+    "psi": ("phi_rate_rad_s", "theta_rate_rad_s"),
 }
 CHANNEL_INPUT: dict[str, str] = {"phi": "u_phi_n", "theta": "u_theta_n", "psi": "u_psi_nm"}
 CHANNEL_ACCELERATION: dict[str, str] = {
-    "phi": "phi_acc_rps2",
-    "theta": "theta_acc_rps2",
-    "psi": "psi_acc_rps2",
+    "phi": "phi_acc_rad_s2",
+    "theta": "theta_acc_rad_s2",
+    "psi": "psi_acc_rad_s2",
 }
 CHANNEL_FUNCTION: dict[str, str] = {"phi": "f_phi", "theta": "f_theta", "psi": "f_psi"}
+
+def current_column_name(name: str) -> str:
+    """The name a column has today: files written before 0.5 wrote rad/s as ``_rps``."""
+    return name.replace("_rps2", "_rad_s2").replace("_rps", "_rad_s")
+
 
 MIN_ROWS = 10  # fewer samples cannot describe any excitation flight
 
@@ -167,7 +174,7 @@ def read_dataset(path: str | os.PathLike[str]) -> Dataset:
         raise DatasetError(f"{where}: not a text CSV file ({exc})") from None
     if not rows:
         raise DatasetError(f"{where}: empty file, expected a header row")
-    header = [name.strip() for name in rows[0]]
+    header = [current_column_name(name.strip()) for name in rows[0]]
     seen: set[str] = set()
     for name in header:
         if name in seen:

@@ -7,7 +7,7 @@ Layout (format "ivfm-fuzzy-model", version 1; MF arrays are [cluster][input][h, 
       "metadata": {... free: seed, data source, split ...},
       "channels": {
         "phi": {
-          "regressors": ["theta_rate_rps", "psi_rate_rps", "w_r_rps"],
+          "regressors": ["theta_rate_rad_s", "psi_rate_rad_s", "w_r_rad_s"],
           "input_ranges": [[min, max], ...],          one pair per regressor
           "n_clusters": c,
           "output": "f" | "acc",                      what the RMSEs are of
@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from autopilot.identification.dataset import CHANNEL_REGRESSORS
+from autopilot.identification.dataset import CHANNEL_REGRESSORS, current_column_name
 from autopilot.identification.gaussian_fit import Gaussian, interval_holds
 from autopilot.identification.ts_model import ChannelModel, FuzzyModelSet, It2Model, T1Model
 
@@ -138,6 +138,8 @@ def _channel_from_dict(name: str, d: Any, where: str) -> ChannelModel:
     _check_keys(d, _CHANNEL_KEYS, where)
     expected = CHANNEL_REGRESSORS[name]
     regs = d["regressors"]
+    if isinstance(regs, list) and all(isinstance(r, str) for r in regs):
+        regs = [current_column_name(r) for r in regs]
     if not isinstance(regs, list) or tuple(regs) != expected:
         raise ModelFileError(f"{where}.regressors: {regs!r}, expected {list(expected)}")
     n = len(expected)

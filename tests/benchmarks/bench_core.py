@@ -28,7 +28,7 @@ from autopilot.shaping import (  # noqa: E402
     SetpointShaper,
     limits_from_parameters,  # noqa: E402
 )
-from contracts.airframe import PAPER, hover_rotor_speed_rps  # noqa: E402
+from contracts.airframe import PAPER, hover_rotor_speed_rad_s  # noqa: E402
 from ground.excitation import excitation_dataset  # noqa: E402
 from ground.inprocess import run_inprocess  # noqa: E402
 from ground.scenarios import SCENARIOS  # noqa: E402
@@ -51,7 +51,7 @@ def main() -> None:
     ref = SCENARIOS["attitude-sine"].reference.at(1.0)
     pos_ref = SCENARIOS["position-sine"].reference.at(1.0)
     plant = Plant(PAPER, "paper", position_ned_m=(0, 0, -1),
-                  rotor_rps=hover_rotor_speed_rps(PAPER))
+                  rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
     meas = plant.measurement()
     print("Controller step (all channels + mixer), median us per call:")
     for kind in ("ivfc", "t1fc", "smc", "pid"):
@@ -64,14 +64,14 @@ def main() -> None:
     for what, setpoint in (
             ("position 50 m away", Setpoint(np.array([50.0, 0.0, -10.0]), yaw_rad=1.0)),
             ("velocity", Setpoint(velocity_ned_mps=np.array([2.0, 1.0, -0.5]),
-                                  yaw_rate_rps=0.3))):
+                                  yaw_rate_rad_s=0.3))):
         shaper = SetpointShaper()
         shaper.reset(np.zeros(3), np.zeros(3), 0.0)
         us = per_call_us(lambda s=shaper, sp=setpoint: s.step(sp, limits, 0.01), 20000)
         print(f"  {what:<20} {us:6.2f} us")
     print("Plant step, median us:")
     for fidelity in ("paper", "rigid-body"):
-        p = Plant(PAPER, fidelity, rotor_rps=hover_rotor_speed_rps(PAPER))
+        p = Plant(PAPER, fidelity, rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
         p.set_motor_commands(np.full(4, 0.47))
         one = per_call_us(lambda p=p: p.advance(0.001), 20000)
         period = per_call_us(lambda p=p: p.advance(0.01), 5000)

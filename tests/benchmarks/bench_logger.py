@@ -28,8 +28,8 @@ import numpy as np  # noqa: E402
 
 from contracts.telemetry import CONTROL, vehicle_key  # noqa: E402
 from contracts.zenoh_link import ZenohOptions, open_session  # noqa: E402
-from ground.logger import iter_messages  # noqa: E402
 from ground.processes import LoggerProcess  # noqa: E402
+from ground.run_files import iter_messages  # noqa: E402
 
 LOAD = """
 import sys, time, json
@@ -48,7 +48,10 @@ for n in nodes:
     n.status(0, force=True)
 time.sleep(1.0)
 rng = np.random.default_rng(0)
-floats = rng.normal(size=103)
+record = CONTROL.buffer()
+for name in ('measurement', 'reference', 'motor_commands', 'theta_g'):
+    record[name] = rng.normal(size=record[name].shape)
+record['mode'], record['flags'] = 4, 1
 tails = tuple(rng.normal(size=k) for k in (24, 24, 12))
 period = 1.0 / rate_hz
 start = time.perf_counter()
@@ -58,7 +61,8 @@ for k in range(steps):
         pass
     t_us = int(k * period * 1e6)
     for p in pubs:
-        p.put(CONTROL.encode((p.count, t_us, 4, 1), floats, tails))
+        record['seq'], record['sim_time_us'] = p.count, t_us
+        p.put(record.encode(tails))
 print(json.dumps({{"late_s": time.perf_counter() - start - seconds}}), flush=True)
 for n in nodes:
     n.status(t_us, final=True)

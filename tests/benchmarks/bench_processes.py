@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 from autopilot.control.factory import load_models, make_controller  # noqa: E402
 from autopilot.reference import Reference  # noqa: E402
 from autopilot.vehicle import Vehicle  # noqa: E402
-from contracts.airframe import PAPER, hover_rotor_speed_rps  # noqa: E402
+from contracts.airframe import PAPER, hover_rotor_speed_rad_s  # noqa: E402
 from contracts.mavlink import (  # noqa: E402
     actuator_message,
     commands_from_actuator,
@@ -65,7 +65,7 @@ def _per_call_us(fn, n: int = 3000) -> float:
 def cycle_parts() -> dict[str, float]:
     models = load_models(None)
     plant = Plant(PAPER, "paper", 0.001, position_ned_m=(0, 0, -1),
-                  rotor_rps=hover_rotor_speed_rps(PAPER), ground_contact=True)
+                  rotor_rad_s=hover_rotor_speed_rad_s(PAPER), ground_contact=True)
     vehicle = Vehicle(lambda p: make_controller("ivfc", PAPER, 0.01, models, p), 0.01,
                       reference=Reference("attitude-sine"))
     vehicle.sample(0.0, plant.measurement())
@@ -76,7 +76,7 @@ def cycle_parts() -> dict[str, float]:
 
     def encode_sample():
         msgs = sample_messages(0, s.position_ned_m, s.velocity_ned_mps, s.quaternion,
-                               s.body_rate_rps, np.zeros(3))
+                               s.body_rate_rad_s, np.zeros(3))
         return b"".join(m.pack(sim_mav) for m in msgs)
 
     sample = encode_sample()

@@ -10,11 +10,11 @@ from pathlib import Path
 from contracts.mavlink import (
     API_LOCAL_PORT,
     API_UDP_PORT,
-    FLAVOURS,
     GCS_LOCAL_PORT,
     GCS_UDP_PORT,
     SIM_TCP_PORT,
 )
+from contracts.modes import FLAVOURS
 from contracts.zenoh_link import (
     VEHICLE_CONNECT,
     VEHICLE_LISTEN,

@@ -10,6 +10,7 @@ tools, not the control loop.
 from __future__ import annotations
 
 import contextlib
+import importlib.metadata
 import math
 import socket
 import struct
@@ -28,19 +29,26 @@ from contracts.frames import quat_from_euler as _quat_from_euler
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
-    FlightMode,
-    custom_mode,
     datagram_frames,
     mavlink,
-    mode_from_custom,
     new_mavlink,
 )
+from contracts.modes import FlightMode, custom_mode, mode_from_custom, px4_custom_mode_from_command
 from contracts.vectors import MEAS_EULER, MEAS_VEL, MEAS_VZ, MEAS_YAW, MEAS_Z, MEASUREMENT
 
 FORCE_DISARM_MAGIC = 21196
 PARAM_COUNT = len(PARAMETERS)
 PARAM_INDEX = {spec.name: i for i, spec in enumerate(PARAMETERS)}
-FIRMWARE_VERSION = (0 << 24) | (3 << 16) | (0 << 8) | 0xFF  # 0.3.0 release
+
+
+def firmware_version(version: str) -> int:
+    """AUTOPILOT_VERSION's flight_sw_version of a "major.minor.patch" package version: one
+    byte each, then 0xFF (a release), as PX4 packs it."""
+    major, minor, patch = (int(part) for part in (version.split(".") + ["0", "0"])[:3])
+    return (major << 24) | (minor << 16) | (patch << 8) | 0xFF
+
+
+FIRMWARE_VERSION = firmware_version(importlib.metadata.version("ivfm-sitl"))
 
 # Attitude-target type_mask bits (ATTITUDE_TARGET_TYPEMASK).
 BODY_RATES_IGNORE = 0b111
@@ -516,10 +524,8 @@ class GroundStation:
             raise RefusedError("mode parameters must be finite")
         if not int(base) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
             raise RefusedError("only custom modes are supported")
-        number = int(main) if self.flavour == "ardupilot" else (int(main) << 16) | (int(sub)
-                                                                                   << 24)
-        if self.flavour == "px4" and main > 255:  # SET_MODE carries the packed form
-            number = int(main)
+        number = int(main) if self.flavour == "ardupilot" else px4_custom_mode_from_command(
+            main, sub)
         mode = mode_from_custom(self.flavour, number)
         if mode is None:
             raise RefusedError(f"unknown mode {main:g}/{sub:g}")

@@ -30,12 +30,20 @@ from autopilot import shaping
 from autopilot.ground_link import GroundStation
 from autopilot.vehicle import Vehicle
 from contracts.airframe import max_thrust_n
-from contracts.frames import euler_from_quat, wrap_pi
+from contracts.frames import (
+    GRAVITY_MPS2,
+    HOME_ALT_AMSL_M,
+    HOME_LAT_DEG,
+    HOME_LON_DEG,
+    euler_from_quat,
+    wrap_pi,
+)
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
-    FlightMode,
+    SIM_TCP_PORT,
     LinkDataError,
+    SensorSample,
     actuator_message,
     mavlink,
     measurement_from_hil_state,
@@ -44,6 +52,7 @@ from contracts.mavlink import (
     sample_messages,
     split_frames,
 )
+from contracts.modes import FlightMode
 from contracts.realtime import LoopTiming, set_realtime_priority
 from contracts.telemetry import (
     AUTOPILOT,
@@ -53,7 +62,7 @@ from contracts.telemetry import (
     TIMING,
     json_record,
 )
-from contracts.vectors import CHANNEL_INTERNALS, MEAS_Z, REF_SIZE
+from contracts.vectors import CHANNEL_INTERNALS, MEAS_Z, MEASUREMENT_SIZE, REF_SIZE
 from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
 
 STATE_SOURCES = {"odometry": "ODOMETRY", "hil-state": "HIL_STATE_QUATERNION"}
@@ -78,7 +87,7 @@ MIRRORED_TOOL_MESSAGES = frozenset({"STATUSTEXT", "COMMAND_ACK"})
 @dataclass
 class AutopilotConfig:
     sim_host: str = "127.0.0.1"
-    sim_port: int = 4560
+    sim_port: int = SIM_TCP_PORT
     lockstep: bool = True
     rate_hz: float = 100.0
     state_source: str = "odometry"
@@ -398,7 +407,7 @@ class Autopilot:
         call takes ~0.1 s from numba's cache (seconds to compile on a fresh install),
         which would otherwise be a deadline miss, or a simulator-link loss in real time."""
         scratch = self.vehicle._make_controller(self.vehicle.parameters)
-        hover = np.zeros(12)
+        hover = np.zeros(MEASUREMENT_SIZE)
         hover[MEAS_Z] = -1.0
         scratch.step(hover, np.zeros(REF_SIZE), True, np.zeros(2))
         scratch.step(hover, np.zeros(REF_SIZE), True, np.zeros(2), math.nan, True)
@@ -408,8 +417,10 @@ class Autopilot:
         euler_from_quat(np.array([1.0, 0.0, 0.0, 0.0]))
         max_thrust_n(scratch.airframe)
         # A first decoded sample and a first round of ground work cost milliseconds.
-        for msg in sample_messages(0, np.array([0.0, 0.0, -1.0]), np.zeros(3),
-                                   np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), np.zeros(3)):
+        hover = SensorSample(0, (0.0, 0.0, -GRAVITY_MPS2), (0.0, 0.0, 0.0), (0.2, 0.0, 0.4),
+                             950.0, 500.0, 20.0, HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_AMSL_M + 1,
+                             (0.0, 0.0, -1.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
+        for msg in sample_messages(hover):
             if msg.get_type() == self.sim.source_type:
                 self.sim.decode(msg)
         self._ground_work(LOCKSTEP_GROUND_BUDGET_S)

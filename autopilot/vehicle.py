@@ -22,8 +22,9 @@ from autopilot.reference import Reference
 from autopilot.shaping import Setpoint, SetpointShaper, ShapingLimits, limits_from_parameters
 from contracts.airframe import max_thrust_n
 from contracts.frames import euler_from_quat, wrap_pi
-from contracts.mavlink import FlightMode
-from contracts.perturbations import AUTOPILOT, Perturbation, PerturbationBook, kick_at
+from contracts.modes import FlightMode
+from contracts.perturbations import Perturbation, PerturbationBook, kick_at
+from contracts.telemetry import AUTOPILOT
 from contracts.vectors import MEAS_VZ, MEAS_YAW, MEAS_Z, MEASUREMENT, REF_POS, REF_SIZE, REF_VEL
 
 LANDED_ALTITUDE_M = 0.05  # the plant's ground is z = 0

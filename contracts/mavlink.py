@@ -1,15 +1,15 @@
 """MAVLink conventions shared by the simulator, the autopilot and the ground side.
 
-One place for: the dialect, ports and ids, the simulator-link message mapping (state ->
-HIL_SENSOR / HIL_GPS / HIL_STATE_QUATERNION / ODOMETRY -> controller measurement, and
-motor commands <-> HIL_ACTUATOR_CONTROLS), and the flight-mode numbers of the PX4 and
-ArduPilot-Copter flavours (SPEC section 7).
+One place for: the dialect, ports and ids, the simulator-link message mapping (sensor
+readings -> HIL_SENSOR / HIL_GPS / HIL_STATE_QUATERNION / ODOMETRY -> controller
+measurement, and motor commands <-> HIL_ACTUATOR_CONTROLS) and MAVLink framing. The
+flight modes and their numbers are in ``contracts/modes.py``.
 """
 
 from __future__ import annotations
 
-import enum
 import math
+from typing import NamedTuple
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
@@ -18,10 +18,9 @@ from contracts.frames import (
     GRAVITY_MPS2,
     euler_from_quat,
     euler_rates_from_body_rates,
-    geodetic_from_ned,
     ned_from_geodetic,
-    world_to_body,
 )
+from contracts.vectors import MEASUREMENT
 
 __all__ = ["mavlink"]
 
@@ -43,12 +42,26 @@ HIL_MOTORS = 4
 # HIL_SENSOR fields_updated: accel 0-2, gyro 3-5, mag 6-8, abs/diff pressure, pressure alt,
 # temperature 9-12 (the groups PX4's simulator_mavlink reads).
 HIL_SENSOR_ALL_FIELDS = 0x1FFF
+MG_PER_MPS2 = 1000.0 / GRAVITY_MPS2
 
-# Earth field at home (Zurich), gauss in NED, for the magnetometer of HIL_SENSOR.
-MAG_FIELD_NED_GAUSS = np.array([0.216, 0.006, 0.424])
-SEA_LEVEL_PRESSURE_HPA = 1013.25
-TEMPERATURE_C = 20.0
-MEASUREMENT_SIZE = 12  # position NED, velocity NED, Euler angles, Euler rates
+
+class SensorSample(NamedTuple):
+    """What the simulator link carries for one sample (sitl/sensors.py computes it):
+    IMU, magnetometer, barometer and GPS readings, and the state the simulator reports."""
+
+    time_us: int
+    accel_frd_mps2: tuple[float, float, float]  # specific force R^T (a - g)
+    gyro_frd_rad_s: tuple[float, float, float]
+    mag_frd_gauss: tuple[float, float, float]
+    pressure_hpa: float
+    pressure_alt_m: float
+    temperature_c: float
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+    position_ned_m: tuple[float, float, float]
+    velocity_ned_mps: tuple[float, float, float]
+    quaternion: tuple[float, float, float, float]  # body FRD -> NED, [w, x, y, z]
 
 
 def new_mavlink(sysid: int, compid: int) -> mavlink.MAVLink:
@@ -60,66 +73,41 @@ def new_mavlink(sysid: int, compid: int) -> mavlink.MAVLink:
     return mav
 
 
-def pressure_hpa(alt_amsl_m: float) -> float:
-    """International standard atmosphere below 11 km."""
-    return SEA_LEVEL_PRESSURE_HPA * (1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588
-
-
 def _int_clamped(value: float, low: int, high: int) -> int:
     return int(min(high, max(low, round(value))))
 
 
-def sample_messages(
-    time_us: int,
-    position_ned_m: np.ndarray,
-    velocity_ned_mps: np.ndarray,
-    quaternion: np.ndarray,
-    body_rate_rad_s: np.ndarray,
-    accel_ned_mps2: np.ndarray,
-) -> list[mavlink.MAVLink_message]:
-    """The four messages the simulator sends each sample, from the true state.
-
-    ``accel_ned_mps2`` is the kinematic acceleration; the accelerometer reads the specific
-    force R^T (a - g) in FRD.
-    """
-    w, x, y, z = (float(v) for v in quaternion)
-    ax, ay, az = (float(v) for v in accel_ned_mps2)
-    fx, fy, fz = world_to_body(w, x, y, z, ax, ay, az - GRAVITY_MPS2)
-    mag = world_to_body(w, x, y, z, *MAG_FIELD_NED_TUPLE)
-    n, e, d = (float(v) for v in position_ned_m)
-    vn, ve, vd = (float(v) for v in velocity_ned_mps)
-    lat, lon, alt = geodetic_from_ned(n, e, d)
-    p, q, r = (float(v) for v in body_rate_rad_s)
+def sample_messages(s: SensorSample) -> list[mavlink.MAVLink_message]:
+    """The four messages of one sample: HIL_SENSOR, HIL_GPS, HIL_STATE_QUATERNION and
+    ODOMETRY (units and integer scalings as PX4's simulator_mavlink reads them)."""
+    w, x, y, z = s.quaternion
+    n, e, d = s.position_ned_m
+    vn, ve, vd = s.velocity_ned_mps
+    p, q, r = s.gyro_frd_rad_s
+    lat_e7 = _int_clamped(s.lat_deg * 1e7, -2**31, 2**31 - 1)
+    lon_e7 = _int_clamped(s.lon_deg * 1e7, -2**31, 2**31 - 1)
+    alt_mm = _int_clamped(s.alt_amsl_m * 1000, -2**31, 2**31 - 1)
+    vn_cm, ve_cm, vd_cm = (_int_clamped(v * 100, -32768, 32767) for v in (vn, ve, vd))
     ground_speed = math.hypot(vn, ve)
     course_cdeg = math.degrees(math.atan2(ve, vn)) % 360.0 * 100.0
-    accel_mg = (fx * MG_PER_MPS2, fy * MG_PER_MPS2, fz * MG_PER_MPS2)
+    accel_mg = (_int_clamped(a * MG_PER_MPS2, -32768, 32767) for a in s.accel_frd_mps2)
     return [
         mavlink.MAVLink_hil_sensor_message(
-            time_us, fx, fy, fz, p, q, r, *mag,
-            pressure_hpa(alt), 0.0, alt, TEMPERATURE_C, HIL_SENSOR_ALL_FIELDS, 0),
+            s.time_us, *s.accel_frd_mps2, p, q, r, *s.mag_frd_gauss,
+            s.pressure_hpa, 0.0, s.pressure_alt_m, s.temperature_c, HIL_SENSOR_ALL_FIELDS, 0),
         mavlink.MAVLink_hil_gps_message(
-            time_us, 3, _int_clamped(lat * 1e7, -2**31, 2**31 - 1),
-            _int_clamped(lon * 1e7, -2**31, 2**31 - 1), _int_clamped(alt * 1000, -2**31, 2**31 - 1),
-            30, 30, _int_clamped(ground_speed * 100, 0, 65534),
-            _int_clamped(vn * 100, -32768, 32767), _int_clamped(ve * 100, -32768, 32767),
-            _int_clamped(vd * 100, -32768, 32767), _int_clamped(course_cdeg, 0, 35999), 12),
+            s.time_us, 3, lat_e7, lon_e7, alt_mm, 30, 30,
+            _int_clamped(ground_speed * 100, 0, 65534), vn_cm, ve_cm, vd_cm,
+            _int_clamped(course_cdeg, 0, 35999), 12),
         mavlink.MAVLink_hil_state_quaternion_message(
-            time_us, [w, x, y, z], p, q, r,
-            _int_clamped(lat * 1e7, -2**31, 2**31 - 1), _int_clamped(lon * 1e7, -2**31, 2**31 - 1),
-            _int_clamped(alt * 1000, -2**31, 2**31 - 1),
-            _int_clamped(vn * 100, -32768, 32767), _int_clamped(ve * 100, -32768, 32767),
-            _int_clamped(vd * 100, -32768, 32767),
+            s.time_us, [w, x, y, z], p, q, r, lat_e7, lon_e7, alt_mm, vn_cm, ve_cm, vd_cm,
             _int_clamped(ground_speed * 100, 0, 65535), _int_clamped(ground_speed * 100, 0, 65535),
-            *(_int_clamped(a, -32768, 32767) for a in accel_mg)),
+            *accel_mg),
         mavlink.MAVLink_odometry_message(
-            time_us, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_NED, n, e, d,
+            s.time_us, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_NED, n, e, d,
             [w, x, y, z], vn, ve, vd, p, q, r, [math.nan] * 21, [math.nan] * 21, 0,
             mavlink.MAV_ESTIMATOR_TYPE_MOCAP, 100),
     ]
-
-
-MG_PER_MPS2 = 1000.0 / GRAVITY_MPS2
-MAG_FIELD_NED_TUPLE = tuple(float(v) for v in MAG_FIELD_NED_GAUSS)
 
 
 class LinkDataError(ValueError):
@@ -137,11 +125,12 @@ def _measurement(position, velocity, quaternion, body_rate) -> np.ndarray:
     if not 0.9 < norm < 1.1:
         raise LinkDataError(f"attitude quaternion has norm {norm:.3f}, not 1")
     euler = euler_from_quat(q / norm)
-    out = np.empty(MEASUREMENT_SIZE)
-    out[0:3] = position
-    out[3:6] = velocity
-    out[6:9] = euler
-    out[9:12] = euler_rates_from_body_rates(euler[0], euler[1], *(float(b) for b in body_rate))
+    out = np.empty(MEASUREMENT.size)
+    out[MEASUREMENT.position_ned_m] = position
+    out[MEASUREMENT.velocity_ned_mps] = velocity
+    out[MEASUREMENT.euler_rad] = euler
+    out[MEASUREMENT.euler_rate_rad_s] = euler_rates_from_body_rates(
+        euler[0], euler[1], *(float(b) for b in body_rate))
     return out
 
 
@@ -188,82 +177,6 @@ def commands_from_actuator(msg: mavlink.MAVLink_hil_actuator_controls_message) -
     if not msg.mode & HIL_MODE_ARMED:
         return np.zeros(HIL_MOTORS)
     return np.clip(commands, 0.0, 1.0)
-
-
-class FlightMode(enum.Enum):
-    """The autopilot's flight modes (docs/mavlink.md says what each does)."""
-
-    HOLD = "hold"  # hold the position where the mode started
-    TAKEOFF = "takeoff"  # climb to the take-off altitude, then HOLD
-    LAND = "land"  # descend, disarm on the ground
-    OFFBOARD = "offboard"  # follow streamed setpoints (PX4)
-    GUIDED = "guided"  # follow setpoints, hold the last one (ArduPilot)
-    REFERENCE = "reference"  # the onboard reference generator of the paper's scenarios
-
-
-# PX4 custom mode: main mode in bits 16-23, sub mode in bits 24-31.
-PX4_MAIN_POSCTL = 3
-PX4_MAIN_AUTO = 4
-PX4_MAIN_OFFBOARD = 6
-PX4_SUB_AUTO_TAKEOFF = 2
-PX4_SUB_AUTO_LOITER = 3
-PX4_SUB_AUTO_MISSION = 4
-PX4_SUB_AUTO_LAND = 6
-
-PX4_MODES: dict[FlightMode, tuple[int, int]] = {
-    FlightMode.HOLD: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER),
-    FlightMode.TAKEOFF: (PX4_MAIN_AUTO, PX4_SUB_AUTO_TAKEOFF),
-    FlightMode.LAND: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND),
-    FlightMode.OFFBOARD: (PX4_MAIN_OFFBOARD, 0),
-    FlightMode.REFERENCE: (PX4_MAIN_AUTO, PX4_SUB_AUTO_MISSION),
-}
-
-# ArduPilot Copter mode numbers (custom_mode is the number itself).
-COPTER_MODES: dict[FlightMode, int] = {
-    FlightMode.REFERENCE: 3,  # AUTO
-    FlightMode.GUIDED: 4,
-    FlightMode.HOLD: 5,  # LOITER
-    FlightMode.LAND: 9,
-}
-COPTER_MODE_NAMES = {3: "AUTO", 4: "GUIDED", 5: "LOITER", 9: "LAND"}
-
-FLAVOURS = ("px4", "ardupilot")
-
-
-def px4_custom_mode(mode: FlightMode) -> int:
-    main, sub = PX4_MODES[mode]
-    return (main << 16) | (sub << 24)
-
-
-def mode_from_px4(custom_mode: int) -> FlightMode | None:
-    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
-    if main == PX4_MAIN_POSCTL:  # position control: the nearest we have is hold
-        return FlightMode.HOLD
-    for mode, (m, s) in PX4_MODES.items():
-        if m == main and (s == sub or main == PX4_MAIN_OFFBOARD):
-            return mode
-    return None
-
-
-def custom_mode(flavour: str, mode: FlightMode) -> int:
-    """HEARTBEAT custom_mode of ``mode`` (TAKEOFF shows as GUIDED in the ArduPilot flavour)."""
-    if flavour == "px4":
-        return px4_custom_mode(mode)
-    if mode == FlightMode.TAKEOFF:
-        mode = FlightMode.GUIDED
-    if mode == FlightMode.OFFBOARD:
-        mode = FlightMode.GUIDED
-    return COPTER_MODES[mode]
-
-
-def mode_from_custom(flavour: str, number: int) -> FlightMode | None:
-    """The mode a DO_SET_MODE / SET_MODE custom mode asks for, or None if unknown."""
-    if flavour == "px4":
-        return mode_from_px4(number)
-    for mode, n in COPTER_MODES.items():
-        if n == number:
-            return mode
-    return None
 
 
 def frame_size(buffer: bytes, i: int) -> int:

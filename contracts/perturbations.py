@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-SIMULATOR, AUTOPILOT = "sitl", "autopilot"
+from contracts.telemetry import AUTOPILOT, SITL
 
 INERTIA_SCALE_RANGE = (0.1, 10.0)
 WIND_RANGE_MPS = (-50.0, 50.0)
@@ -64,35 +64,35 @@ class Kind:
 
 
 KINDS: dict[str, Kind] = {
-    "inertia": Kind(SIMULATOR, {"scale": _needed(*INERTIA_SCALE_RANGE)},
+    "inertia": Kind(SITL, {"scale": _needed(*INERTIA_SCALE_RANGE)},
                     "body inertia I scaled"),
-    "rotor_inertia": Kind(SIMULATOR, {"scale": _needed(*INERTIA_SCALE_RANGE)},
+    "rotor_inertia": Kind(SITL, {"scale": _needed(*INERTIA_SCALE_RANGE)},
                           "rotor inertia Jr scaled"),
-    "mass": Kind(SIMULATOR, {"scale": _needed(*INERTIA_SCALE_RANGE)}, "mass scaled"),
-    "motor_efficiency": Kind(SIMULATOR, {"motor": _needed(1, 4, integer=True),
+    "mass": Kind(SITL, {"scale": _needed(*INERTIA_SCALE_RANGE)}, "mass scaled"),
+    "motor_efficiency": Kind(SITL, {"motor": _needed(1, 4, integer=True),
                                          "efficiency": _needed(0.0, 1.0)},
                              "one motor's thrust and torque scaled by efficiency"),
-    "motor_failure": Kind(SIMULATOR, {"motor": _needed(1, 4, integer=True)},
+    "motor_failure": Kind(SITL, {"motor": _needed(1, 4, integer=True)},
                           "one motor gives nothing"),
-    "wind": Kind(SIMULATOR, {"ned_mps": _vec3(*WIND_RANGE_MPS, True)}, "steady wind (NED)"),
-    "gust": Kind(SIMULATOR, {"ned_mps": _vec3(*WIND_RANGE_MPS, True)},
+    "wind": Kind(SITL, {"ned_mps": _vec3(*WIND_RANGE_MPS, True)}, "steady wind (NED)"),
+    "gust": Kind(SITL, {"ned_mps": _vec3(*WIND_RANGE_MPS, True)},
                  "1 - cos gust peaking at ned_mps mid-window (needs a finite end)"),
-    "force": Kind(SIMULATOR, {"ned_n": _vec3(*FORCE_RANGE_N, True)}, "external force (NED)"),
-    "torque": Kind(SIMULATOR, {"frd_nm": _vec3(*TORQUE_RANGE_NM, True)},
+    "force": Kind(SITL, {"ned_n": _vec3(*FORCE_RANGE_N, True)}, "external force (NED)"),
+    "torque": Kind(SITL, {"frd_nm": _vec3(*TORQUE_RANGE_NM, True)},
                    "external torque (FRD)"),
-    "sensor_noise": Kind(SIMULATOR, {"position_m": Param(0.0, 10.0, 0.0),
+    "sensor_noise": Kind(SITL, {"position_m": Param(0.0, 10.0, 0.0),
                                      "velocity_mps": Param(0.0, 10.0, 0.0),
                                      "angle_rad": Param(0.0, 0.5, 0.0),
                                      "rate_rad_s": Param(0.0, 5.0, 0.0)},
                          "Gaussian noise (standard deviations) on the state sent"),
-    "sensor_bias": Kind(SIMULATOR, {"position_m": _vec3(-100.0, 100.0),
+    "sensor_bias": Kind(SITL, {"position_m": _vec3(-100.0, 100.0),
                                     "velocity_mps": _vec3(-10.0, 10.0),
                                     "angle_rad": _vec3(-0.5, 0.5),
                                     "rate_rad_s": _vec3(-5.0, 5.0)},
                         "constant offsets on the state sent"),
-    "link_delay": Kind(SIMULATOR, {"samples": _needed(0, 100, integer=True)},
+    "link_delay": Kind(SITL, {"samples": _needed(0, 100, integer=True)},
                        "the state sent is this many samples old"),
-    "link_loss": Kind(SIMULATOR, {"fraction": _needed(0.0, 0.95)},
+    "link_loss": Kind(SITL, {"fraction": _needed(0.0, 0.95)},
                       "this fraction of samples is not sent (seeded)"),
     "kick": Kind(AUTOPILOT, {"phi_rad": Param(-1.0, 1.0, 0.0),
                              "theta_rad": Param(-1.0, 1.0, 0.0)},

@@ -16,7 +16,7 @@ def _build_parser() -> argparse.ArgumentParser:
     from autopilot.__main__ import param_argument
     from autopilot.control.factory import CONTROLLERS
     from contracts.airframe import AIRFRAMES
-    from ground.scenarios import PAPER_SCENARIOS, SCENARIOS
+    from ground.scenarios import PAPER_SCENARIOS, shipped_names
     from sitl.dynamics import FIDELITIES
 
     parser = argparse.ArgumentParser(prog="ivfm", description=__doc__.splitlines()[0])
@@ -29,7 +29,7 @@ def _build_parser() -> argparse.ArgumentParser:
                        metavar="NAME=VALUE", help="controller parameter override (repeatable)")
 
     run = sub.add_parser("run", help="run one scenario and write metrics.json and figures")
-    run.add_argument("scenario", help=f"one of: {', '.join(SCENARIOS)}; or a scenario .toml")
+    run.add_argument("scenario", help=f"one of: {', '.join(shipped_names())}; or a scenario .toml")
     pace = run.add_mutually_exclusive_group()
     pace.add_argument("--inprocess", action="store_true",
                       help="plant and controller in one process (no MAVLink)")
@@ -82,7 +82,7 @@ def _build_parser() -> argparse.ArgumentParser:
 
 def _ground_parsers(ground: argparse.ArgumentParser) -> None:
     from contracts.perturbations import KINDS
-    from contracts.telemetry import DEFAULT_GROUND_ENDPOINT
+    from contracts.telemetry import AUTOPILOT, DEFAULT_GROUND_ENDPOINT, DEFAULT_PORT, SITL
     from contracts.zenoh_link import add_zenoh_arguments
 
     sub = ground.add_subparsers(dest="ground_command", required=True)
@@ -112,13 +112,13 @@ def _ground_parsers(ground: argparse.ArgumentParser) -> None:
     pert.add_argument("--end", type=float, help="sim time it ends [s]")
     pert.add_argument("--duration", type=float, help="how long [s] (instead of --end)")
     pert.add_argument("--id", help="name it (clear: the one to end)")
-    pert.add_argument("--target", choices=["sitl", "autopilot"], help="list/clear: one side")
+    pert.add_argument("--target", choices=[SITL, AUTOPILOT], help="list/clear: one side")
     pert.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the ack")
     add_zenoh_arguments(pert, [], [DEFAULT_GROUND_ENDPOINT])
 
     router = sub.add_parser("router", help="a Zenoh router linking machines")
     router.add_argument("--listen", action="append", metavar="ENDPOINT",
-                        help="default tcp/0.0.0.0:7447 (repeatable)")
+                        help=f"default tcp/0.0.0.0:{DEFAULT_PORT} (repeatable)")
     router.add_argument("--connect", action="append", metavar="ENDPOINT",
                         help="other routers (repeatable)")
 

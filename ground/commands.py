@@ -13,7 +13,7 @@ from autopilot.control.parameters import PARAMETERS, validate_parameters
 from autopilot.identification.ts_model import FuzzyModelSet
 from contracts.airframe import airframe_by_name
 from ground.run_files import write_json
-from ground.scenarios import SCENARIOS, scenario_by_name
+from ground.scenarios import scenario_by_name, shipped_scenarios
 
 
 class UsageError(Exception):
@@ -171,7 +171,7 @@ def format_table_2(models: FuzzyModelSet, paper: dict[str, tuple[float, float]])
 
 
 def scenarios_command(args: argparse.Namespace) -> int:
-    for s in SCENARIOS.values():
+    for s in shipped_scenarios().values():
         kicks = f", {len(s.perturbations)} perturbations" if s.perturbations else ""
         print(f"{s.name:<16} {s.description} (judged on {', '.join(s.axes)} after "
               f"{s.transient_s:g} s{kicks}; {s.source})")
@@ -222,13 +222,14 @@ def _perturb_value(text: str) -> Any:
 
 def ground_perturb_command(args: argparse.Namespace) -> int:
     from contracts.perturbations import KINDS
+    from contracts.telemetry import AUTOPILOT, SITL
     from contracts.zenoh_link import zenoh_options_from_args
     from ground.perturb import PerturbationClient, PerturbationError
 
     with PerturbationClient(zenoh_options_from_args(args), timeout_s=args.timeout) as client:
         try:
             if args.kind in ("list", "clear"):
-                targets = [args.target] if args.target else ["sitl", "autopilot"]
+                targets = [args.target] if args.target else [SITL, AUTOPILOT]
                 for target in targets:
                     if args.kind == "list":
                         for entry in client.list(args.vehicle, target):
@@ -268,9 +269,10 @@ def ground_router_command(args: argparse.Namespace) -> int:
     import signal
     import threading
 
+    from contracts.telemetry import DEFAULT_PORT
     from contracts.zenoh_link import ZenohOptions, open_session
 
-    options = ZenohOptions("router", listen=args.listen or ["tcp/0.0.0.0:7447"],
+    options = ZenohOptions("router", listen=args.listen or [f"tcp/0.0.0.0:{DEFAULT_PORT}"],
                            connect=args.connect or [])
     session = open_session(options, exit_on_listen_failure=True)
     stop = threading.Event()

@@ -88,7 +88,7 @@ def excitation_dataset(
         for axis in range(3):
             ref[REF_EULER + axis], ref[REF_EULER_RATE + axis], ref[REF_EULER_ACC + axis] = (
                 evaluate_multisine(sines[axis], t))
-        meas = plant.measurement()
+        meas = plant.true_measurement()
         commands = controller.step(meas, ref, False)
         _u_z, u_phi, u_theta, u_psi, w_r = rotor_forces(
             commands * airframe.rotor_max_rad_s, efficiency, airframe)

@@ -67,7 +67,7 @@ def run_inprocess(
         if wanted != active:
             plant.set_perturbations(wanted)
             active = wanted
-        meas = plant.measurement()
+        meas = plant.true_measurement()
         ref = scenario.reference.at(t)
         kick = np.array(scenario.kick_at(t))
         cmd = ctrl.step(meas, ref, scenario.reference.position_mode, kick)

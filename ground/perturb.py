@@ -19,7 +19,7 @@ from typing import Any
 import zenoh
 
 from contracts.perturbations import KINDS, parse_request
-from contracts.telemetry import DEFAULT_GROUND_ENDPOINT, check_vehicle_id, vehicle_key
+from contracts.telemetry import DEFAULT_GROUND_ENDPOINT, SITL, check_vehicle_id, vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
 
 
@@ -74,7 +74,7 @@ class PerturbationClient:
 
     def start(self, vehicle: int) -> dict[str, Any]:
         """Release a simulator started with ``--hold``."""
-        return self.query(vehicle, "sitl", "start", {})
+        return self.query(vehicle, SITL, "start", {})
 
     def wait_for(self, vehicle: int, process: str, timeout_s: float | None = None) -> None:
         """Until the process's liveliness token is visible (it is up and reachable)."""

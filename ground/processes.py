@@ -25,7 +25,7 @@ from typing import Any
 
 import zenoh
 
-from contracts.telemetry import logger_key, vehicle_key
+from contracts.telemetry import AUTOPILOT, SITL, logger_key, vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.perturb import PerturbationClient, PerturbationError
 from ground.scenarios import Scenario
@@ -162,7 +162,7 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path) -> d
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     sim_port = free_tcp_port()
     v = settings.vehicle
-    logs = {name: out_dir / f"{name}.log" for name in ("logger", "sitl", "autopilot")}
+    logs = {name: out_dir / f"{name}.log" for name in ("logger", SITL, AUTOPILOT)}
     logger = LoggerProcess(out_dir, endpoint, logs["logger"])
     procs: dict[str, subprocess.Popen] = {}
     outs = []
@@ -170,11 +170,11 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path) -> d
     timeout_s = 120.0 + scenario.duration_s * (1.5 if settings.realtime else 1.0)
     try:
         sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint)
-        for name, cmd in (("sitl", sim_cmd), ("autopilot", ap_cmd)):
+        for name, cmd in ((SITL, sim_cmd), (AUTOPILOT, ap_cmd)):
             out = open(logs[name], "w")  # noqa: SIM115 (closed below)
             outs.append(out)
             procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT)
-        status_keys = [vehicle_key(v, p, "status") for p in ("sitl", "autopilot")]
+        status_keys = [vehicle_key(v, p, "status") for p in (SITL, AUTOPILOT)]
         logger.wait_until(session, status_keys, final=False, timeout_s=60.0)
         client = PerturbationClient(session=session, timeout_s=10.0)
         for entry in scenario.perturbations:
@@ -186,7 +186,7 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path) -> d
         _follow(session, procs, v, scenario.duration_s, timeout_s, logs)
         final = logger.wait_until(session, status_keys, final=True, timeout_s=30.0)
     except PerturbationError as exc:
-        raise ProcessRunError(f"{exc}\n{_tail(logs['sitl'])}") from None
+        raise ProcessRunError(f"{exc}\n{_tail(logs[SITL])}") from None
     finally:
         for proc in procs.values():
             if proc.poll() is None:
@@ -196,10 +196,10 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path) -> d
             out.close()
         session.close()
         logger_rc = logger.stop()
-    if procs["autopilot"].returncode != 0:
+    if procs[AUTOPILOT].returncode != 0:
         raise ProcessRunError(f"the autopilot failed (exit {procs['autopilot'].returncode}):\n"
                               f"{_tail(logs['autopilot'])}\nsimulator log:\n"
-                              f"{_tail(logs['sitl'])}")
+                              f"{_tail(logs[SITL])}")
     if logger_rc != 0:
         raise ProcessRunError(f"the logger failed (exit {logger_rc}):\n{_tail(logs['logger'])}")
     return telemetry_accounting(final)
@@ -234,14 +234,14 @@ def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen], vehicle:
             print(f"  {min(100.0, 100 * t / duration_s):3.0f} % ({t:.1f} s of "
                   f"{duration_s:g} s sim)", file=sys.stderr, flush=True)
 
-    sub = session.declare_subscriber(vehicle_key(vehicle, "sitl", "status"), on_status)
+    sub = session.declare_subscriber(vehicle_key(vehicle, SITL, "status"), on_status)
     deadline = time.monotonic() + timeout_s
     try:
         while any(p.poll() is None for p in procs.values()):
             if time.monotonic() > deadline:
                 raise ProcessRunError(f"the run did not finish in {timeout_s:.0f} s; autopilot "
                                       f"log:\n{_tail(logs['autopilot'])}")
-            if procs["autopilot"].poll() not in (None, 0):
+            if procs[AUTOPILOT].poll() not in (None, 0):
                 return
             time.sleep(0.05)
     finally:

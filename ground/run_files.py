@@ -17,7 +17,7 @@ import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from contracts.telemetry import CONTROL, vehicle_key
+from contracts.telemetry import AUTOPILOT, CONTROL, SITL, vehicle_key
 from contracts.vectors import CHANNEL_INTERNALS, MEASUREMENT
 from ground.scenarios import Scenario
 
@@ -97,7 +97,7 @@ def iter_messages(path: Path, topic_prefix: str = "") -> Iterator[tuple[str, Any
 def control_records(log: Path, vehicle: int) -> dict[str, np.ndarray]:
     """The autopilot's control records of one vehicle as arrays (one row per step), plus
     ``log_time_ns``; checks that no sequence number is missing."""
-    key = vehicle_key(vehicle, "autopilot", "control")
+    key = vehicle_key(vehicle, AUTOPILOT, "control")
     rows: list[dict[str, Any]] = []
     log_times = []
     for topic, message, data in iter_messages(log, key):
@@ -138,7 +138,7 @@ def record_from_log(log: Path, vehicle: int, scenario: Scenario, controller: str
 def perturbation_events(log: Path, vehicle: int) -> list[dict[str, Any]]:
     """Every perturbation the vehicle's processes applied, with the sim time it took effect."""
     events = []
-    for process in ("sitl", "autopilot"):
+    for process in (SITL, AUTOPILOT):
         key = vehicle_key(vehicle, process, "perturbation")
         for topic, _message, data in iter_messages(log, key):
             if topic == key:

@@ -7,6 +7,7 @@ describes the format; every field is checked and an error names the file and the
 
 from __future__ import annotations
 
+import functools
 import math
 import tomllib
 from dataclasses import dataclass, field, fields
@@ -149,20 +150,24 @@ PAPER_SCENARIOS = ("attitude-sine", "attitude-hold", "position-sine", "attitude-
                    "attitude-jr-15", "attitude-jr-20", "position-kick")
 
 
-def _shipped() -> dict[str, Scenario]:
-    """Every shipped file, the paper's six (seven with the three inertia levels) first."""
-    found = {p.stem: load_scenario(p) for p in sorted(SCENARIO_DIR.glob("*.toml"))}
-    return {**{n: found.pop(n) for n in PAPER_SCENARIOS if n in found}, **found}
+def shipped_names() -> list[str]:
+    """The shipped scenarios' names (no file is parsed), the paper's seven first."""
+    found = sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
+    return [n for n in PAPER_SCENARIOS if n in found] + [n for n in found
+                                                          if n not in PAPER_SCENARIOS]
 
 
-SCENARIOS: dict[str, Scenario] = _shipped()
+@functools.cache
+def shipped_scenarios() -> dict[str, Scenario]:
+    """Every shipped scenario, parsed on first use (not at import)."""
+    return {name: load_scenario(SCENARIO_DIR / f"{name}.toml") for name in shipped_names()}
 
 
 def scenario_by_name(name: str) -> Scenario:
     """A shipped scenario by name, or a scenario file by path."""
-    if name in SCENARIOS:
-        return SCENARIOS[name]
+    if name in shipped_names():
+        return shipped_scenarios()[name]
     if name.endswith(".toml") or "/" in name:
         return load_scenario(Path(name))
-    known = ", ".join(SCENARIOS)
+    known = ", ".join(shipped_names())
     raise ValueError(f"unknown scenario {name!r}; known scenarios: {known} (or a .toml file)")

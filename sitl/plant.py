@@ -19,9 +19,8 @@ from contracts.frames import (
     quat_from_euler,
 )
 from contracts.perturbations import Perturbations
+from contracts.vectors import MEASUREMENT
 from sitl import dynamics
-
-MEASUREMENT_SIZE = 12  # position NED, velocity NED, Euler angles, Euler rates
 
 
 @dataclass
@@ -132,17 +131,21 @@ class Plant:
     def raw_state(self) -> np.ndarray:
         return self._state.copy()
 
-    def measurement(self) -> np.ndarray:
-        """Truth measurement for the controller: [pos NED, vel NED, Euler, Euler rates]."""
+    def true_measurement(self) -> np.ndarray:
+        """The controller's measurement (``contracts.vectors.MEASUREMENT``) of the true
+        state: what a perfect sensor suite would give (in-process runs fly on it)."""
         s = self._state
-        out = np.empty(MEASUREMENT_SIZE)
-        out[0:6] = s[0:6]
+        out = np.empty(MEASUREMENT.size)
+        out[MEASUREMENT.position_ned_m] = s[0:3]
+        out[MEASUREMENT.velocity_ned_mps] = s[3:6]
         if self._fidelity_code == dynamics.FIDELITY_PAPER:
-            out[6:12] = s[6:12]
+            out[MEASUREMENT.euler_rad] = s[6:9]
+            out[MEASUREMENT.euler_rate_rad_s] = s[9:12]
         else:
             euler = euler_from_quat(s[6:10])
-            out[6:9] = euler
-            out[9:12] = euler_rates_from_body_rates(euler[0], euler[1], s[10], s[11], s[12])
+            out[MEASUREMENT.euler_rad] = euler
+            out[MEASUREMENT.euler_rate_rad_s] = euler_rates_from_body_rates(
+                euler[0], euler[1], s[10], s[11], s[12])
         return out
 
     def state(self) -> VehicleState:

@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contracts.airframe import Airframe, hover_rotor_speed_rad_s
-from contracts.frames import quat_from_euler
 from contracts.mavlink import (
     SIM_TCP_PORT,
     SIMULATOR_COMPID,
@@ -40,11 +39,9 @@ from contracts.mavlink import (
 )
 from contracts.perturbations import (
     NO_SENSOR_EFFECTS,
-    SIMULATOR,
     Perturbation,
     PerturbationBook,
     Perturbations,
-    SensorEffects,
     plant_perturbations_at,
     sensor_effects_at,
 )
@@ -52,6 +49,7 @@ from contracts.realtime import Histogram, set_realtime_priority
 from contracts.telemetry import SITL, STATE, json_record
 from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
 from sitl.plant import Plant, VehicleState
+from sitl.sensors import read_sensors, sensed_state
 
 # STATE record fields that are VehicleState's and Perturbations' fields of the same name.
 STATE_FROM_PLANT = ("position_ned_m", "velocity_ned_mps", "quaternion", "euler_rad",
@@ -124,7 +122,7 @@ class Simulator:
         self.stats = LinkStats()
         self._active = Perturbations()
         self._sensor = NO_SENSOR_EFFECTS
-        self.book = PerturbationBook(SIMULATOR, config.schedule)
+        self.book = PerturbationBook(SITL, config.schedule)
         self.rng = np.random.default_rng(config.seed)
         self._state = self.plant.state()
         self._history: collections.deque[VehicleState] = collections.deque(maxlen=101)
@@ -163,28 +161,12 @@ class Simulator:
                                 s.body_rate_rad_s)
         if sensor.loss_fraction > 0.0 and self.rng.random() < sensor.loss_fraction:
             return None
-        return self._encode(*self._sensed_state(sensor))
+        return self._encode(*sensed_state(self._state, self._history, sensor, self.rng))
 
     def _encode(self, position, velocity, quaternion, body_rate) -> bytes:
-        msgs = sample_messages(self.time_us, position, velocity, quaternion, body_rate,
-                               self._acceleration)
+        msgs = sample_messages(read_sensors(self.time_us, position, velocity, quaternion,
+                                            body_rate, self._acceleration))
         return b"".join(m.pack(self.mav) for m in msgs)
-
-    def _sensed_state(self, sensor: SensorEffects) -> tuple[np.ndarray, ...]:
-        """What the link carries under sensor noise, bias and delay (truth is published)."""
-        delay = min(sensor.delay_samples, len(self._history) - 1)
-        s = self._history[-1 - delay] if delay > 0 else self._state
-        noise = self.rng.normal(size=12) if (sensor.noise_position_m or
-                                             sensor.noise_velocity_mps or
-                                             sensor.noise_angle_rad or
-                                             sensor.noise_rate_rad_s) else np.zeros(12)
-        position = s.position_ned_m + sensor.bias_position_m + \
-            sensor.noise_position_m * noise[0:3]
-        velocity = s.velocity_ned_mps + sensor.bias_velocity_mps + \
-            sensor.noise_velocity_mps * noise[3:6]
-        euler = s.euler_rad + sensor.bias_angle_rad + sensor.noise_angle_rad * noise[6:9]
-        rates = s.body_rate_rad_s + sensor.bias_rate_rad_s + sensor.noise_rate_rad_s * noise[9:12]
-        return position, velocity, quat_from_euler(*euler), rates
 
     def _update_perturbations(self, t_s: float) -> None:
         entries = self.book.entries

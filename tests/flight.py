@@ -59,7 +59,7 @@ class Flight:
             if each_period is not None:
                 each_period(t)
             self.vehicle.check_links(t)
-            measurement = self.plant.measurement()
+            measurement = self.plant.true_measurement()
             commands = self.vehicle.step(t, measurement)
             self.rows.append(np.concatenate(([t], measurement, self.vehicle.last_ref)))
             self.plant.set_motor_commands(commands)
@@ -84,7 +84,7 @@ class Flight:
         self.run(duration_s, send)
 
     def start_offboard(self, setpoint: Setpoint) -> None:
-        from contracts.mavlink import FlightMode
+        from contracts.modes import FlightMode
 
         self.stream(setpoint, 0.2)
         self.vehicle.set_mode(FlightMode.OFFBOARD, self.t_s)

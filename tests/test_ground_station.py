@@ -17,7 +17,7 @@ from autopilot.control.factory import load_models
 from contracts.airframe import PAPER
 from contracts.perturbations import (
     MAX_PERTURBATIONS,
-    SIMULATOR,
+    SITL,
     PerturbationBook,
     parse_request,
     parse_schedule,
@@ -102,7 +102,7 @@ def test_now_requests_take_the_receivers_time():
 
 
 def test_a_process_takes_a_bounded_number_of_perturbations():
-    book = PerturbationBook(SIMULATOR)
+    book = PerturbationBook(SITL)
     for _ in range(MAX_PERTURBATIONS):
         book.handle({"kind": "wind", "ned_mps": [1, 0, 0], "start_s": 1.0}, 0.0)
     with pytest.raises(ValueError, match="no more are taken"):

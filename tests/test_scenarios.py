@@ -10,7 +10,7 @@ from autopilot.control.factory import CONTROLLERS
 from contracts.airframe import PAPER
 from ground.inprocess import run_inprocess
 from ground.metrics import compute_metrics
-from ground.scenarios import PAPER_SCENARIOS, SCENARIOS
+from ground.scenarios import PAPER_SCENARIOS, shipped_scenarios
 
 PLANTS = ("paper", "rigid-body")
 
@@ -20,7 +20,7 @@ def all_metrics(shipped_models):
     out = {}
     for plant in PLANTS:
         for name in PAPER_SCENARIOS:
-            scenario = SCENARIOS[name]
+            scenario = shipped_scenarios()[name]
             for controller in CONTROLLERS:
                 record = run_inprocess(scenario, controller, plant, PAPER, shipped_models)
                 out[(plant, name, controller)] = compute_metrics(record, scenario, "paper")
@@ -70,7 +70,7 @@ def test_metrics_hold_required_fields(all_metrics) -> None:
 
 @pytest.mark.parametrize("plant", PLANTS)
 def test_runs_are_bit_for_bit_reproducible(shipped_models, plant: str) -> None:
-    scenario = SCENARIOS["position-kick"]
+    scenario = shipped_scenarios()["position-kick"]
     a = run_inprocess(scenario, "ivfc", plant, PAPER, shipped_models)
     b = run_inprocess(scenario, "ivfc", plant, PAPER, shipped_models)
     assert np.array_equal(a.measurement, b.measurement)
@@ -80,8 +80,8 @@ def test_runs_are_bit_for_bit_reproducible(shipped_models, plant: str) -> None:
 
 def test_perturbation_window_reaches_the_plant(shipped_models) -> None:
     """attitude-jr-20 differs from attitude-sine only inside [12, 14] s and after it."""
-    base = run_inprocess(SCENARIOS["attitude-sine"], "smc", "paper", PAPER)
-    pert = run_inprocess(SCENARIOS["attitude-jr-20"], "smc", "paper", PAPER)
+    base = run_inprocess(shipped_scenarios()["attitude-sine"], "smc", "paper", PAPER)
+    pert = run_inprocess(shipped_scenarios()["attitude-jr-20"], "smc", "paper", PAPER)
     before = base.time_s <= 12.0
     assert np.array_equal(base.measurement[before], pert.measurement[before])
     assert not np.array_equal(base.measurement[~before], pert.measurement[~before])

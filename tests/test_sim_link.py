@@ -23,6 +23,7 @@ from contracts.mavlink import (
     split_frames,
 )
 from sitl.plant import Plant
+from sitl.sensors import read_sensors
 from tests.harness import free_port
 
 
@@ -37,9 +38,9 @@ def _flying_plant(fidelity: str) -> Plant:
 def _decoded(plant: Plant) -> dict[str, object]:
     s = plant.state()
     mav = mavlink.MAVLink(None, 1, 51)
-    data = b"".join(m.pack(mav) for m in sample_messages(
+    data = b"".join(m.pack(mav) for m in sample_messages(read_sensors(
         123456, s.position_ned_m, s.velocity_ned_mps, s.quaternion, s.body_rate_rad_s,
-        np.zeros(3)))
+        np.zeros(3))))
     return {m.get_type(): m for m in mavlink.MAVLink(None, 1, 1).parse_buffer(data)}
 
 
@@ -49,10 +50,10 @@ def test_odometry_gives_the_plant_measurement_to_float32(fidelity):
     msgs = _decoded(plant)
     assert set(msgs) == {"HIL_SENSOR", "HIL_GPS", "HIL_STATE_QUATERNION", "ODOMETRY"}
     np.testing.assert_allclose(measurement_from_odometry(msgs["ODOMETRY"]),
-                               plant.measurement(), atol=1e-5)
+                               plant.true_measurement(), atol=1e-5)
     # HIL_STATE_QUATERNION alone: 1e-7 deg (~1 cm), mm, cm/s.
     hil = measurement_from_hil_state(msgs["HIL_STATE_QUATERNION"])
-    truth = plant.measurement()
+    truth = plant.true_measurement()
     np.testing.assert_allclose(hil[0:3], truth[0:3], atol=0.02)
     np.testing.assert_allclose(hil[3:6], truth[3:6], atol=0.006)
     np.testing.assert_allclose(hil[6:12], truth[6:12], atol=1e-5)
@@ -95,8 +96,8 @@ def test_split_frames_keeps_partial_frames_for_later():
     plant = _flying_plant("paper")
     s = plant.state()
     mav = mavlink.MAVLink(None, 1, 51)
-    data = b"".join(m.pack(mav) for m in sample_messages(
-        1, s.position_ned_m, s.velocity_ned_mps, s.quaternion, s.body_rate_rad_s, np.zeros(3)))
+    data = b"".join(m.pack(mav) for m in sample_messages(read_sensors(
+        1, s.position_ned_m, s.velocity_ned_mps, s.quaternion, s.body_rate_rad_s, np.zeros(3))))
     frames, rest = split_frames(b"\x00\x01" + data + data[:20])
     assert [i for i, _ in frames] == [-1, 107, 113, 115, 331] and rest == data[:20]
 
@@ -169,13 +170,15 @@ def test_autopilot_refuses_bad_simulator_data_and_keeps_serving(tmp_path):
         mav = mavlink.MAVLink(None, 1, 51)
         plant = Plant(PAPER, "paper", ground_contact=True)
         s = plant.state()
-        msgs = sample_messages(0, s.position_ned_m, s.velocity_ned_mps, s.quaternion,
-                               s.body_rate_rad_s, np.zeros(3))
+        msgs = sample_messages(read_sensors(0, s.position_ned_m, s.velocity_ned_mps,
+                                            s.quaternion,
+                               s.body_rate_rad_s, np.zeros(3)))
         msgs[3].vx = math.nan
         conn.sendall(b"".join(m.pack(mav) for m in msgs))
         time.sleep(0.5)
-        good = sample_messages(10000, s.position_ned_m, s.velocity_ned_mps, s.quaternion,
-                               s.body_rate_rad_s, np.zeros(3))
+        good = sample_messages(read_sensors(10000, s.position_ned_m, s.velocity_ned_mps,
+                                            s.quaternion,
+                               s.body_rate_rad_s, np.zeros(3)))
         conn.sendall(b"".join(m.pack(mav) for m in good))
         reply = []
         reader = mavlink.MAVLink(None, 1, 51)

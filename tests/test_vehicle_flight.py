@@ -13,11 +13,11 @@ from autopilot.control.factory import CONTROLLERS, make_controller
 from autopilot.shaping import Setpoint
 from contracts.airframe import PAPER, hover_rotor_speed_rad_s, max_thrust_n
 from contracts.frames import wrap_pi
-from contracts.mavlink import FlightMode
+from contracts.modes import FlightMode
 from contracts.vectors import REF_EULER, REF_POS, REF_SIZE
 from ground.inprocess import run_inprocess
 from ground.metrics import compute_metrics
-from ground.scenarios import SCENARIOS
+from ground.scenarios import shipped_scenarios
 from sitl.plant import Plant
 from tests.flight import (
     Flight,
@@ -57,7 +57,7 @@ def test_every_controller_turns_across_180_deg_the_short_way(controller, plant):
         ref[REF_POS + 2], ref[REF_EULER + 2] = -2.0, goal
         yaw = []
         for _ in range(800):
-            m = sim.measurement()
+            m = sim.true_measurement()
             yaw.append(m[8])
             sim.set_motor_commands(law.step(m, ref, True))
             sim.advance(0.01)
@@ -273,8 +273,8 @@ def test_ardupilot_attitude_thrust_half_holds_the_altitude():
 def test_paper_scenarios_are_unchanged(plant, scenario, expected):
     """Golden RMSEs from before setpoint shaping and angle wrapping: the paper's scenarios
     feed the reference directly and must not move (docs/reproducing.md)."""
-    record = run_inprocess(SCENARIOS[scenario], "ivfc", plant, PAPER, shipped_models())
-    axes = compute_metrics(record, SCENARIOS[scenario], "paper")["axes"]
+    record = run_inprocess(shipped_scenarios()[scenario], "ivfc", plant, PAPER, shipped_models())
+    axes = compute_metrics(record, shipped_scenarios()[scenario], "paper")["axes"]
     for axis, rmse in expected.items():
         assert axes[axis]["rmse"] == pytest.approx(rmse, rel=1e-9), axis
 

@@ -31,7 +31,7 @@ from autopilot.shaping import (  # noqa: E402
 from contracts.airframe import PAPER, hover_rotor_speed_rad_s  # noqa: E402
 from ground.excitation import excitation_dataset  # noqa: E402
 from ground.inprocess import run_inprocess  # noqa: E402
-from ground.scenarios import SCENARIOS  # noqa: E402
+from ground.scenarios import shipped_scenarios  # noqa: E402
 from sitl.plant import Plant  # noqa: E402
 
 
@@ -48,11 +48,11 @@ def per_call_us(fn, n: int, repeats: int = 7) -> float:
 
 def main() -> None:
     models = load_models(None)
-    ref = SCENARIOS["attitude-sine"].reference.at(1.0)
-    pos_ref = SCENARIOS["position-sine"].reference.at(1.0)
+    ref = shipped_scenarios()["attitude-sine"].reference.at(1.0)
+    pos_ref = shipped_scenarios()["position-sine"].reference.at(1.0)
     plant = Plant(PAPER, "paper", position_ned_m=(0, 0, -1),
                   rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
-    meas = plant.measurement()
+    meas = plant.true_measurement()
     print("Controller step (all channels + mixer), median us per call:")
     for kind in ("ivfc", "t1fc", "smc", "pid"):
         ctrl = make_controller(kind, PAPER, 0.01, models)
@@ -86,7 +86,7 @@ def main() -> None:
     print(f"Identification: excitation flight {fly:.2f} s + identification (3 channels, GK, "
           f"EDA, fits, LS) {ident:.2f} s")
     print("In-process real-time factor (20 s scenarios, 100 Hz control, 1 kHz plant), median of 3:")
-    for name, scenario in SCENARIOS.items():
+    for name, scenario in shipped_scenarios().items():
         for kind in ("ivfc",):
             run_inprocess(scenario, kind, "paper", PAPER, models)
             walls = [run_inprocess(scenario, kind, "paper", PAPER, models).wall_time_s

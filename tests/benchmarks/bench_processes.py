@@ -37,7 +37,8 @@ from contracts.mavlink import (  # noqa: E402
 )
 from ground.processes import RunSettings, fly  # noqa: E402
 from ground.scenarios import scenario_by_name  # noqa: E402
-from sitl.plant import Plant  # noqa: E402
+from sitl.plant import Plant
+from sitl.sensors import read_sensors  # noqa: E402
 
 ECHO = """
 import socket, sys
@@ -68,15 +69,15 @@ def cycle_parts() -> dict[str, float]:
                   rotor_rad_s=hover_rotor_speed_rad_s(PAPER), ground_contact=True)
     vehicle = Vehicle(lambda p: make_controller("ivfc", PAPER, 0.01, models, p), 0.01,
                       reference=Reference("attitude-sine"))
-    vehicle.sample(0.0, plant.measurement())
+    vehicle.sample(0.0, plant.true_measurement())
     vehicle.arm_in_reference()
     sim_mav = mavlink.MAVLink(None, 1, 51)
     ap_mav = mavlink.MAVLink(None, 1, 1)
     s = plant.state()
 
     def encode_sample():
-        msgs = sample_messages(0, s.position_ned_m, s.velocity_ned_mps, s.quaternion,
-                               s.body_rate_rad_s, np.zeros(3))
+        msgs = sample_messages(read_sensors(0, s.position_ned_m, s.velocity_ned_mps, s.quaternion,
+                               s.body_rate_rad_s, np.zeros(3)))
         return b"".join(m.pack(sim_mav) for m in msgs)
 
     sample = encode_sample()
@@ -97,7 +98,7 @@ def cycle_parts() -> dict[str, float]:
         "sim: state -> 4 messages (encode)": _per_call_us(encode_sample),
         "autopilot: 4 messages -> measurement (decode)": _per_call_us(decode_sample),
         "autopilot: control step (IVFC + vehicle logic)": _per_call_us(
-            lambda: vehicle.step(0.0, plant.measurement())),
+            lambda: vehicle.step(0.0, plant.true_measurement())),
         "autopilot: actuator message (encode)": _per_call_us(
             lambda: actuator_message(0, np.full(4, 0.5), True, True).pack(ap_mav)),
         "sim: actuator message (decode)": _per_call_us(decode_actuator),

@@ -1,0 +1,92 @@
+"""Flight modes and their numbers in the PX4 and ArduPilot-Copter flavours of MAVLink.
+
+Free of pymavlink: the vehicle logic uses the modes, the MAVLink server maps them.
+"""
+
+from __future__ import annotations
+
+import enum
+
+
+class FlightMode(enum.Enum):
+    """The autopilot's flight modes (docs/mavlink.md says what each does)."""
+
+    HOLD = "hold"  # hold the position where the mode started
+    TAKEOFF = "takeoff"  # climb to the take-off altitude, then HOLD
+    LAND = "land"  # descend, disarm on the ground
+    OFFBOARD = "offboard"  # follow streamed setpoints (PX4)
+    GUIDED = "guided"  # follow setpoints, hold the last one (ArduPilot)
+    REFERENCE = "reference"  # the onboard reference generator of the paper's scenarios
+
+
+# PX4 custom mode: main mode in bits 16-23, sub mode in bits 24-31.
+PX4_MAIN_POSCTL = 3
+PX4_MAIN_AUTO = 4
+PX4_MAIN_OFFBOARD = 6
+PX4_SUB_AUTO_TAKEOFF = 2
+PX4_SUB_AUTO_LOITER = 3
+PX4_SUB_AUTO_MISSION = 4
+PX4_SUB_AUTO_LAND = 6
+
+PX4_MODES: dict[FlightMode, tuple[int, int]] = {
+    FlightMode.HOLD: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER),
+    FlightMode.TAKEOFF: (PX4_MAIN_AUTO, PX4_SUB_AUTO_TAKEOFF),
+    FlightMode.LAND: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND),
+    FlightMode.OFFBOARD: (PX4_MAIN_OFFBOARD, 0),
+    FlightMode.REFERENCE: (PX4_MAIN_AUTO, PX4_SUB_AUTO_MISSION),
+}
+
+# ArduPilot Copter mode numbers (custom_mode is the number itself).
+COPTER_MODES: dict[FlightMode, int] = {
+    FlightMode.REFERENCE: 3,  # AUTO
+    FlightMode.GUIDED: 4,
+    FlightMode.HOLD: 5,  # LOITER
+    FlightMode.LAND: 9,
+}
+COPTER_MODE_NAMES = {3: "AUTO", 4: "GUIDED", 5: "LOITER", 9: "LAND"}
+
+FLAVOURS = ("px4", "ardupilot")
+
+
+def px4_custom_mode(mode: FlightMode) -> int:
+    main, sub = PX4_MODES[mode]
+    return (main << 16) | (sub << 24)
+
+
+def mode_from_px4(custom_mode: int) -> FlightMode | None:
+    main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+    if main == PX4_MAIN_POSCTL:  # position control: the nearest we have is hold
+        return FlightMode.HOLD
+    for mode, (m, s) in PX4_MODES.items():
+        if m == main and (s == sub or main == PX4_MAIN_OFFBOARD):
+            return mode
+    return None
+
+
+def px4_custom_mode_from_command(main_mode: float, sub_mode: float) -> int:
+    """custom_mode from DO_SET_MODE's param2 / param3 (main, sub), or from SET_MODE's
+    already packed custom_mode (a number above 255 in param2)."""
+    if main_mode > 255:
+        return int(main_mode)
+    return (int(main_mode) << 16) | (int(sub_mode) << 24)
+
+
+def custom_mode(flavour: str, mode: FlightMode) -> int:
+    """HEARTBEAT custom_mode of ``mode`` (TAKEOFF shows as GUIDED in the ArduPilot flavour)."""
+    if flavour == "px4":
+        return px4_custom_mode(mode)
+    if mode == FlightMode.TAKEOFF:
+        mode = FlightMode.GUIDED
+    if mode == FlightMode.OFFBOARD:
+        mode = FlightMode.GUIDED
+    return COPTER_MODES[mode]
+
+
+def mode_from_custom(flavour: str, number: int) -> FlightMode | None:
+    """The mode a DO_SET_MODE / SET_MODE custom mode asks for, or None if unknown."""
+    if flavour == "px4":
+        return mode_from_px4(number)
+    for mode, n in COPTER_MODES.items():
+        if n == number:
+            return mode
+    return None

@@ -103,7 +103,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 def run(args: argparse.Namespace) -> int:
     from autopilot.control.factory import load_models, make_controller
     from autopilot.control.parameters import validate_parameters
-    from autopilot.ground_link import GroundStation, open_link
+    from autopilot.mavlink_server import MavlinkServer, open_link
     from autopilot.process import Autopilot, AutopilotConfig
     from autopilot.reference import Reference
     from autopilot.vehicle import Vehicle
@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     if args.api is not None or args.api_bind:
         links.append(open_link("api", ("0.0.0.0", args.api_bind), args.api, key, 1,
                                config.sysid))
-    ground = GroundStation(vehicle, links, args.flavour, sysid=config.sysid,
+    ground = MavlinkServer(vehicle, links, args.flavour, sysid=config.sysid,
                            max_peers=args.max_peers)
     return Autopilot(config, vehicle, ground, arm_in_reference=args.arm_in_reference).run()
 

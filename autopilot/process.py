@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from autopilot import shaping
-from autopilot.ground_link import GroundStation
+from autopilot.mavlink_server import MavlinkServer
 from autopilot.vehicle import Vehicle
 from contracts.airframe import max_thrust_n
 from contracts.frames import (
@@ -177,7 +177,7 @@ class SimLink:
 
 
 class Autopilot:
-    def __init__(self, config: AutopilotConfig, vehicle: Vehicle, ground: GroundStation,
+    def __init__(self, config: AutopilotConfig, vehicle: Vehicle, ground: MavlinkServer,
                  arm_in_reference: bool = False, log=None) -> None:
         self.config = config
         self.vehicle = vehicle
@@ -288,7 +288,7 @@ class Autopilot:
         for i, (msg_id, every_us) in enumerate(MIRROR_STREAMS_US):
             if time_us >= self._mirror_due_us[i]:
                 self._mirror_due_us[i] = time_us - time_us % every_us + every_us
-                msg = self.ground._telemetry(msg_id, boot_ms=(time_us // 1000) & 0xFFFFFFFF)
+                msg = self.ground.telemetry(msg_id, boot_ms=(time_us // 1000) & 0xFFFFFFFF)
                 self.node.mirror(self.config.sysid, AUTOPILOT_COMPID, msg.get_type(),
                                  msg.pack(self._mirror_mav), time_us)
 

@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 import numpy as np  # noqa: E402
 
 from autopilot.control.factory import load_models, make_controller  # noqa: E402
-from autopilot.ground_link import GroundStation, open_link  # noqa: E402
+from autopilot.mavlink_server import MavlinkServer, open_link  # noqa: E402
 from autopilot.process import Autopilot, AutopilotConfig  # noqa: E402
 from autopilot.reference import Reference  # noqa: E402
 from autopilot.vehicle import Vehicle  # noqa: E402
@@ -37,7 +37,7 @@ def autopilot(zenoh: ZenohOptions) -> Autopilot:
     models = load_models(None)
     vehicle = Vehicle(lambda p: make_controller("ivfc", PAPER, 0.01, models, p), 0.01, {},
                       Reference("attitude-sine"))
-    ground = GroundStation(vehicle, [open_link("gcs", ("127.0.0.1", 0), None, None, 0)])
+    ground = MavlinkServer(vehicle, [open_link("gcs", ("127.0.0.1", 0), None, None, 0)])
     ap = Autopilot(AutopilotConfig(zenoh=zenoh), vehicle, ground, arm_in_reference=True,
                    log=lambda _t: None)
     ap._warm_up()

@@ -1,5 +1,5 @@
 """The vehicle's ground links under hostile traffic, in process: real UDP sockets on
-loopback, a real GroundStation, an injected link clock. What each datagram costs, who
+loopback, a real MavlinkServer, an injected link clock. What each datagram costs, who
 becomes a telemetry peer, what is refused, and how drops are made visible."""
 
 from __future__ import annotations
@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 
 from autopilot.control.factory import make_controller
-from autopilot.ground_link import (
+from autopilot.mavlink_server import (
     DROP_WARNING_S,
     HEARTBEAT_SHED_S,
     PEER_FORGET_S,
     PEER_SILENT_S,
-    GroundStation,
+    MavlinkServer,
     decode_datagram,
     open_link,
 )
@@ -93,7 +93,7 @@ def station():
     vehicle = Vehicle(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01)
     vehicle.sample(0.0, np.zeros(12))
     links = [open_link("gcs", ("127.0.0.1", 0), None, None, 0)]
-    ground = GroundStation(vehicle, links, clock=clock, max_peers=2)
+    ground = MavlinkServer(vehicle, links, clock=clock, max_peers=2)
     tools: list[Tool] = []
 
     def tool(**kwargs) -> Tool:
@@ -206,7 +206,7 @@ def test_signing_on_only_signed_frames_count_and_a_forgery_cannot_age_the_stream
     clock = Clock()
     vehicle = Vehicle(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01)
     link = open_link("gcs", ("127.0.0.1", 0), None, KEY, 0)
-    ground = GroundStation(vehicle, [link], clock=clock)
+    ground = MavlinkServer(vehicle, [link], clock=clock)
     port = link.sock.getsockname()[1]
     honest, unsigned = Tool(port, key=KEY), Tool(port, sysid=246)
     forger = Tool(port, key=bytes(32))  # the wrong key
@@ -250,7 +250,7 @@ def test_drops_show_in_sys_status_and_one_statustext_a_minute(station):
     assert link.drop_rate == pytest.approx(30 / 40)
     texts = [m.text for m in t.received() if m.get_type() == "STATUSTEXT"]
     assert texts == ["gcs: 75% of datagrams lost (0 dropped, 30 bad)"]
-    status = ground._telemetry(mavlink.MAVLINK_MSG_ID_SYS_STATUS)
+    status = ground.telemetry(mavlink.MAVLINK_MSG_ID_SYS_STATUS)
     assert (status.drop_rate_comm, status.errors_comm) == (7500, 30)
     for _ in range(2):  # more drops within the minute: no second warning
         t.raw(b"garbage!")
@@ -282,4 +282,4 @@ def test_decode_datagram_takes_whole_frames_only():
 def test_max_peers_is_checked():
     vehicle = Vehicle(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01)
     with pytest.raises(ValueError, match="max peers"):
-        GroundStation(vehicle, [], max_peers=-1)
+        MavlinkServer(vehicle, [], max_peers=-1)

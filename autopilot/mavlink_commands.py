@@ -1,0 +1,148 @@
+"""COMMAND_LONG / COMMAND_INT (and the legacy SET_MODE) for the vehicle: each command
+acknowledged with the MAV_RESULT a ground tool expects, refusals explained in STATUSTEXT.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from autopilot.mavlink_telemetry import (
+    DEFAULT_STREAMS,
+    PRODUCIBLE,
+    autopilot_version,
+    home_position,
+)
+from autopilot.vehicle import RefusedError
+from contracts.frames import HOME_ALT_AMSL_M
+from contracts.mavlink import mavlink
+from contracts.modes import mode_from_custom, px4_custom_mode_from_command
+
+if TYPE_CHECKING:
+    from autopilot.mavlink_server import GroundLink, MavlinkServer
+
+FORCE_DISARM_MAGIC = 21196
+
+
+class CommandProtocol:
+    """Maps commands to vehicle calls; a handler returns messages to send after the ACK."""
+
+    def __init__(self, server: MavlinkServer) -> None:
+        self.server = server
+        self.handled = 0
+        self.table: dict[int, Callable] = {
+            mavlink.MAV_CMD_COMPONENT_ARM_DISARM: self._arm,
+            mavlink.MAV_CMD_NAV_TAKEOFF: self._takeoff,
+            mavlink.MAV_CMD_NAV_LAND: self._land,
+            mavlink.MAV_CMD_DO_SET_MODE: self._set_mode,
+            mavlink.MAV_CMD_REQUEST_MESSAGE: self._request_message,
+            mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: lambda *_: [autopilot_version()],
+            mavlink.MAV_CMD_GET_HOME_POSITION: lambda *_: [home_position()],
+            mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: self._message_interval,
+        }
+
+    def handlers(self) -> dict[str, Callable]:
+        return {"COMMAND_LONG": self.on_command_long, "COMMAND_INT": self.on_command_int,
+                "SET_MODE": self.on_set_mode}
+
+    def on_command_long(self, link: GroundLink, address, msg, now: float) -> None:
+        params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6,
+                  msg.param7]
+        self.command(link, address, msg, msg.command, params, now)
+
+    def on_command_int(self, link: GroundLink, address, msg, now: float) -> None:
+        params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.x * 1e-7, msg.y * 1e-7,
+                  msg.z]
+        self.command(link, address, msg, msg.command, params, now)
+
+    def on_set_mode(self, link: GroundLink, address, msg, now: float) -> None:
+        # Deprecated but sent by older tools (MAVProxy for ArduPilot); acknowledged as
+        # DO_SET_MODE, as ArduPilot does.
+        self.command(link, address, msg, mavlink.MAV_CMD_DO_SET_MODE,
+                     [float(msg.base_mode), float(msg.custom_mode), 0.0, 0, 0, 0, 0], now)
+
+    def command(self, link: GroundLink, address, msg, command: int, params: list[float],
+                now: float) -> None:
+        self.handled += 1
+        handler = self.table.get(command)
+        if handler is None:
+            self.ack(link, address, msg, command, mavlink.MAV_RESULT_UNSUPPORTED)
+            return
+        try:
+            replies = handler(link, params, now)
+        except RefusedError as exc:
+            result = (mavlink.MAV_RESULT_TEMPORARILY_REJECTED if exc.temporary
+                      else mavlink.MAV_RESULT_DENIED)
+            self.ack(link, address, msg, command, result, str(exc))
+            return
+        self.ack(link, address, msg, command, mavlink.MAV_RESULT_ACCEPTED)
+        for reply in replies or ():
+            self.server.send(link, reply, address)
+
+    def ack(self, link: GroundLink, address, msg, command: int, result: int,
+            text: str | None = None) -> None:
+        self.server.send(link, mavlink.MAVLink_command_ack_message(
+            command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()), address)
+        if text:
+            severity = 6 if result == mavlink.MAV_RESULT_ACCEPTED else 4
+            self.server.send(link, mavlink.MAVLink_statustext_message(
+                severity, text.encode()[:50]), address)
+
+    # -- the commands --------------------------------------------------------------------
+    def _arm(self, link, p, now):
+        vehicle = self.server.vehicle
+        if p[0] == 1.0:
+            vehicle.arm(now)
+        elif p[0] == 0.0:
+            vehicle.disarm(force=p[1] == FORCE_DISARM_MAGIC)
+        else:
+            raise RefusedError(f"arm param1 must be 0 or 1, got {p[0]:g}")
+
+    def _takeoff(self, link, p, now):
+        altitude = p[6]
+        if math.isnan(altitude):
+            relative = None
+        elif self.server.flavour == "px4":
+            relative = altitude - HOME_ALT_AMSL_M  # PX4 reads param7 as AMSL
+        else:
+            relative = altitude  # ArduPilot reads it above home
+        self.server.vehicle.takeoff(relative)
+
+    def _land(self, link, p, now):
+        self.server.vehicle.land()
+
+    def _set_mode(self, link, p, now):
+        base, main, sub = p[0], p[1], p[2]
+        if not all(math.isfinite(v) for v in (base, main, sub)):
+            raise RefusedError("mode parameters must be finite")
+        if not int(base) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED:
+            raise RefusedError("only custom modes are supported")
+        flavour = self.server.flavour
+        number = int(main) if flavour == "ardupilot" else px4_custom_mode_from_command(main, sub)
+        mode = mode_from_custom(flavour, number)
+        if mode is None:
+            raise RefusedError(f"unknown mode {main:g}/{sub:g}")
+        self.server.vehicle.set_mode(mode, now)
+
+    def _request_message(self, link, p, now):
+        msg_id = int(p[0]) if math.isfinite(p[0]) else -1
+        if msg_id not in PRODUCIBLE:
+            raise RefusedError(f"message {p[0]:g} is not produced")
+        return [self.server.telemetry(msg_id)]
+
+    def _message_interval(self, link, p, now):
+        msg_id, interval_us = int(p[0]) if math.isfinite(p[0]) else -1, p[1]
+        if msg_id not in PRODUCIBLE:
+            raise RefusedError(f"message {p[0]:g} is not produced")
+        if not math.isfinite(interval_us):
+            raise RefusedError("interval must be finite")
+        if interval_us == -1:
+            link.intervals_s.pop(msg_id, None)
+        elif interval_us == 0:
+            link.intervals_s[msg_id] = DEFAULT_STREAMS.get(msg_id, 1.0)
+        elif interval_us > 0:
+            link.intervals_s[msg_id] = max(interval_us * 1e-6, 0.005)
+        else:
+            raise RefusedError(f"interval {interval_us:g} us is invalid")
+        link.next_due_s.pop(msg_id, None)

@@ -1,0 +1,383 @@
+"""The vehicle's MAVLink server for ground tools, on UDP: sockets, peers, dispatch, streams.
+
+Two links as PX4 SITL has them: one to a ground station (sends to 14550) and one to an
+offboard API (sends to 14540); each also answers whoever talks to it. The server reads
+datagrams within a budget, admits peers, hands each message to the protocol that serves
+it (commands, parameters, setpoints: ``autopilot/mavlink_*.py``) and sends the telemetry
+streams. Stream rates and link failsafes run on the link clock (wall time): they serve
+people and tools, not the control loop.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import socket
+import struct
+import time
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from autopilot.mavlink_commands import CommandProtocol
+from autopilot.mavlink_params import ParameterProtocol
+from autopilot.mavlink_setpoints import SetpointProtocol
+from autopilot.mavlink_telemetry import DEFAULT_STREAMS, telemetry_message
+from autopilot.vehicle import Vehicle
+from contracts.mavlink import (
+    AUTOPILOT_COMPID,
+    AUTOPILOT_SYSID,
+    datagram_frames,
+    mavlink,
+    new_mavlink,
+)
+
+# Bounded ground work: a link reads what its budget allows and leaves
+# the rest to the kernel, which drops what overflows its buffer; nothing a tool or a
+# flood sends can cost the control loop more than the budget.
+PEERS_MAX = 4  # telemetry peers per link (default of --max-peers)
+PEER_SILENT_S = 3.0  # a peer not heard for this long gives its place to a newcomer
+PEER_FORGET_S = 10.0  # ... and is forgotten
+HEARTBEAT_SHED_S = 0.2  # heartbeats closer than this from one address are not decoded
+HEARD_MAX = 256  # addresses whose last heartbeat time is remembered for that
+DROP_WINDOW_S = 1.0  # drop_rate_comm is measured over this window
+DROP_WARNING_S = 60.0  # at most one STATUSTEXT about drops per link per minute
+SO_MEMINFO = 55  # Linux: the socket's memory figures; index 8 counts the datagrams dropped
+SK_MEMINFO_DROPS = 8
+SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
+RCVBUF_BYTES = 1 << 20
+DATAGRAM_MAX = 2048  # MAVLink frames are at most 280 bytes; a datagram holds a few
+
+
+@dataclass
+class Peer:
+    address: tuple[str, int]
+    heard_s: float
+    interactive: bool = False  # has sent more than HEARTBEATs: a tool, not a bystander
+
+
+@dataclass
+class LinkCounters:
+    """What a link has read, refused, shed and lost (cumulative)."""
+
+    datagrams: int = 0  # read from the socket
+    frames: int = 0  # valid frames decoded
+    rejected: int = 0  # not MAVLink, bad CRC, unsigned or wrongly signed, unknown message
+    shed: int = 0  # heartbeats not decoded (the same address was heard just now)
+    not_for_us: int = 0  # valid frames for another system
+    kernel_drops: int = 0  # datagrams the kernel dropped: its buffer was full
+    peers_refused: int = 0  # newcomers turned away while every peer was talking
+
+    def as_dict(self) -> dict[str, int]:
+        return dict(self.__dict__)
+
+
+@dataclass
+class GroundLink:
+    """One UDP socket: its parser/encoder (sequence, signing) and who listens."""
+
+    name: str
+    sock: socket.socket
+    default_remote: tuple[str, int] | None
+    mav: mavlink.MAVLink
+    intervals_s: dict[int, float] = field(default_factory=lambda: dict(DEFAULT_STREAMS))
+    next_due_s: dict[int, float] = field(default_factory=dict)
+    peers: dict[tuple[str, int], Peer] = field(default_factory=dict)
+    counters: LinkCounters = field(default_factory=LinkCounters)
+    heartbeat_heard_s: OrderedDict[tuple[str, int], float] = field(default_factory=OrderedDict)
+    drop_rate: float = 0.0  # lost / arrived over the last window (0-1)
+    window: tuple[float, int, int] | None = None  # (start, arrived, lost) at its start
+    warned_s: float = -math.inf
+
+    def targets(self) -> list[tuple[str, int]]:
+        out = list(self.peers)
+        if self.default_remote is not None and self.default_remote not in self.peers:
+            out.append(self.default_remote)
+        return out
+
+    def read_kernel_drops(self) -> None:
+        """Datagrams the kernel dropped for want of buffer (Linux; elsewhere 0)."""
+        try:
+            info = self.sock.getsockopt(socket.SOL_SOCKET, SO_MEMINFO, 4 * (SK_MEMINFO_DROPS + 1))
+        except OSError:
+            return
+        if len(info) >= 4 * (SK_MEMINFO_DROPS + 1):
+            self.counters.kernel_drops = struct.unpack_from("I", info, 4 * SK_MEMINFO_DROPS)[0]
+
+    def lost(self) -> tuple[int, int]:
+        """(arrived, lost): datagrams that reached the socket, and those the kernel dropped
+        or the link refused (as of the last read_kernel_drops)."""
+        c = self.counters
+        return c.datagrams + c.kernel_drops, c.kernel_drops + c.rejected
+
+
+def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
+              signing_key: bytes | None, link_id: int,
+              sysid: int = AUTOPILOT_SYSID) -> GroundLink:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:  # room for a burst between two reads (privileged: past the system's rmem_max)
+        sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RCVBUF_BYTES)
+    except OSError:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
+    sock.bind(bind)
+    sock.setblocking(False)
+    mav = new_mavlink(sysid, AUTOPILOT_COMPID)
+    if signing_key is not None:
+        mav.signing.secret_key = signing_key
+        mav.signing.link_id = link_id
+        mav.signing.sign_outgoing = True
+        # MAVLink's signing clock: 10 us units since 2015-01-01.
+        mav.signing.timestamp = int((time.time() - 1420070400) * 100000)
+        mav.signing.allow_unsigned_callback = None
+    return GroundLink(name, sock, remote, mav)
+
+
+def decode_datagram(mav: mavlink.MAVLink, data: bytes) -> list | None:
+    """The messages of one datagram, or None if any part of it is not a valid frame (or,
+    with signing on, not validly signed).
+
+    Each datagram is decoded on its own, never through pymavlink's stream buffer, so a
+    broken datagram cannot spoil the next one. pymavlink records a signed frame's
+    timestamp before it checks the signature; a forged frame would then make the real
+    stream's next frames look old, so the record is undone when the signature fails.
+    """
+    frames = datagram_frames(data)
+    if frames is None:
+        return None
+    signing = mav.signing.secret_key is not None
+    msgs = []
+    for frame in frames:
+        if signing and not (frame[0] == 0xFD and frame[2] & 1):
+            return None
+        stream = (frame[-13], frame[5], frame[6]) if signing else None
+        before = mav.signing.stream_timestamps.get(stream) if signing else None
+        try:
+            msg = mav.decode(bytearray(frame))
+        except mavlink.MAVError:
+            if signing:
+                if before is None:
+                    mav.signing.stream_timestamps.pop(stream, None)
+                else:
+                    mav.signing.stream_timestamps[stream] = before
+            return None
+        if isinstance(msg, mavlink.MAVLink_unknown):
+            return None  # no CRC extra to check it against: not trusted
+        msgs.append(msg)
+    return msgs
+
+
+class MavlinkServer:
+    """Serves every ground link of one vehicle."""
+
+    def __init__(self, vehicle: Vehicle, links: list[GroundLink], flavour: str = "px4",
+                 clock: Callable[[], float] = time.monotonic,
+                 sysid: int = AUTOPILOT_SYSID, max_peers: int = PEERS_MAX) -> None:
+        if not 0 <= max_peers <= 64:
+            raise ValueError(f"max peers must be in [0, 64], got {max_peers}")
+        self.vehicle = vehicle
+        self.max_peers = max_peers
+        self.sysid = sysid
+        # Called once per message sent to tools (the Zenoh MAVLink mirror listens here).
+        self.on_sent: Callable[[GroundLink, object, bytes], None] | None = None
+        self.links = links
+        self.flavour = flavour
+        self.clock = clock
+        self.boot_s = clock()
+        self._shown: tuple | None = None  # (armed, mode) last announced
+        self.commands = CommandProtocol(self)
+        self.parameters = ParameterProtocol(self)
+        self.setpoints = SetpointProtocol(self)
+        # Message type -> handler(link, address, msg, now); what is not here is ignored.
+        self.handlers: dict[str, Callable] = {
+            "HEARTBEAT": self._on_heartbeat, "PING": self._on_ping,
+            "TIMESYNC": self._on_timesync, "MISSION_REQUEST_LIST": self._on_mission_request_list,
+            **self.commands.handlers(), **self.parameters.handlers(),
+            **self.setpoints.handlers()}
+
+    # -- receiving -----------------------------------------------------------------------
+    def receive(self, link: GroundLink, budget_s: float = math.inf,
+                max_datagrams: int = 10_000) -> int:
+        """Read and handle datagrams waiting on the link until ``budget_s`` of wall time
+        (or ``max_datagrams``) is spent; what is left waits in the kernel's buffer.
+        Returns the number of datagrams read."""
+        end = time.perf_counter() + budget_s
+        now = self.clock()  # one reading for the batch: the link clock counts seconds
+        c = link.counters
+        sock = link.sock
+        n = 0
+        while n < max_datagrams:
+            try:
+                data, address = sock.recvfrom(DATAGRAM_MAX)
+            except (BlockingIOError, InterruptedError):
+                break
+            except OSError:  # ICMP port unreachable from a tool that went away
+                n += 1
+                continue
+            n += 1
+            c.datagrams += 1
+            if data and (data[0] == 0xFD or data[0] == 0xFE):
+                if self._datagram(link, data, address, now) and time.perf_counter() >= end:
+                    break  # a decoded datagram may have cost a reply: look at the clock
+            else:
+                c.rejected += 1  # not MAVLink: refused at its first byte
+            if n % 8 == 0 and time.perf_counter() >= end:
+                break
+        return n
+
+    def _datagram(self, link: GroundLink, data: bytes, address: tuple[str, int],
+                  now: float) -> bool:
+        """Handle one datagram; False if it was refused or shed without decoding."""
+        c = link.counters
+        # A HEARTBEAT only says "still here": one per address per HEARTBEAT_SHED_S is
+        # decoded, the rest cost a dictionary lookup (a flood of them stays cheap).
+        heartbeat = (len(data) >= 12 and data[0] == 0xFD and data[7:10] == b"\0\0\0"
+                     and len(data) == 12 + data[1] + (13 if data[2] & 1 else 0))
+        if heartbeat:
+            heard = link.heartbeat_heard_s.get(address)
+            if heard is not None and now - heard < HEARTBEAT_SHED_S:
+                c.shed += 1
+                return False
+        msgs = decode_datagram(link.mav, data)
+        if msgs is None:
+            c.rejected += 1
+            return True
+        if heartbeat:
+            link.heartbeat_heard_s[address] = now
+            link.heartbeat_heard_s.move_to_end(address)
+            if len(link.heartbeat_heard_s) > HEARD_MAX:
+                link.heartbeat_heard_s.popitem(last=False)
+        for msg in msgs:
+            c.frames += 1
+            if not self._for_us(msg):
+                c.not_for_us += 1
+                continue
+            self._admit(link, address, now, interactive=not heartbeat)
+            handler = self.handlers.get(msg.get_type())
+            if handler is not None:
+                handler(link, address, msg, now)
+        return True
+
+    def _admit(self, link: GroundLink, address: tuple[str, int], now: float,
+               interactive: bool) -> None:
+        """``address`` sent a valid frame for us: it hears our telemetry, within
+        ``max_peers``. A full table gives a newcomer the place of its quietest peer only
+        if that one has been silent for PEER_SILENT_S (PEER_FORGET_S for a peer that has
+        sent commands or requests), so a burst of new addresses cannot push out a tool
+        that keeps talking, even when the burst costs it a few datagrams."""
+        peer = link.peers.get(address)
+        if peer is not None:
+            peer.heard_s = now
+            peer.interactive = peer.interactive or interactive
+            return
+        if len(link.peers) >= self.max_peers:
+            silent = [p for p in link.peers.values() if now - p.heard_s >= (
+                PEER_FORGET_S if p.interactive else PEER_SILENT_S)]
+            if not silent:
+                link.counters.peers_refused += 1
+                return
+            del link.peers[min(silent, key=lambda p: p.heard_s).address]
+        link.peers[address] = Peer(address, now, interactive)
+
+    def _for_us(self, msg) -> bool:
+        """Broadcast (no target, or system 0) or addressed to this system; never our own
+        frames coming back."""
+        if msg.get_srcSystem() == self.sysid and msg.get_srcComponent() == AUTOPILOT_COMPID:
+            return False
+        target = getattr(msg, "target_system", 0)
+        return target in (0, self.sysid)
+
+    def send(self, link: GroundLink, msg, address=None) -> None:
+        data = msg.pack(link.mav)
+        if self.on_sent is not None:
+            self.on_sent(link, msg, data)
+        for target in [address] if address is not None else link.targets():
+            with contextlib.suppress(OSError):  # nobody listening there (yet)
+                link.sock.sendto(data, target)
+
+    def broadcast(self, msg_factory: Callable[[], object]) -> None:
+        for link in self.links:
+            self.send(link, msg_factory())
+
+    # -- small protocols -----------------------------------------------------------------
+    def _on_heartbeat(self, link, address, msg, now) -> None:
+        if msg.type == mavlink.MAV_TYPE_GCS or msg.get_srcComponent() == \
+                mavlink.MAV_COMP_ID_MISSIONPLANNER:
+            self.vehicle.gcs_heartbeat(now)
+
+    def _on_mission_request_list(self, link, address, msg, now) -> None:
+        self.send(link, mavlink.MAVLink_mission_count_message(
+            msg.get_srcSystem(), msg.get_srcComponent(), 0, getattr(msg, "mission_type", 0)),
+            address)
+
+    def _on_ping(self, link, address, msg, now) -> None:
+        if msg.target_system == 0:
+            self.send(link, mavlink.MAVLink_ping_message(
+                msg.time_usec, msg.seq, msg.get_srcSystem(), msg.get_srcComponent()), address)
+
+    def _on_timesync(self, link, address, msg, now) -> None:
+        if msg.tc1 == 0:
+            self.send(link, mavlink.MAVLink_timesync_message(
+                int((now - self.boot_s) * 1e9), msg.ts1), address)
+
+    # -- telemetry -----------------------------------------------------------------------
+    def service(self) -> None:
+        """Send what is due and queued; check the link failsafes."""
+        now = self.clock()
+        self.vehicle.check_links(now)
+        shown = (self.vehicle.armed, self.vehicle.mode)
+        if shown != self._shown:  # tools read arming and mode off heartbeats
+            self._shown = shown
+            for link in self.links:
+                link.next_due_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now
+                link.next_due_s[mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE] = now
+        while self.vehicle.messages:
+            severity, text = self.vehicle.messages.pop(0)
+            self.broadcast(lambda s=severity, t=text: mavlink.MAVLink_statustext_message(
+                s, t.encode()))
+        for link in self.links:
+            for peer in [a for a, p in link.peers.items() if now - p.heard_s > PEER_FORGET_S]:
+                del link.peers[peer]
+            self._measure_drops(link, now)
+            for msg_id, interval in link.intervals_s.items():
+                due = link.next_due_s.get(msg_id, now)
+                if now >= due:
+                    self.send(link, self.telemetry(msg_id))
+                    link.next_due_s[msg_id] = max(due + interval, now)
+
+    def _measure_drops(self, link: GroundLink, now: float) -> None:
+        """drop_rate_comm over the last window; a STATUSTEXT at most once a minute."""
+        if link.window is not None and now - link.window[0] < DROP_WINDOW_S:
+            return
+        link.read_kernel_drops()
+        arrived, lost = link.lost()
+        if link.window is None:
+            link.window = (now, arrived, lost)
+            return
+        _start, arrived0, lost0 = link.window
+        link.window = (now, arrived, lost)
+        new_lost = lost - lost0
+        link.drop_rate = new_lost / max(1, arrived - arrived0)
+        if new_lost and now - link.warned_s >= DROP_WARNING_S:
+            link.warned_s = now
+            c = link.counters
+            self.broadcast(lambda: mavlink.MAVLink_statustext_message(
+                mavlink.MAV_SEVERITY_WARNING,
+                f"{link.name}: {100 * link.drop_rate:.0f}% of datagrams lost "
+                f"({c.kernel_drops} dropped, {c.rejected} bad)".encode()[:50]))
+
+    def link_status(self) -> dict[str, dict]:
+        """Per link: counters, drop rate and peers (for status records and logs)."""
+        for link in self.links:
+            link.read_kernel_drops()
+        return {link.name: {**link.counters.as_dict(), "drop_rate": round(link.drop_rate, 4),
+                            "peers": len(link.peers)} for link in self.links}
+
+    def telemetry(self, msg_id: int, boot_ms: int | None = None):
+        """A telemetry message; ``boot_ms`` defaults to the link clock (the Zenoh mirror
+        passes sim time)."""
+        if boot_ms is None:
+            boot_ms = int((self.clock() - self.boot_s) * 1000) & 0xFFFFFFFF
+        drop = max((ln.drop_rate for ln in self.links), default=0.0)
+        errors = sum(ln.counters.rejected for ln in self.links)
+        return telemetry_message(msg_id, self.vehicle, self.flavour, boot_ms, drop, errors)

@@ -1,0 +1,158 @@
+"""What the vehicle tells ground tools: telemetry messages built from the vehicle's state.
+
+Pure message builders (no sockets, no clocks: the time since boot comes in), used by the
+MAVLink server's streams and replies and by the Zenoh MAVLink mirror.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import math
+
+import numpy as np
+
+from autopilot.vehicle import Vehicle
+from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, geodetic_from_ned
+from contracts.frames import quat_from_euler as _quat_from_euler
+from contracts.mavlink import mavlink
+from contracts.modes import FlightMode, custom_mode
+from contracts.vectors import (
+    MEAS_EULER,
+    MEAS_VEL,
+    MEAS_VZ,
+    MEAS_YAW,
+    MEAS_Z,
+    MEASUREMENT,
+    MEASUREMENT_SIZE,
+)
+
+# Telemetry every link streams, message id -> default interval [s].
+DEFAULT_STREAMS: dict[int, float] = {
+    mavlink.MAVLINK_MSG_ID_HEARTBEAT: 1.0,
+    mavlink.MAVLINK_MSG_ID_SYS_STATUS: 1.0,
+    mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE: 1.0,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE: 0.05,
+    mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION: 0.05,
+    mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED: 0.05,
+    mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.1,
+    mavlink.MAVLINK_MSG_ID_HOME_POSITION: 5.0,
+    mavlink.MAVLINK_MSG_ID_VFR_HUD: 0.25,
+}
+# What REQUEST_MESSAGE and SET_MESSAGE_INTERVAL can have, beyond the streams.
+PRODUCIBLE = set(DEFAULT_STREAMS) | {mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION}
+
+SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+           | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+           | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_SENSOR_ANGULAR_RATE_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_ATTITUDE_STABILIZATION
+           | mavlink.MAV_SYS_STATUS_SENSOR_YAW_POSITION
+           | mavlink.MAV_SYS_STATUS_SENSOR_Z_ALTITUDE_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_XY_POSITION_CONTROL
+           | mavlink.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mavlink.MAV_SYS_STATUS_AHRS)
+PREARM = mavlink.MAV_SYS_STATUS_PREARM_CHECK
+
+
+def firmware_version(version: str) -> int:
+    """AUTOPILOT_VERSION's flight_sw_version of a "major.minor.patch" package version: one
+    byte each, then 0xFF (a release), as PX4 packs it."""
+    major, minor, patch = (int(part) for part in (version.split(".") + ["0", "0"])[:3])
+    return (major << 24) | (minor << 16) | (patch << 8) | 0xFF
+
+
+FIRMWARE_VERSION = firmware_version(importlib.metadata.version("ivfm-sitl"))
+
+
+def autopilot_type(flavour: str) -> int:
+    return mavlink.MAV_AUTOPILOT_PX4 if flavour == "px4" else mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+
+
+def heartbeat(v: Vehicle, flavour: str) -> mavlink.MAVLink_heartbeat_message:
+    """Arming in base_mode, the mode in custom_mode, CRITICAL while a failsafe flies."""
+    base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | \
+        mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+    if v.armed:
+        base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+    status = (mavlink.MAV_STATE_CRITICAL if v.failsafe and v.armed else
+              mavlink.MAV_STATE_ACTIVE if v.armed else mavlink.MAV_STATE_STANDBY)
+    return mavlink.MAVLink_heartbeat_message(
+        mavlink.MAV_TYPE_QUADROTOR, autopilot_type(flavour), base, custom_mode(flavour, v.mode),
+        status, 3)
+
+
+def sys_status(v: Vehicle, drop_rate: float, errors: int) -> mavlink.MAVLink_sys_status_message:
+    """Sensor health and the pre-arm check; PX4's meanings for the link figures:
+    ``drop_rate`` (0-1) goes out in centi-percent, ``errors`` are datagrams refused."""
+    health = SENSORS if v.sim_link_ok else 0
+    if v.sim_link_ok and (v.armed or v.landed):
+        health |= PREARM
+    return mavlink.MAVLink_sys_status_message(
+        SENSORS | PREARM, SENSORS | PREARM, health, 0, 12000, -1, -1,
+        min(10_000, round(10_000 * drop_rate)), min(errors, 65535), 0, 0, 0, 0)
+
+
+def landed_state(v: Vehicle) -> int:
+    if not v.armed or v.landed:
+        return mavlink.MAV_LANDED_STATE_ON_GROUND
+    if v.mode == FlightMode.LAND:
+        return mavlink.MAV_LANDED_STATE_LANDING
+    if v.takeoff_altitude_m is not None:
+        return mavlink.MAV_LANDED_STATE_TAKEOFF
+    return mavlink.MAV_LANDED_STATE_IN_AIR
+
+
+def home_position() -> mavlink.MAVLink_home_position_message:
+    return mavlink.MAVLink_home_position_message(
+        int(HOME_LAT_DEG * 1e7), int(HOME_LON_DEG * 1e7), int(HOME_ALT_AMSL_M * 1000),
+        0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
+
+
+def autopilot_version() -> mavlink.MAVLink_autopilot_version_message:
+    caps = (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+            | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
+            | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
+            | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
+            | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
+            | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
+    return mavlink.MAVLink_autopilot_version_message(
+        caps, FIRMWARE_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1, [0] * 18)
+
+
+def telemetry_message(msg_id: int, v: Vehicle, flavour: str, boot_ms: int,
+                      drop_rate: float = 0.0, errors: int = 0):
+    """The telemetry message ``msg_id`` now (raises ValueError for one not produced)."""
+    m = v.measurement if v.measurement is not None else np.zeros(MEASUREMENT_SIZE)
+    if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+        return heartbeat(v, flavour)
+    if msg_id == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
+        return sys_status(v, drop_rate, errors)
+    if msg_id == mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE:
+        return mavlink.MAVLink_extended_sys_state_message(mavlink.MAV_VTOL_STATE_MC,
+                                                          landed_state(v))
+    if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE:
+        return mavlink.MAVLink_attitude_message(boot_ms, *m[MEASUREMENT.euler_rad],
+                                                *m[MEASUREMENT.euler_rate_rad_s])
+    if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE_QUATERNION:
+        q = _quat_from_euler(m[MEAS_EULER], m[MEAS_EULER + 1], m[MEAS_YAW])
+        return mavlink.MAVLink_attitude_quaternion_message(
+            boot_ms, *q, *m[MEASUREMENT.euler_rate_rad_s], [0.0, 0.0, 0.0, 0.0])
+    if msg_id == mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+        return mavlink.MAVLink_local_position_ned_message(
+            boot_ms, *m[MEASUREMENT.position_ned_m], *m[MEASUREMENT.velocity_ned_mps])
+    if msg_id == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+        lat, lon, alt = geodetic_from_ned(*m[MEASUREMENT.position_ned_m])
+        heading = int(math.degrees(m[MEAS_YAW]) % 360.0 * 100) % 36000
+        return mavlink.MAVLink_global_position_int_message(
+            boot_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),
+            int(round(-m[MEAS_Z] * 1000)), *(int(np.clip(round(c * 100), -32768, 32767))
+                                             for c in m[MEASUREMENT.velocity_ned_mps]), heading)
+    if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
+        return home_position()
+    if msg_id == mavlink.MAVLINK_MSG_ID_VFR_HUD:
+        speed = float(np.hypot(m[MEAS_VEL], m[MEAS_VEL + 1]))
+        heading = int(math.degrees(m[MEAS_YAW]) % 360.0)
+        throttle = int(round(100 * float(np.mean(v.last_commands))))
+        return mavlink.MAVLink_vfr_hud_message(speed, speed, heading, throttle,
+                                               HOME_ALT_AMSL_M - m[MEAS_Z], -m[MEAS_VZ])
+    if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
+        return autopilot_version()
+    raise ValueError(f"no telemetry for message {msg_id}")

@@ -185,6 +185,7 @@ class Vehicle:
     def _arm(self) -> None:
         self.controller = self._make_controller(self.parameters)
         self.armed = True
+        self.failsafe = None  # a new flight: what went wrong before is over
         self._shaped = None
         self.last_ref = np.zeros(REF_SIZE)
         if self.mode != FlightMode.OFFBOARD:
@@ -478,7 +479,9 @@ class Vehicle:
             self.say("take-off complete")
             self.takeoff_altitude_m = None
             if self.mode == FlightMode.TAKEOFF:
+                target = self.setpoint  # hold the take-off altitude, not where it is now
                 self._enter(FlightMode.HOLD)
+                self.setpoint = target
         return ref, True, math.nan
 
     def _attitude_reference(self, target: AttitudeTarget) -> tuple[np.ndarray, bool, float]:

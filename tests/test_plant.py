@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from contracts.airframe import PAPER, REALISTIC, hover_rotor_speed_rad_s
+from contracts.airframe import PAPER, REALISTIC, attitude_coefficients, hover_rotor_speed_rad_s
 from contracts.frames import (
     body_rates_from_euler_rates,
     euler_from_quat,
@@ -83,19 +83,121 @@ def test_rotor_layout_signs(fidelity: str) -> None:
     assert s.body_rate_rad_s[2] > 0
 
 
-def test_gyroscopic_terms_have_opposite_signs_on_roll_and_pitch() -> None:
+# Three distinct inertias, so every a_i of the paper's model is non-zero (on PAPER,
+# Ixx = Iyy makes a5 = 0), and a rotor inertia large enough for the gyroscopic terms to
+# be of the same order as the others.
+ASYMMETRIC = PAPER._replace(ixx_kgm2=0.15, iyy_kgm2=0.21, izz_kgm2=0.09)
+RATES = (0.7, -1.3, 0.9)  # phi', theta', psi' (paper) or p, q, r (rigid body at level)
+
+
+def _rotor_speeds(af) -> np.ndarray:
+    w = hover_rotor_speed_rad_s(af)
+    return np.array([w + 15.0, w - 5.0, w + 8.0, w + 3.0])  # W_r = 15 + 5 + 8 - 3 = 25
+
+
+def _paper_attitude_acceleration_by_hand(af, rates, rotors) -> tuple[list, list, list]:
+    """SPEC section 3 written out: the terms of phi'', theta'', psi'' one by one."""
+    ixx, iyy, izz, jr = af.ixx_kgm2, af.iyy_kgm2, af.izz_kgm2, af.rotor_inertia_kgm2
+    arm, b, d = af.arm_m, af.thrust_coeff_ns2, af.drag_coeff_nms2
+    p, q, r = rates
+    w1, w2, w3, w4 = rotors
+    w_r = w1 - w2 + w3 - w4
+    u_phi = b * (w4**2 - w2**2)
+    u_theta = b * (w1**2 - w3**2)
+    u_psi = d * (w2**2 + w4**2 - w1**2 - w3**2)
+    a1, a2 = (iyy - izz) / ixx, jr / ixx
+    a3, a4 = (izz - ixx) / iyy, jr / iyy
+    a5 = (ixx - iyy) / izz
+    b1, b2, b3 = arm / ixx, arm / iyy, 1.0 / izz
+    assert tuple(attitude_coefficients(af)) == pytest.approx((a1, a2, a3, a4, a5, b1, b2, b3),
+                                                             rel=1e-15)
+    return ([a1 * q * r, -a2 * q * w_r, b1 * u_phi],
+            [a3 * p * r, a4 * p * w_r, b2 * u_theta],
+            [a5 * p * q, b3 * u_psi])
+
+
+@pytest.mark.parametrize("af", [PAPER, ASYMMETRIC], ids=["paper", "asymmetric"])
+def test_paper_attitude_model_term_by_term(af) -> None:
+    """phi'' = a1 theta' psi' - a2 theta' W_r + b1 U_phi, theta'' = a3 phi' psi' + a4 phi' W_r
+    + b2 U_theta, psi'' = a5 phi' theta' + b3 U_psi, with every rate and W_r non-zero (the
+    gyroscopic terms have opposite signs on roll and pitch)."""
     state = np.zeros(dynamics.PAPER_STATE_SIZE)
-    state[9] = 1.0  # phi'
-    state[10] = 1.0  # theta'
-    w = hover_rotor_speed_rad_s(PAPER)
-    state[12:16] = [w + 10, w, w + 10, w]  # W_r = +20 rad/s
-    d = dynamics.paper_derivative(state, state[12:16].copy(), PAPER, dynamics.no_disturbance())
-    a2 = PAPER.rotor_inertia_kgm2 / PAPER.ixx_kgm2
-    a4 = PAPER.rotor_inertia_kgm2 / PAPER.iyy_kgm2
-    a1 = (PAPER.iyy_kgm2 - PAPER.izz_kgm2) / PAPER.ixx_kgm2
-    # phi'' = a1 theta' psi' - a2 theta' W_r (+ b1 U_phi = 0), theta'' = ... + a4 phi' W_r
-    assert d[9] == pytest.approx(a1 * 0.0 - a2 * 1.0 * 20.0, rel=1e-12)
-    assert d[10] == pytest.approx(a4 * 1.0 * 20.0, rel=1e-12)
+    state[6:9] = (0.2, -0.1, 0.4)  # the paper's model does not depend on the angles
+    state[9:12] = RATES
+    state[12:16] = _rotor_speeds(af)
+    d = dynamics.paper_derivative(state, state[12:16].copy(), af, dynamics.no_disturbance())
+    terms = _paper_attitude_acceleration_by_hand(af, RATES, state[12:16])
+    for i, axis_terms in enumerate(terms):
+        assert d[9 + i] == pytest.approx(sum(axis_terms), rel=1e-12, abs=1e-12), i
+        # Every term with a non-zero coefficient moves the sum by far more than the
+        # tolerance, so dropping one or flipping its sign fails.
+        for term in axis_terms:
+            assert term == 0.0 or abs(term) > 1e-3 * abs(d[9 + i]), (i, term)
+    assert np.array_equal(d[6:9], RATES)
+    if af is ASYMMETRIC:
+        assert all(t != 0.0 for axis_terms in terms for t in axis_terms)
+
+
+def _rigid_state(af, quat, body_rates) -> np.ndarray:
+    state = np.zeros(dynamics.RIGID_STATE_SIZE)
+    state[6:10] = quat
+    state[10:13] = body_rates
+    state[13:17] = _rotor_speeds(af)
+    return state
+
+
+@pytest.mark.parametrize("af", [PAPER, ASYMMETRIC], ids=["paper", "asymmetric"])
+def test_rigid_body_rates_follow_newton_euler_with_the_rotor_gyroscope(af) -> None:
+    """I w' = -w x I w - w x (Jr W_r e_z) + tau (vector form, any attitude), and at level
+    attitude (body rates = Euler rates) the paper model's accelerations term for term."""
+    dist = dynamics.no_disturbance()
+    rotors = _rotor_speeds(af)
+    w_r = rotors[0] - rotors[1] + rotors[2] - rotors[3]
+    inertia = np.diag([af.ixx_kgm2, af.iyy_kgm2, af.izz_kgm2])
+    omega = np.array(RATES)
+    b, d_ = af.thrust_coeff_ns2, af.drag_coeff_nms2
+    tau = np.array([af.arm_m * b * (rotors[3] ** 2 - rotors[1] ** 2),
+                    af.arm_m * b * (rotors[0] ** 2 - rotors[2] ** 2),
+                    d_ * (rotors[1] ** 2 + rotors[3] ** 2 - rotors[0] ** 2 - rotors[2] ** 2)])
+    gyro = -np.cross(omega, af.rotor_inertia_kgm2 * w_r * np.array([0.0, 0.0, 1.0]))
+    expected = np.linalg.solve(inertia, -np.cross(omega, inertia @ omega) + gyro + tau)
+    for quat in (np.array([1.0, 0.0, 0.0, 0.0]), quat_from_euler(0.3, -0.2, 1.1)):
+        state = _rigid_state(af, quat, omega)
+        d = dynamics.rigid_body_derivative(state, rotors.copy(), af, dist)
+        np.testing.assert_allclose(d[10:13], expected, rtol=1e-12, atol=1e-12)
+    # Level: the same numbers as the paper's model with Euler rates = body rates.
+    level = dynamics.rigid_body_derivative(_rigid_state(af, np.array([1.0, 0, 0, 0]), omega),
+                                           rotors.copy(), af, dist)
+    terms = _paper_attitude_acceleration_by_hand(af, RATES, rotors)
+    np.testing.assert_allclose(level[10:13], [sum(t) for t in terms], rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("fidelity", FIDELITIES)
+def test_gyroscopic_terms_have_opposite_signs_on_roll_and_pitch(fidelity: str) -> None:
+    """The rotor gyroscope alone (the derivative with Jr minus the one with Jr = 0):
+    -a2 theta' W_r on roll, +a4 phi' W_r on pitch, nothing on yaw, on both plants."""
+    af = ASYMMETRIC
+    no_jr = af._replace(rotor_inertia_kgm2=0.0)
+    rotors = _rotor_speeds(af)
+    w_r = 25.0
+    p, q, _r = RATES
+    if fidelity == "paper":
+        state = np.zeros(dynamics.PAPER_STATE_SIZE)
+        state[9:12] = RATES
+        state[12:16] = rotors
+        accel = slice(9, 12)
+        derivative = dynamics.paper_derivative
+    else:
+        state = _rigid_state(af, np.array([1.0, 0.0, 0.0, 0.0]), RATES)
+        accel = slice(10, 13)
+        derivative = dynamics.rigid_body_derivative
+    dist = dynamics.no_disturbance()
+    gyro = (derivative(state, rotors.copy(), af, dist)[accel]
+            - derivative(state, rotors.copy(), no_jr, dist)[accel])
+    jr = af.rotor_inertia_kgm2
+    expected = [-jr / af.ixx_kgm2 * q * w_r, jr / af.iyy_kgm2 * p * w_r, 0.0]
+    np.testing.assert_allclose(gyro, expected, rtol=1e-9, atol=1e-12)
+    assert gyro[0] > 0 and gyro[1] > 0  # theta' < 0, phi' > 0, W_r > 0: both push up
 
 
 @pytest.mark.parametrize("fidelity", FIDELITIES)

@@ -1,7 +1,10 @@
-"""Scenario regression: every controller finishes every scenario on both plants, the
-paper's tracking targets hold for IVFC, and runs are deterministic."""
+"""Scenario regression: every controller finishes every scenario on both plants with the
+per-axis errors pinned to tests/golden_metrics.json (see tests/golden.py), the paper's
+tracking targets hold for IVFC, and runs are deterministic."""
 
 from __future__ import annotations
+
+import copy
 
 import numpy as np
 import pytest
@@ -9,22 +12,23 @@ import pytest
 from autopilot.control.factory import CONTROLLERS
 from contracts.airframe import PAPER
 from ground.inprocess import run_inprocess
-from ground.metrics import compute_metrics
 from ground.scenarios import PAPER_SCENARIOS, shipped_scenarios
-
-PLANTS = ("paper", "rigid-body")
+from tests.golden import (
+    GOLDEN_ABS,
+    GOLDEN_PATH,
+    GOLDEN_REL,
+    PLANTS,
+    UPDATE_COMMAND,
+    compute_all_metrics,
+    differences,
+    golden_values,
+    load_golden,
+)
 
 
 @pytest.fixture(scope="module")
 def all_metrics(shipped_models):
-    out = {}
-    for plant in PLANTS:
-        for name in PAPER_SCENARIOS:
-            scenario = shipped_scenarios()[name]
-            for controller in CONTROLLERS:
-                record = run_inprocess(scenario, controller, plant, PAPER, shipped_models)
-                out[(plant, name, controller)] = compute_metrics(record, scenario, "paper")
-    return out
+    return compute_all_metrics(shipped_models)
 
 
 def rmse(metrics, plant, scenario, controller, axis) -> float:
@@ -32,12 +36,54 @@ def rmse(metrics, plant, scenario, controller, axis) -> float:
 
 
 def test_every_controller_finishes_every_scenario_on_both_plants(all_metrics) -> None:
+    assert set(all_metrics) == {(p, s, c) for p in PLANTS for s in PAPER_SCENARIOS
+                                for c in CONTROLLERS}
     for key, m in all_metrics.items():
         assert not m["diverged"], key
         assert m["sim_time_s"] == pytest.approx(20.0), key
-        for axis, values in m["axes"].items():
-            limit = 0.5 if axis in ("x", "y", "z") else 0.15  # rad: attitude-hold's steps
-            assert values["rmse"] < limit, (key, axis, values)
+        assert set(m["axes"]) == set(shipped_scenarios()[key[1]].axes), key
+
+
+def test_golden_file_covers_exactly_the_computed_runs(all_metrics) -> None:
+    """A new scenario, controller, plant or axis needs its golden value (and a removed one
+    its golden value gone): the message says how to regenerate the file."""
+    golden, fresh = load_golden(), golden_values(all_metrics)
+    missing = sorted(set(fresh) - set(golden))
+    stale = sorted(set(golden) - set(fresh))
+    axes = sorted(k for k in set(golden) & set(fresh) if set(golden[k]) != set(fresh[k]))
+    assert not (missing or stale or axes), (
+        f"{GOLDEN_PATH.name} does not cover exactly the computed runs: no golden value for "
+        f"{missing}; golden values for runs no longer computed {stale}; axes differ in {axes}. "
+        f"Regenerate it with `{UPDATE_COMMAND}` (from the repository root) and review the diff."
+    )
+
+
+def test_per_axis_errors_match_the_golden_values(all_metrics) -> None:
+    """Every (plant, scenario, controller, axis) RMSE and max |error| within GOLDEN_REL
+    (1 %) of tests/golden_metrics.json: the runs are deterministic, so a 10 % regression
+    of any one of them fails."""
+    diff = differences(load_golden(), golden_values(all_metrics))
+    assert not diff, (
+        f"{len(diff)} value(s) differ from {GOLDEN_PATH.name} (rel {GOLDEN_REL}, abs "
+        f"{GOLDEN_ABS}):\n  " + "\n  ".join(diff)
+        + f"\nIf the change is intended, run `{UPDATE_COMMAND}` and review the diff."
+    )
+
+
+def test_a_ten_percent_regression_of_one_value_is_named() -> None:
+    """The comparison itself (no flight): one value 10 % worse and one run missing are
+    reported with the run, the axis and both numbers."""
+    golden = load_golden()
+    worse = copy.deepcopy(golden)
+    want = golden["paper/attitude-sine/ivfc"]["phi"]["rmse"]
+    worse["paper/attitude-sine/ivfc"]["phi"]["rmse"] = 1.1 * want
+    del worse["rigid-body/position-kick/pid"]
+    assert differences(golden, worse) == [
+        "rigid-body/position-kick/pid: golden value for a run that is no longer computed",
+        f"plant=paper scenario=attitude-sine controller=ivfc axis=phi rmse: golden "
+        f"{want:.6g}, got {1.1 * want:.6g} (+10.0%)",
+    ]
+    assert differences(golden, golden) == []
 
 
 def test_ivfc_tracks_attitude_sine_within_paper_target(all_metrics) -> None:

@@ -1,0 +1,776 @@
+"""The vehicle's MAVLink server in process: real loopback UDP links, a pymavlink client,
+an injected link clock, and the test calling ``receive`` and ``service`` itself.
+
+Every command's COMMAND_ACK, the parameter protocol, the telemetry streams' timing, and
+the link failsafes as a ground tool sees them, without processes or wall-clock windows
+(test_vehicle_mavlink.py flies the same through real processes). No test sleeps: a
+PING round trip is the barrier after which everything the server sent has arrived.
+"""
+
+from __future__ import annotations
+
+import math
+import select
+import socket
+from collections import Counter
+
+import numpy as np
+import pytest
+from pymavlink.dialects.v20 import common as mavlink
+
+from autopilot.control.factory import make_controller
+from autopilot.control.parameters import PARAMETERS, default_parameters
+from autopilot.vehicle import Vehicle
+from contracts.airframe import PAPER
+from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG
+from contracts.modes import FlightMode, px4_custom_mode
+
+M = mavlink
+ACCEPTED, DENIED = M.MAV_RESULT_ACCEPTED, M.MAV_RESULT_DENIED
+TEMPORARILY_REJECTED, UNSUPPORTED = M.MAV_RESULT_TEMPORARILY_REJECTED, M.MAV_RESULT_UNSUPPORTED
+ARM, TAKEOFF, LAND = (M.MAV_CMD_COMPONENT_ARM_DISARM, M.MAV_CMD_NAV_TAKEOFF,
+                      M.MAV_CMD_NAV_LAND)
+SET_MODE, REQUEST_MESSAGE = M.MAV_CMD_DO_SET_MODE, M.MAV_CMD_REQUEST_MESSAGE
+SET_INTERVAL = M.MAV_CMD_SET_MESSAGE_INTERVAL
+CUSTOM = M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+FORCE = 21196
+T0 = 1000.0  # the link clock when the server starts
+EPS = 0.001
+DEFAULTS = default_parameters()
+GROUND = np.zeros(12)
+INT32_MAX = 2**31 - 1  # COMMAND_INT's "unused" x and y
+STATUSTEXT_CHARS = 50
+
+
+def cut(text: str) -> str:
+    """What a single STATUSTEXT carries of a longer text: its first 50 characters."""
+    return text[:STATUSTEXT_CHARS]
+
+
+def air(altitude_m: float = 2.5) -> np.ndarray:
+    m = np.zeros(12)
+    m[2] = -altitude_m
+    return m
+
+
+class Clock:
+    """The link clock the server reads."""
+
+    def __init__(self) -> None:
+        self.t = T0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def make_server(vehicle: Vehicle, links: list, clock: Clock, flavour: str = "px4"):
+    """The one place the server is built (its class and module may be renamed)."""
+    from autopilot.mavlink_server import MavlinkServer
+
+    return MavlinkServer(vehicle, links, flavour, clock=clock)
+
+
+def open_links(n: int) -> list:
+    from autopilot.mavlink_server import open_link
+
+    return [open_link(name, ("127.0.0.1", 0), None, None, i)
+            for i, name in enumerate(("gcs", "api")[:n])]
+
+
+class Client:
+    """A ground tool: its own UDP socket and pymavlink encoder (system 255 by default).
+
+    ``sync`` is the barrier: a PING goes out, the server reads everything waiting on the
+    link, and what it sent us up to its PING answer is returned."""
+
+    def __init__(self, station: Station, link, sysid: int = 255, compid: int = 190) -> None:
+        self.station, self.link = station, link
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.address = self.sock.getsockname()
+        self.vehicle_address = ("127.0.0.1", link.sock.getsockname()[1])
+        self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self.parser = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self.parser.robust_parsing = True
+        self.pings = 0
+
+    def send(self, msg) -> None:
+        self.sock.sendto(msg.pack(self.mav), self.vehicle_address)
+
+    def heartbeat(self, kind: int = M.MAV_TYPE_GCS) -> None:
+        self.send(M.MAVLink_heartbeat_message(kind, M.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
+
+    def _read(self) -> list:
+        out = []
+        while select.select([self.sock], [], [], 0.0)[0]:
+            out += self.parser.parse_buffer(self.sock.recv(65535)) or []
+        return out
+
+    def sync(self) -> list:
+        self.pings += 1
+        self.send(M.MAVLink_ping_message(self.pings, self.pings, 0, 0))
+        got: list = []
+        for _ in range(200):  # 2 s at most: loopback takes microseconds
+            if select.select([self.link.sock], [], [], 0.01)[0]:
+                self.station.server.receive(self.link)
+            got += self._read()
+            for i, msg in enumerate(got):
+                if msg.get_type() == "PING" and msg.seq == self.pings:
+                    return got[:i] + got[i + 1:]
+        raise AssertionError("no answer to the barrier PING")
+
+    def send_command(self, command: int, *params: float, kind: str = "long",
+                     target: int = 1) -> None:
+        """COMMAND_LONG, or COMMAND_INT (params 5 and 6 as 1e-7 integers, 7 as z)."""
+        p = [*params, *[0.0] * (7 - len(params))]
+        if kind == "long":
+            self.send(M.MAVLink_command_long_message(target, 1, command, 0, *p))
+        else:
+            x, y = (INT32_MAX if math.isnan(v) else round(v * 1e7) for v in p[4:6])
+            self.send(M.MAVLink_command_int_message(
+                target, 1, M.MAV_FRAME_GLOBAL, command, 0, 0, *p[0:4], x, y, p[6]))
+
+    def command(self, command: int, *params: float, kind: str = "long",
+                target: int = 1) -> tuple:
+        """(COMMAND_ACK, everything else received with it)."""
+        self.send_command(command, *params, kind=kind, target=target)
+        msgs = self.sync()
+        acks = [m for m in msgs if m.get_type() == "COMMAND_ACK"]
+        assert len(acks) == (1 if target == 1 else 0), msgs
+        if acks:
+            assert acks[0].command == command
+            # Acknowledged to the sender.
+            assert (acks[0].target_system, acks[0].target_component) == (
+                self.mav.srcSystem, self.mav.srcComponent)
+        return (acks[0] if acks else None), [m for m in msgs if m.get_type() != "COMMAND_ACK"]
+
+    def request(self, msg_id: int):
+        """REQUEST_MESSAGE: the message, which comes after an ACCEPTED ACK."""
+        ack, others = self.command(REQUEST_MESSAGE, msg_id)
+        assert ack.result == ACCEPTED
+        (msg,) = others
+        return msg
+
+    def result(self, command: int, *params: float, **kwargs) -> tuple[int, list[str]]:
+        """The ACK's result and the STATUSTEXT that came with it."""
+        ack, others = self.command(command, *params, **kwargs)
+        return ack.result, texts(others)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class Station:
+    """A vehicle with its server, the links, the clock and a client on the first link."""
+
+    def __init__(self, n_links: int = 1, flavour: str = "px4", **parameters) -> None:
+        self.clock = Clock()
+        self.vehicle = Vehicle(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01,
+                               parameters, flavour=flavour)
+        self.links = open_links(n_links)
+        self.server = make_server(self.vehicle, self.links, self.clock, flavour)
+        self.clients: list[Client] = []
+        self.client = self.new_client()
+
+    def new_client(self, link_index: int = 0, **kwargs) -> Client:
+        client = Client(self, self.links[link_index], **kwargs)
+        self.clients.append(client)
+        return client
+
+    def at(self, t: float) -> None:
+        self.clock.t = t
+
+    def service(self, t: float | None = None) -> None:
+        if t is not None:
+            self.clock.t = t
+        self.server.service()
+
+    def state_up(self, measurement: np.ndarray = GROUND, sim_t: float = 0.0) -> None:
+        self.vehicle.sample(sim_t, measurement)
+
+    def flying(self) -> None:
+        """Armed (through the server) and in the air; queued STATUSTEXT sent and read."""
+        self.state_up()
+        assert self.client.result(ARM, 1)[0] == ACCEPTED
+        self.state_up(air(), 0.01)
+        assert self.vehicle.armed and not self.vehicle.landed
+        self.server.service()
+        self.client.sync()
+
+    def close(self) -> None:
+        for client in self.clients:
+            client.close()
+        for link in self.links:
+            link.sock.close()
+
+
+@pytest.fixture
+def station():
+    s = Station()
+    yield s
+    s.close()
+
+
+@pytest.fixture
+def two_links():
+    s = Station(n_links=2)
+    yield s
+    s.close()
+
+
+def texts(msgs: list) -> list[str]:
+    return [m.text for m in msgs if m.get_type() == "STATUSTEXT"]
+
+
+def of_type(msgs: list, kind: str) -> list:
+    return [m for m in msgs if m.get_type() == kind]
+
+
+def px4(main: int, sub: int = 0) -> tuple[float, float, float]:
+    return float(CUSTOM), float(main), float(sub)
+
+
+def main_sub(heartbeat) -> tuple[int, int]:
+    return (heartbeat.custom_mode >> 16) & 0xFF, (heartbeat.custom_mode >> 24) & 0xFF
+
+
+# -- arming ----------------------------------------------------------------------------
+def test_arming_without_simulator_state_is_temporarily_rejected_and_says_why(station):
+    assert station.client.result(ARM, 1) == (
+        TEMPORARILY_REJECTED, ["arming denied: no state from the simulator"])
+    assert not station.vehicle.armed
+
+
+@pytest.mark.parametrize("kind", ["long", "int"])
+def test_arm_and_disarm_on_the_ground_are_accepted(station, kind):
+    station.state_up()
+    ack, others = station.client.command(ARM, 1, kind=kind)
+    assert ack.result == ACCEPTED and texts(others) == [] and station.vehicle.armed
+    assert station.client.result(ARM, 1, kind=kind) == (ACCEPTED, [])  # armed already
+    assert station.client.result(ARM, 0, kind=kind) == (ACCEPTED, [])
+    assert not station.vehicle.armed
+
+
+def test_arm_param1_other_than_0_or_1_is_denied(station):
+    station.state_up()
+    assert station.client.result(ARM, 7) == (DENIED, ["arm param1 must be 0 or 1, got 7"])
+    assert station.client.result(ARM, math.nan)[0] == DENIED
+    assert not station.vehicle.armed
+
+
+def test_arming_in_the_air_is_denied(station):
+    station.state_up(air())
+    assert station.client.result(ARM, 1) == (DENIED, ["arming denied: not on the ground"])
+
+
+def test_arming_in_offboard_without_setpoints_is_temporarily_rejected(station):
+    station.state_up()
+    station.vehicle.position_setpoint(T0, station.vehicle.setpoint)
+    assert station.client.result(SET_MODE, *px4(6))[0] == ACCEPTED
+    station.at(T0 + DEFAULTS["COM_OF_LOSS_T"] + EPS)
+    assert station.client.result(ARM, 1) == (TEMPORARILY_REJECTED,
+                                             ["arming denied: no offboard setpoints"])
+
+
+def test_disarming_in_the_air_is_denied_unless_forced_with_21196(station):
+    station.flying()
+    # The hint loses its number: one STATUSTEXT carries 50 characters.
+    assert station.client.result(ARM, 0) == (
+        DENIED, ["disarming denied: in the air (force with param2 21"])
+    assert station.client.result(ARM, 0, FORCE - 1)[0] == DENIED
+    assert station.vehicle.armed
+    assert station.client.result(ARM, 0, FORCE, kind="int") == (ACCEPTED, [])
+    assert not station.vehicle.armed
+
+
+# -- take-off, landing, modes -------------------------------------------------------------
+def test_take_off_and_land_are_temporarily_rejected_disarmed(station):
+    station.state_up()
+    assert station.client.result(TAKEOFF, *[math.nan] * 7) == (
+        TEMPORARILY_REJECTED, ["take-off denied: disarmed"])
+    assert station.client.result(LAND) == (TEMPORARILY_REJECTED, ["landing denied: disarmed"])
+
+
+@pytest.mark.parametrize("param7, kind, altitude", [
+    (math.nan, "long", DEFAULTS["MIS_TAKEOFF_ALT"]),  # NaN: MIS_TAKEOFF_ALT
+    (HOME_ALT_AMSL_M + 3.0, "long", 3.0),  # PX4 reads param7 as AMSL
+    (HOME_ALT_AMSL_M + 4.0, "int", 4.0)])
+def test_take_off_is_accepted_armed_to_the_altitude_asked(station, param7, kind, altitude):
+    station.state_up()
+    station.client.result(ARM, 1)
+    ack, others = station.client.command(TAKEOFF, *[math.nan] * 6, param7, kind=kind)
+    assert ack.result == ACCEPTED
+    assert station.vehicle.takeoff_altitude_m == altitude
+    assert station.vehicle.mode == FlightMode.TAKEOFF
+
+
+def test_take_off_below_half_a_metre_above_home_is_denied(station):
+    station.state_up()
+    station.client.result(ARM, 1)
+    result, said = station.client.result(TAKEOFF, *[math.nan] * 6, 0.0)  # 0 m AMSL
+    assert (result, said) == (DENIED, ["take-off altitude -488 m is outside [0.5, 100] m"])
+    assert station.vehicle.mode == FlightMode.HOLD
+
+
+def test_land_is_accepted_armed(station):
+    station.flying()
+    assert station.client.result(LAND, kind="int") == (ACCEPTED, [])
+    assert station.vehicle.mode == FlightMode.LAND
+
+
+@pytest.mark.parametrize("params, result, said", [
+    (px4(4, 3), ACCEPTED, []),  # HOLD, the mode in force
+    (px4(3), ACCEPTED, []),  # POSCTL is taken as HOLD
+    (px4(42), DENIED, ["unknown mode 42/0"]),
+    (px4(4, 9), DENIED, ["unknown mode 4/9"]),
+    ((0.0, 4.0, 3.0), DENIED, ["only custom modes are supported"]),
+    ((float(CUSTOM), math.nan, 0.0), DENIED, ["mode parameters must be finite"]),
+    (px4(6), TEMPORARILY_REJECTED, ["offboard denied: no setpoint stream"]),
+    (px4(4, 2), TEMPORARILY_REJECTED, ["take-off denied: disarmed"]),
+    (px4(4, 6), TEMPORARILY_REJECTED, ["landing denied: disarmed"]),
+    (px4(4, 4), DENIED, ["no reference generator configured"]),
+])
+@pytest.mark.parametrize("kind", ["long", "int"])
+def test_px4_mode_changes_disarmed(station, params, result, said, kind):
+    station.state_up()
+    assert station.client.result(SET_MODE, *params, kind=kind) == (result, said)
+    assert station.vehicle.mode == FlightMode.HOLD
+
+
+def test_px4_mode_changes_armed_in_the_air_and_set_mode_acknowledged_as_do_set_mode(station):
+    station.flying()
+    for mode in (FlightMode.LAND, FlightMode.HOLD, FlightMode.TAKEOFF):
+        station.client.send(M.MAVLink_set_mode_message(1, CUSTOM, px4_custom_mode(mode)))
+        msgs = station.client.sync()
+        acks = of_type(msgs, "COMMAND_ACK")
+        assert [(a.command, a.result) for a in acks] == [(SET_MODE, ACCEPTED)]
+        assert station.vehicle.mode == mode and texts(msgs) == []
+    assert station.vehicle.takeoff_altitude_m == DEFAULTS["MIS_TAKEOFF_ALT"]
+
+
+def test_offboard_is_accepted_with_a_setpoint_stream(station):
+    station.flying()
+    station.client.send(M.MAVLink_set_position_target_local_ned_message(
+        0, 1, 1, M.MAV_FRAME_LOCAL_NED, 0b110111111000, 1.0, 2.0, -3.0, 0, 0, 0, 0, 0, 0, 0,
+        0))
+    station.client.sync()
+    station.at(T0 + 0.5)
+    assert station.client.result(SET_MODE, *px4(6)) == (ACCEPTED, [])
+    assert station.vehicle.mode == FlightMode.OFFBOARD
+    assert np.array_equal(station.vehicle.setpoint.position_ned_m, [1.0, 2.0, -3.0])
+
+
+def test_ardupilot_modes_and_take_off_above_home_in_guided():
+    s = Station(flavour="ardupilot")
+    try:
+        s.state_up()
+        heartbeat = s.client.request(M.MAVLINK_MSG_ID_HEARTBEAT)
+        assert (heartbeat.autopilot, heartbeat.custom_mode) == (M.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                                                                 4)
+        assert s.client.result(SET_MODE, CUSTOM, 99) == (DENIED, ["unknown mode 99/0"])
+        assert s.client.result(ARM, 1)[0] == ACCEPTED
+        assert s.client.result(SET_MODE, CUSTOM, 5)[0] == ACCEPTED  # LOITER
+        assert s.vehicle.mode == FlightMode.HOLD
+        assert s.client.result(TAKEOFF, *[0.0] * 6, 3.0) == (DENIED,
+                                                           ["take-off needs GUIDED mode"])
+        assert s.client.result(SET_MODE, CUSTOM, 4)[0] == ACCEPTED
+        assert s.client.result(TAKEOFF, *[0.0] * 6, 3.0)[0] == ACCEPTED  # above home
+        assert s.vehicle.takeoff_altitude_m == 3.0 and s.vehicle.mode == FlightMode.GUIDED
+    finally:
+        s.close()
+
+
+# -- requests and unsupported commands ----------------------------------------------------
+@pytest.mark.parametrize("kind", ["long", "int"])
+def test_request_message_answers_after_the_ack(station, kind):
+    station.client.send_command(REQUEST_MESSAGE, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION, kind=kind)
+    msgs = station.client.sync()
+    assert [m.get_type() for m in msgs] == ["COMMAND_ACK", "AUTOPILOT_VERSION"]
+    assert msgs[0].result == ACCEPTED
+    caps = msgs[1].capabilities
+    for bit in (M.MAV_PROTOCOL_CAPABILITY_MAVLINK2, M.MAV_PROTOCOL_CAPABILITY_COMMAND_INT,
+                M.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT,
+                M.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET,
+                M.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED):
+        assert caps & bit
+    assert not caps & M.MAV_PROTOCOL_CAPABILITY_FTP
+    ack, others = station.client.command(REQUEST_MESSAGE, M.MAVLINK_MSG_ID_ATTITUDE, kind=kind)
+    assert ack.result == ACCEPTED and [m.get_type() for m in others] == ["ATTITUDE"]
+    ack, others = station.client.command(M.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES, 1,
+                                         kind=kind)
+    assert ack.result == ACCEPTED and [m.get_type() for m in others] == ["AUTOPILOT_VERSION"]
+
+
+@pytest.mark.parametrize("msg_id", [395, 0xFFFF, M.MAVLINK_MSG_ID_PARAM_VALUE])
+def test_request_message_for_what_is_not_produced_is_denied(station, msg_id):
+    assert station.client.result(REQUEST_MESSAGE, msg_id) == (
+        DENIED, [f"message {msg_id} is not produced"])
+
+
+@pytest.mark.parametrize("command, params", [
+    (REQUEST_MESSAGE, (M.MAVLINK_MSG_ID_HOME_POSITION,)),
+    (M.MAV_CMD_GET_HOME_POSITION, ())])
+def test_home_position_on_request(station, command, params):
+    ack, others = station.client.command(command, *params)
+    assert ack.result == ACCEPTED
+    (home,) = others
+    assert home.get_type() == "HOME_POSITION"
+    assert (home.latitude, home.longitude, home.altitude) == (
+        int(HOME_LAT_DEG * 1e7), int(HOME_LON_DEG * 1e7), int(HOME_ALT_AMSL_M * 1000))
+
+
+@pytest.mark.parametrize("kind", ["long", "int"])
+@pytest.mark.parametrize("command", [M.MAV_CMD_USER_1, M.MAV_CMD_DO_REPOSITION,
+                                     M.MAV_CMD_PREFLIGHT_CALIBRATION])
+def test_unsupported_commands_get_unsupported(station, command, kind):
+    station.state_up()
+    ack, others = station.client.command(command, 1, kind=kind)
+    assert ack.result == UNSUPPORTED and others == []
+    assert not station.vehicle.armed
+
+
+def test_commands_for_another_system_are_not_answered(station):
+    station.state_up()
+    ack, others = station.client.command(ARM, 1, target=7)
+    assert ack is None and others == [] and not station.vehicle.armed
+    assert station.server.commands.handled == 0
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf])
+@pytest.mark.parametrize("command", [REQUEST_MESSAGE, SET_INTERVAL],
+                         ids=["REQUEST_MESSAGE", "SET_MESSAGE_INTERVAL"])
+def test_a_non_finite_message_id_is_denied(station, command, value):
+    assert station.client.result(command, value, 0)[0] == DENIED
+
+
+# -- message intervals and the telemetry streams -------------------------------------------
+STREAMS = {"HEARTBEAT": 1.0, "SYS_STATUS": 1.0, "EXTENDED_SYS_STATE": 1.0, "ATTITUDE": 0.05,
+           "ATTITUDE_QUATERNION": 0.05, "LOCAL_POSITION_NED": 0.05,
+           "GLOBAL_POSITION_INT": 0.1, "HOME_POSITION": 5.0, "VFR_HUD": 0.25}
+
+
+def stream_counts(s: Station, start: float, seconds: float, every: float = 0.005,
+                  client: Client | None = None) -> Counter:
+    """Service every ``every`` s of link clock (as the process does, every 5 ms) over
+    [start, start + seconds): what the client got, by type."""
+    client = client or s.client
+    client.sync()  # what came before does not count
+    got: Counter = Counter()
+    n = round(seconds / every)
+    for k in range(n):
+        s.service(start + k * every)
+        if k % 100 == 99 or k == n - 1:
+            got.update(m.get_type() for m in client.sync())
+    return got
+
+
+def test_every_stream_at_its_default_rate(station):
+    station.state_up()
+    station.client.heartbeat()  # a peer now: it hears the telemetry
+    station.client.sync()
+    got = stream_counts(station, T0, 3.0)
+    assert got == {"STATUSTEXT": 1,  # "simulator link up"
+                   **{name: round(3.0 / every) if every < 3.0 else 1
+                      for name, every in STREAMS.items()}}
+
+
+def test_heartbeat_every_second_exactly_on_the_link_clock(station):
+    station.client.heartbeat()
+    station.client.sync()
+    station.service(T0)
+    assert len(of_type(station.client.sync(), "HEARTBEAT")) == 1
+    for t, expected in ((T0 + 1.0 - EPS, 0), (T0 + 1.0, 1), (T0 + 2.0 - EPS, 0), (T0 + 2.0, 1)):
+        station.service(t)
+        assert len(of_type(station.client.sync(), "HEARTBEAT")) == expected, t
+
+
+def test_a_late_service_does_not_shift_the_schedule_and_a_stall_sends_no_burst(station):
+    station.client.heartbeat()
+    station.client.sync()
+    for t, expected in ((T0, 1), (T0 + 1.003, 1), (T0 + 2.0 - EPS, 0), (T0 + 2.0, 1)):
+        station.service(t)
+        assert len(of_type(station.client.sync(), "HEARTBEAT")) == expected, t
+    # Five seconds late: the missed heartbeats are not all sent. (The schedule restarts
+    # from now, which sends one more at the next service, 5 ms later.)
+    got = stream_counts(station, T0 + 7.5, 0.5)
+    assert 1 <= got["HEARTBEAT"] <= 2
+
+
+def test_an_arming_or_mode_change_sends_a_heartbeat_at_once_and_restarts_its_second(station):
+    station.state_up()
+    station.client.heartbeat()
+    station.client.sync()
+    station.service(T0)
+    first = of_type(station.client.sync(), "HEARTBEAT")[0]
+    assert not first.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
+    assert first.system_status == M.MAV_STATE_STANDBY
+    station.at(T0 + 0.25)
+    station.client.result(ARM, 1)
+    station.service()
+    msgs = station.client.sync()
+    (heartbeat,) = of_type(msgs, "HEARTBEAT")
+    assert heartbeat.base_mode & M.MAV_MODE_FLAG_SAFETY_ARMED
+    assert heartbeat.system_status == M.MAV_STATE_ACTIVE
+    assert main_sub(heartbeat) == (4, 3)
+    assert of_type(msgs, "EXTENDED_SYS_STATE")[0].landed_state == M.MAV_LANDED_STATE_ON_GROUND
+    assert texts(msgs) == ["armed"]  # the vehicle's announcement, broadcast
+    station.service(T0 + 1.0)  # the old schedule no longer holds
+    assert of_type(station.client.sync(), "HEARTBEAT") == []
+    station.service(T0 + 1.25)
+    assert len(of_type(station.client.sync(), "HEARTBEAT")) == 1
+
+
+def test_set_message_interval_per_link(two_links):
+    s = two_links
+    api = s.new_client(1)
+    s.state_up()
+    for client in (s.client, api):
+        client.heartbeat()
+        client.sync()
+    att = M.MAVLINK_MSG_ID_ATTITUDE
+    s.at(T0)
+    assert s.client.result(SET_INTERVAL, att, 200_000) == (ACCEPTED, [])  # 5 Hz
+    got = stream_counts(s, T0, 1.0)
+    assert got["ATTITUDE"] == 5
+    assert stream_counts(s, T0 + 1.0, 1.0, client=api)["ATTITUDE"] == 20  # the other link
+    assert s.client.result(SET_INTERVAL, att, -1) == (ACCEPTED, [])  # stop
+    assert stream_counts(s, T0 + 2.0, 1.0)["ATTITUDE"] == 0
+    assert s.client.result(SET_INTERVAL, att, 0) == (ACCEPTED, [])  # the default again
+    assert stream_counts(s, T0 + 3.0, 1.0)["ATTITUDE"] == 20
+    assert s.client.result(SET_INTERVAL, att, 1) == (ACCEPTED, [])  # 1 us: at most 200 Hz
+    assert stream_counts(s, T0 + 4.0, 0.5, every=0.001)["ATTITUDE"] == 100
+    assert s.client.result(SET_INTERVAL, M.MAVLINK_MSG_ID_SCALED_IMU, 100_000) == (
+        DENIED, [f"message {M.MAVLINK_MSG_ID_SCALED_IMU} is not produced"])
+    assert s.client.result(SET_INTERVAL, att, -5) == (DENIED, ["interval -5 us is invalid"])
+    assert s.client.result(SET_INTERVAL, att, math.inf) == (DENIED,
+                                                            ["interval must be finite"])
+    # A stream stopped with -1 can be started with an interval.
+    assert s.client.result(SET_INTERVAL, M.MAVLINK_MSG_ID_VFR_HUD, -1)[0] == ACCEPTED
+    assert s.client.result(SET_INTERVAL, M.MAVLINK_MSG_ID_VFR_HUD, 500_000)[0] == ACCEPTED
+    assert stream_counts(s, T0 + 5.0, 2.0)["VFR_HUD"] == 4
+
+
+def test_an_autopilot_version_stream_is_sent_or_refused(station):
+    station.client.heartbeat()
+    result, _ = station.client.result(SET_INTERVAL, M.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+                                      1_000_000)
+    station.service(T0)
+    got = station.client.sync()
+    assert result == DENIED or of_type(got, "AUTOPILOT_VERSION")
+
+
+def test_telemetry_shows_the_vehicle_state(station):
+    request = station.client.request
+    ext, sys_status = M.MAVLINK_MSG_ID_EXTENDED_SYS_STATE, M.MAVLINK_MSG_ID_SYS_STATUS
+    status = request(sys_status)
+    assert status.onboard_control_sensors_health == 0  # no simulator: nothing is healthy
+    station.state_up()
+    status = request(sys_status)
+    assert status.onboard_control_sensors_health & M.MAV_SYS_STATUS_PREARM_CHECK
+    assert status.onboard_control_sensors_health & M.MAV_SYS_STATUS_SENSOR_GPS
+    assert request(ext).landed_state == M.MAV_LANDED_STATE_ON_GROUND
+    station.client.result(ARM, 1)
+    station.client.result(TAKEOFF, *[math.nan] * 7)
+    station.state_up(air(1.0), 1.0)
+    assert request(ext).landed_state == M.MAV_LANDED_STATE_TAKEOFF
+    local = request(M.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
+    assert local.z == -1.0
+    position = request(M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT)
+    assert position.relative_alt == 1000 and position.alt == round((HOME_ALT_AMSL_M + 1) * 1e3)
+    station.vehicle.set_mode(FlightMode.HOLD, T0)
+    assert request(ext).landed_state == M.MAV_LANDED_STATE_IN_AIR
+    station.client.result(LAND)
+    assert request(ext).landed_state == M.MAV_LANDED_STATE_LANDING
+    heartbeat = request(M.MAVLINK_MSG_ID_HEARTBEAT)
+    assert main_sub(heartbeat) == (4, 6) and heartbeat.type == M.MAV_TYPE_QUADROTOR
+    assert heartbeat.autopilot == M.MAV_AUTOPILOT_PX4
+
+
+# -- parameters ------------------------------------------------------------------------
+def test_param_request_list_sends_every_parameter_in_order(station):
+    station.client.send(M.MAVLink_param_request_list_message(1, 1))
+    values = of_type(station.client.sync(), "PARAM_VALUE")
+    assert [v.param_id for v in values] == [spec.name for spec in PARAMETERS]
+    assert [v.param_index for v in values] == list(range(len(PARAMETERS)))
+    assert {v.param_count for v in values} == {len(PARAMETERS)}
+    assert {v.param_type for v in values} == {M.MAV_PARAM_TYPE_REAL32}
+    for v in values:
+        assert v.param_value == pytest.approx(DEFAULTS[v.param_id], rel=1e-6)
+
+
+def test_param_request_read_by_name_and_by_index(station):
+    station.client.send(M.MAVLink_param_request_read_message(1, 1, b"COM_DL_LOSS_T", -1))
+    station.client.send(M.MAVLink_param_request_read_message(1, 1, b"", 0))
+    station.client.send(M.MAVLink_param_request_read_message(1, 1, b"NO_SUCH_PARAM", -1))
+    station.client.send(M.MAVLink_param_request_read_message(1, 1, b"", 9999))
+    msgs = station.client.sync()
+    values = of_type(msgs, "PARAM_VALUE")
+    assert [(v.param_id, v.param_value, v.param_index) for v in values] == [
+        ("COM_DL_LOSS_T", 10.0, [s.name for s in PARAMETERS].index("COM_DL_LOSS_T")),
+        (PARAMETERS[0].name, pytest.approx(PARAMETERS[0].default), 0)]
+    assert texts(msgs) == ["unknown parameter NO_SUCH_PARAM", "unknown parameter 9999"]
+
+
+def test_param_set_takes_effect_and_is_echoed_on_every_link(two_links):
+    s = two_links
+    api = s.new_client(1)
+    api.heartbeat()
+    api.sync()
+    s.client.send(M.MAVLink_param_set_message(1, 1, b"COM_DL_LOSS_T", 2.5,
+                                              M.MAV_PARAM_TYPE_REAL32))
+    msgs = s.client.sync()
+    assert [(v.param_id, v.param_value) for v in of_type(msgs, "PARAM_VALUE")] == [
+        ("COM_DL_LOSS_T", 2.5)]
+    assert texts(msgs) == []
+    assert s.vehicle.parameters["COM_DL_LOSS_T"] == 2.5
+    assert [(v.param_id, v.param_value) for v in of_type(api.sync(), "PARAM_VALUE")] == [
+        ("COM_DL_LOSS_T", 2.5)]
+
+
+@pytest.mark.parametrize("name, value, why", [
+    ("ATT_LAM", math.nan, "ATT_LAM: parameter ATT_LAM must be finite and in"),
+    ("ATT_LAM", 1e9, "ATT_LAM: parameter ATT_LAM must be finite and in"),
+    ("NAV_DLL_ACT", 2.0, "NAV_DLL_ACT: parameter NAV_DLL_ACT must be one of"),
+    ("COM_OF_LOSS_T", 0.0, "COM_OF_LOSS_T: parameter COM_OF_LOSS_T must be fin")])
+def test_a_refused_param_set_keeps_the_old_value_and_says_why(station, name, value, why):
+    old = DEFAULTS[name]
+    station.client.send(M.MAVLink_param_set_message(1, 1, name.encode(), value,
+                                                    M.MAV_PARAM_TYPE_REAL32))
+    msgs = station.client.sync()
+    (said,) = texts(msgs)
+    assert said.startswith(why)
+    assert len(said) == STATUSTEXT_CHARS  # the end of the reason (the range) is cut
+    (echo,) = of_type(msgs, "PARAM_VALUE")
+    assert (echo.param_id, echo.param_value) == (name, pytest.approx(old))
+    assert station.vehicle.parameters[name] == old
+    assert of_type(msgs, "STATUSTEXT")[0].severity == M.MAV_SEVERITY_WARNING
+
+
+def test_an_unknown_param_set_is_said_and_not_echoed(station):
+    station.client.send(M.MAVLink_param_set_message(1, 1, b"NO_SUCH_PARAM", 1.0,
+                                                    M.MAV_PARAM_TYPE_REAL32))
+    msgs = station.client.sync()
+    assert texts(msgs) == ["unknown parameter NO_SUCH_PARAM"]
+    assert of_type(msgs, "PARAM_VALUE") == []
+
+
+# -- link failsafes through the server ---------------------------------------------------
+def set_param(s: Station, name: str, value: float) -> None:
+    s.client.send(M.MAVLink_param_set_message(1, 1, name.encode(), value,
+                                              M.MAV_PARAM_TYPE_REAL32))
+    s.client.sync()
+    assert s.vehicle.parameters[name] == value
+
+
+@pytest.mark.parametrize("timeout_s", [DEFAULTS["COM_DL_LOSS_T"], 2.5])
+def test_ground_station_heartbeat_loss_lands_after_com_dl_loss_t(station, timeout_s):
+    s = station
+    s.flying()
+    set_param(s, "COM_DL_LOSS_T", timeout_s)
+    set_param(s, "NAV_DLL_ACT", 3)
+    s.at(T0 + 0.5)
+    s.client.heartbeat()
+    s.client.sync()
+    s.service(T0 + 0.5 + timeout_s - EPS)
+    assert not s.vehicle.gcs_lost
+    assert texts(s.client.sync()) == []
+    s.service(T0 + 0.5 + timeout_s + EPS)
+    msgs = s.client.sync()
+    assert texts(msgs) == ["ground station lost: land", "mode land"]
+    assert of_type(msgs, "STATUSTEXT")[0].severity == M.MAV_SEVERITY_WARNING
+    (heartbeat,) = of_type(msgs, "HEARTBEAT")  # at once: the mode changed
+    assert main_sub(heartbeat) == (4, 6) and heartbeat.system_status == M.MAV_STATE_CRITICAL
+    s.at(T0 + 20.0)
+    s.client.heartbeat()
+    s.client.sync()
+    s.service()
+    assert texts(s.client.sync()) == ["ground station link regained"]
+    assert s.vehicle.mode == FlightMode.LAND
+
+
+def test_only_ground_station_heartbeats_feed_the_failsafe(station):
+    s = station
+    s.flying()
+    companion = s.new_client(sysid=1, compid=M.MAV_COMP_ID_ONBOARD_COMPUTER)
+    companion.heartbeat(M.MAV_TYPE_ONBOARD_CONTROLLER)
+    companion.sync()
+    assert s.vehicle.gcs_heard_s is None
+    planner = s.new_client(sysid=254, compid=M.MAV_COMP_ID_MISSIONPLANNER)
+    planner.heartbeat(M.MAV_TYPE_GENERIC)  # a mission planner's component counts
+    planner.sync()
+    assert s.vehicle.gcs_heard_s == T0
+
+
+def test_offboard_setpoint_loss_holds_after_com_of_loss_t(station):
+    s = station
+    s.flying()
+
+    def setpoint(z: float) -> None:
+        s.client.send(M.MAVLink_set_position_target_local_ned_message(
+            0, 1, 1, M.MAV_FRAME_LOCAL_NED, 0b110111111000, 0.0, 0.0, z, 0, 0, 0, 0, 0, 0,
+            0, 0))
+        s.client.sync()
+
+    setpoint(-2.5)
+    assert s.client.result(SET_MODE, *px4(6))[0] == ACCEPTED
+    s.at(T0 + 0.5)
+    setpoint(-2.5)  # the stream's last good setpoint
+    s.service()
+    s.client.sync()
+    s.at(T0 + 1.25)
+    setpoint(math.nan)  # refused: it does not keep the stream alive
+    s.service(T0 + 0.5 + 1.0 - EPS)
+    assert texts(s.client.sync()) == [] and s.vehicle.mode == FlightMode.OFFBOARD
+    s.service(T0 + 0.5 + 1.0 + EPS)
+    msgs = s.client.sync()
+    assert texts(msgs) == ["offboard setpoints lost: hold", "mode hold"]
+    assert main_sub(of_type(msgs, "HEARTBEAT")[0]) == (4, 3)
+
+
+def test_refused_setpoints_are_said_at_most_once_a_second(station):
+    s = station
+    s.flying()
+    got = []
+    for t in (0.0, 0.5, 0.999, 1.0, 1.5, 2.25):
+        s.at(T0 + t)
+        s.client.send(M.MAVLink_set_position_target_local_ned_message(
+            0, 1, 1, M.MAV_FRAME_LOCAL_NED, 0b110111111000, 0.0, 0.0, math.nan, 0, 0, 0, 0,
+            0, 0, 0, 0))
+        got.append(texts(s.client.sync()))
+    said = [cut("setpoint refused: setpoint position holds NaN or infinity")]
+    assert got == [said, [], [], said, [], said]
+    s.client.send(M.MAVLink_set_attitude_target_message(
+        0, 1, 1, 0, [1.0, 0.0, 0.0, 0.0], 0.1, 0.0, 0.0, 0.5))
+    s.at(T0 + 5.0)
+    assert texts(s.client.sync()) == [cut("setpoint refused: body-rate setpoints are not "
+                                          "supported")]
+    assert s.vehicle.setpoint_heard_s is None
+
+
+def test_a_failsafe_that_is_over_does_not_mark_the_next_flight_critical(station):
+    s = station
+    s.flying()
+    s.vehicle.sim_link_lost()  # -> LAND
+    s.state_up(GROUND, 0.5)  # the simulator is back, the vehicle on the ground
+    s.state_up(GROUND, 0.5 + DEFAULTS["COM_DISARM_LAND"])
+    assert not s.vehicle.armed
+    assert s.client.result(ARM, 1)[0] == ACCEPTED
+    heartbeat = s.client.request(M.MAVLINK_MSG_ID_HEARTBEAT)
+    assert heartbeat.system_status == M.MAV_STATE_ACTIVE
+
+
+# -- other protocols -----------------------------------------------------------------------
+def test_ftp_gets_a_nak_missions_are_empty_and_timesync_answers_on_the_link_clock(station):
+    payload = [0] * 251
+    payload[0:4] = [7, 0, 3, 5]  # seq 7, session 3, OpenFileRO
+    station.client.send(M.MAVLink_file_transfer_protocol_message(0, 1, 1, payload))
+    station.client.send(M.MAVLink_mission_request_list_message(1, 1, 0))
+    station.at(T0 + 2.5)
+    station.client.send(M.MAVLink_timesync_message(0, 123456789))
+    station.client.send(M.MAVLink_timesync_message(5, 42))  # an answer: not answered
+    nak, count, timesync = station.client.sync()
+    assert nak.get_type() == "FILE_TRANSFER_PROTOCOL"
+    assert (nak.payload[0], nak.payload[2], nak.payload[3], nak.payload[5], nak.payload[12]) \
+        == (8, 3, 129, 5, 4)  # seq + 1, session, NAK for OpenFileRO: unsupported
+    assert count.get_type() == "MISSION_COUNT" and count.count == 0
+    assert (timesync.tc1, timesync.ts1) == (2_500_000_000, 123456789)

@@ -1,0 +1,241 @@
+"""The simulator in process: samples, actuator answers, perturbations and sensor effects on
+sim time, the vehicle flying it through the wire format without sockets, and lockstep
+over a loopback TCP connection (test_sim_link.py runs the processes)."""
+
+from __future__ import annotations
+
+import math
+import select
+import signal
+import socket
+import threading
+
+import numpy as np
+import pytest
+
+from autopilot.control.factory import make_controller
+from autopilot.vehicle import Vehicle
+from contracts.airframe import PAPER, hover_rotor_speed_rad_s
+from contracts.mavlink import (
+    actuator_message,
+    measurement_from_odometry,
+    new_mavlink,
+)
+from contracts.perturbations import parse_request
+from sitl.server import Simulator, SimulatorConfig
+
+SAMPLE_TYPES = ["HIL_SENSOR", "HIL_GPS", "HIL_STATE_QUATERNION", "ODOMETRY"]
+
+
+def make_simulator(**config) -> tuple[Simulator, list[str]]:
+    """A simulator (Zenoh off) and the lines it logs."""
+    lines: list[str] = []
+    sim = Simulator(SimulatorConfig(airframe=PAPER, **config), log=lines.append)
+    return sim, lines
+
+
+def decode(data: bytes) -> list:
+    return new_mavlink(1, 1).parse_buffer(data) or []
+
+
+def odometry(sim: Simulator):
+    (msg,) = [m for m in decode(sim._prepare_sample()) if m.get_type() == "ODOMETRY"]
+    return msg
+
+
+def answer(sim: Simulator, commands, armed: bool = True, time_us: int | None = None):
+    """The actuator message as the simulator's parser gets it off the wire."""
+    msg = actuator_message(sim.time_us if time_us is None else time_us,
+                           np.asarray(commands, dtype=float), armed, True)
+    (decoded,) = sim.mav.parse_buffer(msg.pack(new_mavlink(1, 1)))
+    return decoded
+
+
+# -- samples ---------------------------------------------------------------------------
+@pytest.mark.parametrize("rate_hz, period_us", [(100.0, 10_000), (250.0, 4_000)])
+def test_each_sample_is_four_messages_stamped_with_sim_time(rate_hz, period_us):
+    sim, _ = make_simulator(rate_hz=rate_hz)
+    for k in range(3):
+        msgs = decode(sim._prepare_sample())
+        assert [m.get_type() for m in msgs] == SAMPLE_TYPES
+        assert {m.time_usec for m in msgs} == {k * period_us}
+        sim._advance()
+    assert sim.time_us == 3 * period_us
+
+
+def test_the_vehicle_starts_on_the_ground_or_hovering_at_the_start_altitude():
+    ground, _ = make_simulator()
+    msg = odometry(ground)
+    assert (msg.x, msg.y, msg.z) == (0.0, 0.0, 0.0)
+    hover, _ = make_simulator(start_altitude_m=2.0, fidelity="rigid-body")
+    assert odometry(hover).z == -2.0
+    assert np.all(hover.plant.state().rotor_rad_s == hover_rotor_speed_rad_s(PAPER))
+    for _ in range(100):  # hover commands keep it there
+        hover._advance()
+    assert abs(hover.plant.state().position_ned_m[2] + 2.0) < 0.01
+
+
+@pytest.mark.parametrize("bad", [[math.nan, 0.5, 0.5, 0.5], [1.2, 0.5, 0.5, 0.5],
+                                 [-0.1, 0.5, 0.5, 0.5]])
+def test_bad_actuator_answers_are_refused_and_the_last_commands_stay(bad):
+    sim, lines = make_simulator()
+    assert sim._apply(answer(sim, [0.5, 0.5, 0.5, 0.5])) == 0
+    assert sim.stats.commands_received == 1
+    assert sim._apply(answer(sim, bad)) is None
+    assert sim.stats.bad_messages == 1 and sim.stats.commands_received == 1
+    assert np.array_equal(sim._commands, [0.5, 0.5, 0.5, 0.5])
+    assert lines[-1].startswith("refused actuator message")
+
+
+def test_a_disarmed_answer_stops_the_motors():
+    sim, _ = make_simulator()
+    sim._apply(answer(sim, [0.5, 0.5, 0.5, 0.5]))
+    sim._apply(answer(sim, [0.5, 0.5, 0.5, 0.5], armed=False))
+    assert np.array_equal(sim._commands, np.zeros(4))
+
+
+# -- perturbations and sensor effects on sim time -----------------------------------------
+def test_a_scheduled_plant_change_takes_effect_at_its_sample():
+    mass = parse_request({"kind": "mass", "scale": 1.5, "start_s": 0.05, "end_s": 0.1})
+    sim, lines = make_simulator(schedule=(mass,))
+    masses = []
+    for _ in range(12):
+        sim._prepare_sample()
+        masses.append(sim.plant.airframe.mass_kg / PAPER.mass_kg)
+        sim._advance()
+    assert masses == [1.0] * 5 + [1.5] * 5 + [1.0] * 2  # [0.05 s, 0.1 s) of sim time
+    assert any("perturbation" in line and "mass" in line for line in lines)
+
+
+def test_a_sensor_bias_offsets_what_is_sent_not_the_truth():
+    bias = parse_request({"kind": "sensor_bias", "position_m": [1.0, -2.0, 0.5]})
+    sim, _ = make_simulator(schedule=(bias,), start_altitude_m=3.0)
+    msg = odometry(sim)
+    assert (msg.x, msg.y, msg.z) == (1.0, -2.0, -2.5)
+    assert np.array_equal(sim.plant.state().position_ned_m, [0.0, 0.0, -3.0])
+
+
+def test_a_link_delay_sends_the_state_of_that_many_samples_ago():
+    delay = parse_request({"kind": "link_delay", "samples": 3})
+    sim, _ = make_simulator(schedule=(delay,), start_altitude_m=1.0)
+    sim.plant.set_motor_commands(np.zeros(4))  # falling: each sample a new altitude
+    truth, sent = [], []
+    for _ in range(10):
+        truth.append(np.float32(sim.plant.state().position_ned_m[2]))
+        sent.append(odometry(sim).z)
+        sim._advance()
+    assert len(set(truth)) == 10
+    # The first samples send the oldest state there is; then three samples old.
+    assert sent == [truth[0], truth[1], truth[1], truth[1], *truth[1:7]]
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_link_loss_drops_the_seeded_fraction_the_same_way_each_run(seed):
+    loss = parse_request({"kind": "link_loss", "fraction": 0.5})
+
+    def pattern(seed: int) -> list[bool]:
+        sim, _ = make_simulator(schedule=(loss,), seed=seed)
+        out = []
+        for _ in range(200):
+            out.append(sim._prepare_sample() is None)
+            sim._advance()
+        return out
+
+    lost = pattern(seed)
+    assert pattern(seed) == lost
+    assert 70 <= sum(lost) <= 130
+    assert pattern(seed + 1) != lost
+
+
+# -- the vehicle flying the simulator through the wire format, no sockets ------------------
+def test_the_vehicle_flies_the_simulator_through_the_messages_in_lockstep():
+    sim, _ = make_simulator(fidelity="rigid-body")
+    vehicle = Vehicle(lambda p: make_controller("smc", PAPER, 0.01, None, p), 0.01,
+                      {"MIS_TAKEOFF_ALT": 1.5, "COM_DISARM_LAND": 0.5})
+    autopilot_side = new_mavlink(1, 1)
+    said: list[str] = []
+
+    def step() -> None:
+        msgs = autopilot_side.parse_buffer(sim._prepare_sample())
+        (odo,) = [m for m in msgs if m.get_type() == "ODOMETRY"]
+        commands = vehicle.step(odo.time_usec / 1e6, measurement_from_odometry(odo))
+        said.extend(text for _s, text in vehicle.messages)
+        vehicle.messages.clear()
+        reply = actuator_message(odo.time_usec, commands, vehicle.armed, True)
+        (decoded,) = sim.mav.parse_buffer(reply.pack(autopilot_side))
+        assert sim._apply(decoded) == odo.time_usec  # the answer is for this sample
+        sim._advance()
+
+    for _ in range(5):
+        step()
+    vehicle.arm(0.0)
+    vehicle.takeoff(None)
+    while vehicle.takeoff_altitude_m is not None:
+        step()
+        assert sim.time_us < 10_000_000, "take-off did not complete"
+    assert abs(sim.plant.state().position_ned_m[2] + 1.5) < 0.1
+    vehicle.land()
+    while vehicle.armed:
+        step()
+        assert sim.time_us < 30_000_000, "landing did not complete"
+    assert said == ["simulator link up", "armed", "taking off to 1.5 m", "take-off complete",
+                    "mode hold", "mode land", "landed", "landed: disarmed"]
+    assert abs(sim.plant.state().position_ned_m[2]) < 0.05
+    assert sim.stats.commands_received == sim.step_index and sim.stats.bad_messages == 0
+
+
+# -- lockstep over loopback TCP ----------------------------------------------------------
+def test_lockstep_waits_for_the_answer_to_each_sample():
+    """``run`` in this thread (it installs a SIGTERM handler); the autopilot stand-in in
+    another answers every sample, once first with a wrong time, which must not count."""
+    ready = threading.Event()
+    port: list[int] = []
+
+    def log(line: str) -> None:
+        if line.startswith("listening on tcp"):
+            port.append(int(line.split()[3].rsplit(":", 1)[1]))
+            ready.set()
+
+    sim = Simulator(SimulatorConfig(airframe=PAPER, port=0, duration_s=0.2,
+                                    exit_on_disconnect=True), log=log)
+    seen: list[int] = []
+    waited_alone: list[bool] = []
+    errors: list[BaseException] = []
+
+    def autopilot() -> None:
+        try:
+            assert ready.wait(5.0)
+            with socket.create_connection(("127.0.0.1", port[0]), timeout=5.0) as conn:
+                mav, parser = new_mavlink(1, 1), new_mavlink(1, 1)
+                while len(seen) < 20:
+                    data = conn.recv(65536)
+                    if not data:
+                        break
+                    for msg in parser.parse_buffer(data) or []:
+                        if msg.get_type() != "ODOMETRY":
+                            continue
+                        seen.append(msg.time_usec)
+                        if msg.time_usec == 50_000:
+                            wrong = actuator_message(msg.time_usec + 1, np.zeros(4), False,
+                                                     True)
+                            conn.sendall(wrong.pack(mav))
+                            # No next sample until the right answer.
+                            waited_alone.append(not select.select([conn], [], [], 0.1)[0])
+                        conn.sendall(actuator_message(msg.time_usec, np.zeros(4), False,
+                                                      True).pack(mav))
+        except BaseException as exc:  # noqa: BLE001 - reported in the main thread
+            errors.append(exc)
+
+    thread = threading.Thread(target=autopilot, daemon=True)
+    previous = signal.getsignal(signal.SIGTERM)
+    thread.start()
+    try:
+        assert sim.run() == 0
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        thread.join(5.0)
+    assert not errors, errors
+    assert seen == [k * 10_000 for k in range(20)]
+    assert waited_alone == [True]
+    assert (sim.stats.samples_sent, sim.stats.commands_received) == (20, 20)
+    assert sim.time_us == 200_000

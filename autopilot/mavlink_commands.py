@@ -14,7 +14,7 @@ from autopilot.mavlink_telemetry import (
     autopilot_version,
     home_position,
 )
-from autopilot.vehicle import RefusedError
+from autopilot.refusal import RefusedError
 from contracts.frames import HOME_ALT_AMSL_M
 from contracts.mavlink import mavlink
 from contracts.modes import mode_from_custom, px4_custom_mode_from_command

@@ -7,7 +7,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from autopilot.control.parameters import PARAMETER_SPECS, PARAMETERS
-from autopilot.vehicle import RefusedError
+from autopilot.refusal import RefusedError
 from contracts.mavlink import mavlink
 
 if TYPE_CHECKING:

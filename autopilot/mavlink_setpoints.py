@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from autopilot.offboard import global_setpoint, local_setpoint
-from autopilot.vehicle import RefusedError
+from autopilot.refusal import RefusedError
 from contracts.mavlink import mavlink
 from contracts.vectors import MEASUREMENT
 

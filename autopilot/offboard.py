@@ -25,8 +25,8 @@ import math
 
 import numpy as np
 
+from autopilot.refusal import RefusedError
 from autopilot.shaping import Setpoint
-from autopilot.vehicle import RefusedError
 from contracts.frames import (
     HOME_ALT_AMSL_M,
     HOME_LAT_DEG,

@@ -17,7 +17,7 @@ from autopilot.offboard import (
     global_setpoint,
     local_setpoint,
 )
-from autopilot.vehicle import RefusedError
+from autopilot.refusal import RefusedError
 from contracts.frames import HOME_ALT_AMSL_M, geodetic_from_ned
 from contracts.mavlink import mavlink
 

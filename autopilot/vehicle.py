@@ -36,7 +36,8 @@ from autopilot.shaping import Setpoint, ShapingLimits, limits_from_parameters
 from contracts.airframe import max_thrust_n
 from contracts.frames import wrap_pi
 from contracts.modes import FlightMode
-from contracts.perturbations import Perturbation, PerturbationBook, kick_at
+from contracts.perturbation_book import PerturbationBook
+from contracts.perturbations import Perturbation, kick_at
 from contracts.telemetry import AUTOPILOT
 from contracts.vectors import MEAS_VZ, MEAS_YAW, MEAS_Z, REF_POS, REF_SIZE
 

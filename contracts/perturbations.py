@@ -1,4 +1,4 @@
-"""Perturbations: what the ground station may change, where, and when (SPEC section 7).
+"""Perturbations: what the ground station may change, where, and when.
 
 A perturbation is one entry of a schedule in sim time: a kind, its parameters, and a
 window ``start_s <= t < end_s`` (``end_s`` may be infinite). Requests arrive as JSON
@@ -6,29 +6,27 @@ window ``start_s <= t < end_s`` (``end_s`` may be infinite). Requests arrive as 
 is the one validator all of them go through, so a bad request is refused the same way
 everywhere and changes nothing.
 
-Kinds and where they act:
-
-* simulator (plant): ``inertia``, ``rotor_inertia``, ``mass`` (scale factors),
-  ``motor_efficiency``, ``motor_failure``, ``wind`` (steady), ``gust`` (1 - cos over the
-  window), ``force`` (NED), ``torque`` (FRD);
-* simulator (what it sends): ``sensor_noise``, ``sensor_bias``, ``link_delay``,
-  ``link_loss``;
-* autopilot: ``kick`` (additive on the desired roll / pitch, the paper's position test).
-
-Active entries combine: scale factors and efficiencies multiply, vectors add, noise
-standard deviations add in quadrature, link delay and loss take the largest. Combined
-plant values are clipped to the ranges ``Perturbations`` accepts.
+Each kind is defined once, in ``KINDS`` below: its parameters and their ranges, the
+process it acts in, what an active entry contributes to the **effects** of that process,
+and whether the one-process runner supports it. Effects are the quantities a process
+applies (the plant's scale factors and forces, the link's noise and delay, the
+autopilot's reference kick); ``EFFECTS`` says how active entries combine into each
+(scale factors and efficiencies multiply, vectors add, noise standard deviations add in
+quadrature, link delay and loss take the largest) and the range a combined plant value
+is clipped to. The plant (sitl/plant.py) and the link (sitl/sensors.py) read effects by
+name; a new kind that acts through existing effects is one entry in ``KINDS``.
 """
 
 from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field, make_dataclass
 from pathlib import Path
 from typing import Any
 
-from contracts.telemetry import AUTOPILOT, SITL
+from contracts import AUTOPILOT, SITL
 
 INERTIA_SCALE_RANGE = (0.1, 10.0)
 WIND_RANGE_MPS = (-50.0, 50.0)
@@ -56,48 +54,170 @@ def _needed(low: float, high: float, integer: bool = False) -> Param:
     return Param(low, high, low, integer=integer, required=True)
 
 
+# -- effects: what the processes apply, and how active entries combine into them -------
+
+_COMBINE: dict[str, Callable[[float, float], float]] = {
+    "multiply": lambda a, b: a * b,
+    "add": lambda a, b: a + b,
+    "quadrature": math.hypot,
+    "largest": max,
+}
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One quantity perturbations change: its size (0 = scalar), its value with nothing
+    active, how contributions combine, and (plant effects) the range it is kept in."""
+
+    group: str  # "plant", "link" (what the simulator sends) or "reference" (autopilot)
+    size: int
+    neutral: float
+    combine: str
+    valid: tuple[float, float] | None = None  # combined values are clipped into it
+    integer: bool = False
+
+    @property
+    def neutral_value(self) -> float | tuple[float, ...]:
+        value = int(self.neutral) if self.integer else self.neutral
+        return tuple([value] * self.size) if self.size else value
+
+    def combined(self, current: Any, contribution: Any) -> Any:
+        op = _COMBINE[self.combine]
+        if self.size:
+            return tuple(op(a, b) for a, b in zip(current, contribution, strict=True))
+        return op(current, contribution)
+
+    def clipped(self, value: Any) -> Any:
+        if self.valid is None:
+            return value
+        low, high = self.valid
+        if self.size:
+            return tuple(min(max(v, low), high) for v in value)
+        return min(max(value, low), high)
+
+
+EFFECTS: dict[str, Effect] = {
+    # the plant (sitl/plant.py applies each by name)
+    "inertia_scale": Effect("plant", 0, 1.0, "multiply", INERTIA_SCALE_RANGE),
+    "rotor_inertia_scale": Effect("plant", 0, 1.0, "multiply", INERTIA_SCALE_RANGE),
+    "mass_scale": Effect("plant", 0, 1.0, "multiply", INERTIA_SCALE_RANGE),
+    "motor_efficiency": Effect("plant", 4, 1.0, "multiply", (0.0, 1.0)),
+    "wind_ned_mps": Effect("plant", 3, 0.0, "add", WIND_RANGE_MPS),
+    "force_ned_n": Effect("plant", 3, 0.0, "add", FORCE_RANGE_N),
+    "torque_frd_nm": Effect("plant", 3, 0.0, "add", TORQUE_RANGE_NM),
+    # what the simulator sends (sitl/sensors.py)
+    "noise_position_m": Effect("link", 0, 0.0, "quadrature"),
+    "noise_velocity_mps": Effect("link", 0, 0.0, "quadrature"),
+    "noise_angle_rad": Effect("link", 0, 0.0, "quadrature"),
+    "noise_rate_rad_s": Effect("link", 0, 0.0, "quadrature"),
+    "bias_position_m": Effect("link", 3, 0.0, "add"),
+    "bias_velocity_mps": Effect("link", 3, 0.0, "add"),
+    "bias_angle_rad": Effect("link", 3, 0.0, "add"),
+    "bias_rate_rad_s": Effect("link", 3, 0.0, "add"),
+    "delay_samples": Effect("link", 0, 0, "largest", integer=True),
+    "loss_fraction": Effect("link", 0, 0.0, "largest"),
+    # the autopilot's reference (added to the desired roll and pitch)
+    "kick_rad": Effect("reference", 2, 0.0, "add"),
+}
+
+
+def _group(name: str) -> dict[str, Effect]:
+    return {k: e for k, e in EFFECTS.items() if e.group == name}
+
+
+PLANT_EFFECTS, LINK_EFFECTS = _group("plant"), _group("link")
+
+
+# -- kinds ----------------------------------------------------------------------------------
+
+Contribution = Callable[["Perturbation", float], dict[str, Any]]
+
+
 @dataclass(frozen=True)
 class Kind:
+    """A perturbation kind: where it acts, its parameters, what an active entry adds to
+    the effects at sim time t, and whether the one-process runner applies it."""
+
     target: str
     params: dict[str, Param]
     description: str
+    contributes: Contribution
+    in_process: bool = True
+    needs_end: bool = False  # its shape spans the window
 
+
+def _scale(effect: str) -> Contribution:
+    return lambda e, t: {effect: e.params["scale"]}
+
+
+def _vector(effect: str, param: str) -> Contribution:
+    return lambda e, t: {effect: e.params[param]}
+
+
+def _one_motor(e: Perturbation, efficiency: float) -> dict[str, Any]:
+    factors = [1.0, 1.0, 1.0, 1.0]
+    factors[e.params["motor"] - 1] = efficiency
+    return {"motor_efficiency": tuple(factors)}
+
+
+def _gust(e: Perturbation, t_s: float) -> dict[str, Any]:
+    """1 - cos over the window, peaking at ``ned_mps`` mid-window."""
+    phase = (t_s - e.start_s) / (e.end_s - e.start_s) if e.end_s > e.start_s else 0
+    shape = 0.5 * (1.0 - math.cos(2.0 * math.pi * phase))
+    return {"wind_ned_mps": tuple(shape * v for v in e.params["ned_mps"])}
+
+
+_SENSED = ("position_m", "velocity_mps", "angle_rad", "rate_rad_s")
 
 KINDS: dict[str, Kind] = {
     "inertia": Kind(SITL, {"scale": _needed(*INERTIA_SCALE_RANGE)},
-                    "body inertia I scaled"),
+                    "body inertia I scaled", _scale("inertia_scale")),
     "rotor_inertia": Kind(SITL, {"scale": _needed(*INERTIA_SCALE_RANGE)},
-                          "rotor inertia Jr scaled"),
-    "mass": Kind(SITL, {"scale": _needed(*INERTIA_SCALE_RANGE)}, "mass scaled"),
+                          "rotor inertia Jr scaled", _scale("rotor_inertia_scale")),
+    "mass": Kind(SITL, {"scale": _needed(*INERTIA_SCALE_RANGE)}, "mass scaled",
+                 _scale("mass_scale")),
     "motor_efficiency": Kind(SITL, {"motor": _needed(1, 4, integer=True),
-                                         "efficiency": _needed(0.0, 1.0)},
-                             "one motor's thrust and torque scaled by efficiency"),
+                                    "efficiency": _needed(0.0, 1.0)},
+                             "one motor's thrust and torque scaled by efficiency",
+                             lambda e, t: _one_motor(e, e.params["efficiency"])),
     "motor_failure": Kind(SITL, {"motor": _needed(1, 4, integer=True)},
-                          "one motor gives nothing"),
-    "wind": Kind(SITL, {"ned_mps": _vec3(*WIND_RANGE_MPS, True)}, "steady wind (NED)"),
+                          "one motor gives nothing", lambda e, t: _one_motor(e, 0.0)),
+    "wind": Kind(SITL, {"ned_mps": _vec3(*WIND_RANGE_MPS, True)}, "steady wind (NED)",
+                 _vector("wind_ned_mps", "ned_mps")),
     "gust": Kind(SITL, {"ned_mps": _vec3(*WIND_RANGE_MPS, True)},
-                 "1 - cos gust peaking at ned_mps mid-window (needs a finite end)"),
-    "force": Kind(SITL, {"ned_n": _vec3(*FORCE_RANGE_N, True)}, "external force (NED)"),
-    "torque": Kind(SITL, {"frd_nm": _vec3(*TORQUE_RANGE_NM, True)},
-                   "external torque (FRD)"),
+                 "1 - cos gust peaking at ned_mps mid-window (needs a finite end)", _gust,
+                 needs_end=True),
+    "force": Kind(SITL, {"ned_n": _vec3(*FORCE_RANGE_N, True)}, "external force (NED)",
+                  _vector("force_ned_n", "ned_n")),
+    "torque": Kind(SITL, {"frd_nm": _vec3(*TORQUE_RANGE_NM, True)}, "external torque (FRD)",
+                   _vector("torque_frd_nm", "frd_nm")),
     "sensor_noise": Kind(SITL, {"position_m": Param(0.0, 10.0, 0.0),
-                                     "velocity_mps": Param(0.0, 10.0, 0.0),
-                                     "angle_rad": Param(0.0, 0.5, 0.0),
-                                     "rate_rad_s": Param(0.0, 5.0, 0.0)},
-                         "Gaussian noise (standard deviations) on the state sent"),
+                                "velocity_mps": Param(0.0, 10.0, 0.0),
+                                "angle_rad": Param(0.0, 0.5, 0.0),
+                                "rate_rad_s": Param(0.0, 5.0, 0.0)},
+                         "Gaussian noise (standard deviations) on the state sent",
+                         lambda e, t: {f"noise_{k}": e.params[k] for k in _SENSED},
+                         in_process=False),
     "sensor_bias": Kind(SITL, {"position_m": _vec3(-100.0, 100.0),
-                                    "velocity_mps": _vec3(-10.0, 10.0),
-                                    "angle_rad": _vec3(-0.5, 0.5),
-                                    "rate_rad_s": _vec3(-5.0, 5.0)},
-                        "constant offsets on the state sent"),
+                               "velocity_mps": _vec3(-10.0, 10.0),
+                               "angle_rad": _vec3(-0.5, 0.5),
+                               "rate_rad_s": _vec3(-5.0, 5.0)},
+                        "constant offsets on the state sent",
+                        lambda e, t: {f"bias_{k}": e.params[k] for k in _SENSED},
+                        in_process=False),
     "link_delay": Kind(SITL, {"samples": _needed(0, 100, integer=True)},
-                       "the state sent is this many samples old"),
+                       "the state sent is this many samples old",
+                       lambda e, t: {"delay_samples": int(e.params["samples"])},
+                       in_process=False),
     "link_loss": Kind(SITL, {"fraction": _needed(0.0, 0.95)},
-                      "this fraction of samples is not sent (seeded)"),
+                      "this fraction of samples is not sent (seeded)",
+                      lambda e, t: {"loss_fraction": e.params["fraction"]}, in_process=False),
     "kick": Kind(AUTOPILOT, {"phi_rad": Param(-1.0, 1.0, 0.0),
                              "theta_rad": Param(-1.0, 1.0, 0.0)},
-                 "added to the desired roll and pitch"),
+                 "added to the desired roll and pitch",
+                 lambda e, t: {"kick_rad": (e.params["phi_rad"], e.params["theta_rad"])}),
 }
+IN_PROCESS_KINDS = frozenset(name for name, kind in KINDS.items() if kind.in_process)
 
 
 @dataclass(frozen=True)
@@ -161,8 +281,9 @@ def parse_request(data: Any, default_id: str = "") -> Perturbation:
             raise ValueError(f"{kind_name}: end_s {end} is before start_s {start}")
     if start is None and math.isfinite(end):
         raise ValueError(f"{kind_name}: with start_s \"now\" give duration_s, not end_s")
-    if kind_name == "gust" and math.isinf(end) and math.isinf(duration):
-        raise ValueError("gust: needs an end_s or duration_s (its shape spans the window)")
+    if kind.needs_end and math.isinf(end) and math.isinf(duration):
+        raise ValueError(f"{kind_name}: needs an end_s or duration_s (its shape spans the "
+                         "window)")
     params: dict[str, Any] = {}
     for name, spec in kind.params.items():
         if spec.required and name not in data:
@@ -206,144 +327,73 @@ def resolve_now(entry: Perturbation, now_s: float) -> Perturbation:
                         entry.id)
 
 
-# -- what the plant and the links see -------------------------------------------------------
+# -- effects in force ----------------------------------------------------------------------
 
-@dataclass(frozen=True)
-class Perturbations:
-    """Changes to the plant in force at one instant (what ``Plant`` applies)."""
-
-    inertia_scale: float = 1.0
-    rotor_inertia_scale: float = 1.0
-    mass_scale: float = 1.0
-    motor_efficiency: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
-    wind_ned_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    force_ned_n: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    torque_frd_nm: tuple[float, float, float] = (0.0, 0.0, 0.0)
-
-    def __post_init__(self) -> None:
-        for name in ("inertia_scale", "rotor_inertia_scale", "mass_scale"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and
-                    INERTIA_SCALE_RANGE[0] <= value <= INERTIA_SCALE_RANGE[1]):
-                raise ValueError(f"perturbation {name} must be in {INERTIA_SCALE_RANGE}, "
-                                 f"got {value!r}")
-        _check_vector("motor_efficiency", self.motor_efficiency, 4, 0.0, 1.0)
-        _check_vector("wind_ned_mps", self.wind_ned_mps, 3, *WIND_RANGE_MPS)
-        _check_vector("force_ned_n", self.force_ned_n, 3, *FORCE_RANGE_N)
-        _check_vector("torque_frd_nm", self.torque_frd_nm, 3, *TORQUE_RANGE_NM)
+def _check_effects(self: Any) -> None:
+    for name, effect in PLANT_EFFECTS.items():
+        value = getattr(self, name)
+        values = value if effect.size else (value,)
+        low, high = effect.valid
+        if len(values) != max(1, effect.size) or not all(
+                math.isfinite(v) and low <= v <= high for v in values):
+            raise ValueError(f"perturbation {name} must be {max(1, effect.size)} value(s) "
+                             f"in [{low:g}, {high:g}], got {value!r}")
 
 
-def _check_vector(name: str, value: tuple, size: int, low: float, high: float) -> None:
-    if len(value) != size:
-        raise ValueError(f"perturbation {name} needs {size} values, got {len(value)}")
-    for v in value:
-        if not (math.isfinite(v) and low <= v <= high):
-            raise ValueError(f"perturbation {name} values must be in [{low}, {high}], got {v!r}")
+def _effects_class(name: str, effects: dict[str, Effect], doc: str, **namespace: Any) -> type:
+    """A frozen record with one field per effect, defaulting to its neutral value."""
+    fields = [(n, Any, field(default=e.neutral_value)) for n, e in effects.items()]
+    cls = make_dataclass(name, fields, frozen=True, namespace=namespace)
+    cls.__doc__ = doc
+    cls.__module__ = __name__
+    return cls
 
 
-@dataclass(frozen=True)
-class SensorEffects:
-    """What the simulator does to the state it sends (noise standard deviations, biases)."""
-
-    noise_position_m: float = 0.0
-    noise_velocity_mps: float = 0.0
-    noise_angle_rad: float = 0.0
-    noise_rate_rad_s: float = 0.0
-    bias_position_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    bias_velocity_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    bias_angle_rad: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    bias_rate_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    delay_samples: int = 0
-    loss_fraction: float = 0.0
-
-    @property
-    def idle(self) -> bool:
-        return self == NO_SENSOR_EFFECTS
-
-
+Perturbations = _effects_class(
+    "Perturbations", PLANT_EFFECTS,
+    "Changes to the plant in force at one instant (what ``Plant`` applies), validated.",
+    __post_init__=_check_effects)
+SensorEffects = _effects_class(
+    "SensorEffects", LINK_EFFECTS,
+    "What the simulator does to the state it sends (noise standard deviations, biases, "
+    "delay, loss).", idle=property(lambda self: self == NO_SENSOR_EFFECTS))
 NO_SENSOR_EFFECTS = SensorEffects()
-_SENSOR_KINDS = ("sensor_noise", "sensor_bias", "link_delay", "link_loss")
 
 
-def _clip(value: float, low: float, high: float) -> float:
-    return min(max(value, low), high)
+def effects_at(entries: tuple[Perturbation, ...] | list[Perturbation], t_s: float,
+               effects: dict[str, Effect]) -> dict[str, Any]:
+    """The combined value of each of ``effects`` over the entries active at sim time t
+    (clipped to its range); effects no active entry touches are left out."""
+    combined: dict[str, Any] = {}
+    for e in entries:
+        if not e.active(t_s):
+            continue
+        for name, value in KINDS[e.kind].contributes(e, t_s).items():
+            effect = effects.get(name)
+            if effect is not None:
+                combined[name] = effect.combined(combined.get(name, effect.neutral_value),
+                                                 value)
+    return {name: effects[name].clipped(value) for name, value in combined.items()}
 
 
 def plant_perturbations_at(entries: tuple[Perturbation, ...] | list[Perturbation],
                            t_s: float) -> Perturbations:
-    """The plant changes in force at sim time t (see the module docstring)."""
-    scales = {"inertia": 1.0, "rotor_inertia": 1.0, "mass": 1.0}
-    efficiency = [1.0, 1.0, 1.0, 1.0]
-    wind, force, torque = [0.0] * 3, [0.0] * 3, [0.0] * 3
-    for e in entries:
-        if not e.active(t_s):
-            continue
-        p = e.params
-        if e.kind in scales:
-            scales[e.kind] *= p["scale"]
-        elif e.kind == "motor_efficiency":
-            efficiency[p["motor"] - 1] *= p["efficiency"]
-        elif e.kind == "motor_failure":
-            efficiency[p["motor"] - 1] = 0.0
-        elif e.kind in ("wind", "gust"):
-            shape = 1.0
-            if e.kind == "gust":
-                phase = (t_s - e.start_s) / (e.end_s - e.start_s) if e.end_s > e.start_s else 0
-                shape = 0.5 * (1.0 - math.cos(2.0 * math.pi * phase))
-            for i in range(3):
-                wind[i] += shape * p["ned_mps"][i]
-        elif e.kind == "force":
-            for i in range(3):
-                force[i] += p["ned_n"][i]
-        elif e.kind == "torque":
-            for i in range(3):
-                torque[i] += p["frd_nm"][i]
-    return Perturbations(
-        inertia_scale=_clip(scales["inertia"], *INERTIA_SCALE_RANGE),
-        rotor_inertia_scale=_clip(scales["rotor_inertia"], *INERTIA_SCALE_RANGE),
-        mass_scale=_clip(scales["mass"], *INERTIA_SCALE_RANGE),
-        motor_efficiency=tuple(efficiency),
-        wind_ned_mps=tuple(_clip(w, *WIND_RANGE_MPS) for w in wind),
-        force_ned_n=tuple(_clip(f, *FORCE_RANGE_N) for f in force),
-        torque_frd_nm=tuple(_clip(m, *TORQUE_RANGE_NM) for m in torque),
-    )
+    """The plant changes in force at sim time t."""
+    return Perturbations(**effects_at(entries, t_s, PLANT_EFFECTS))
 
 
 def sensor_effects_at(entries: tuple[Perturbation, ...] | list[Perturbation],
                       t_s: float) -> SensorEffects:
     """Sensor and link effects in force at sim time t."""
-    active = [e for e in entries if e.kind in _SENSOR_KINDS and e.active(t_s)]
-    if not active:
-        return NO_SENSOR_EFFECTS
-    noise = {"position_m": 0.0, "velocity_mps": 0.0, "angle_rad": 0.0, "rate_rad_s": 0.0}
-    bias = {k: [0.0, 0.0, 0.0] for k in noise}
-    delay, loss = 0, 0.0
-    for e in active:
-        if e.kind == "sensor_noise":
-            for k in noise:
-                noise[k] = math.hypot(noise[k], e.params[k])
-        elif e.kind == "sensor_bias":
-            for k in bias:
-                bias[k] = [a + b for a, b in zip(bias[k], e.params[k], strict=True)]
-        elif e.kind == "link_delay":
-            delay = max(delay, int(e.params["samples"]))
-        else:
-            loss = max(loss, e.params["fraction"])
-    return SensorEffects(noise["position_m"], noise["velocity_mps"], noise["angle_rad"],
-                         noise["rate_rad_s"], tuple(bias["position_m"]),
-                         tuple(bias["velocity_mps"]), tuple(bias["angle_rad"]),
-                         tuple(bias["rate_rad_s"]), delay, loss)
+    combined = effects_at(entries, t_s, LINK_EFFECTS)
+    return SensorEffects(**combined) if combined else NO_SENSOR_EFFECTS
 
 
 def kick_at(entries: tuple[Perturbation, ...] | list[Perturbation],
             t_s: float) -> tuple[float, float]:
     """Sum of the reference kicks (phi_d, theta_d) in force at sim time t."""
-    phi = theta = 0.0
-    for e in entries:
-        if e.kind == "kick" and e.active(t_s):
-            phi += e.params["phi_rad"]
-            theta += e.params["theta_rad"]
-    return phi, theta
+    return effects_at(entries, t_s, {"kick_rad": EFFECTS["kick_rad"]}).get(
+        "kick_rad", EFFECTS["kick_rad"].neutral_value)
 
 
 # -- schedules as files ---------------------------------------------------------------------
@@ -382,77 +432,3 @@ def schedule_from_json(text: str) -> tuple[Perturbation, ...]:
 
 def load_schedule(path: Path) -> tuple[Perturbation, ...]:
     return schedule_from_json(Path(path).read_text())
-
-
-MAX_PERTURBATIONS = 1000  # per process: each step's cost grows with the count
-
-
-class PerturbationBook:
-    """A process's schedule: the entries it was started with plus those requested since.
-
-    ``handle`` answers one request (``op`` add, clear or list) at sim time ``now_s`` or
-    raises ValueError and changes nothing; ``changes`` says which entries started or ended
-    since the last call, for the "applied at sim time" log.
-    """
-
-    def __init__(self, target: str, entries: tuple[Perturbation, ...] = ()) -> None:
-        self.target = target
-        self.entries: list[Perturbation] = [e for e in entries if e.target == target]
-        self._active: set[str] = set()
-        self._next_id = 0
-
-    def handle(self, data: Any, now_s: float) -> dict[str, Any]:
-        if not isinstance(data, dict):
-            raise ValueError("a request is a JSON object")
-        data = dict(data)
-        op = data.pop("op", "add")
-        if op == "list":
-            return {"perturbations": [e.to_request() for e in self.entries]}
-        if op == "clear":
-            return {"cleared": self._clear(data.get("id"), now_s)}
-        if op != "add":
-            raise ValueError(f"unknown op {op!r}; use add, clear or list")
-        entry = self._accept(data, now_s)
-        self.entries.append(entry)
-        return entry.to_request()
-
-    def _accept(self, data: dict[str, Any], now_s: float) -> Perturbation:
-        if len(self.entries) >= MAX_PERTURBATIONS:
-            raise ValueError(f"{MAX_PERTURBATIONS} perturbations already: every control step "
-                             "looks at each, so no more are taken")
-        entry = parse_request(data)
-        if entry.target != self.target:
-            raise ValueError(f"{entry.kind} acts in the {entry.target}, not the {self.target}")
-        entry = resolve_now(entry, now_s)
-        if entry.start_s < now_s:
-            raise ValueError(f"start_s {entry.start_s:g} is in the past (sim time "
-                             f"{now_s:.3f} s)")
-        ids = {e.id for e in self.entries}
-        if entry.id in ids:
-            raise ValueError(f"a perturbation with id {entry.id!r} exists already")
-        if not entry.id:
-            while f"{self.target}-{self._next_id}" in ids:
-                self._next_id += 1
-            entry = Perturbation(entry.kind, entry.params, entry.start_s, entry.end_s,
-                                 f"{self.target}-{self._next_id}")
-        return entry
-
-    def _clear(self, which: Any, now_s: float) -> list[str]:
-        """End one perturbation (or all) now."""
-        hits = [e for e in self.entries if which in (None, e.id) and e.end_s > now_s]
-        if which is not None and not hits:
-            raise ValueError(f"no perturbation with id {which!r} is pending or active")
-        for e in hits:
-            i = self.entries.index(e)
-            self.entries[i] = Perturbation(e.kind, e.params, min(e.start_s, now_s), now_s, e.id)
-        return [e.id for e in hits]
-
-    def changes(self, t_s: float) -> list[tuple[str, Perturbation]]:
-        """("start" | "end", entry) for entries that became active or ended by t."""
-        active = {e.id for e in self.entries if e.active(t_s)}
-        if active == self._active:
-            return []
-        out = [("start" if e.id in active else "end", e) for e in self.entries
-               if (e.id in active) != (e.id in self._active)]
-        self._active = active
-        return out

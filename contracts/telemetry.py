@@ -34,10 +34,11 @@ from typing import Any
 
 import numpy as np
 
+from contracts import AUTOPILOT, SITL
+from contracts.perturbations import PLANT_EFFECTS
 from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT, REFERENCE
 
 ROOT = "ivfm"
-SITL, AUTOPILOT = "sitl", "autopilot"
 DEFAULT_PORT = 7447
 DEFAULT_GROUND_ENDPOINT = f"tcp/127.0.0.1:{DEFAULT_PORT}"
 MAX_VEHICLE_ID = 255
@@ -201,10 +202,8 @@ STATE = RecordSchema(
     (("seq", "u8", 0), ("sim_time_us", "i8", 0), ("position_ned_m", "f8", 3),
      ("velocity_ned_mps", "f8", 3), ("quaternion", "f8", 4), ("euler_rad", "f8", 3),
      ("euler_rate_rad_s", "f8", 3), ("body_rate_rad_s", "f8", 3), ("rotor_rad_s", "f8", 4),
-     ("motor_commands", "f8", 4), ("inertia_scale", "f8", 0),
-     ("rotor_inertia_scale", "f8", 0), ("mass_scale", "f8", 0),
-     ("motor_efficiency", "f8", 4), ("wind_ned_mps", "f8", 3), ("force_ned_n", "f8", 3),
-     ("torque_frd_nm", "f8", 3)),
+     ("motor_commands", "f8", 4),
+     *((name, "f8", effect.size) for name, effect in PLANT_EFFECTS.items())),
     comment="Simulator truth at one sample (before the step) and the plant perturbations "
             "in force",
 )

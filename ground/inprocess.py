@@ -14,14 +14,11 @@ from autopilot.control.cascade import SlidingModeCascade
 from autopilot.control.factory import make_controller
 from autopilot.identification.ts_model import FuzzyModelSet
 from contracts.airframe import Airframe, hover_rotor_speed_rad_s
-from contracts.perturbations import Perturbations
+from contracts.perturbations import IN_PROCESS_KINDS, Perturbations
+from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT_SIZE, REF_SIZE
 from ground.run_files import RunRecord, left_the_envelope
 from ground.scenarios import Scenario
 from sitl.plant import Plant
-
-# What the in-process runner applies: the plant and the reference, not the link.
-IN_PROCESS_KINDS = frozenset({"inertia", "rotor_inertia", "mass", "motor_efficiency",
-                              "motor_failure", "wind", "gust", "force", "torque", "kick"})
 
 
 def run_inprocess(
@@ -49,12 +46,12 @@ def run_inprocess(
                   rotor_rad_s=hover_rotor_speed_rad_s(airframe))
     ctrl = make_controller(controller, airframe, period_s, models, parameters)
     adaptive = isinstance(ctrl, SlidingModeCascade)
-    meas_log = np.zeros((n, 12))
-    ref_log = np.zeros((n, 18))
+    meas_log = np.zeros((n, MEASUREMENT_SIZE))
+    ref_log = np.zeros((n, REF_SIZE))
     kick_log = np.zeros((n, 2))
     cmd_log = np.zeros((n, 4))
-    tel_log = np.full((n, 6, 10), np.nan)
-    theta_g_log = np.full((n, 6), np.nan)
+    tel_log = np.full((n, len(CHANNELS), len(CHANNEL_INTERNALS)), np.nan)
+    theta_g_log = np.full((n, len(CHANNELS)), np.nan)
     theta_f_log = (
         [np.zeros((n, len(t))) for t in ctrl.theta_f[:3]] if adaptive else []
     )

@@ -37,10 +37,11 @@ from contracts.mavlink import (
     new_mavlink,
     sample_messages,
 )
+from contracts.perturbation_book import PerturbationBook
 from contracts.perturbations import (
     NO_SENSOR_EFFECTS,
+    PLANT_EFFECTS,
     Perturbation,
-    PerturbationBook,
     Perturbations,
     plant_perturbations_at,
     sensor_effects_at,
@@ -51,11 +52,9 @@ from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
 from sitl.plant import Plant, VehicleState
 from sitl.sensors import read_sensors, sensed_state
 
-# STATE record fields that are VehicleState's and Perturbations' fields of the same name.
+# STATE record fields that are VehicleState's of the same name (then the plant effects).
 STATE_FROM_PLANT = ("position_ned_m", "velocity_ned_mps", "quaternion", "euler_rad",
                     "euler_rate_rad_s", "body_rate_rad_s", "rotor_rad_s")
-STATE_FROM_PERTURBATIONS = ("inertia_scale", "rotor_inertia_scale", "mass_scale",
-                            "motor_efficiency", "wind_ned_mps", "force_ned_n", "torque_frd_nm")
 
 
 @dataclass
@@ -146,7 +145,7 @@ class Simulator:
         self._stop = True
 
     # -- the plant side ------------------------------------------------------------------
-    def _prepare_sample(self) -> bytes | None:
+    def next_sample(self) -> bytes | None:
         """Take requests, apply the perturbations in force at this sample's time, publish
         the truth; the bytes to send, or None when the link loses this sample."""
         self._service_requests()
@@ -187,12 +186,13 @@ class Simulator:
         record["seq"], record["sim_time_us"] = self._state_pub.count, self.time_us
         for name in STATE_FROM_PLANT:
             record[name] = getattr(s, name)
-        for name in STATE_FROM_PERTURBATIONS:
+        for name in PLANT_EFFECTS:
             record[name] = getattr(p, name)
         record["motor_commands"] = self._commands
         self._state_pub.put(record.encode())
 
-    def _advance(self) -> None:
+    def advance(self) -> None:
+        """One sample period of plant time with the commands in force."""
         self.plant.advance(self.period_s)
         self.step_index += 1
         self._state = self.plant.state()
@@ -232,7 +232,7 @@ class Simulator:
                 "periods_without_command": self.stats.periods_without_command,
                 "started": self.started}
 
-    def _apply(self, msg) -> int | None:
+    def apply_actuators(self, msg) -> int | None:
         """Apply an actuator message; returns the sample time it answers, None if refused."""
         try:
             commands = commands_from_actuator(msg)
@@ -333,9 +333,9 @@ class Simulator:
             connected = True
             self._wait_for_start()
             while connected and not self._finished():
-                sample = self._prepare_sample()
+                sample = self.next_sample()
                 if sample is None:  # lost on the link: the motors keep the last commands
-                    self._advance()
+                    self.advance()
                     continue
                 try:
                     conn.sendall(sample)
@@ -352,10 +352,10 @@ class Simulator:
                         if msg.get_type() == "HIL_ACTUATOR_CONTROLS" and \
                                 msg.time_usec == self.time_us:
                             # A refused answer keeps the previous commands; time goes on.
-                            self._apply(msg)
+                            self.apply_actuators(msg)
                             answered = True
                 if answered:
-                    self._advance()
+                    self.advance()
             self._lost(conn)
             if self.config.exit_on_disconnect:
                 return
@@ -386,7 +386,7 @@ class Simulator:
                 if conn is not None:
                     conn.setblocking(False)
                     sel.register(conn, selectors.EVENT_READ)
-            sample = self._prepare_sample()
+            sample = self.next_sample()
             if conn is not None and sample is not None:
                 try:
                     conn.sendall(sample)
@@ -409,7 +409,7 @@ class Simulator:
                     break
                 for msg in msgs:
                     if msg.get_type() == "HIL_ACTUATOR_CONTROLS":
-                        answered = self._apply(msg)
+                        answered = self.apply_actuators(msg)
                         if answered is not None:
                             got_command = True
                             last_command_time = self.time_us / 1e6
@@ -429,7 +429,7 @@ class Simulator:
                 self._commands = np.zeros(4)
                 self.log(f"no actuator commands for {self.config.actuator_timeout_s:g} s at "
                          f"t={self.time_us / 1e6:.3f} s: motors stopped")
-            self._advance()
+            self.advance()
             if time.perf_counter() - deadline > 1.0:  # far behind (suspended?): re-anchor
                 start = time.perf_counter() - self.step_index * self.period_s
         if conn is not None:

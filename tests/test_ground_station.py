@@ -14,10 +14,9 @@ import pytest
 
 from autopilot.control.factory import load_models
 from contracts.airframe import PAPER, attitude_coefficients
+from contracts.perturbation_book import MAX_PERTURBATIONS, PerturbationBook
 from contracts.perturbations import (
-    MAX_PERTURBATIONS,
     SITL,
-    PerturbationBook,
     parse_request,
     parse_schedule,
     plant_perturbations_at,
@@ -364,3 +363,30 @@ def test_identify_from_a_logged_excitation_flight_closes_the_loop(tmp_path):
     assert not record.diverged
     assert axes["phi"]["rmse"] < 0.01 and axes["theta"]["rmse"] < 0.01
     assert main(["identify", "--log", str(tmp_path / "nothing-here")]) == 2
+
+
+def test_a_new_kind_through_existing_effects_is_one_registry_entry(monkeypatch):
+    """KINDS is the one place a kind is defined: validation, target, effects and in-process
+    support all follow from its entry."""
+    from contracts import perturbations as pert
+
+    kind = pert.Kind(SITL, {"north_n": pert.Param(-10.0, 10.0, 0.0, required=True)},
+                     "a push north", lambda e, t: {"force_ned_n": (e.params["north_n"], 0, 0)})
+    monkeypatch.setitem(pert.KINDS, "push_north", kind)
+    entries = parse_schedule([{"kind": "push_north", "north_n": 4, "start_s": 1},
+                              {"kind": "force", "ned_n": [1, 0, 2], "start_s": 0}])
+    assert plant_perturbations_at(entries, 0.5).force_ned_n == (1.0, 0.0, 2.0)
+    assert plant_perturbations_at(entries, 1.5).force_ned_n == (5.0, 0.0, 2.0)
+    with pytest.raises(ValueError, match="push_north: north_n must be in"):
+        parse_request({"kind": "push_north", "north_n": 11})
+    assert PerturbationBook(SITL, entries).entries == list(entries)
+
+
+def test_plant_effects_are_the_truth_records_fields_and_clip_to_their_ranges():
+    from contracts.perturbations import PLANT_EFFECTS
+    from contracts.telemetry import STATE
+
+    names = [name for name, _t, _c in STATE.fields]
+    assert names[-len(PLANT_EFFECTS):] == list(PLANT_EFFECTS)
+    wind = parse_schedule([{"kind": "wind", "ned_mps": [40, 0, 0], "start_s": 0}] * 2)
+    assert plant_perturbations_at(wind, 0.0).wind_ned_mps == (50.0, 0.0, 0.0)  # 80 clipped

@@ -39,7 +39,7 @@ def decode(data: bytes) -> list:
 
 
 def odometry(sim: Simulator):
-    (msg,) = [m for m in decode(sim._prepare_sample()) if m.get_type() == "ODOMETRY"]
+    (msg,) = [m for m in decode(sim.next_sample()) if m.get_type() == "ODOMETRY"]
     return msg
 
 
@@ -56,10 +56,10 @@ def answer(sim: Simulator, commands, armed: bool = True, time_us: int | None = N
 def test_each_sample_is_four_messages_stamped_with_sim_time(rate_hz, period_us):
     sim, _ = make_simulator(rate_hz=rate_hz)
     for k in range(3):
-        msgs = decode(sim._prepare_sample())
+        msgs = decode(sim.next_sample())
         assert [m.get_type() for m in msgs] == SAMPLE_TYPES
         assert {m.time_usec for m in msgs} == {k * period_us}
-        sim._advance()
+        sim.advance()
     assert sim.time_us == 3 * period_us
 
 
@@ -71,7 +71,7 @@ def test_the_vehicle_starts_on_the_ground_or_hovering_at_the_start_altitude():
     assert odometry(hover).z == -2.0
     assert np.all(hover.plant.state().rotor_rad_s == hover_rotor_speed_rad_s(PAPER))
     for _ in range(100):  # hover commands keep it there
-        hover._advance()
+        hover.advance()
     assert abs(hover.plant.state().position_ned_m[2] + 2.0) < 0.01
 
 
@@ -79,9 +79,9 @@ def test_the_vehicle_starts_on_the_ground_or_hovering_at_the_start_altitude():
                                  [-0.1, 0.5, 0.5, 0.5]])
 def test_bad_actuator_answers_are_refused_and_the_last_commands_stay(bad):
     sim, lines = make_simulator()
-    assert sim._apply(answer(sim, [0.5, 0.5, 0.5, 0.5])) == 0
+    assert sim.apply_actuators(answer(sim, [0.5, 0.5, 0.5, 0.5])) == 0
     assert sim.stats.commands_received == 1
-    assert sim._apply(answer(sim, bad)) is None
+    assert sim.apply_actuators(answer(sim, bad)) is None
     assert sim.stats.bad_messages == 1 and sim.stats.commands_received == 1
     assert np.array_equal(sim._commands, [0.5, 0.5, 0.5, 0.5])
     assert lines[-1].startswith("refused actuator message")
@@ -89,8 +89,8 @@ def test_bad_actuator_answers_are_refused_and_the_last_commands_stay(bad):
 
 def test_a_disarmed_answer_stops_the_motors():
     sim, _ = make_simulator()
-    sim._apply(answer(sim, [0.5, 0.5, 0.5, 0.5]))
-    sim._apply(answer(sim, [0.5, 0.5, 0.5, 0.5], armed=False))
+    sim.apply_actuators(answer(sim, [0.5, 0.5, 0.5, 0.5]))
+    sim.apply_actuators(answer(sim, [0.5, 0.5, 0.5, 0.5], armed=False))
     assert np.array_equal(sim._commands, np.zeros(4))
 
 
@@ -100,9 +100,9 @@ def test_a_scheduled_plant_change_takes_effect_at_its_sample():
     sim, lines = make_simulator(schedule=(mass,))
     masses = []
     for _ in range(12):
-        sim._prepare_sample()
+        sim.next_sample()
         masses.append(sim.plant.airframe.mass_kg / PAPER.mass_kg)
-        sim._advance()
+        sim.advance()
     assert masses == [1.0] * 5 + [1.5] * 5 + [1.0] * 2  # [0.05 s, 0.1 s) of sim time
     assert any("perturbation" in line and "mass" in line for line in lines)
 
@@ -123,7 +123,7 @@ def test_a_link_delay_sends_the_state_of_that_many_samples_ago():
     for _ in range(10):
         truth.append(np.float32(sim.plant.state().position_ned_m[2]))
         sent.append(odometry(sim).z)
-        sim._advance()
+        sim.advance()
     assert len(set(truth)) == 10
     # The first samples send the oldest state there is; then three samples old.
     assert sent == [truth[0], truth[1], truth[1], truth[1], *truth[1:7]]
@@ -137,8 +137,8 @@ def test_link_loss_drops_the_seeded_fraction_the_same_way_each_run(seed):
         sim, _ = make_simulator(schedule=(loss,), seed=seed)
         out = []
         for _ in range(200):
-            out.append(sim._prepare_sample() is None)
-            sim._advance()
+            out.append(sim.next_sample() is None)
+            sim.advance()
         return out
 
     lost = pattern(seed)
@@ -156,15 +156,15 @@ def test_the_vehicle_flies_the_simulator_through_the_messages_in_lockstep():
     said: list[str] = []
 
     def step() -> None:
-        msgs = autopilot_side.parse_buffer(sim._prepare_sample())
+        msgs = autopilot_side.parse_buffer(sim.next_sample())
         (odo,) = [m for m in msgs if m.get_type() == "ODOMETRY"]
         commands = vehicle.step(odo.time_usec / 1e6, measurement_from_odometry(odo))
         said.extend(text for _s, text in vehicle.messages)
         vehicle.messages.clear()
         reply = actuator_message(odo.time_usec, commands, vehicle.armed, True)
         (decoded,) = sim.mav.parse_buffer(reply.pack(autopilot_side))
-        assert sim._apply(decoded) == odo.time_usec  # the answer is for this sample
-        sim._advance()
+        assert sim.apply_actuators(decoded) == odo.time_usec  # the answer is for this sample
+        sim.advance()
 
     for _ in range(5):
         step()

@@ -379,3 +379,25 @@ def test_the_logger_starts_a_new_file_past_its_chunk_cap(tmp_path):
     assert [len(list(iter_messages(p))) for p in files] == [16, 16, 8]
     with pytest.raises(ValueError, match="at least 16"):
         LoggerConfig(tmp_path, ZenohOptions(enabled=False), rotate_chunks=15)
+
+
+def test_records_are_filled_by_name_and_decode_to_the_same_values():
+    from contracts.telemetry import STATE
+    from contracts.vectors import MEASUREMENT, REFERENCE
+
+    record = CONTROL.buffer()
+    record["seq"], record["sim_time_us"], record["mode"] = 7, 123_000, 4
+    measurement = np.arange(MEASUREMENT.size, dtype=float)
+    record["measurement"] = measurement
+    record["ch_e"] = np.full(6, -1.5)
+    decoded = CONTROL.decode(record.encode((np.ones(3), (), np.zeros(2))))
+    assert (decoded["seq"], decoded["sim_time_us"], decoded["mode"]) == (7, 123_000, 4)
+    np.testing.assert_array_equal(decoded["measurement"], measurement)
+    np.testing.assert_array_equal(decoded["ch_e"], np.full(6, -1.5))
+    np.testing.assert_array_equal(decoded["reference"], np.zeros(REFERENCE.size))
+    np.testing.assert_array_equal(decoded["theta_f_phi"], np.ones(3))
+    assert decoded["measurement"][MEASUREMENT.euler_rad].tolist() == [6.0, 7.0, 8.0]
+    with pytest.raises(ValueError, match="takes 3 sequences"):
+        record.encode(())
+    with pytest.raises(KeyError):
+        STATE.buffer()["no_such_field"] = 1.0

@@ -69,7 +69,8 @@ STATE_SOURCES = {"odometry": "ODOMETRY", "hil-state": "HIL_STATE_QUATERNION"}
 RECONNECT_S = 0.5
 SPIN_S = 0.0005  # the last stretch before a real-time deadline is busy-waited
 POLL_MIN_S = 0.0015  # below this, sleep (ns resolution) instead of epoll (ms resolution)
-# Ground links get a bounded share of each period, after the control step (SPEC 8).
+# Ground links get a bounded share of each period, after the control step (bad input:
+# docs/architecture.md).
 GROUND_SHARE = 0.4  # of the period at most, for reading ground links
 GROUND_GUARD_S = 0.0005  # ground work ends at least this long before the next spin
 GROUND_SLICE = 16  # datagrams per link per turn

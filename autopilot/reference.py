@@ -1,4 +1,4 @@
-"""Reference trajectories in sim time (SPEC section 6), with analytic derivatives.
+"""Reference trajectories in sim time (docs/scenarios.md), with analytic derivatives.
 
 The autopilot generates these itself so that a lockstep scenario is deterministic.
 A reference is a flat array (``contracts.vectors.REFERENCE``) plus whether the position

@@ -16,7 +16,7 @@ from contracts.frames import GRAVITY_MPS2
 
 
 class Airframe(NamedTuple):
-    """Quadrotor "+" airframe (SPEC section 3). Numba-friendly: floats only."""
+    """Quadrotor "+" airframe (docs/mathematics.md). Numba-friendly: floats only."""
 
     mass_kg: float
     ixx_kgm2: float
@@ -32,7 +32,7 @@ class Airframe(NamedTuple):
     gravity_mps2: float = GRAVITY_MPS2
 
 
-# Paper Table 1, with the rotor limit of SPEC section 3 (thrust-to-weight 4.6).
+# Paper Table 1, with the rotor limit of docs/mathematics.md (thrust-to-weight 4.6).
 PAPER = Airframe(
     mass_kg=1.2,
     ixx_kgm2=0.18,
@@ -76,7 +76,7 @@ def airframe_by_name(name: str) -> Airframe:
 
 
 class AttitudeCoefficients(NamedTuple):
-    """The paper's a1..a5, b1..b3 (SPEC section 3)."""
+    """The paper's a1..a5, b1..b3 (docs/mathematics.md)."""
 
     a1: float
     a2: float
@@ -130,7 +130,7 @@ def input_gains(af: Airframe) -> tuple[float, float, float]:
 def paper_attitude_drift(
     phi_dot: float, theta_dot: float, psi_dot: float, w_r: float, af: Airframe
 ) -> tuple[float, float, float]:
-    """The unknown parts f_phi, f_theta, f_psi of the paper's attitude model (SPEC 3, 4).
+    """The unknown parts f_phi, f_theta, f_psi of the paper's attitude model (docs/mathematics.md).
 
     phi'' = f_phi + b1 U_phi etc. The gyroscopic terms have opposite signs on roll and
     pitch (tau_gyro = -omega x Jr W_r e_z).

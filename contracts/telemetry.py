@@ -1,4 +1,4 @@
-"""Zenoh telemetry: key expressions and record schemas, defined once (SPEC section 7).
+"""Zenoh telemetry: key expressions and record schemas, defined once (docs/architecture.md).
 
 Keys (``V`` is the vehicle id, the autopilot's MAVLink system id):
 

@@ -1,4 +1,4 @@
-"""Zenoh sessions and the processes' telemetry node (SPEC section 7).
+"""Zenoh sessions and the processes' telemetry node (docs/architecture.md).
 
 Sessions are peers on explicit loopback endpoints by default: the ground station (logger)
 listens on ``tcp/127.0.0.1:7447`` and vehicles connect there, retrying quietly while it is

@@ -1,4 +1,4 @@
-"""The ground logger: every telemetry record it hears, into MCAP (SPEC section 7).
+"""The ground logger: every telemetry record it hears, into MCAP (docs/architecture.md).
 
 * One MCAP channel per Zenoh key; the CDR records are written as they arrive with their
   ``ros2msg`` schema (Foxglove and PlotJuggler decode them), JSON records with a JSON

@@ -1,4 +1,4 @@
-"""The paper's published numbers (SPEC sections 4 and 6), printed beside ours.
+"""The paper's published numbers (docs/reproducing.md), printed beside ours.
 
 Their metric ("MSE") is not defined in the paper, so only orderings and margins compare.
 """

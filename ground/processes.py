@@ -1,4 +1,4 @@
-"""Run a scenario through every process: logger, simulator and autopilot (SPEC section 7).
+"""Run a scenario through every process: logger, simulator and autopilot (docs/architecture.md).
 
 The ground station starts ``ivfm ground log`` (listening on a free loopback port: the
 Zenoh meeting point), ``python -m sitl --hold`` and ``python -m autopilot``. When the

@@ -1,6 +1,6 @@
 """Scenario files (TOML): reference, perturbation schedule, plant, controller, duration.
 
-The paper's scenarios (SPEC section 6) ship as files in ``ground/scenario_files``;
+The paper's scenarios (docs/scenarios.md) ship as files in ``ground/scenario_files``;
 ``ivfm run`` takes one of their names or the path of a user's file. docs/scenarios.md
 describes the format; every field is checked and an error names the file and the field.
 """

@@ -1,6 +1,6 @@
 """Quadrotor equations of motion and the fixed-step RK4 integrator (pure, numba-compiled).
 
-Two fidelities (SPEC section 3):
+Two fidelities (docs/mathematics.md):
 
 * ``paper``: the paper's Eq. (sys), small-angle (Euler rates = body rates).
   State: position NED (0:3), velocity NED (3:6), Euler angles (6:9), Euler rates (9:12),
@@ -84,7 +84,7 @@ def _rotor_derivative(
 def paper_derivative(
     state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray
 ) -> np.ndarray:
-    """The paper's Eq. (sys) with SPEC section 3's signs, plus disturbances."""
+    """The paper's Eq. (sys) with the signs of docs/mathematics.md, plus disturbances."""
     out = np.zeros(PAPER_STATE_SIZE)
     rotor = state[PAPER_ROTOR:PAPER_ROTOR + 4]
     u_z, u_phi, u_theta, u_psi, w_r = rotor_forces(rotor, dist[DIST_EFFICIENCY:], af)

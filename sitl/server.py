@@ -1,4 +1,4 @@
-"""The simulator process: the plant behind PX4's simulator protocol on TCP (SPEC section 7).
+"""The simulator process: the plant behind PX4's simulator protocol on TCP (docs/architecture.md).
 
 It listens (TCP 4560 by default) for one autopilot at a time. Each sample it sends
 HIL_SENSOR, HIL_GPS, HIL_STATE_QUATERNION and ODOMETRY stamped with sim time and

@@ -123,7 +123,7 @@ def _gains(eta_f: float = 2.0, eta_g: float = 0.5) -> ChannelGains:
 
 
 def test_lyapunov_function_does_not_increase_on_a_matched_plant() -> None:
-    """y'' = theta*^T phi(y, y') + g v with the same basis as the controller (SPEC 5).
+    """y'' = theta*^T phi(y, y') + g v with the same basis as the controller (docs/mathematics.md).
 
     Outside the boundary layer V = e_eps^2/2 + ... must not increase (up to the O(T^2)
     of the discrete update); inside it V is constant because adaptation stops.

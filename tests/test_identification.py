@@ -1,4 +1,4 @@
-"""Tests of the offline IVFM identification (SPEC section 4)."""
+"""Tests of the offline IVFM identification (docs/mathematics.md)."""
 
 from __future__ import annotations
 

@@ -96,7 +96,7 @@ def _rotor_speeds(af) -> np.ndarray:
 
 
 def _paper_attitude_acceleration_by_hand(af, rates, rotors) -> tuple[list, list, list]:
-    """SPEC section 3 written out: the terms of phi'', theta'', psi'' one by one."""
+    """The paper model (docs/mathematics.md) written out: phi'', theta'', psi'' term by term."""
     ixx, iyy, izz, jr = af.ixx_kgm2, af.iyy_kgm2, af.izz_kgm2, af.rotor_inertia_kgm2
     arm, b, d = af.arm_m, af.thrust_coeff_ns2, af.drag_coeff_nms2
     p, q, r = rates

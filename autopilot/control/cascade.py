@@ -51,8 +51,8 @@ MIN_THRUST_FRACTION = 0.1  # position loop: U_z floor (fraction of weight) in u 
 
 @njit(cache=True)
 def attitude_regressor_inputs(meas: np.ndarray, w_r: float, channel: int) -> np.ndarray:
-    """The regressors of SPEC section 4: f_phi(theta', psi', W_r), f_theta(phi', psi', W_r),
-    f_psi(phi', theta')."""
+    """The regressors (docs/mathematics.md, identification): f_phi(theta', psi', W_r),
+    f_theta(phi', psi', W_r), f_psi(phi', theta')."""
     rates = meas[MEAS_EULER_RATE:MEAS_EULER_RATE + 3]
     if channel == CH_PHI:
         return np.array([rates[1], rates[2], w_r])

@@ -1,4 +1,4 @@
-"""Mixer: invert SPEC section 3's rotor map, saturating with roll/pitch authority first."""
+"""Mixer: invert the rotor map (docs/mathematics.md), saturating with roll/pitch authority first."""
 
 from __future__ import annotations
 

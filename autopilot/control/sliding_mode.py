@@ -1,4 +1,5 @@
-"""The indirect adaptive fuzzy sliding-mode law of SPEC section 5, one equation a function.
+"""The indirect adaptive fuzzy sliding-mode law (docs/mathematics.md, the controller), one
+equation a function.
 
 For a channel y'' = f(x) + g v with e = y_d - y:
 

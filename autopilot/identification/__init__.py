@@ -1,5 +1,5 @@
 """Offline IVFM identification: GK clustering, envelope detection, Gaussian premises,
-least-squares consequents, and the data and model file formats (SPEC section 4)."""
+least-squares consequents, and the data and model file formats (docs/mathematics.md)."""
 
 from autopilot.identification.dataset import (
     CHANNEL_ACCELERATION,

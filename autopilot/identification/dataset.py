@@ -1,7 +1,7 @@
 """Input-output data for identification: the CSV file format and its validation.
 
 Format: a CSV file (comma separated, "." decimal point) with one header row naming the
-columns, then one row per sample. Units SI, frames NED / FRD (SPEC section 2):
+columns, then one row per sample. Units SI, frames NED / FRD (docs/conventions.md):
 
     time_s                                   sample time [s], strictly increasing
     phi_rad, theta_rad, psi_rad              Euler angles [rad]
@@ -51,7 +51,7 @@ OPTIONAL_COLUMNS: tuple[str, ...] = ("f_phi", "f_theta", "f_psi")
 ALL_COLUMNS: tuple[str, ...] = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
 
 CHANNELS: tuple[str, ...] = ATTITUDE_CHANNELS
-# The one place that says which regressors each channel's f uses (SPEC section 4).
+# The one place that says which regressors each channel's f uses (docs/mathematics.md).
 CHANNEL_REGRESSORS: dict[str, tuple[str, ...]] = {
     "phi": ("theta_rate_rad_s", "psi_rate_rad_s", "w_r_rad_s"),
     "theta": ("phi_rate_rad_s", "psi_rate_rad_s", "w_r_rad_s"),

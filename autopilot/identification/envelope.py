@@ -1,4 +1,4 @@
-"""Envelope detection algorithm (EDA), SPEC section 4 step 2.
+"""Envelope detection algorithm (EDA), docs/mathematics.md, identification step 2.
 
 The projection of one GK cluster's memberships onto one input is a cloud of points
 (x_kj, mu_ik), not a curve: the other inputs move the membership up and down. EDA turns

@@ -1,6 +1,7 @@
 """Gaussian membership functions: fitting to envelope points and interval repair.
 
-SPEC section 4 step 3. The upper and lower envelopes found by EDA are fitted with
+docs/mathematics.md, identification step 3. The upper and lower envelopes found by EDA
+are fitted with
 mu(x) = h exp(-(x - c)^2 / (2 s^2)). An interval type-2 set needs
 0 <= lower(x) <= upper(x) <= 1 for every real x, not only where there was data (the
 controller evaluates the model wherever the vehicle flies), so the check and the repair

@@ -1,4 +1,5 @@
-"""Gustafson-Kessel fuzzy clustering (structure identification, SPEC section 4 step 1).
+"""Gustafson-Kessel fuzzy clustering (structure identification, step 1 in
+docs/mathematics.md).
 
 GK is fuzzy c-means with one adaptive norm per cluster, A_i = det(F_i)^(1/d) F_i^-1
 (cluster volume rho_i = 1), so each cluster can be an ellipsoid aligned with a local

@@ -1,4 +1,4 @@
-"""IVFM and T1FM identification of the attitude channels, SPEC section 4 (pure: no I/O).
+"""IVFM and T1FM identification of the attitude channels (docs/mathematics.md) (pure: no I/O).
 
 Per channel, from identification data (x, y) and validation data:
   1. cluster_product_space: GK clustering of z = [x, y];

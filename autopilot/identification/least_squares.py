@@ -1,4 +1,5 @@
-"""Consequent parameters by global (ridge-regularised) least squares, SPEC section 4 step 4.
+"""Consequent parameters by global (ridge-regularised) least squares, identification
+step 4 in docs/mathematics.md.
 
 Why a ridge: the IT2 regressor is 1/2 [xi_l (x) [x;1] ; xi_r (x) [x;1]], and xi_l and xi_r
 both sum to 1 over the rules, so sum_i xi_l,i [x;1] = sum_i xi_r,i [x;1] = [x;1] for every

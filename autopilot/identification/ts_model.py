@@ -1,4 +1,5 @@
-"""Interval type-2 (IVFM) and type-1 (T1FM) Takagi-Sugeno models, SPEC section 4 steps 4-5.
+"""Interval type-2 (IVFM) and type-1 (T1FM) Takagi-Sugeno models, identification steps
+4-5 in docs/mathematics.md.
 
 Rules "if x is A_i then y_i = a_i^T x + b_i", i = 1..c, with Gaussian premise MFs stored
 as arrays shaped (c, n, 3) holding [h, c, s] per cluster i and input j.

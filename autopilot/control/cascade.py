@@ -18,6 +18,7 @@ from autopilot.control.command_filter import command_filter_step
 from autopilot.control.mixer import mix
 from autopilot.control.parameters import channel_gains, validate_parameters
 from autopilot.control.sliding_mode import adaptive_channel_step
+from autopilot.identification.dataset import CHANNEL_REGRESSORS
 from autopilot.identification.ts_model import it2_regressor, t1_regressor
 from contracts.airframe import (
     Airframe,
@@ -27,6 +28,7 @@ from contracts.airframe import (
     residual_rotor_speed,
 )
 from contracts.vectors import (
+    ATTITUDE_CHANNELS,
     CHANNEL_INTERNALS,
     CHANNELS,
     MEAS_EULER,
@@ -49,16 +51,31 @@ MIN_TILT_COSINE = 0.3  # altitude loop: c.phi c.theta is bounded away from 0
 MIN_THRUST_FRACTION = 0.1  # position loop: U_z floor (fraction of weight) in u = -v / U_z
 
 
+def _regressor_sources() -> np.ndarray:
+    """Per attitude channel, where each regressor of CHANNEL_REGRESSORS (the one place
+    that chooses them) comes from in flight: 0-2 the Euler rates, 3 W_r, -1 none."""
+    source = {"phi_rate_rad_s": 0, "theta_rate_rad_s": 1, "psi_rate_rad_s": 2, "w_r_rad_s": 3}
+    table = np.full((len(ATTITUDE_CHANNELS), 3), -1, dtype=np.int64)
+    for ch, name in enumerate(ATTITUDE_CHANNELS):
+        for j, regressor in enumerate(CHANNEL_REGRESSORS[name]):
+            table[ch, j] = source[regressor]
+    return table
+
+
+REGRESSOR_SOURCES = _regressor_sources()
+
+
 @njit(cache=True)
 def attitude_regressor_inputs(meas: np.ndarray, w_r: float, channel: int) -> np.ndarray:
-    """The regressors (docs/mathematics.md, identification): f_phi(theta', psi', W_r),
-    f_theta(phi', psi', W_r), f_psi(phi', theta')."""
-    rates = meas[MEAS_EULER_RATE:MEAS_EULER_RATE + 3]
-    if channel == CH_PHI:
-        return np.array([rates[1], rates[2], w_r])
-    if channel == CH_THETA:
-        return np.array([rates[0], rates[2], w_r])
-    return np.array([rates[0], rates[1]])
+    """The channel's regressors now, e.g. f_phi(theta', psi', W_r) (CHANNEL_REGRESSORS)."""
+    sources = REGRESSOR_SOURCES[channel]
+    n = 0
+    while n < sources.size and sources[n] >= 0:
+        n += 1
+    out = np.empty(n)
+    for j in range(n):
+        out[j] = w_r if sources[j] == 3 else meas[MEAS_EULER_RATE + sources[j]]
+    return out
 
 
 @njit(cache=True)

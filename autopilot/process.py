@@ -195,6 +195,8 @@ class Autopilot:
         self.node.serve("perturb")
         self._control_record = CONTROL.buffer()
         self._timing_record = TIMING.buffer()
+        self._channel_internals = self._control_record.block(
+            tuple(f"ch_{name}" for name in CHANNEL_INTERNALS))
         self._mirror_mav = new_mavlink(config.sysid, AUTOPILOT_COMPID)
         self._mirror_due_us = [0] * len(MIRROR_STREAMS_US)
         self._previous_control_wall: float | None = None
@@ -267,8 +269,7 @@ class Autopilot:
         record["reference_time_s"] = time_us / 1e6 - v.reference_start_s
         record["measurement"], record["reference"] = v.measurement, v.last_ref
         record["kick_rad"], record["motor_commands"] = v.last_kick, v.last_commands
-        for i, name in enumerate(CHANNEL_INTERNALS):
-            record[f"ch_{name}"] = c.telemetry[:, i]
+        self._channel_internals[...] = c.telemetry.T
         theta_g = getattr(c, "theta_g", None)
         record["theta_g"] = np.nan if theta_g is None else theta_g
         theta_f = getattr(c, "theta_f", None)

@@ -163,6 +163,19 @@ class RecordBuffer:
     def __getitem__(self, name: str) -> np.ndarray:
         return self._fields[name]
 
+    def block(self, names: tuple[str, ...]) -> np.ndarray:
+        """One writable (len(names), n) view over consecutive float fields of n values
+        each, so a table fills them in one assignment."""
+        dtype = self._row.dtype
+        first, size = dtype.fields[names[0]][1], dtype.fields[names[0]][0].itemsize
+        for i, name in enumerate(names):
+            sub, offset = dtype.fields[name][:2]
+            if offset != first + i * size or sub.itemsize != size or sub.base != np.float64:
+                raise ValueError(f"{', '.join(names)} are not consecutive float fields of "
+                                 "one size")
+        return np.ndarray((len(names), size // 8), dtype="<f8", buffer=self._row,
+                          offset=first)
+
     def encode(self, sequences: tuple[np.ndarray, ...] = ()) -> bytes:
         """The CDR payload: the fixed fields as filled, then ``sequences`` in schema order."""
         if len(sequences) != len(self.schema.sequences):

@@ -383,7 +383,7 @@ def test_the_logger_starts_a_new_file_past_its_chunk_cap(tmp_path):
 
 def test_records_are_filled_by_name_and_decode_to_the_same_values():
     from contracts.telemetry import STATE
-    from contracts.vectors import MEASUREMENT, REFERENCE
+    from contracts.vectors import CHANNEL_INTERNALS, MEASUREMENT, REFERENCE
 
     record = CONTROL.buffer()
     record["seq"], record["sim_time_us"], record["mode"] = 7, 123_000, 4
@@ -397,6 +397,14 @@ def test_records_are_filled_by_name_and_decode_to_the_same_values():
     np.testing.assert_array_equal(decoded["reference"], np.zeros(REFERENCE.size))
     np.testing.assert_array_equal(decoded["theta_f_phi"], np.ones(3))
     assert decoded["measurement"][MEASUREMENT.euler_rad].tolist() == [6.0, 7.0, 8.0]
+    internals = record.block(tuple(f"ch_{name}" for name in CHANNEL_INTERNALS))
+    table = np.arange(6.0 * len(CHANNEL_INTERNALS)).reshape(6, -1)  # channels x internals
+    internals[...] = table.T
+    decoded = CONTROL.decode(record.encode(((), (), ())))
+    for i, name in enumerate(CHANNEL_INTERNALS):
+        np.testing.assert_array_equal(decoded[f"ch_{name}"], table[:, i])
+    with pytest.raises(ValueError, match="not consecutive"):
+        record.block(("measurement", "reference"))
     with pytest.raises(ValueError, match="takes 3 sequences"):
         record.encode(())
     with pytest.raises(KeyError):

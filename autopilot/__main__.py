@@ -58,7 +58,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     mode.add_argument("--realtime", dest="lockstep", action="store_false",
                       help="run on a wall-clock timer")
     p.add_argument("--rate-hz", type=float, default=100.0, help="control rate")
-    p.add_argument("--state-source", default="odometry", choices=list(STATE_SOURCES))
+    p.add_argument("--state-source", default="auto", choices=list(STATE_SOURCES),
+                   help="auto: ODOMETRY when the simulator sends it, else HIL_STATE_QUATERNION")
     p.add_argument("--controller", default="ivfc", choices=CONTROLLERS)
     p.add_argument("--airframe", default="paper", choices=sorted(AIRFRAMES))
     p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")

@@ -65,7 +65,11 @@ from contracts.telemetry import (
 from contracts.vectors import CHANNEL_INTERNALS, MEAS_Z, MEASUREMENT_SIZE, REF_SIZE
 from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
 
-STATE_SOURCES = {"odometry": "ODOMETRY", "hil-state": "HIL_STATE_QUATERNION"}
+# Which simulator message the controller flies on. "auto" (PX4's way) takes ODOMETRY when
+# the simulator sends it and HIL_STATE_QUATERNION when it does not.
+STATE_SOURCES = {"auto": ("ODOMETRY", "HIL_STATE_QUATERNION"), "odometry": ("ODOMETRY",),
+                 "hil-state": ("HIL_STATE_QUATERNION",)}
+SIM_HEARTBEAT_S = 1.0  # to the simulator, from the connection on (jMAVSim waits for one)
 RECONNECT_S = 0.5
 SPIN_S = 0.0005  # the last stretch before a real-time deadline is busy-waited
 POLL_MIN_S = 0.0015  # below this, sleep (ns resolution) instead of epoll (ms resolution)
@@ -91,7 +95,7 @@ class AutopilotConfig:
     sim_port: int = SIM_TCP_PORT
     lockstep: bool = True
     rate_hz: float = 100.0
-    state_source: str = "odometry"
+    state_source: str = "auto"
     duration_s: float = math.inf  # stop after this much sim time of control
     sysid: int = AUTOPILOT_SYSID  # also the vehicle id in telemetry keys
     rt_priority: int = 50  # SCHED_FIFO priority of the real-time loop (0: normal)
@@ -115,11 +119,12 @@ class SimLink:
     def __init__(self, host: str, port: int, source: str, sysid: int = AUTOPILOT_SYSID) -> None:
         self.address = (host, port)
         self.sock: socket.socket | None = None
-        self.source_type = STATE_SOURCES[source]
-        self.source_id = getattr(mavlink, f"MAVLINK_MSG_ID_{self.source_type}")
+        self.source_types = STATE_SOURCES[source]
+        self.source_ids = frozenset(getattr(mavlink, f"MAVLINK_MSG_ID_{t}")
+                                    for t in self.source_types) | {-1}
         self._pending = b""
-        self.decode = (measurement_from_odometry if source == "odometry"
-                       else measurement_from_hil_state)
+        self.odometry_seen = False  # auto: once ODOMETRY arrives, HIL_STATE is not used
+        self.next_heartbeat_s = math.inf
         self.sysid = sysid
         self.mav = new_mavlink(sysid, AUTOPILOT_COMPID)
         self.next_attempt_s = 0.0
@@ -139,7 +144,25 @@ class SimLink:
         self.sock = sock
         self.mav = new_mavlink(self.sysid, AUTOPILOT_COMPID)
         self._pending = b""
+        self.odometry_seen = False
+        self.next_heartbeat_s = now  # at once: some simulators wait for it
         return True
+
+    def heartbeat_due(self, now: float) -> bool:
+        """Send the simulator a HEARTBEAT on connecting and every SIM_HEARTBEAT_S."""
+        if self.sock is None or now < self.next_heartbeat_s:
+            return False
+        self.next_heartbeat_s = max(self.next_heartbeat_s + SIM_HEARTBEAT_S, now)
+        msg = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0,
+            mavlink.MAV_STATE_ACTIVE, 3)
+        return self.send(msg.pack(self.mav))
+
+    def decode(self, msg) -> np.ndarray:
+        """The measurement of a state message (raises LinkDataError on bad data)."""
+        if msg.get_type() == "ODOMETRY":
+            return measurement_from_odometry(msg)
+        return measurement_from_hil_state(msg)
 
     def close(self) -> None:
         if self.sock is not None:
@@ -157,11 +180,15 @@ class SimLink:
         if not data:
             return None
         frames, self._pending = split_frames(self._pending + data)
-        wanted = b"".join(f for msgid, f in frames if msgid in (self.source_id, -1))
+        wanted = b"".join(f for msgid, f in frames if msgid in self.source_ids)
+        msgs = [m for m in (self.mav.parse_buffer(wanted) if wanted else None) or []
+                if m.get_type() in self.source_types]
+        if not self.odometry_seen and any(m.get_type() == "ODOMETRY" for m in msgs):
+            self.odometry_seen = True
         samples = []
-        for msg in (self.mav.parse_buffer(wanted) if wanted else None) or []:
-            if msg.get_type() != self.source_type:
-                continue
+        for msg in msgs:
+            if self.odometry_seen and msg.get_type() != "ODOMETRY":
+                continue  # the same sample, from the message the controller prefers
             try:
                 samples.append((msg.time_usec, self.decode(msg)))
             except LinkDataError as exc:
@@ -339,6 +366,7 @@ class Autopilot:
             self.log(f"connected to the simulator at {self.sim.address[0]}:"
                      f"{self.sim.address[1]}")
             self.sel.register(self.sim.sock, selectors.EVENT_READ, "sim")
+        self.sim.heartbeat_due(now)
 
     def _on_sim_readable(self) -> None:
         samples = self.sim.read()
@@ -358,7 +386,12 @@ class Autopilot:
                 continue
             stepped = self.next_control_us is None or time_us >= self.next_control_us
             if stepped:
-                self.next_control_us = time_us + self.period_us
+                # Control instants keep the control rate whatever the simulator's rate: the
+                # next deadline is a period after this one, not after this sample.
+                if self.next_control_us is None:
+                    self.next_control_us = time_us
+                while self.next_control_us <= time_us:
+                    self.next_control_us += self.period_us
                 commands = self._control(time_us, measurement)
             else:
                 commands = self.vehicle.last_commands
@@ -423,7 +456,7 @@ class Autopilot:
                              950.0, 500.0, 20.0, HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_AMSL_M + 1,
                              (0.0, 0.0, -1.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
         for msg in sample_messages(hover):
-            if msg.get_type() == self.sim.source_type:
+            if msg.get_type() in self.sim.source_types:
                 self.sim.decode(msg)
         self._ground_work(LOCKSTEP_GROUND_BUDGET_S)
         # What exists now lives for the whole run: out of the collector's sight, so its

@@ -106,6 +106,19 @@ def world_to_body(w: float, x: float, y: float, z: float, vx: float, vy: float,
     )
 
 
+def body_to_world(w: float, x: float, y: float, z: float, vx: float, vy: float,
+                  vz: float) -> tuple[float, float, float]:
+    """R(q) v: a body (FRD) vector in world axes (NED); :func:`world_to_body` inverted."""
+    return (
+        (1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y - w * z) * vy
+        + 2.0 * (x * z + w * y) * vz,
+        2.0 * (x * y + w * z) * vx + (1.0 - 2.0 * (x * x + z * z)) * vy
+        + 2.0 * (y * z - w * x) * vz,
+        2.0 * (x * z - w * y) * vx + 2.0 * (y * z + w * x) * vy
+        + (1.0 - 2.0 * (x * x + y * y)) * vz,
+    )
+
+
 @njit(cache=True)
 def euler_rates_from_body_rates(
     phi: float, theta: float, p: float, q: float, r: float

@@ -16,6 +16,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from contracts.frames import (
     GRAVITY_MPS2,
+    body_to_world,
     euler_from_quat,
     euler_rates_from_body_rates,
     ned_from_geodetic,
@@ -134,16 +135,30 @@ def _measurement(position, velocity, quaternion, body_rate) -> np.ndarray:
     return out
 
 
+# ODOMETRY velocity frames understood (child_frame_id): NED, or body FRD as PX4 sends it.
+ODOMETRY_VELOCITY_FRAMES = (mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_FRD)
+
+
 def measurement_from_odometry(msg: mavlink.MAVLink_odometry_message) -> np.ndarray:
-    """Controller measurement from ODOMETRY (float32 truth, the default state source)."""
-    if msg.frame_id != mavlink.MAV_FRAME_LOCAL_NED or msg.child_frame_id != \
-            mavlink.MAV_FRAME_LOCAL_NED:
-        raise LinkDataError(f"ODOMETRY frames {msg.frame_id}/{msg.child_frame_id}: only "
-                            f"MAV_FRAME_LOCAL_NED ({mavlink.MAV_FRAME_LOCAL_NED}) is understood")
+    """Controller measurement from ODOMETRY: position in LOCAL_NED, velocity in LOCAL_NED
+    or BODY_FRD (turned into NED by the message's own attitude)."""
+    if msg.frame_id != mavlink.MAV_FRAME_LOCAL_NED or \
+            msg.child_frame_id not in ODOMETRY_VELOCITY_FRAMES:
+        raise LinkDataError(
+            f"ODOMETRY frames {msg.frame_id}/{msg.child_frame_id}: position in "
+            f"MAV_FRAME_LOCAL_NED ({mavlink.MAV_FRAME_LOCAL_NED}) and velocity in it or in "
+            f"MAV_FRAME_BODY_FRD ({mavlink.MAV_FRAME_BODY_FRD}) are understood")
     values = [msg.x, msg.y, msg.z, *msg.q, msg.vx, msg.vy, msg.vz, msg.rollspeed,
               msg.pitchspeed, msg.yawspeed]
     _finite(values, "ODOMETRY")
-    return _measurement((msg.x, msg.y, msg.z), (msg.vx, msg.vy, msg.vz), msg.q,
+    velocity = (msg.vx, msg.vy, msg.vz)
+    if msg.child_frame_id == mavlink.MAV_FRAME_BODY_FRD:
+        w, x, y, z = (float(v) for v in msg.q)
+        norm = math.sqrt(w * w + x * x + y * y + z * z)
+        if not 0.9 < norm < 1.1:
+            raise LinkDataError(f"attitude quaternion has norm {norm:.3f}, not 1")
+        velocity = body_to_world(w / norm, x / norm, y / norm, z / norm, *velocity)
+    return _measurement((msg.x, msg.y, msg.z), velocity, msg.q,
                         (msg.rollspeed, msg.pitchspeed, msg.yawspeed))
 
 

@@ -36,7 +36,7 @@ def _build_parser() -> argparse.ArgumentParser:
     pace.add_argument("--realtime", action="store_true",
                       help="the two processes paced to the wall clock (default: lockstep)")
     run.add_argument("--rate-hz", type=float, default=100.0, help="control rate")
-    run.add_argument("--state-source", default="odometry", choices=["odometry", "hil-state"],
+    run.add_argument("--state-source", default="auto", choices=["auto", "odometry", "hil-state"],
                      help="what the autopilot reads its state from")
     run.add_argument("--controller", choices=CONTROLLERS, help="(default: the scenario's)")
     run.add_argument("--plant", choices=list(FIDELITIES), help="(default: the scenario's)")

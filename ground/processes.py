@@ -62,7 +62,7 @@ class RunSettings:
     parameters: dict[str, float] | None = None
     realtime: bool = False
     rate_hz: float = 100.0
-    state_source: str = "odometry"
+    state_source: str = "auto"
     vehicle: int = 1
 
 

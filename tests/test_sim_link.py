@@ -206,3 +206,92 @@ def test_world_to_body_is_the_transposed_rotation():
         v = rng.normal(size=3)
         np.testing.assert_allclose(world_to_body(*q, *v), rotation_from_quat(q).T @ v,
                                    atol=1e-12)
+
+
+def test_odometry_velocity_in_body_frd_is_turned_into_ned():
+    """PX4 publishes ODOMETRY velocity in BODY_FRD: the same motion, either frame."""
+    from contracts.frames import body_to_world, world_to_body
+
+    msgs = _decoded(_flying_plant("rigid-body"))
+    ned = msgs["ODOMETRY"]
+    w, x, y, z = ned.q
+    body = mavlink.MAVLink_odometry_message(
+        ned.time_usec, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_BODY_FRD, ned.x, ned.y,
+        ned.z, ned.q, *world_to_body(w, x, y, z, ned.vx, ned.vy, ned.vz), ned.rollspeed,
+        ned.pitchspeed, ned.yawspeed, [math.nan] * 21, [math.nan] * 21, 0, 0, 100)
+    np.testing.assert_allclose(measurement_from_odometry(body), measurement_from_odometry(ned),
+                               atol=1e-6)
+    np.testing.assert_allclose(body_to_world(w, x, y, z, *world_to_body(w, x, y, z, 1, 2, 3)),
+                               (1, 2, 3), atol=1e-12)
+    frd_position = mavlink.MAVLink_odometry_message(
+        ned.time_usec, mavlink.MAV_FRAME_LOCAL_FRD, mavlink.MAV_FRAME_BODY_FRD, ned.x, ned.y,
+        ned.z, ned.q, 0, 0, 0, 0, 0, 0, [math.nan] * 21, [math.nan] * 21, 0, 0, 100)
+    with pytest.raises(LinkDataError, match="position in MAV_FRAME_LOCAL_NED"):
+        measurement_from_odometry(frd_position)
+
+
+def _autopilot_on_a_socket(rate_hz: float = 100.0, source: str = "auto"):
+    """The autopilot process's simulator side on one end of a socket pair."""
+    from autopilot.control.factory import make_controller
+    from autopilot.process import Autopilot, AutopilotConfig
+    from autopilot.vehicle import Vehicle
+
+    vehicle = Vehicle(lambda p: make_controller("smc", PAPER, 1 / rate_hz, None, p),
+                      1 / rate_hz)
+    autopilot = Autopilot(AutopilotConfig(rate_hz=rate_hz, state_source=source), vehicle,
+                          None, log=lambda text: None)
+    ours, theirs = socket.socketpair()
+    ours.setblocking(False)
+    autopilot.sim.sock = ours
+    return autopilot, theirs
+
+
+def _send_samples(theirs: socket.socket, times_us, kinds=("HIL_STATE_QUATERNION", "ODOMETRY")):
+    plant = _flying_plant("paper")
+    s = plant.state()
+    mav = mavlink.MAVLink(None, 1, 51)
+    for t in times_us:
+        msgs = sample_messages(read_sensors(t, s.position_ned_m, s.velocity_ned_mps,
+                                            s.quaternion, s.body_rate_rad_s, np.zeros(3)))
+        theirs.sendall(b"".join(m.pack(mav) for m in msgs if m.get_type() in kinds))
+
+
+def _answers(theirs: socket.socket) -> list[int]:
+    theirs.setblocking(False)
+    data = b""
+    try:
+        while chunk := theirs.recv(65536):
+            data += chunk
+    except BlockingIOError:
+        pass
+    return [m.time_usec for m in mavlink.MAVLink(None, 1, 1).parse_buffer(data) or []
+            if m.get_type() == "HIL_ACTUATOR_CONTROLS"]
+
+
+@pytest.mark.parametrize("sim_rate_hz", [100, 250, 400])
+def test_lockstep_answers_every_sample_and_controls_at_its_own_rate(sim_rate_hz):
+    autopilot, theirs = _autopilot_on_a_socket(100.0)
+    origin_us = 5_000_000_123  # any origin
+    period_us = round(1e6 / sim_rate_hz)
+    times = [origin_us + k * period_us for k in range(2 * sim_rate_hz)]  # 2 s
+    answers = []
+    for chunk in range(0, len(times), 10):
+        _send_samples(theirs, times[chunk:chunk + 10])
+        autopilot._on_sim_readable()
+        answers += _answers(theirs)
+    assert answers == times  # each sample once, in order, with its own time
+    assert autopilot.steps == 200  # 100 Hz of control over 2 s, whatever the sample rate
+
+
+def test_auto_source_takes_odometry_when_sent_and_hil_state_when_not():
+    autopilot, theirs = _autopilot_on_a_socket()
+    _send_samples(theirs, [0, 10_000], kinds=("HIL_SENSOR", "HIL_STATE_QUATERNION"))
+    autopilot._on_sim_readable()
+    assert not autopilot.sim.odometry_seen and autopilot.steps == 2
+    hil_position = autopilot.latest[1][0:3].copy()
+    _send_samples(theirs, [20_000, 30_000])  # both: one answer per sample, from ODOMETRY
+    autopilot._on_sim_readable()
+    assert autopilot.sim.odometry_seen and autopilot.steps == 4
+    assert _answers(theirs) == [0, 10_000, 20_000, 30_000]
+    odometry_position = autopilot.latest[1][0:3]
+    assert 0 < np.max(np.abs(odometry_position - hil_position)) < 0.02  # float32 vs 1e-7 deg

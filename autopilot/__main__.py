@@ -47,7 +47,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     from autopilot.control.factory import CONTROLLERS
     from autopilot.process import STATE_SOURCES
     from autopilot.reference import REFERENCE_KINDS
-    from contracts.airframe import AIRFRAMES
+    from contracts.airframe import airframe_argument
 
     p = parser or argparse.ArgumentParser(prog="python -m autopilot", description=__doc__)
     p.add_argument("--sim", type=_address, default=("127.0.0.1", SIM_TCP_PORT),
@@ -61,7 +61,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--state-source", default="auto", choices=list(STATE_SOURCES),
                    help="auto: ODOMETRY when the simulator sends it, else HIL_STATE_QUATERNION")
     p.add_argument("--controller", default="ivfc", choices=CONTROLLERS)
-    p.add_argument("--airframe", default="paper", choices=sorted(AIRFRAMES))
+    p.add_argument("--airframe", default="paper", type=airframe_argument,
+                   help="shipped airframe name or airframe .toml file")
     p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")
     p.add_argument("--param", type=param_argument, action="append", default=[],
                    metavar="NAME=VALUE")

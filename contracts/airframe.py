@@ -6,12 +6,14 @@ it, the controller's mixer and nominal model read it. Fields carry their units.
 
 from __future__ import annotations
 
+import argparse
 import math
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
+from contracts.airframe_file import AirframeError, AirframeSpec, read_airframe
 from contracts.frames import GRAVITY_MPS2
 
 
@@ -32,47 +34,59 @@ class Airframe(NamedTuple):
     gravity_mps2: float = GRAVITY_MPS2
 
 
-# Paper Table 1, with the rotor limit of docs/mathematics.md (thrust-to-weight 4.6).
-PAPER = Airframe(
-    mass_kg=1.2,
-    ixx_kgm2=0.18,
-    iyy_kgm2=0.18,
-    izz_kgm2=0.09,
-    arm_m=0.23,
-    thrust_coeff_ns2=54.2e-6,
-    drag_coeff_nms2=1.1e-6,
-    rotor_inertia_kgm2=1.32e-3,
-    rotor_max_rad_s=500.0,
-    motor_tau_s=0.0,
-    linear_drag_nspm=0.0,
-)
-
-# A 450-class quadrotor with measured-looking numbers: lighter inertia, a real motor lag
-# and airframe drag, so the paper-tuned controller is tested off its design point.
-REALISTIC = Airframe(
-    mass_kg=1.5,
-    ixx_kgm2=0.0215,
-    iyy_kgm2=0.0215,
-    izz_kgm2=0.0380,
-    arm_m=0.225,
-    thrust_coeff_ns2=1.22e-5,
-    drag_coeff_nms2=1.9e-7,
-    rotor_inertia_kgm2=6.0e-5,
-    rotor_max_rad_s=1100.0,
-    motor_tau_s=0.02,
-    linear_drag_nspm=0.25,
-)
-
-AIRFRAMES: dict[str, Airframe] = {"paper": PAPER, "realistic": REALISTIC}
+def airframe_from_spec(spec: AirframeSpec) -> Airframe:
+    """The scalar model the plant and the controller fly: the paper's "+" layout (rotors
+    front cw, right ccw, rear cw, left ccw at one arm length, alike, diagonal inertia,
+    speed command map). Other layouts are refused with the reason."""
+    rotors = spec.rotors
+    first = rotors[0]
+    arm = first.position_m[0]
+    layout = ((arm, 0.0, 0.0), (0.0, arm, 0.0), (-arm, 0.0, 0.0), (0.0, -arm, 0.0))
+    problems = []
+    if len(rotors) != 4 or tuple(r.position_m for r in rotors) != layout:
+        problems.append("rotors at front, right, rear, left, one arm length apart")
+    elif tuple(r.spin for r in rotors) != (1.0, -1.0, 1.0, -1.0):
+        problems.append("spins cw, ccw, cw, ccw")
+    elif any((r.thrust_coeff_ns2, r.moment_coeff_nms2, r.max_rad_s, r.time_constant_s,
+              r.inertia_kgm2) != (first.thrust_coeff_ns2, first.moment_coeff_nms2,
+                                  first.max_rad_s, first.time_constant_s, first.inertia_kgm2)
+             for r in rotors):
+        problems.append("four alike rotors")
+    inertia = spec.inertia_kgm2
+    if np.any(inertia != np.diag(np.diag(inertia))):
+        problems.append("a diagonal inertia matrix")
+    if spec.command_map != "speed":
+        problems.append('command_map = "speed"')
+    if problems:
+        raise AirframeError(f"{spec.source}: the plant and the controller fly the \"+\" "
+                            f"layout only so far; this airframe needs {'; '.join(problems)}")
+    return Airframe(
+        mass_kg=spec.mass_kg, ixx_kgm2=float(inertia[0, 0]), iyy_kgm2=float(inertia[1, 1]),
+        izz_kgm2=float(inertia[2, 2]), arm_m=arm, thrust_coeff_ns2=first.thrust_coeff_ns2,
+        drag_coeff_nms2=first.moment_coeff_nms2, rotor_inertia_kgm2=first.inertia_kgm2,
+        rotor_max_rad_s=first.max_rad_s, motor_tau_s=first.time_constant_s,
+        linear_drag_nspm=spec.linear_drag_nspm)
 
 
 def airframe_by_name(name: str) -> Airframe:
-    """Look an airframe up by name, with an error that lists the known ones."""
+    """A shipped airframe by name, or an airframe file by path (contracts/airframe_file.py);
+    AirframeError (a ValueError) names what is wrong."""
+    return airframe_from_spec(read_airframe(name))
+
+
+def airframe_argument(text: str) -> str:
+    """argparse type of ``--airframe NAME|FILE``: checked now, passed on as given."""
     try:
-        return AIRFRAMES[name]
-    except KeyError:
-        known = ", ".join(sorted(AIRFRAMES))
-        raise ValueError(f"unknown airframe {name!r}; known airframes: {known}") from None
+        airframe_by_name(text)
+    except AirframeError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+# The shipped airframes (contracts/airframes/*.toml): the paper's Table 1 with the rotor
+# limit W_max = 500 rad/s, and a 450-class vehicle off the paper's design point.
+PAPER = airframe_by_name("paper")
+REALISTIC = airframe_by_name("realistic")
 
 
 class AttitudeCoefficients(NamedTuple):

@@ -15,7 +15,7 @@ from pathlib import Path
 def _build_parser() -> argparse.ArgumentParser:
     from autopilot.__main__ import param_argument
     from autopilot.control.factory import CONTROLLERS
-    from contracts.airframe import AIRFRAMES
+    from contracts.airframe import airframe_argument
     from ground.scenarios import PAPER_SCENARIOS, shipped_names
     from sitl.dynamics import FIDELITIES
 
@@ -23,7 +23,8 @@ def _build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     def add_common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--airframe", default="paper", choices=sorted(AIRFRAMES))
+        p.add_argument("--airframe", default="paper", type=airframe_argument,
+                   help="shipped airframe name or airframe .toml file")
         p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")
         p.add_argument("--param", type=param_argument, action="append", default=[],
                        metavar="NAME=VALUE", help="controller parameter override (repeatable)")
@@ -66,7 +67,8 @@ def _build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--seed", type=int, default=0)
     ident.add_argument("--samples", type=int, default=4000)
     ident.add_argument("--clusters", type=int, default=None)
-    ident.add_argument("--airframe", default="paper", choices=sorted(AIRFRAMES))
+    ident.add_argument("--airframe", default="paper", type=airframe_argument,
+                   help="shipped airframe name or airframe .toml file")
 
     from autopilot.__main__ import build_parser as autopilot_parser
     from sitl.__main__ import build_parser as sitl_parser

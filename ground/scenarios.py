@@ -70,7 +70,7 @@ def load_scenario(path: Path) -> Scenario:
 def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     from autopilot.control.factory import CONTROLLERS
     from autopilot.control.parameters import validate_parameters
-    from contracts.airframe import AIRFRAMES
+    from contracts.airframe import airframe_by_name
     from sitl.dynamics import FIDELITIES
 
     unknown = sorted(set(data) - _TOP)
@@ -98,8 +98,10 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     airframe = plant.get("airframe", "paper")
     if fidelity not in FIDELITIES:
         raise ValueError(f"plant.fidelity must be one of {', '.join(FIDELITIES)}")
-    if airframe not in AIRFRAMES:
-        raise ValueError(f"plant.airframe must be one of {', '.join(sorted(AIRFRAMES))}")
+    try:
+        airframe_by_name(airframe)
+    except ValueError as exc:
+        raise ValueError(f"plant.airframe: {exc}") from None
     ctrl = _table(data, "controller")
     controller = ctrl.get("name", "ivfc")
     if controller not in CONTROLLERS:

@@ -7,7 +7,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from contracts.airframe import AIRFRAMES, airframe_by_name
+from contracts.airframe import airframe_argument, airframe_by_name
 from contracts.mavlink import SIM_TCP_PORT
 from contracts.perturbations import load_schedule
 from contracts.zenoh_link import (
@@ -31,7 +31,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--rate-hz", type=float, default=100.0,
                    help="samples per second; in lockstep the autopilot's rate or a multiple")
     p.add_argument("--plant", default="rigid-body", choices=list(FIDELITIES))
-    p.add_argument("--airframe", default="paper", choices=sorted(AIRFRAMES))
+    p.add_argument("--airframe", default="paper", type=airframe_argument,
+                   help="shipped airframe name or airframe .toml file")
     p.add_argument("--start-altitude", type=float, default=0.0, metavar="M",
                    help="start hovering at this altitude (default: on the ground)")
     p.add_argument("--schedule", type=Path, help="perturbation schedule JSON (sim time)")

@@ -1,0 +1,197 @@
+"""Airframe files (TOML): the user's quadrotor as data, read by the simulator (truth), the
+autopilot (nominal model, mixer) and identification alike.
+
+A file names the vehicle completely: mass, full inertia matrix, airframe drag, how a motor
+command maps to the rotor, and one ``[[rotor]]`` table per rotor in motor order
+(``controls[i]`` of HIL_ACTUATOR_CONTROLS drives rotor i+1, PX4's numbering). Conventions
+(docs/airframes.md): body FRD; rotor i at r_i pushes T_i = k_i W_i^2 along -z_b, giving
+roll torque -y_i T_i and pitch torque x_i T_i; a rotor spinning clockwise seen from above
+(``spin = "cw"``, s_i = +1) has its angular velocity along +z_b and its drag reaction
+yaws the body by -s_i km_i W_i^2 (counter-clockwise rotors yaw the nose right). The
+effectiveness matrix, thrust and torques per W_i^2, comes from that geometry once.
+
+Every field is checked; an error names the file and the field.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SHIPPED_DIR = "airframes"
+COMMAND_MAPS = ("speed", "thrust")  # c -> W = c W_max (jMAVSim, Gazebo) / T = c T_max (SIH)
+SPINS = {"cw": 1.0, "ccw": -1.0}
+_TOP_KEYS = {"name", "description", "mass_kg", "inertia_kgm2", "linear_drag_nspm",
+             "command_map", "rotor"}
+_ROTOR_KEYS = {"position_m", "spin", "thrust_coeff_ns2", "moment_coeff_nms2", "max_rad_s",
+               "time_constant_s", "inertia_kgm2"}
+
+
+class AirframeError(ValueError):
+    """An airframe file that breaks the format; the message names the file and field."""
+
+
+@dataclass(frozen=True)
+class RotorSpec:
+    position_m: tuple[float, float, float]  # body FRD, from the centre of mass
+    spin: float  # +1 clockwise seen from above, -1 counter-clockwise
+    thrust_coeff_ns2: float  # k: T = k W^2
+    moment_coeff_nms2: float  # km: drag torque km W^2
+    max_rad_s: float
+    time_constant_s: float  # first-order lag of the rotor speed, 0 = ideal
+    inertia_kgm2: float  # rotor and propeller, for the gyroscopic term
+
+
+@dataclass(frozen=True)
+class AirframeSpec:
+    name: str
+    description: str
+    mass_kg: float
+    inertia_kgm2: np.ndarray  # 3x3, symmetric positive definite, body FRD
+    linear_drag_nspm: float
+    command_map: str
+    rotors: tuple[RotorSpec, ...]
+    source: str = ""
+
+    def effectiveness(self) -> np.ndarray:
+        """(4, n): collective thrust [N], roll, pitch and yaw torque [N m] per W_i^2."""
+        out = np.empty((4, len(self.rotors)))
+        for i, r in enumerate(self.rotors):
+            x, y, _z = r.position_m
+            out[0, i] = r.thrust_coeff_ns2
+            out[1, i] = -y * r.thrust_coeff_ns2
+            out[2, i] = x * r.thrust_coeff_ns2
+            out[3, i] = -r.spin * r.moment_coeff_nms2
+        return out
+
+
+def shipped_airframe_names() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("contracts").joinpath(
+        SHIPPED_DIR).iterdir() if p.name.endswith(".toml"))
+
+
+def read_airframe(source: str | Path) -> AirframeSpec:
+    """A shipped airframe by name, or an airframe file by path."""
+    text_source = str(source)
+    if text_source in shipped_airframe_names():
+        path = resources.files("contracts").joinpath(SHIPPED_DIR, f"{text_source}.toml")
+        where = f"airframe {text_source}"
+    elif text_source.endswith(".toml") or "/" in text_source:
+        path = Path(text_source)
+        where = f"airframe file {text_source}"
+    else:
+        raise AirframeError(f"unknown airframe {text_source!r}; shipped: "
+                            f"{', '.join(shipped_airframe_names())} (or a .toml file)")
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise AirframeError(f"{where}: no such file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise AirframeError(f"{where}: not TOML: {exc}") from None
+    return parse_airframe(data, where)
+
+
+def parse_airframe(data: dict[str, Any], where: str = "airframe") -> AirframeSpec:
+    unknown = sorted(set(data) - _TOP_KEYS)
+    if unknown:
+        raise AirframeError(f"{where}: unknown field(s) {', '.join(unknown)}")
+    for key in ("mass_kg", "inertia_kgm2", "rotor"):
+        if key not in data:
+            raise AirframeError(f"{where}: {key} is required")
+    name = data.get("name", Path(where).stem)
+    if not isinstance(name, str) or not name:
+        raise AirframeError(f"{where}: name must be a non-empty string")
+    command_map = data.get("command_map", "speed")
+    if command_map not in COMMAND_MAPS:
+        raise AirframeError(f"{where}: command_map must be one of {', '.join(COMMAND_MAPS)}, "
+                            f"got {command_map!r}")
+    rotors = data["rotor"]
+    if not isinstance(rotors, list) or not rotors:
+        raise AirframeError(f"{where}: rotor must be a list of [[rotor]] tables")
+    spec = AirframeSpec(
+        name=name,
+        description=str(data.get("description", "")),
+        mass_kg=_number(data["mass_kg"], f"{where}: mass_kg", 1e-3, 1e3, positive=True),
+        inertia_kgm2=_inertia(data["inertia_kgm2"], f"{where}: inertia_kgm2"),
+        linear_drag_nspm=_number(data.get("linear_drag_nspm", 0.0),
+                                 f"{where}: linear_drag_nspm", 0.0, 1e3),
+        command_map=command_map,
+        rotors=tuple(_rotor(r, f"{where}: rotor[{i + 1}]") for i, r in enumerate(rotors)),
+        source=where,
+    )
+    _check_controllable(spec, where)
+    return spec
+
+
+def _number(value: Any, what: str, low: float, high: float, positive: bool = False) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise AirframeError(f"{what} must be a number, got {value!r}")
+    value = float(value)
+    if not math.isfinite(value) or not low <= value <= high or (positive and value <= 0.0):
+        bound = "(0" if positive else f"[{low:g}"
+        raise AirframeError(f"{what} must be in {bound}, {high:g}], got {value!r}")
+    return value
+
+
+def _inertia(value: Any, what: str) -> np.ndarray:
+    if not isinstance(value, list) or len(value) != 3 or not all(
+            isinstance(row, list) and len(row) == 3 for row in value):
+        raise AirframeError(f"{what} must be a 3x3 matrix [[..], [..], [..]], got {value!r}")
+    matrix = np.array([[_number(v, f"{what}[{i}][{j}]", -1e3, 1e3) for j, v in enumerate(row)]
+                       for i, row in enumerate(value)])
+    if not np.allclose(matrix, matrix.T, rtol=0.0, atol=1e-12):
+        raise AirframeError(f"{what} must be symmetric, got {value!r}")
+    if np.min(np.linalg.eigvalsh(matrix)) <= 0.0:
+        raise AirframeError(f"{what} must be positive definite, got {value!r}")
+    return matrix
+
+
+def _rotor(value: Any, where: str) -> RotorSpec:
+    if not isinstance(value, dict):
+        raise AirframeError(f"{where} must be a table")
+    unknown = sorted(set(value) - _ROTOR_KEYS)
+    if unknown:
+        raise AirframeError(f"{where}: unknown field(s) {', '.join(unknown)}")
+    missing = sorted(k for k in _ROTOR_KEYS - {"time_constant_s", "inertia_kgm2"}
+                     if k not in value)
+    if missing:
+        raise AirframeError(f"{where}: {', '.join(missing)} required")
+    position = value["position_m"]
+    if not isinstance(position, list) or len(position) != 3:
+        raise AirframeError(f"{where}.position_m must be [x, y, z] in metres (FRD)")
+    spin = value["spin"]
+    if spin not in SPINS:
+        raise AirframeError(f"{where}.spin must be \"cw\" or \"ccw\" (seen from above), "
+                            f"got {spin!r}")
+    return RotorSpec(
+        position_m=tuple(_number(v, f"{where}.position_m", -10.0, 10.0) for v in position),
+        spin=SPINS[spin],
+        thrust_coeff_ns2=_number(value["thrust_coeff_ns2"], f"{where}.thrust_coeff_ns2",
+                                 0.0, 1.0, positive=True),
+        moment_coeff_nms2=_number(value["moment_coeff_nms2"], f"{where}.moment_coeff_nms2",
+                                  0.0, 1.0, positive=True),
+        max_rad_s=_number(value["max_rad_s"], f"{where}.max_rad_s", 0.0, 1e5, positive=True),
+        time_constant_s=_number(value.get("time_constant_s", 0.0),
+                                f"{where}.time_constant_s", 0.0, 10.0),
+        inertia_kgm2=_number(value.get("inertia_kgm2", 0.0), f"{where}.inertia_kgm2", 0.0,
+                             1.0),
+    )
+
+
+def _check_controllable(spec: AirframeSpec, where: str) -> None:
+    """Rotors that can hover it and that reach every axis (the effectiveness matrix has
+    full rank), so the mixer can invert it."""
+    if np.linalg.matrix_rank(spec.effectiveness(), tol=1e-12) < 4:
+        raise AirframeError(f"{where}: the rotors cannot produce thrust, roll, pitch and yaw "
+                            "independently (the effectiveness matrix is rank deficient)")
+    max_thrust = sum(r.thrust_coeff_ns2 * r.max_rad_s**2 for r in spec.rotors)
+    weight = spec.mass_kg * 9.81
+    if max_thrust <= weight:
+        raise AirframeError(f"{where}: the rotors give at most {max_thrust:.3g} N, not more "
+                            f"than the weight {weight:.3g} N: it cannot fly")

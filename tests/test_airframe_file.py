@@ -1,0 +1,167 @@
+"""Airframe files: the shipped ones, every check with the field it names, and the signs of
+the effectiveness matrix rotor by rotor for "+", PX4's quad X and an asymmetric H."""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from importlib import resources
+
+import numpy as np
+import pytest
+
+from contracts.airframe import PAPER, REALISTIC, Airframe, airframe_by_name, airframe_from_spec
+from contracts.airframe_file import AirframeError, parse_airframe, read_airframe
+from sitl import dynamics
+
+
+def _rotor(x: float, y: float, spin: str, k: float = 1e-5) -> dict:
+    return {"position_m": [x, y, 0.0], "spin": spin, "thrust_coeff_ns2": k,
+            "moment_coeff_nms2": 1.6e-7, "max_rad_s": 1000.0, "time_constant_s": 0.03,
+            "inertia_kgm2": 6e-5}
+
+
+def _frame(*rotors: dict) -> dict:
+    return {"name": "test", "mass_kg": 1.5,
+            "inertia_kgm2": [[0.02, 0.0, 0.0], [0.0, 0.02, 0.0], [0.0, 0.0, 0.04]],
+            "linear_drag_nspm": 0.2, "command_map": "speed", "rotor": list(rotors)}
+
+
+A = 0.175
+# PX4's quad X motor order: 1 front right ccw, 2 rear left ccw, 3 front left cw, 4 rear
+# right cw.
+QUAD_X = _frame(_rotor(A, A, "ccw"), _rotor(-A, -A, "ccw"), _rotor(A, -A, "cw"),
+                _rotor(-A, A, "cw"))
+PLUS = _frame(_rotor(A, 0, "cw"), _rotor(0, A, "ccw"), _rotor(-A, 0, "cw"), _rotor(0, -A, "ccw"))
+# H frame, front arms wider than the rear ones and a heavier front pair of props.
+H_FRAME = _frame(_rotor(0.20, 0.25, "ccw", 1.2e-5), _rotor(-0.15, -0.18, "ccw"),
+                 _rotor(0.20, -0.25, "cw", 1.2e-5), _rotor(-0.15, 0.18, "cw"))
+
+# Sign of (roll, pitch, yaw) torque from one rotor's extra thrust: a rotor on the right
+# (y > 0) rolls left (negative), one in front pitches the nose up, a ccw rotor yaws the
+# nose right (positive), as PX4's airframe reference draws them.
+SIGNS = {
+    "plus": [(0, +1, -1), (-1, 0, +1), (0, -1, -1), (+1, 0, +1)],
+    "quad_x": [(-1, +1, +1), (+1, -1, +1), (+1, +1, -1), (-1, -1, -1)],
+    "h_frame": [(-1, +1, +1), (+1, -1, +1), (+1, +1, -1), (-1, -1, -1)],
+}
+
+
+def test_the_shipped_airframes_are_the_papers_and_the_realistic_one():
+    assert Airframe(1.2, 0.18, 0.18, 0.09, 0.23, 54.2e-6, 1.1e-6, 1.32e-3, 500.0, 0.0,
+                             0.0) == PAPER
+    assert Airframe(1.5, 0.0215, 0.0215, 0.0380, 0.225, 1.22e-5, 1.9e-7, 6.0e-5,
+                                 1100.0, 0.02, 0.25) == REALISTIC
+    files = [p.name for p in resources.files("contracts").joinpath("airframes").iterdir()]
+    assert {"paper.toml", "realistic.toml"} <= set(files)
+
+
+@pytest.mark.parametrize("name, frame", [("plus", PLUS), ("quad_x", QUAD_X),
+                                         ("h_frame", H_FRAME)])
+def test_each_rotor_rolls_pitches_and_yaws_the_way_the_convention_says(name, frame):
+    effectiveness = parse_airframe(copy.deepcopy(frame)).effectiveness()
+    for i, expected in enumerate(SIGNS[name]):
+        assert effectiveness[0, i] > 0, (name, i + 1)  # every rotor lifts
+        got = tuple(int(np.sign(round(v, 15))) for v in effectiveness[1:, i])
+        assert got == expected, (name, f"rotor {i + 1}", got, expected)
+
+
+def test_the_paper_effectiveness_is_its_rotor_map():
+    spec = read_airframe("paper")
+    w = np.array([410.0, 395.0, 402.0, 388.0])
+    u_z, u_phi, u_theta, u_psi, w_r = dynamics.rotor_forces(w, np.ones(4), PAPER)
+    np.testing.assert_allclose(spec.effectiveness() @ w**2,
+                               (u_z, PAPER.arm_m * u_phi, PAPER.arm_m * u_theta, u_psi),
+                               rtol=1e-12)
+    assert w_r == pytest.approx(sum(r.spin * wi for r, wi in zip(spec.rotors, w, strict=True)))
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.update(mass=1), "unknown field(s) mass"),
+    (lambda d: d.pop("mass_kg"), "mass_kg is required"),
+    (lambda d: d.update(mass_kg=-1.0), "mass_kg must be in (0"),
+    (lambda d: d.update(mass_kg=math.nan), "mass_kg must be in (0"),
+    (lambda d: d.update(mass_kg="1.5"), "mass_kg must be a number"),
+    (lambda d: d.update(command_map="pwm"), "command_map must be one of speed, thrust"),
+    (lambda d: d["inertia_kgm2"][0].__setitem__(1, 0.01), "inertia_kgm2 must be symmetric"),
+    (lambda d: d["inertia_kgm2"][2].__setitem__(2, -0.04), "must be positive definite"),
+    (lambda d: d.update(inertia_kgm2=[0.02, 0.02, 0.04]), "must be a 3x3 matrix"),
+    (lambda d: d["rotor"][1].update(spin="left"), 'rotor[2].spin must be "cw" or "ccw"'),
+    (lambda d: d["rotor"][2].pop("max_rad_s"), "rotor[3]: max_rad_s required"),
+    (lambda d: d["rotor"][3].update(max_rad_s=math.inf), "rotor[4].max_rad_s must be in"),
+    (lambda d: d["rotor"][0].update(position_m=[0.1, 0.1]), "rotor[1].position_m must be"),
+    (lambda d: d["rotor"][0].update(diameter_m=0.25), "rotor[1]: unknown field(s) diameter_m"),
+    (lambda d: d.update(rotor=[]), "rotor must be a list"),
+    (lambda d: [r.update(position_m=[0.0, 0.0, 0.0]) for r in d["rotor"]],
+     "rank deficient"),
+    (lambda d: d.update(mass_kg=50.0), "cannot fly"),
+])
+def test_bad_airframe_files_are_refused_naming_the_field(change, message):
+    data = copy.deepcopy(QUAD_X)
+    change(data)
+    with pytest.raises(AirframeError, match=None) as info:
+        parse_airframe(data, "airframe file my.toml")
+    assert message in str(info.value) and "my.toml" in str(info.value), str(info.value)
+
+
+def test_files_by_path_and_bad_paths(tmp_path):
+    text = resources.files("contracts").joinpath("airframes", "paper.toml").read_text()
+    (tmp_path / "mine.toml").write_text(text.replace('name = "paper"', 'name = "mine"'))
+    assert airframe_by_name(str(tmp_path / "mine.toml")) == PAPER
+    assert tomllib.loads(text)["name"] == "paper"
+    (tmp_path / "broken.toml").write_text("mass_kg = [")
+    with pytest.raises(AirframeError, match="not TOML"):
+        read_airframe(str(tmp_path / "broken.toml"))
+    with pytest.raises(AirframeError, match="no such file"):
+        read_airframe(str(tmp_path / "absent.toml"))
+    with pytest.raises(AirframeError, match="unknown airframe 'quad'; shipped: paper"):
+        read_airframe("quad")
+
+
+def test_layouts_the_plant_does_not_fly_yet_are_refused_with_the_reason():
+    with pytest.raises(AirframeError, match="fly the \"\\+\" layout only so far.*front, right"):
+        airframe_from_spec(parse_airframe(copy.deepcopy(QUAD_X), "airframe file x.toml"))
+    thrust_mapped = copy.deepcopy(PLUS)
+    thrust_mapped["command_map"] = "thrust"
+    with pytest.raises(AirframeError, match='command_map = "speed"'):
+        airframe_from_spec(parse_airframe(thrust_mapped))
+    assert airframe_from_spec(parse_airframe(copy.deepcopy(PLUS))).arm_m == A
+
+
+@pytest.mark.parametrize("fidelity", ["paper", "rigid-body"])
+def test_one_rotors_extra_thrust_turns_the_plant_the_way_the_convention_says(fidelity):
+    """The plant, rotor by rotor, for the "+" layout it flies (the signs of SIGNS)."""
+    hover = math.sqrt(PAPER.mass_kg * 9.81 / (4 * PAPER.thrust_coeff_ns2))
+    for i, expected in enumerate(SIGNS["plus"]):
+        w = np.full(4, hover)
+        w[i] += 20.0
+        if fidelity == "paper":
+            state = np.zeros(dynamics.PAPER_STATE_SIZE)
+            state[dynamics.PAPER_ROTOR:] = w
+            accel = dynamics.paper_derivative(state, w, PAPER, dynamics.no_disturbance())[9:12]
+        else:
+            state = np.zeros(dynamics.RIGID_STATE_SIZE)
+            state[6] = 1.0
+            state[dynamics.RIGID_ROTOR:] = w
+            accel = dynamics.rigid_body_derivative(state, w, PAPER,
+                                                   dynamics.no_disturbance())[10:13]
+        got = tuple(int(np.sign(round(a, 12))) for a in accel)
+        assert got == expected, (fidelity, f"rotor {i + 1}", got)
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_the_mixer_raises_the_rotors_that_turn_the_vehicle_the_way_asked(axis):
+    """A small roll, pitch or yaw demand over hover: each rotor moves the way its column of
+    the effectiveness matrix says."""
+    from autopilot.control.mixer import mix
+
+    effectiveness = read_airframe("paper").effectiveness()
+    weight = PAPER.mass_kg * 9.81
+    demand = [0.0, 0.0, 0.0]
+    demand[axis] = 0.05 if axis < 2 else 0.002
+    base = mix(weight, 0.0, 0.0, 0.0, PAPER)
+    moved = mix(weight, *demand, PAPER) - base
+    for i in range(4):
+        assert np.sign(round(moved[i], 12)) == np.sign(round(effectiveness[1 + axis, i], 15)), (
+            axis, i + 1, moved)

@@ -64,6 +64,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--airframe", default="paper", type=airframe_argument,
                    help="shipped airframe name or airframe .toml file")
     p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")
+    p.add_argument("--any-airframe-model", action="store_true",
+                   help="fly a model identified on another airframe")
     p.add_argument("--param", type=param_argument, action="append", default=[],
                    metavar="NAME=VALUE")
     p.add_argument("--flavour", default="px4", choices=FLAVOURS,
@@ -120,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
                              zenoh=zenoh_options_from_args(args))
     airframe = airframe_by_name(args.airframe)
     parameters = validate_parameters(dict(args.param))
-    models = load_models(args.model) if args.controller in ("ivfc", "t1fc") else None
+    models = (load_models(args.model, args.airframe, args.any_airframe_model)
+              if args.controller in ("ivfc", "t1fc") else None)
     period_s = 1.0 / args.rate_hz
     reference = None
     if args.reference:

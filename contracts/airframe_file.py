@@ -15,6 +15,8 @@ Every field is checked; an error names the file and the field.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import tomllib
 from dataclasses import dataclass
@@ -58,6 +60,17 @@ class AirframeSpec:
     command_map: str
     rotors: tuple[RotorSpec, ...]
     source: str = ""
+
+    def fingerprint(self) -> str:
+        """A short hash of everything that makes the vehicle fly as it does (not its name
+        or description): a model identified on it records this."""
+        numbers = [self.mass_kg, *self.inertia_kgm2.ravel(), self.linear_drag_nspm,
+                   self.command_map]
+        for r in self.rotors:
+            numbers += [*r.position_m, r.spin, r.thrust_coeff_ns2, r.moment_coeff_nms2,
+                        r.max_rad_s, r.time_constant_s, r.inertia_kgm2]
+        text = json.dumps([repr(float(n)) if not isinstance(n, str) else n for n in numbers])
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def effectiveness(self) -> np.ndarray:
         """(4, n): collective thrust [N], roll, pitch and yaw torque [N m] per W_i^2."""

@@ -26,6 +26,8 @@ def _build_parser() -> argparse.ArgumentParser:
         p.add_argument("--airframe", default="paper", type=airframe_argument,
                    help="shipped airframe name or airframe .toml file")
         p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")
+        p.add_argument("--any-airframe-model", action="store_true",
+                       help="fly a model identified on another airframe")
         p.add_argument("--param", type=param_argument, action="append", default=[],
                        metavar="NAME=VALUE", help="controller parameter override (repeatable)")
 

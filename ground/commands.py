@@ -8,7 +8,7 @@ import sys
 import time
 from typing import Any
 
-from autopilot.control.factory import load_models
+from autopilot.control.factory import load_models, model_airframe_metadata
 from autopilot.control.parameters import PARAMETERS, validate_parameters
 from autopilot.identification.ts_model import FuzzyModelSet
 from contracts.airframe import airframe_by_name
@@ -37,7 +37,8 @@ def run_command(args: argparse.Namespace) -> int:
     airframe = airframe_by_name(airframe_name)
     parameters = validate_parameters({**scenario.parameters, **dict(args.param)})
     model_path = args.model or scenario.model_path
-    models = load_models(model_path) if controller in ("ivfc", "t1fc") else None
+    models = (load_models(model_path, airframe_name, args.any_airframe_model)
+              if controller in ("ivfc", "t1fc") else None)
     how = ("in process" if args.inprocess else
            "logger + simulator + autopilot, real time" if args.realtime else
            "logger + simulator + autopilot, lockstep")
@@ -57,7 +58,8 @@ def run_command(args: argparse.Namespace) -> int:
                                {k: v for k, v in parameters.items() if k in
                                 {**scenario.parameters, **dict(args.param)}},
                                realtime=args.realtime, rate_hz=args.rate_hz,
-                               state_source=args.state_source)
+                               state_source=args.state_source,
+                               any_airframe_model=args.any_airframe_model)
         accounting = run_processes(scenario, settings, args.out)
         timing = accounting.pop("timing")
         shutil.copyfile(scenario.source, args.out / SCENARIO_FILE)
@@ -109,7 +111,7 @@ def compare_command(args: argparse.Namespace) -> int:
         scenario_by_name(name)
     airframe_by_name(args.airframe)
     parameters = validate_parameters(dict(args.param))
-    models = load_models(args.model)
+    models = load_models(args.model, args.airframe, args.any_airframe_model)
     return run_comparison(args.scenarios, args.controllers, args.plants, args.airframe, models,
                           parameters, args.out)
 
@@ -142,7 +144,7 @@ def identify_command(args: argparse.Namespace) -> int:
               file=sys.stderr)
         dataset = excitation_dataset(airframe, n_samples=args.samples, seed=args.seed)
     models = identify_dataset(dataset, n_clusters=n_clusters, seed=args.seed,
-                              metadata={"airframe": args.airframe})
+                              metadata=model_airframe_metadata(args.airframe))
     elapsed = time.perf_counter() - start
     print(format_table_2(models, TABLE_2_VALIDATION_RMSE))
     print(f"identification took {elapsed:.2f} s")

@@ -64,6 +64,7 @@ class RunSettings:
     rate_hz: float = 100.0
     state_source: str = "auto"
     vehicle: int = 1
+    any_airframe_model: bool = False  # fly a model identified on another airframe
 
 
 def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
@@ -90,6 +91,8 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
                  "--api-bind", "0", *zenoh_args]
     if settings.model_path is not None:
         autopilot += ["--model", str(settings.model_path)]
+    if settings.any_airframe_model:
+        autopilot.append("--any-airframe-model")
     for name, value in (settings.parameters or {}).items():
         autopilot += ["--param", f"{name}={value!r}"]
     return sim, autopilot

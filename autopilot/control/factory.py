@@ -18,6 +18,7 @@ from autopilot.control.cascade import (
 from autopilot.control.pid import PidCascade
 from autopilot.identification.ts_model import FuzzyModelSet
 from contracts.airframe import Airframe, attitude_coefficients
+from contracts.airframe_file import read_airframe
 from contracts.vectors import ATTITUDE_CHANNELS
 
 CONTROLLERS = ("ivfc", "t1fc", "smc", "pid")
@@ -75,16 +76,44 @@ def make_controller(
 SHIPPED_MODEL = "paper.json"
 
 
-def load_models(path: Path | None) -> FuzzyModelSet:
-    """The given model file, or the model shipped with the autopilot."""
+def load_models(path: Path | None, airframe: str | None = None,
+                any_airframe: bool = False) -> FuzzyModelSet:
+    """The given model file, or the model shipped with the autopilot. With ``airframe`` (a
+    name or file), a model identified on another airframe is refused unless
+    ``any_airframe``."""
     from autopilot.identification.model_file import load_model
 
     if path is None:
         with resources.as_file(resources.files("autopilot.models") / SHIPPED_MODEL) as shipped:
-            return load_model(shipped)
-    models = load_model(path)
+            models = load_model(shipped)
+    else:
+        models = load_model(path)
     missing = [name for name in ATTITUDE_CHANNELS if name not in models.channels]
     if missing:
         raise ValueError(f"{path}: the controller needs channel(s) {', '.join(missing)}, "
                          f"the model has {', '.join(models.channels) or 'none'}")
+    if airframe is not None and not any_airframe:
+        check_model_airframe(models, airframe, str(path or "the shipped model"))
     return models
+
+
+def model_airframe_metadata(airframe: str) -> dict[str, str]:
+    """What a model file records of the airframe it was identified on."""
+    spec = read_airframe(airframe)
+    return {"airframe": spec.name, "airframe_fingerprint": spec.fingerprint()}
+
+
+def check_model_airframe(models: FuzzyModelSet, airframe: str, source: str) -> None:
+    """A model flies the airframe it was identified on: same numbers (fingerprint), or,
+    for files that record only a name, the same name."""
+    spec = read_airframe(airframe)
+    recorded = models.metadata.get("airframe")
+    fingerprint = models.metadata.get("airframe_fingerprint")
+    same = (fingerprint == spec.fingerprint() if fingerprint is not None
+            else recorded in (None, spec.name))
+    if not same:
+        raise ValueError(
+            f"{source} was identified on airframe {recorded!r}"
+            f"{' (other numbers)' if recorded == spec.name else ''}, not on {spec.name!r}: "
+            f"identify one for it (ivfm identify --airframe {airframe} --out model.json), "
+            "or fly it anyway with --any-airframe-model")

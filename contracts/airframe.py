@@ -35,7 +35,7 @@ class Airframe(NamedTuple):
 
 
 def airframe_from_spec(spec: AirframeSpec) -> Airframe:
-    """The scalar model the plant and the controller fly: the paper's "+" layout (rotors
+    """The scalar model the controller and mixer fly: the paper's "+" layout (rotors
     front cw, right ccw, rear cw, left ccw at one arm length, alike, diagonal inertia,
     speed command map). Other layouts are refused with the reason."""
     rotors = spec.rotors
@@ -58,8 +58,9 @@ def airframe_from_spec(spec: AirframeSpec) -> Airframe:
     if spec.command_map != "speed":
         problems.append('command_map = "speed"')
     if problems:
-        raise AirframeError(f"{spec.source}: the plant and the controller fly the \"+\" "
-                            f"layout only so far; this airframe needs {'; '.join(problems)}")
+        raise AirframeError(f"{spec.source}: the autopilot's controller and mixer fly the "
+                            f"\"+\" layout only so far (the simulator flies any); this "
+                            f"airframe needs {'; '.join(problems)}")
     return Airframe(
         mass_kg=spec.mass_kg, ixx_kgm2=float(inertia[0, 0]), iyy_kgm2=float(inertia[1, 1]),
         izz_kgm2=float(inertia[2, 2]), arm_m=arm, thrust_coeff_ns2=first.thrust_coeff_ns2,

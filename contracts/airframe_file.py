@@ -15,6 +15,7 @@ Every field is checked; an error names the file and the field.
 
 from __future__ import annotations
 
+import argparse
 import hashlib
 import json
 import math
@@ -108,6 +109,15 @@ def read_airframe(source: str | Path) -> AirframeSpec:
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise AirframeError(f"{where}: not TOML: {exc}") from None
     return parse_airframe(data, where)
+
+
+def airframe_file_argument(text: str) -> str:
+    """argparse type of the simulator's ``--airframe NAME|FILE``: any valid file."""
+    try:
+        read_airframe(text)
+    except AirframeError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def parse_airframe(data: dict[str, Any], where: str = "airframe") -> AirframeSpec:

@@ -7,7 +7,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from contracts.airframe import airframe_argument, airframe_by_name
+from contracts.airframe_file import airframe_file_argument, read_airframe
 from contracts.mavlink import SIM_TCP_PORT
 from contracts.perturbations import load_schedule
 from contracts.zenoh_link import (
@@ -31,7 +31,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--rate-hz", type=float, default=100.0,
                    help="samples per second; in lockstep the autopilot's rate or a multiple")
     p.add_argument("--plant", default="rigid-body", choices=list(FIDELITIES))
-    p.add_argument("--airframe", default="paper", type=airframe_argument,
+    p.add_argument("--airframe", default="paper", type=airframe_file_argument,
                    help="shipped airframe name or airframe .toml file")
     p.add_argument("--start-altitude", type=float, default=0.0, metavar="M",
                    help="start hovering at this altitude (default: on the ground)")
@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     from sitl.server import Simulator, SimulatorConfig
 
     config = SimulatorConfig(
-        airframe=airframe_by_name(args.airframe), fidelity=args.plant, host=args.host,
+        airframe=read_airframe(args.airframe), fidelity=args.plant, host=args.host,
         port=args.port, lockstep=args.lockstep, rate_hz=args.rate_hz,
         start_altitude_m=args.start_altitude,
         schedule=load_schedule(args.schedule) if args.schedule else (),

@@ -11,16 +11,21 @@ Two fidelities (docs/mathematics.md):
 
 Disturbance vector (both): external force NED [N] (0:3), external torque FRD [N m]
 (3:6), wind NED [m/s] (6:9), rotor efficiency (9:13).
+
+Both integrate a :class:`PlantModel`: any quadrotor's geometry as its effectiveness
+matrix (docs/airframes.md), so the simulator flies whatever airframe file it is given.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from contracts.airframe import Airframe, input_gains, paper_attitude_drift, residual_rotor_speed
+from contracts.airframe import Airframe, residual_rotor_speed
+from contracts.airframe_file import SPINS, AirframeSpec, RotorSpec
 from contracts.frames import rotation_from_quat
 
 FIDELITY_PAPER = 0
@@ -43,6 +48,85 @@ def no_disturbance() -> np.ndarray:
     dist = np.zeros(DISTURBANCE_SIZE)
     dist[DIST_EFFICIENCY:] = 1.0
     return dist
+
+
+class PlantModel(NamedTuple):
+    """What the dynamics integrate: a quadrotor as data (numba-friendly arrays)."""
+
+    mass_kg: float
+    inertia_kgm2: np.ndarray  # 3x3 body FRD
+    inertia_inv: np.ndarray
+    linear_drag_nspm: float
+    gravity_mps2: float
+    effectiveness: np.ndarray  # 4x4: thrust, roll, pitch, yaw torque per W_i^2
+    spin: np.ndarray  # +1 cw, -1 ccw, seen from above
+    rotor_inertia_kgm2: np.ndarray
+    max_rad_s: np.ndarray
+    time_constant_s: np.ndarray
+    thrust_command_map: bool  # c -> thrust c T_max (else rotor speed c W_max)
+
+
+def model_from_spec(spec: AirframeSpec, gravity_mps2: float = 9.81) -> PlantModel:
+    """The plant model of an airframe file (four rotors, in motor order)."""
+    if len(spec.rotors) != 4:
+        raise ValueError(f"{spec.source}: the plant flies quadrotors: 4 rotors, not "
+                         f"{len(spec.rotors)}")
+    inertia = np.array(spec.inertia_kgm2, dtype=float)
+    return PlantModel(
+        mass_kg=spec.mass_kg, inertia_kgm2=inertia, inertia_inv=np.linalg.inv(inertia),
+        linear_drag_nspm=spec.linear_drag_nspm, gravity_mps2=gravity_mps2,
+        effectiveness=spec.effectiveness(),
+        spin=np.array([r.spin for r in spec.rotors]),
+        rotor_inertia_kgm2=np.array([r.inertia_kgm2 for r in spec.rotors]),
+        max_rad_s=np.array([r.max_rad_s for r in spec.rotors]),
+        time_constant_s=np.array([r.time_constant_s for r in spec.rotors]),
+        thrust_command_map=spec.command_map == "thrust")
+
+
+def model_from_airframe(af: Airframe) -> PlantModel:
+    """The plant model of the scalar "+" airframe: rotors front (cw), right (ccw), rear
+    (cw), left (ccw) at the arm length."""
+    arm = af.arm_m
+    rotors = tuple(RotorSpec(position, SPINS[spin], af.thrust_coeff_ns2, af.drag_coeff_nms2,
+                             af.rotor_max_rad_s, af.motor_tau_s, af.rotor_inertia_kgm2)
+                   for position, spin in (((arm, 0.0, 0.0), "cw"), ((0.0, arm, 0.0), "ccw"),
+                                          ((-arm, 0.0, 0.0), "cw"), ((0.0, -arm, 0.0), "ccw")))
+    spec = AirframeSpec("+", "", af.mass_kg, np.diag([af.ixx_kgm2, af.iyy_kgm2, af.izz_kgm2]),
+                        af.linear_drag_nspm, "speed", rotors, "scalar airframe")
+    return model_from_spec(spec, af.gravity_mps2)
+
+
+def perturbed_model(model: PlantModel, mass_scale: float, inertia_scale: float,
+                    rotor_inertia_scale: float) -> PlantModel:
+    """The model with mass, body inertia and rotor inertia scaled (perturbations)."""
+    return model._replace(
+        mass_kg=model.mass_kg * mass_scale, inertia_kgm2=model.inertia_kgm2 * inertia_scale,
+        inertia_inv=model.inertia_inv / inertia_scale,
+        rotor_inertia_kgm2=model.rotor_inertia_kgm2 * rotor_inertia_scale)
+
+
+def hover_rotor_speed(model: PlantModel) -> float:
+    """The one rotor speed at which all rotors together carry the weight."""
+    return math.sqrt(model.mass_kg * model.gravity_mps2 / float(np.sum(model.effectiveness[0])))
+
+
+@njit(cache=True)
+def rotor_wrench(
+    rotor_rad_s: np.ndarray, efficiency: np.ndarray, model: PlantModel
+) -> tuple[float, float, float, float, float]:
+    """Collective thrust [N], roll, pitch, yaw torque [N m] from the rotor speeds through
+    the effectiveness matrix, and the rotors' angular momentum h_r = sum Jr_i s_i W_i along
+    +z_b. ``efficiency`` scales each rotor's thrust and drag (1 healthy, 0 failed)."""
+    e = model.effectiveness
+    u_z = tau_x = tau_y = tau_z = h_r = 0.0
+    for i in range(4):
+        w2 = efficiency[i] * rotor_rad_s[i] * rotor_rad_s[i]
+        u_z += e[0, i] * w2
+        tau_x += e[1, i] * w2
+        tau_y += e[2, i] * w2
+        tau_z += e[3, i] * w2
+        h_r += model.rotor_inertia_kgm2[i] * model.spin[i] * rotor_rad_s[i]
+    return u_z, tau_x, tau_y, tau_z, h_r
 
 
 @njit(cache=True)
@@ -73,24 +157,30 @@ def rotor_forces(
 
 @njit(cache=True)
 def _rotor_derivative(
-    rotor_rad_s: np.ndarray, command_rad_s: np.ndarray, af: Airframe, out: np.ndarray
+    rotor_rad_s: np.ndarray, command_rad_s: np.ndarray, model: PlantModel, out: np.ndarray
 ) -> None:
     """First-order rotor lag; with tau = 0 the speeds are set, not integrated."""
     for i in range(4):
-        out[i] = (command_rad_s[i] - rotor_rad_s[i]) / af.motor_tau_s if af.motor_tau_s > 0 else 0.0
+        tau = model.time_constant_s[i]
+        out[i] = (command_rad_s[i] - rotor_rad_s[i]) / tau if tau > 0 else 0.0
 
 
 @njit(cache=True)
 def paper_derivative(
-    state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray
+    state: np.ndarray, command_rad_s: np.ndarray, af: PlantModel, dist: np.ndarray
 ) -> np.ndarray:
-    """The paper's Eq. (sys) with the signs of docs/mathematics.md, plus disturbances."""
+    """The paper's Eq. (sys) with the signs of docs/mathematics.md, plus disturbances:
+    phi'' = f_phi + tau_x / Ixx etc., the diagonal of the inertia matrix (the paper's
+    model has no products of inertia), J_r W_r generalised to the rotors' momentum h_r."""
     out = np.zeros(PAPER_STATE_SIZE)
     rotor = state[PAPER_ROTOR:PAPER_ROTOR + 4]
-    u_z, u_phi, u_theta, u_psi, w_r = rotor_forces(rotor, dist[DIST_EFFICIENCY:], af)
+    u_z, tau_x, tau_y, tau_z, h_r = rotor_wrench(rotor, dist[DIST_EFFICIENCY:], af)
     phi, theta, psi = state[6], state[7], state[8]
     phi_dot, theta_dot, psi_dot = state[9], state[10], state[11]
-    f_phi, f_theta, f_psi = paper_attitude_drift(phi_dot, theta_dot, psi_dot, w_r, af)
+    ixx, iyy, izz = af.inertia_kgm2[0, 0], af.inertia_kgm2[1, 1], af.inertia_kgm2[2, 2]
+    f_phi = (iyy - izz) / ixx * theta_dot * psi_dot - h_r / ixx * theta_dot
+    f_theta = (izz - ixx) / iyy * phi_dot * psi_dot + h_r / iyy * phi_dot
+    f_psi = (ixx - iyy) / izz * phi_dot * theta_dot
     m = af.mass_kg
     cphi, sphi = math.cos(phi), math.sin(phi)
     cth, sth = math.cos(theta), math.sin(theta)
@@ -111,22 +201,22 @@ def paper_derivative(
         + (dist[DIST_FORCE + 2] - k * (state[5] - dist[DIST_WIND + 2])) / m
     )
     out[6:9] = state[9:12]
-    b1, b2, b3 = input_gains(af)
-    out[9] = f_phi + b1 * u_phi + dist[DIST_TORQUE] / af.ixx_kgm2
-    out[10] = f_theta + b2 * u_theta + dist[DIST_TORQUE + 1] / af.iyy_kgm2
-    out[11] = f_psi + b3 * u_psi + dist[DIST_TORQUE + 2] / af.izz_kgm2
+    out[9] = f_phi + (tau_x + dist[DIST_TORQUE]) / ixx
+    out[10] = f_theta + (tau_y + dist[DIST_TORQUE + 1]) / iyy
+    out[11] = f_psi + (tau_z + dist[DIST_TORQUE + 2]) / izz
     _rotor_derivative(rotor, command_rad_s, af, out[PAPER_ROTOR:])
     return out
 
 
 @njit(cache=True)
 def rigid_body_derivative(
-    state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray
+    state: np.ndarray, command_rad_s: np.ndarray, af: PlantModel, dist: np.ndarray
 ) -> np.ndarray:
-    """Newton-Euler: I w' = -w x I w + tau + tau_gyro, v' = g e_z + R(-U_z e_z)/m + ..."""
+    """Newton-Euler: I w' = -w x I w + tau + tau_gyro, v' = g e_z + R(-U_z e_z)/m + ...
+    with the full inertia matrix; tau_gyro = -w x h_r e_z."""
     out = np.zeros(RIGID_STATE_SIZE)
     rotor = state[RIGID_ROTOR:RIGID_ROTOR + 4]
-    u_z, u_phi, u_theta, u_psi, w_r = rotor_forces(rotor, dist[DIST_EFFICIENCY:], af)
+    u_z, tau_x, tau_y, tau_z, h_r = rotor_wrench(rotor, dist[DIST_EFFICIENCY:], af)
     q = state[6:10]
     p, qr, r = state[10], state[11], state[12]
     rot = rotation_from_quat(q)
@@ -144,21 +234,25 @@ def rigid_body_derivative(
     out[7] = 0.5 * (q[0] * p + q[2] * r - q[3] * qr)
     out[8] = 0.5 * (q[0] * qr - q[1] * r + q[3] * p)
     out[9] = 0.5 * (q[0] * r + q[1] * qr - q[2] * p)
-    ixx, iyy, izz = af.ixx_kgm2, af.iyy_kgm2, af.izz_kgm2
-    h_r = af.rotor_inertia_kgm2 * w_r  # rotor angular momentum along +z_b
-    tau_x = af.arm_m * u_phi + dist[DIST_TORQUE] - h_r * qr
-    tau_y = af.arm_m * u_theta + dist[DIST_TORQUE + 1] + h_r * p
-    tau_z = u_psi + dist[DIST_TORQUE + 2]
-    out[10] = ((iyy - izz) * qr * r + tau_x) / ixx
-    out[11] = ((izz - ixx) * p * r + tau_y) / iyy
-    out[12] = ((ixx - iyy) * p * qr + tau_z) / izz
+    inertia = af.inertia_kgm2
+    hx = inertia[0, 0] * p + inertia[0, 1] * qr + inertia[0, 2] * r  # I w
+    hy = inertia[1, 0] * p + inertia[1, 1] * qr + inertia[1, 2] * r
+    hz = inertia[2, 0] * p + inertia[2, 1] * qr + inertia[2, 2] * r + h_r  # + rotors
+    mx = tau_x + dist[DIST_TORQUE] - (qr * hz - r * hy)  # tau - w x (I w + h_r e_z)
+    my = tau_y + dist[DIST_TORQUE + 1] - (r * hx - p * hz)
+    mz = tau_z + dist[DIST_TORQUE + 2] - (p * hy - qr * hx)
+    inv = af.inertia_inv
+    out[10] = inv[0, 0] * mx + inv[0, 1] * my + inv[0, 2] * mz
+    out[11] = inv[1, 0] * mx + inv[1, 1] * my + inv[1, 2] * mz
+    out[12] = inv[2, 0] * mx + inv[2, 1] * my + inv[2, 2] * mz
     _rotor_derivative(rotor, command_rad_s, af, out[RIGID_ROTOR:])
     return out
 
 
 @njit(cache=True)
 def _derivative(
-    fidelity: int, state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray
+    fidelity: int, state: np.ndarray, command_rad_s: np.ndarray, af: PlantModel,
+    dist: np.ndarray,
 ) -> np.ndarray:
     if fidelity == FIDELITY_PAPER:
         return paper_derivative(state, command_rad_s, af, dist)
@@ -170,7 +264,7 @@ def rk4_integrate(
     fidelity: int,
     state: np.ndarray,
     command_rad_s: np.ndarray,
-    af: Airframe,
+    af: PlantModel,
     dist: np.ndarray,
     step_s: float,
     n_steps: int,
@@ -183,8 +277,9 @@ def rk4_integrate(
     x = state.copy()
     rotor_at = PAPER_ROTOR if fidelity == FIDELITY_PAPER else RIGID_ROTOR
     for _ in range(n_steps):
-        if af.motor_tau_s <= 0.0:
-            x[rotor_at:rotor_at + 4] = command_rad_s
+        for i in range(4):
+            if af.time_constant_s[i] <= 0.0:
+                x[rotor_at + i] = command_rad_s[i]
         k1 = _derivative(fidelity, x, command_rad_s, af, dist)
         k2 = _derivative(fidelity, x + 0.5 * step_s * k1, command_rad_s, af, dist)
         k3 = _derivative(fidelity, x + 0.5 * step_s * k2, command_rad_s, af, dist)

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from contracts.airframe import Airframe
+from contracts.airframe_file import AirframeSpec
 from contracts.frames import (
     body_rates_from_euler_rates,
     euler_from_quat,
@@ -42,7 +43,7 @@ class Plant:
 
     def __init__(
         self,
-        airframe: Airframe,
+        airframe: Airframe | AirframeSpec | dynamics.PlantModel,
         fidelity: str = "paper",
         step_s: float = 0.001,
         position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
@@ -55,7 +56,11 @@ class Plant:
             raise ValueError(f"unknown plant fidelity {fidelity!r}; known: {known}")
         if not (math.isfinite(step_s) and 1e-5 <= step_s <= 0.05):
             raise ValueError(f"plant step_s must be in [1e-5, 0.05] s, got {step_s!r}")
-        self.nominal_airframe = airframe
+        if isinstance(airframe, Airframe):
+            airframe = dynamics.model_from_airframe(airframe)
+        elif isinstance(airframe, AirframeSpec):
+            airframe = dynamics.model_from_spec(airframe)
+        self.nominal_model: dynamics.PlantModel = airframe
         self.fidelity = fidelity
         self._fidelity_code = dynamics.FIDELITIES[fidelity]
         self.step_s = step_s
@@ -63,7 +68,7 @@ class Plant:
         self.time_s = 0.0
         self._steps_done = 0
         self.perturbations = Perturbations()
-        self._airframe = airframe
+        self._model = airframe
         self._disturbance = dynamics.no_disturbance()
         if self._fidelity_code == dynamics.FIDELITY_PAPER:
             self._state = np.zeros(dynamics.PAPER_STATE_SIZE)
@@ -78,20 +83,15 @@ class Plant:
         self._command_rad_s = np.full(4, float(rotor_rad_s))
 
     @property
-    def airframe(self) -> Airframe:
-        """The airframe as currently perturbed (what the dynamics integrate)."""
-        return self._airframe
+    def model(self) -> dynamics.PlantModel:
+        """The vehicle as currently perturbed (what the dynamics integrate)."""
+        return self._model
 
     def set_perturbations(self, perturbations: Perturbations) -> None:
         """Replace the active perturbations; validated when the object was built."""
-        nominal = self.nominal_airframe
-        self._airframe = nominal._replace(
-            mass_kg=nominal.mass_kg * perturbations.mass_scale,
-            ixx_kgm2=nominal.ixx_kgm2 * perturbations.inertia_scale,
-            iyy_kgm2=nominal.iyy_kgm2 * perturbations.inertia_scale,
-            izz_kgm2=nominal.izz_kgm2 * perturbations.inertia_scale,
-            rotor_inertia_kgm2=nominal.rotor_inertia_kgm2 * perturbations.rotor_inertia_scale,
-        )
+        self._model = dynamics.perturbed_model(
+            self.nominal_model, perturbations.mass_scale, perturbations.inertia_scale,
+            perturbations.rotor_inertia_scale)
         dist = dynamics.no_disturbance()
         dist[dynamics.DIST_FORCE:dynamics.DIST_FORCE + 3] = perturbations.force_ned_n
         dist[dynamics.DIST_TORQUE:dynamics.DIST_TORQUE + 3] = perturbations.torque_frd_nm
@@ -101,11 +101,15 @@ class Plant:
         self.perturbations = perturbations
 
     def set_motor_commands(self, commands: np.ndarray) -> None:
-        """Normalised motor commands c_i in [0, 1] -> rotor speed commands c_i W_max."""
+        """Normalised motor commands c_i in [0, 1] -> rotor speed commands: c_i W_max (speed
+        command map), or the speed giving thrust c_i T_max (thrust map): sqrt(c_i) W_max."""
         c = np.asarray(commands, dtype=float)
         if c.shape != (4,) or not np.all(np.isfinite(c)):
             raise ValueError(f"motor commands must be 4 finite numbers, got {commands!r}")
-        self._command_rad_s = np.clip(c, 0.0, 1.0) * self._airframe.rotor_max_rad_s
+        c = np.clip(c, 0.0, 1.0)
+        if self._model.thrust_command_map:
+            c = np.sqrt(c)
+        self._command_rad_s = c * self._model.max_rad_s
 
     def advance(self, duration_s: float) -> None:
         """Integrate for a whole number of plant steps with the commands held."""
@@ -118,7 +122,7 @@ class Plant:
             self._fidelity_code,
             self._state,
             self._command_rad_s,
-            self._airframe,
+            self._model,
             self._disturbance,
             self.step_s,
             n_steps,

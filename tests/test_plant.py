@@ -125,7 +125,8 @@ def test_paper_attitude_model_term_by_term(af) -> None:
     state[6:9] = (0.2, -0.1, 0.4)  # the paper's model does not depend on the angles
     state[9:12] = RATES
     state[12:16] = _rotor_speeds(af)
-    d = dynamics.paper_derivative(state, state[12:16].copy(), af, dynamics.no_disturbance())
+    d = dynamics.paper_derivative(state, state[12:16].copy(), dynamics.model_from_airframe(af),
+                                 dynamics.no_disturbance())
     terms = _paper_attitude_acceleration_by_hand(af, RATES, state[12:16])
     for i, axis_terms in enumerate(terms):
         assert d[9 + i] == pytest.approx(sum(axis_terms), rel=1e-12, abs=1e-12), i
@@ -161,13 +162,14 @@ def test_rigid_body_rates_follow_newton_euler_with_the_rotor_gyroscope(af) -> No
                     d_ * (rotors[1] ** 2 + rotors[3] ** 2 - rotors[0] ** 2 - rotors[2] ** 2)])
     gyro = -np.cross(omega, af.rotor_inertia_kgm2 * w_r * np.array([0.0, 0.0, 1.0]))
     expected = np.linalg.solve(inertia, -np.cross(omega, inertia @ omega) + gyro + tau)
+    model = dynamics.model_from_airframe(af)
     for quat in (np.array([1.0, 0.0, 0.0, 0.0]), quat_from_euler(0.3, -0.2, 1.1)):
         state = _rigid_state(af, quat, omega)
-        d = dynamics.rigid_body_derivative(state, rotors.copy(), af, dist)
+        d = dynamics.rigid_body_derivative(state, rotors.copy(), model, dist)
         np.testing.assert_allclose(d[10:13], expected, rtol=1e-12, atol=1e-12)
     # Level: the same numbers as the paper's model with Euler rates = body rates.
     level = dynamics.rigid_body_derivative(_rigid_state(af, np.array([1.0, 0, 0, 0]), omega),
-                                           rotors.copy(), af, dist)
+                                           rotors.copy(), model, dist)
     terms = _paper_attitude_acceleration_by_hand(af, RATES, rotors)
     np.testing.assert_allclose(level[10:13], [sum(t) for t in terms], rtol=1e-12, atol=1e-12)
 
@@ -192,8 +194,8 @@ def test_gyroscopic_terms_have_opposite_signs_on_roll_and_pitch(fidelity: str) -
         accel = slice(10, 13)
         derivative = dynamics.rigid_body_derivative
     dist = dynamics.no_disturbance()
-    gyro = (derivative(state, rotors.copy(), af, dist)[accel]
-            - derivative(state, rotors.copy(), no_jr, dist)[accel])
+    gyro = (derivative(state, rotors.copy(), dynamics.model_from_airframe(af), dist)[accel]
+            - derivative(state, rotors.copy(), dynamics.model_from_airframe(no_jr), dist)[accel])
     jr = af.rotor_inertia_kgm2
     expected = [-jr / af.ixx_kgm2 * q * w_r, jr / af.iyy_kgm2 * p * w_r, 0.0]
     np.testing.assert_allclose(gyro, expected, rtol=1e-9, atol=1e-12)
@@ -219,7 +221,7 @@ def test_rk4_matches_scipy_reference_integration(fidelity: str) -> None:
     dist[dynamics.DIST_WIND : dynamics.DIST_WIND + 3] = (2.0, -1.0, 0.0)
 
     def rhs(_t, x):
-        return dynamics._derivative(code, x, command_rad_s, plant.airframe, dist)
+        return dynamics._derivative(code, x, command_rad_s, plant.model, dist)
 
     plant.set_motor_commands(cmd)
     plant.advance(0.5)
@@ -264,11 +266,14 @@ def test_perturbations_change_the_plant_and_are_validated() -> None:
     plant.set_perturbations(
         Perturbations(inertia_scale=1.2, rotor_inertia_scale=1.2, mass_scale=1.1)
     )
-    assert plant.airframe.ixx_kgm2 == pytest.approx(0.18 * 1.2)
-    assert plant.airframe.rotor_inertia_kgm2 == pytest.approx(1.32e-3 * 1.2)
-    assert plant.airframe.mass_kg == pytest.approx(1.32)
+    assert plant.model.inertia_kgm2[0, 0] == pytest.approx(0.18 * 1.2)
+    assert plant.model.inertia_inv[2, 2] == pytest.approx(1 / (0.09 * 1.2))
+    assert plant.model.rotor_inertia_kgm2.tolist() == pytest.approx([1.32e-3 * 1.2] * 4)
+    assert plant.model.mass_kg == pytest.approx(1.32)
     plant.set_perturbations(Perturbations())
-    assert plant.airframe == PAPER
+    nominal = plant.nominal_model
+    assert plant.model.mass_kg == nominal.mass_kg == PAPER.mass_kg
+    assert np.array_equal(plant.model.inertia_kgm2, np.diag([0.18, 0.18, 0.09]))
     for bad in (
         dict(inertia_scale=math.nan),
         dict(mass_scale=0.0),

@@ -101,7 +101,7 @@ def test_a_scheduled_plant_change_takes_effect_at_its_sample():
     masses = []
     for _ in range(12):
         sim.next_sample()
-        masses.append(sim.plant.airframe.mass_kg / PAPER.mass_kg)
+        masses.append(sim.plant.model.mass_kg / PAPER.mass_kg)
         sim.advance()
     assert masses == [1.0] * 5 + [1.5] * 5 + [1.0] * 2  # [0.05 s, 0.1 s) of sim time
     assert any("perturbation" in line and "mass" in line for line in lines)

@@ -366,7 +366,6 @@ class Autopilot:
             self.log(f"connected to the simulator at {self.sim.address[0]}:"
                      f"{self.sim.address[1]}")
             self.sel.register(self.sim.sock, selectors.EVENT_READ, "sim")
-        self.sim.heartbeat_due(now)
 
     def _on_sim_readable(self) -> None:
         samples = self.sim.read()
@@ -478,6 +477,7 @@ class Autopilot:
         now = time.monotonic()
         if now >= self._next_service:
             self._next_service = now + SERVICE_PERIOD_S
+            self.sim.heartbeat_due(now)  # on connecting and at 1 Hz: after a step, not before
             self.ground.service()
             self._service_requests()
             self._status()

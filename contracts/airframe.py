@@ -6,14 +6,18 @@ it, the controller's mixer and nominal model read it. Fields carry their units.
 
 from __future__ import annotations
 
-import argparse
 import math
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from contracts.airframe_file import AirframeError, AirframeSpec, read_airframe
+from contracts.airframe_file import (
+    AirframeError,
+    AirframeSpec,
+    checked_argument,
+    read_airframe,
+)
 from contracts.frames import GRAVITY_MPS2
 
 
@@ -75,13 +79,7 @@ def airframe_by_name(name: str) -> Airframe:
     return airframe_from_spec(read_airframe(name))
 
 
-def airframe_argument(text: str) -> str:
-    """argparse type of ``--airframe NAME|FILE``: checked now, passed on as given."""
-    try:
-        airframe_by_name(text)
-    except AirframeError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    return text
+airframe_argument = checked_argument(airframe_by_name)  # what the autopilot flies
 
 
 # The shipped airframes (contracts/airframes/*.toml): the paper's Table 1 with the rotor

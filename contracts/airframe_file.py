@@ -20,6 +20,7 @@ import hashlib
 import json
 import math
 import tomllib
+from collections.abc import Callable
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -111,13 +112,19 @@ def read_airframe(source: str | Path) -> AirframeSpec:
     return parse_airframe(data, where)
 
 
-def airframe_file_argument(text: str) -> str:
-    """argparse type of the simulator's ``--airframe NAME|FILE``: any valid file."""
-    try:
-        read_airframe(text)
-    except AirframeError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
-    return text
+def checked_argument(load: Callable[[str], object]) -> Callable[[str], str]:
+    """argparse type of ``--airframe NAME|FILE``: ``load`` checks it now (its
+    AirframeError is the usage error), the text is passed on as given."""
+    def argument(text: str) -> str:
+        try:
+            load(text)
+        except AirframeError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+        return text
+    return argument
+
+
+airframe_file_argument = checked_argument(read_airframe)  # the simulator flies any file
 
 
 def parse_airframe(data: dict[str, Any], where: str = "airframe") -> AirframeSpec:

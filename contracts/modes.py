@@ -43,7 +43,6 @@ COPTER_MODES: dict[FlightMode, int] = {
     FlightMode.HOLD: 5,  # LOITER
     FlightMode.LAND: 9,
 }
-COPTER_MODE_NAMES = {3: "AUTO", 4: "GUIDED", 5: "LOITER", 9: "LAND"}
 
 FLAVOURS = ("px4", "ardupilot")
 

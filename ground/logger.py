@@ -52,7 +52,6 @@ from ground.run_files import iter_messages
 
 ACTIVE_SUFFIX = ".mcap.active"
 SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
-_SIM_TIME = struct.Struct("<q")  # sim_time_us right after seq in every CDR record
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
 

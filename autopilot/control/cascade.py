@@ -43,7 +43,7 @@ from contracts.vectors import (
     REF_VEL,
 )
 
-CH_PHI, CH_THETA, CH_PSI, CH_Z, CH_X, CH_Y = range(6)
+CH_Z, CH_X, CH_Y = (CHANNELS.index(name) for name in ("z", "x", "y"))
 BASIS_IT2, BASIS_T1, BASIS_NOMINAL = 0, 1, 2
 
 

@@ -217,9 +217,15 @@ def _rotor(value: Any, where: str) -> RotorSpec:
 def _check_controllable(spec: AirframeSpec, where: str) -> None:
     """Rotors that can hover it and that reach every axis (the effectiveness matrix has
     full rank), so the mixer can invert it."""
+    if len(spec.rotors) != 4:
+        raise AirframeError(f"{where}: this stack flies quadrotors: 4 rotors, not "
+                            f"{len(spec.rotors)}")
     if np.linalg.matrix_rank(spec.effectiveness(), tol=1e-12) < 4:
         raise AirframeError(f"{where}: the rotors cannot produce thrust, roll, pitch and yaw "
                             "independently (the effectiveness matrix is rank deficient)")
+    if np.any(np.linalg.inv(spec.effectiveness())[:, 0] <= 0.0):
+        raise AirframeError(f"{where}: thrust without torque needs a rotor to push down (the "
+                            "centre of mass is outside the rotors): no mixer can hover it")
     max_thrust = sum(r.thrust_coeff_ns2 * r.max_rad_s**2 for r in spec.rotors)
     weight = spec.mass_kg * 9.81
     if max_thrust <= weight:

@@ -15,7 +15,15 @@ import numpy as np
 from autopilot.control.factory import make_controller
 from autopilot.identification.dataset import ALL_COLUMNS, CHANNEL_INPUT, Dataset
 from autopilot.reference import evaluate_multisine, excitation_sines
-from contracts.airframe import Airframe, hover_rotor_speed_rad_s, input_gains, paper_attitude_drift
+from contracts.airframe import (
+    Airframe,
+    attitude_drift,
+    controller_inputs,
+    hover_rotor_speeds,
+    residual_rotor_speed,
+    rotor_momentum,
+    rotor_speeds,
+)
 from contracts.vectors import (
     MEASUREMENT,
     REF_EULER,
@@ -25,7 +33,6 @@ from contracts.vectors import (
     REF_SIZE,
 )
 from ground.run_files import control_records
-from sitl.dynamics import rotor_forces
 from sitl.plant import Plant
 
 WARM_UP_SAMPLES = 200  # flown, not recorded: the start-up transient is not excitation
@@ -45,6 +52,14 @@ def _add_output_noise(columns: dict[str, np.ndarray], noise_fraction: float,
     for i, name in enumerate(OUTPUT_COLUMNS):
         columns[name] = columns[name] + noise[:, i] * noise_fraction * np.max(
             np.abs(columns[name]))
+
+
+def _inputs(commands: np.ndarray, airframe: Airframe) -> tuple[np.ndarray, float, float]:
+    """(U_phi, U_theta, U_psi), W_r and h_r of motor commands, as the plant maps them."""
+    rotor_rad_s = rotor_speeds(commands, airframe)
+    _u_z, *u = controller_inputs(rotor_rad_s, np.ones(4), airframe)
+    return (np.array(u), residual_rotor_speed(rotor_rad_s, airframe),
+            rotor_momentum(rotor_rad_s, airframe))
 
 
 def _sample(t_s: float, euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray, w_r: float,
@@ -76,11 +91,10 @@ def excitation_dataset(
     rng = np.random.default_rng(seed)
     sines = excitation_sines(rng)
     plant = Plant(airframe, "paper", position_ned_m=(0.0, 0.0, -10.0),
-                  rotor_rad_s=hover_rotor_speed_rad_s(airframe))
+                  rotor_rad_s=hover_rotor_speeds(airframe))
     controller = make_controller("smc", airframe, period_s)
     rows = []
-    efficiency = np.ones(4)
-    b = np.array(input_gains(airframe))
+    b = airframe.input_gains
     ref = np.zeros(REF_SIZE)
     ref[REF_POS + 2] = -10.0
     for k in range(-WARM_UP_SAMPLES, n_samples):
@@ -90,11 +104,9 @@ def excitation_dataset(
                 evaluate_multisine(sines[axis], t))
         meas = plant.true_measurement()
         commands = controller.step(meas, ref, False)
-        _u_z, u_phi, u_theta, u_psi, w_r = rotor_forces(
-            commands * airframe.rotor_max_rad_s, efficiency, airframe)
+        u, w_r, h_r = _inputs(commands, airframe)
         rates = meas[MEASUREMENT.euler_rate_rad_s]
-        f = np.array(paper_attitude_drift(rates[0], rates[1], rates[2], w_r, airframe))
-        u = np.array((u_phi, u_theta, u_psi))
+        f = np.array(attitude_drift(rates[0], rates[1], rates[2], h_r, airframe))
         if k >= 0:
             rows.append(_sample(t, meas[MEASUREMENT.euler_rad], rates, w_r, u, f + b * u, f))
         plant.set_motor_commands(commands)
@@ -126,13 +138,10 @@ def dataset_from_log(log: Path, vehicle: int, airframe: Airframe, skip_s: float 
                          f"identification needs at least 21")
     rates = meas[:, MEASUREMENT.euler_rate_rad_s]
     acc = np.diff(rates, axis=0) / np.diff(t)[:, None]
-    efficiency = np.ones(4)
-    b = np.array(input_gains(airframe))
+    b = airframe.input_gains
     rows = []
     for k in np.flatnonzero(keep[:-1]):
-        _u_z, u_phi, u_theta, u_psi, w_r = rotor_forces(
-            commands[k] * airframe.rotor_max_rad_s, efficiency, airframe)
-        u = np.array([u_phi, u_theta, u_psi])
+        u, w_r, _h_r = _inputs(commands[k], airframe)
         rows.append(_sample(t[k], meas[k, MEASUREMENT.euler_rad], rates[k], w_r, u, acc[k],
                             acc[k] - b * u))
     columns = _columns(rows)

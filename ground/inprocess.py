@@ -13,7 +13,7 @@ import numpy as np
 from autopilot.control.cascade import SlidingModeCascade
 from autopilot.control.factory import make_controller
 from autopilot.identification.ts_model import FuzzyModelSet
-from contracts.airframe import Airframe, hover_rotor_speed_rad_s
+from contracts.airframe import Airframe, hover_rotor_speeds
 from contracts.perturbations import IN_PROCESS_KINDS, Perturbations
 from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT_SIZE, REF_SIZE
 from ground.run_files import RunRecord, left_the_envelope
@@ -43,7 +43,7 @@ def run_inprocess(
     # tests are about tracking, not take-off.
     plant = Plant(airframe, plant_fidelity, plant_step_s,
                   position_ned_m=(0.0, 0.0, -scenario.reference.altitude_m),
-                  rotor_rad_s=hover_rotor_speed_rad_s(airframe))
+                  rotor_rad_s=hover_rotor_speeds(airframe))
     ctrl = make_controller(controller, airframe, period_s, models, parameters)
     adaptive = isinstance(ctrl, SlidingModeCascade)
     meas_log = np.zeros((n, MEASUREMENT_SIZE))

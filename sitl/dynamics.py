@@ -12,20 +12,19 @@ Two fidelities (docs/mathematics.md):
 Disturbance vector (both): external force NED [N] (0:3), external torque FRD [N m]
 (3:6), wind NED [m/s] (6:9), rotor efficiency (9:13).
 
-Both integrate a :class:`PlantModel`: any quadrotor's geometry as its effectiveness
-matrix (docs/airframes.md), so the simulator flies whatever airframe file it is given.
+Both integrate a ``contracts.airframe.Airframe``: any quadrotor's geometry as its
+effectiveness matrix (docs/airframes.md), so the simulator flies whatever airframe file it
+is given.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
-from contracts.airframe import Airframe, residual_rotor_speed
-from contracts.airframe_file import SPINS, AirframeSpec, RotorSpec
+from contracts.airframe import Airframe
 from contracts.frames import rotation_from_quat
 
 FIDELITY_PAPER = 0
@@ -50,69 +49,19 @@ def no_disturbance() -> np.ndarray:
     return dist
 
 
-class PlantModel(NamedTuple):
-    """What the dynamics integrate: a quadrotor as data (numba-friendly arrays)."""
-
-    mass_kg: float
-    inertia_kgm2: np.ndarray  # 3x3 body FRD
-    inertia_inv: np.ndarray
-    linear_drag_nspm: float
-    gravity_mps2: float
-    effectiveness: np.ndarray  # 4x4: thrust, roll, pitch, yaw torque per W_i^2
-    spin: np.ndarray  # +1 cw, -1 ccw, seen from above
-    rotor_inertia_kgm2: np.ndarray
-    max_rad_s: np.ndarray
-    time_constant_s: np.ndarray
-    thrust_command_map: bool  # c -> thrust c T_max (else rotor speed c W_max)
-
-
-def model_from_spec(spec: AirframeSpec, gravity_mps2: float = 9.81) -> PlantModel:
-    """The plant model of an airframe file (four rotors, in motor order)."""
-    if len(spec.rotors) != 4:
-        raise ValueError(f"{spec.source}: the plant flies quadrotors: 4 rotors, not "
-                         f"{len(spec.rotors)}")
-    inertia = np.array(spec.inertia_kgm2, dtype=float)
-    return PlantModel(
-        mass_kg=spec.mass_kg, inertia_kgm2=inertia, inertia_inv=np.linalg.inv(inertia),
-        linear_drag_nspm=spec.linear_drag_nspm, gravity_mps2=gravity_mps2,
-        effectiveness=spec.effectiveness(),
-        spin=np.array([r.spin for r in spec.rotors]),
-        rotor_inertia_kgm2=np.array([r.inertia_kgm2 for r in spec.rotors]),
-        max_rad_s=np.array([r.max_rad_s for r in spec.rotors]),
-        time_constant_s=np.array([r.time_constant_s for r in spec.rotors]),
-        thrust_command_map=spec.command_map == "thrust")
-
-
-def model_from_airframe(af: Airframe) -> PlantModel:
-    """The plant model of the scalar "+" airframe: rotors front (cw), right (ccw), rear
-    (cw), left (ccw) at the arm length."""
-    arm = af.arm_m
-    rotors = tuple(RotorSpec(position, SPINS[spin], af.thrust_coeff_ns2, af.drag_coeff_nms2,
-                             af.rotor_max_rad_s, af.motor_tau_s, af.rotor_inertia_kgm2)
-                   for position, spin in (((arm, 0.0, 0.0), "cw"), ((0.0, arm, 0.0), "ccw"),
-                                          ((-arm, 0.0, 0.0), "cw"), ((0.0, -arm, 0.0), "ccw")))
-    spec = AirframeSpec("+", "", af.mass_kg, np.diag([af.ixx_kgm2, af.iyy_kgm2, af.izz_kgm2]),
-                        af.linear_drag_nspm, "speed", rotors, "scalar airframe")
-    return model_from_spec(spec, af.gravity_mps2)
-
-
-def perturbed_model(model: PlantModel, mass_scale: float, inertia_scale: float,
-                    rotor_inertia_scale: float) -> PlantModel:
-    """The model with mass, body inertia and rotor inertia scaled (perturbations)."""
+def perturbed_model(model: Airframe, mass_scale: float, inertia_scale: float,
+                    rotor_inertia_scale: float) -> Airframe:
+    """The model with mass, body inertia and rotor inertia scaled (perturbations). The
+    autopilot's nominal fields (input gains, mixing) stay: the dynamics do not read them."""
     return model._replace(
         mass_kg=model.mass_kg * mass_scale, inertia_kgm2=model.inertia_kgm2 * inertia_scale,
         inertia_inv=model.inertia_inv / inertia_scale,
         rotor_inertia_kgm2=model.rotor_inertia_kgm2 * rotor_inertia_scale)
 
 
-def hover_rotor_speed(model: PlantModel) -> float:
-    """The one rotor speed at which all rotors together carry the weight."""
-    return math.sqrt(model.mass_kg * model.gravity_mps2 / float(np.sum(model.effectiveness[0])))
-
-
 @njit(cache=True)
 def rotor_wrench(
-    rotor_rad_s: np.ndarray, efficiency: np.ndarray, model: PlantModel
+    rotor_rad_s: np.ndarray, efficiency: np.ndarray, model: Airframe
 ) -> tuple[float, float, float, float, float]:
     """Collective thrust [N], roll, pitch, yaw torque [N m] from the rotor speeds through
     the effectiveness matrix, and the rotors' angular momentum h_r = sum Jr_i s_i W_i along
@@ -130,34 +79,8 @@ def rotor_wrench(
 
 
 @njit(cache=True)
-def rotor_forces(
-    rotor_rad_s: np.ndarray, efficiency: np.ndarray, af: Airframe
-) -> tuple[float, float, float, float, float]:
-    """The rotor map: (U_z, U_phi, U_theta, U_psi, W_r) from rotor speeds.
-
-    ``efficiency`` scales each rotor's thrust and drag (1 = healthy, 0 = failed).
-    """
-    t1 = efficiency[0] * af.thrust_coeff_ns2 * rotor_rad_s[0] ** 2
-    t2 = efficiency[1] * af.thrust_coeff_ns2 * rotor_rad_s[1] ** 2
-    t3 = efficiency[2] * af.thrust_coeff_ns2 * rotor_rad_s[2] ** 2
-    t4 = efficiency[3] * af.thrust_coeff_ns2 * rotor_rad_s[3] ** 2
-    u_z = t1 + t2 + t3 + t4
-    u_phi = t4 - t2
-    u_theta = t1 - t3
-    d = af.drag_coeff_nms2
-    u_psi = d * (
-        efficiency[1] * rotor_rad_s[1] ** 2
-        + efficiency[3] * rotor_rad_s[3] ** 2
-        - efficiency[0] * rotor_rad_s[0] ** 2
-        - efficiency[2] * rotor_rad_s[2] ** 2
-    )
-    w_r = residual_rotor_speed(rotor_rad_s)
-    return u_z, u_phi, u_theta, u_psi, w_r
-
-
-@njit(cache=True)
 def _rotor_derivative(
-    rotor_rad_s: np.ndarray, command_rad_s: np.ndarray, model: PlantModel, out: np.ndarray
+    rotor_rad_s: np.ndarray, command_rad_s: np.ndarray, model: Airframe, out: np.ndarray
 ) -> None:
     """First-order rotor lag; with tau = 0 the speeds are set, not integrated."""
     for i in range(4):
@@ -167,7 +90,7 @@ def _rotor_derivative(
 
 @njit(cache=True)
 def paper_derivative(
-    state: np.ndarray, command_rad_s: np.ndarray, af: PlantModel, dist: np.ndarray
+    state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray
 ) -> np.ndarray:
     """The paper's Eq. (sys) with the signs of docs/mathematics.md, plus disturbances:
     phi'' = f_phi + tau_x / Ixx etc., the diagonal of the inertia matrix (the paper's
@@ -210,7 +133,7 @@ def paper_derivative(
 
 @njit(cache=True)
 def rigid_body_derivative(
-    state: np.ndarray, command_rad_s: np.ndarray, af: PlantModel, dist: np.ndarray
+    state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray
 ) -> np.ndarray:
     """Newton-Euler: I w' = -w x I w + tau + tau_gyro, v' = g e_z + R(-U_z e_z)/m + ...
     with the full inertia matrix; tau_gyro = -w x h_r e_z."""
@@ -251,7 +174,7 @@ def rigid_body_derivative(
 
 @njit(cache=True)
 def _derivative(
-    fidelity: int, state: np.ndarray, command_rad_s: np.ndarray, af: PlantModel,
+    fidelity: int, state: np.ndarray, command_rad_s: np.ndarray, af: Airframe,
     dist: np.ndarray,
 ) -> np.ndarray:
     if fidelity == FIDELITY_PAPER:
@@ -264,7 +187,7 @@ def rk4_integrate(
     fidelity: int,
     state: np.ndarray,
     command_rad_s: np.ndarray,
-    af: PlantModel,
+    af: Airframe,
     dist: np.ndarray,
     step_s: float,
     n_steps: int,

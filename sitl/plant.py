@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contracts.airframe import Airframe
+from contracts.airframe import Airframe, airframe_from_spec, rotor_speeds
 from contracts.airframe_file import AirframeSpec
 from contracts.frames import (
     body_rates_from_euler_rates,
@@ -43,12 +43,12 @@ class Plant:
 
     def __init__(
         self,
-        airframe: Airframe | AirframeSpec | dynamics.PlantModel,
+        airframe: Airframe | AirframeSpec,
         fidelity: str = "paper",
         step_s: float = 0.001,
         position_ned_m: tuple[float, float, float] = (0.0, 0.0, 0.0),
         euler_rad: tuple[float, float, float] = (0.0, 0.0, 0.0),
-        rotor_rad_s: float = 0.0,
+        rotor_rad_s: float | np.ndarray = 0.0,
         ground_contact: bool = False,
     ) -> None:
         if fidelity not in dynamics.FIDELITIES:
@@ -56,11 +56,9 @@ class Plant:
             raise ValueError(f"unknown plant fidelity {fidelity!r}; known: {known}")
         if not (math.isfinite(step_s) and 1e-5 <= step_s <= 0.05):
             raise ValueError(f"plant step_s must be in [1e-5, 0.05] s, got {step_s!r}")
-        if isinstance(airframe, Airframe):
-            airframe = dynamics.model_from_airframe(airframe)
-        elif isinstance(airframe, AirframeSpec):
-            airframe = dynamics.model_from_spec(airframe)
-        self.nominal_model: dynamics.PlantModel = airframe
+        if isinstance(airframe, AirframeSpec):
+            airframe = airframe_from_spec(airframe)
+        self.nominal_model: Airframe = airframe
         self.fidelity = fidelity
         self._fidelity_code = dynamics.FIDELITIES[fidelity]
         self.step_s = step_s
@@ -80,10 +78,10 @@ class Plant:
             self._rotor_at = dynamics.RIGID_ROTOR
         self._state[0:3] = position_ned_m
         self._state[self._rotor_at:self._rotor_at + 4] = rotor_rad_s
-        self._command_rad_s = np.full(4, float(rotor_rad_s))
+        self._command_rad_s = np.broadcast_to(np.asarray(rotor_rad_s, dtype=float), 4).copy()
 
     @property
-    def model(self) -> dynamics.PlantModel:
+    def model(self) -> Airframe:
         """The vehicle as currently perturbed (what the dynamics integrate)."""
         return self._model
 
@@ -101,15 +99,12 @@ class Plant:
         self.perturbations = perturbations
 
     def set_motor_commands(self, commands: np.ndarray) -> None:
-        """Normalised motor commands c_i in [0, 1] -> rotor speed commands: c_i W_max (speed
-        command map), or the speed giving thrust c_i T_max (thrust map): sqrt(c_i) W_max."""
+        """Normalised motor commands c_i in [0, 1] -> rotor speed commands through the
+        airframe's command map (``contracts.airframe.rotor_speeds``)."""
         c = np.asarray(commands, dtype=float)
         if c.shape != (4,) or not np.all(np.isfinite(c)):
             raise ValueError(f"motor commands must be 4 finite numbers, got {commands!r}")
-        c = np.clip(c, 0.0, 1.0)
-        if self._model.thrust_command_map:
-            c = np.sqrt(c)
-        self._command_rad_s = c * self._model.max_rad_s
+        self._command_rad_s = rotor_speeds(c, self._model)
 
     def advance(self, duration_s: float) -> None:
         """Integrate for a whole number of plant steps with the commands held."""

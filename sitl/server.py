@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contracts.airframe import Airframe
+from contracts.airframe import Airframe, airframe_from_spec, hover_rotor_speeds
 from contracts.airframe_file import AirframeSpec
 from contracts.mavlink import (
     SIM_TCP_PORT,
@@ -50,7 +50,6 @@ from contracts.perturbations import (
 from contracts.realtime import Histogram, set_realtime_priority
 from contracts.telemetry import SITL, STATE, json_record
 from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
-from sitl import dynamics
 from sitl.plant import Plant, VehicleState
 from sitl.sensors import read_sensors, sensed_state
 
@@ -61,7 +60,7 @@ STATE_FROM_PLANT = ("position_ned_m", "velocity_ned_mps", "quaternion", "euler_r
 
 @dataclass
 class SimulatorConfig:
-    airframe: Airframe | AirframeSpec  # any quadrotor file; the scalar "+" model too
+    airframe: Airframe | AirframeSpec  # any quadrotor
     fidelity: str = "paper"
     host: str = "127.0.0.1"
     port: int = SIM_TCP_PORT
@@ -112,12 +111,11 @@ class Simulator:
         self.config = config
         self.log = log or (lambda text: print(f"sitl: {text}", file=sys.stderr, flush=True))
         alt = config.start_altitude_m
-        model = (dynamics.model_from_spec(config.airframe)
-                 if isinstance(config.airframe, AirframeSpec)
-                 else dynamics.model_from_airframe(config.airframe))
+        model = (airframe_from_spec(config.airframe)
+                 if isinstance(config.airframe, AirframeSpec) else config.airframe)
         self.plant = Plant(model, config.fidelity, config.plant_step_s,
                            position_ned_m=(0.0, 0.0, -alt),
-                           rotor_rad_s=dynamics.hover_rotor_speed(model) if alt > 0 else 0.0,
+                           rotor_rad_s=hover_rotor_speeds(model) if alt > 0 else 0.0,
                            ground_contact=True)
         self.period_us = round(1e6 / config.rate_hz)
         self.period_s = self.period_us / 1e6

@@ -11,9 +11,20 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from contracts.airframe import PAPER, REALISTIC, Airframe, airframe_by_name, airframe_from_spec
+from autopilot.control.mixer import mix
+from contracts.airframe import (
+    PAPER,
+    airframe_by_name,
+    airframe_from_spec,
+    attitude_drift,
+    controller_inputs,
+    hover_rotor_speeds,
+    max_thrust_n,
+    rotor_speeds,
+)
 from contracts.airframe_file import AirframeError, parse_airframe, read_airframe
 from sitl import dynamics
+from tests.airframes import PlusNumbers, plus_numbers
 
 
 def _rotor(x: float, y: float, spin: str, k: float = 1e-5) -> dict:
@@ -49,12 +60,12 @@ SIGNS = {
 
 
 def test_the_shipped_airframes_are_the_papers_and_the_realistic_one():
-    assert Airframe(1.2, 0.18, 0.18, 0.09, 0.23, 54.2e-6, 1.1e-6, 1.32e-3, 500.0, 0.0,
-                             0.0) == PAPER
-    assert Airframe(1.5, 0.0215, 0.0215, 0.0380, 0.225, 1.22e-5, 1.9e-7, 6.0e-5,
-                                 1100.0, 0.02, 0.25) == REALISTIC
+    assert PlusNumbers(1.2, 0.18, 0.18, 0.09, 0.23, 54.2e-6, 1.1e-6, 1.32e-3, 500.0, 0.0,
+                       0.0) == plus_numbers("paper")
+    assert PlusNumbers(1.5, 0.0215, 0.0215, 0.0380, 0.225, 1.22e-5, 1.9e-7, 6.0e-5,
+                       1100.0, 0.02, 0.25) == plus_numbers("realistic")
     files = [p.name for p in resources.files("contracts").joinpath("airframes").iterdir()]
-    assert {"paper.toml", "realistic.toml"} <= set(files)
+    assert {"paper.toml", "realistic.toml", "quad-x-500.toml"} <= set(files)
 
 
 @pytest.mark.parametrize("name, frame", [("plus", PLUS), ("quad_x", QUAD_X),
@@ -67,14 +78,24 @@ def test_each_rotor_rolls_pitches_and_yaws_the_way_the_convention_says(name, fra
         assert got == expected, (name, f"rotor {i + 1}", got, expected)
 
 
-def test_the_paper_effectiveness_is_its_rotor_map():
-    spec = read_airframe("paper")
+def test_the_paper_inputs_are_its_rotor_map_exactly():
+    """U_z = sum T_i, U_phi = T4 - T2, U_theta = T1 - T3, U_psi = d (W2^2 + W4^2 - W1^2 -
+    W3^2), W_r = W1 - W2 + W3 - W4: the paper's map, and the effectiveness matrix with the
+    arm on the torques."""
+    from contracts.airframe import residual_rotor_speed
+
+    n = plus_numbers("paper")
     w = np.array([410.0, 395.0, 402.0, 388.0])
-    u_z, u_phi, u_theta, u_psi, w_r = dynamics.rotor_forces(w, np.ones(4), PAPER)
-    np.testing.assert_allclose(spec.effectiveness() @ w**2,
-                               (u_z, PAPER.arm_m * u_phi, PAPER.arm_m * u_theta, u_psi),
-                               rtol=1e-12)
-    assert w_r == pytest.approx(sum(r.spin * wi for r, wi in zip(spec.rotors, w, strict=True)))
+    t = n.thrust_coeff_ns2 * w**2
+    by_hand = (t.sum(), t[3] - t[1], t[0] - t[2],
+               n.drag_coeff_nms2 * (w[1]**2 + w[3]**2 - w[0]**2 - w[2]**2))
+    np.testing.assert_allclose(controller_inputs(w, np.ones(4), PAPER), by_hand, rtol=1e-14)
+    np.testing.assert_allclose(read_airframe("paper").effectiveness() @ w**2,
+                               (by_hand[0], n.arm_m * by_hand[1], n.arm_m * by_hand[2],
+                                by_hand[3]), rtol=1e-12)
+    assert residual_rotor_speed(w, PAPER) == w[0] - w[1] + w[2] - w[3]
+    np.testing.assert_allclose(PAPER.input_gains, (n.arm_m / n.ixx_kgm2,
+                                                   n.arm_m / n.iyy_kgm2, 1 / n.izz_kgm2))
 
 
 @pytest.mark.parametrize("change, message", [
@@ -108,7 +129,9 @@ def test_bad_airframe_files_are_refused_naming_the_field(change, message):
 def test_files_by_path_and_bad_paths(tmp_path):
     text = resources.files("contracts").joinpath("airframes", "paper.toml").read_text()
     (tmp_path / "mine.toml").write_text(text.replace('name = "paper"', 'name = "mine"'))
-    assert airframe_by_name(str(tmp_path / "mine.toml")) == PAPER
+    mine = str(tmp_path / "mine.toml")
+    assert read_airframe(mine).fingerprint() == read_airframe("paper").fingerprint()
+    np.testing.assert_array_equal(airframe_by_name(mine).mixing, PAPER.mixing)
     assert tomllib.loads(text)["name"] == "paper"
     (tmp_path / "broken.toml").write_text("mass_kg = [")
     with pytest.raises(AirframeError, match="not TOML"):
@@ -119,59 +142,55 @@ def test_files_by_path_and_bad_paths(tmp_path):
         read_airframe("quad")
 
 
-def test_layouts_the_autopilot_does_not_fly_yet_are_refused_with_the_reason():
-    with pytest.raises(AirframeError,
-                       match="fly the \"\\+\" layout only so far.*simulator flies any.*front"):
-        airframe_from_spec(parse_airframe(copy.deepcopy(QUAD_X), "airframe file x.toml"))
-    thrust_mapped = copy.deepcopy(PLUS)
-    thrust_mapped["command_map"] = "thrust"
-    with pytest.raises(AirframeError, match='command_map = "speed"'):
-        airframe_from_spec(parse_airframe(thrust_mapped))
-    assert airframe_from_spec(parse_airframe(copy.deepcopy(PLUS))).arm_m == A
-
-
 @pytest.mark.parametrize("fidelity", ["paper", "rigid-body"])
 def test_one_rotors_extra_thrust_turns_the_plant_the_way_the_convention_says(fidelity):
     """The plant, rotor by rotor, for the "+" layout it flies (the signs of SIGNS)."""
-    hover = math.sqrt(PAPER.mass_kg * 9.81 / (4 * PAPER.thrust_coeff_ns2))
+    n = plus_numbers("paper")
+    hover = math.sqrt(n.mass_kg * 9.81 / (4 * n.thrust_coeff_ns2))
     for i, expected in enumerate(SIGNS["plus"]):
         w = np.full(4, hover)
         w[i] += 20.0
         if fidelity == "paper":
             state = np.zeros(dynamics.PAPER_STATE_SIZE)
             state[dynamics.PAPER_ROTOR:] = w
-            accel = dynamics.paper_derivative(state, w, dynamics.model_from_airframe(PAPER),
-                                             dynamics.no_disturbance())[9:12]
+            accel = dynamics.paper_derivative(state, w, PAPER, dynamics.no_disturbance())[9:12]
         else:
             state = np.zeros(dynamics.RIGID_STATE_SIZE)
             state[6] = 1.0
             state[dynamics.RIGID_ROTOR:] = w
-            accel = dynamics.rigid_body_derivative(state, w, dynamics.model_from_airframe(PAPER),
+            accel = dynamics.rigid_body_derivative(state, w, PAPER,
                                                    dynamics.no_disturbance())[10:13]
         got = tuple(int(np.sign(round(a, 12))) for a in accel)
         assert got == expected, (fidelity, f"rotor {i + 1}", got)
 
 
 @pytest.mark.parametrize("axis", [0, 1, 2])
-def test_the_mixer_raises_the_rotors_that_turn_the_vehicle_the_way_asked(axis):
-    """A small roll, pitch or yaw demand over hover: each rotor moves the way its column of
-    the effectiveness matrix says."""
-    from autopilot.control.mixer import mix
-
-    effectiveness = read_airframe("paper").effectiveness()
-    weight = PAPER.mass_kg * 9.81
+@pytest.mark.parametrize("name, frame", [("plus", PLUS), ("quad_x", QUAD_X),
+                                         ("h_frame", H_FRAME)])
+def test_the_mixer_raises_the_rotors_that_turn_the_vehicle_the_way_asked(name, frame, axis):
+    """A small roll, pitch or yaw demand over hover: each rotor moves the way the
+    convention says it turns the vehicle (SIGNS), rotor by rotor."""
+    af = airframe_from_spec(parse_airframe(copy.deepcopy(frame)))
+    weight = af.mass_kg * 9.81
     demand = [0.0, 0.0, 0.0]
     demand[axis] = 0.05 if axis < 2 else 0.002
-    base = mix(weight, 0.0, 0.0, 0.0, PAPER)
-    moved = mix(weight, *demand, PAPER) - base
-    for i in range(4):
-        assert np.sign(round(moved[i], 12)) == np.sign(round(effectiveness[1 + axis, i], 15)), (
-            axis, i + 1, moved)
+    moved = mix(weight, *demand, af) - mix(weight, 0.0, 0.0, 0.0, af)
+    for i, signs in enumerate(SIGNS[name]):
+        if signs[axis] == 0:
+            assert abs(moved[i]) < 1e-9, (name, axis, i + 1, moved)
+        elif name != "h_frame" or axis == 2:
+            assert np.sign(moved[i]) == signs[axis], (name, axis, i + 1, moved)
+    # On the asymmetric H a roll or pitch demand also moves the rotors that have no arm
+    # along it (to cancel the other torques); the rotors that do, move the way they turn.
+    if name == "h_frame" and axis < 2:
+        achieved = controller_inputs(rotor_speeds(mix(weight, *demand, af), af), np.ones(4),
+                                     af)
+        np.testing.assert_allclose(achieved, [weight, *demand], rtol=1e-9, atol=1e-12)
 
 
 def _extra_thrust_accel(spec_dict: dict, fidelity: str, rotor: int) -> np.ndarray:
     """Angular acceleration one rotor's extra speed adds, over equal rotor speeds."""
-    model = dynamics.model_from_spec(parse_airframe(copy.deepcopy(spec_dict)))
+    model = airframe_from_spec(parse_airframe(copy.deepcopy(spec_dict)))
     dist = dynamics.no_disturbance()
 
     def accel(w: np.ndarray) -> np.ndarray:
@@ -184,7 +203,7 @@ def _extra_thrust_accel(spec_dict: dict, fidelity: str, rotor: int) -> np.ndarra
         state[dynamics.RIGID_ROTOR:] = w
         return dynamics.rigid_body_derivative(state, w, model, dist)[10:13]
 
-    base = np.full(4, dynamics.hover_rotor_speed(model))
+    base = np.full(4, hover_rotor_speeds(model)[0])
     more = base.copy()
     more[rotor] += 30.0
     return accel(more) - accel(base)
@@ -239,10 +258,63 @@ def test_the_shipped_quad_x_hovers_level_on_equal_hover_commands():
     from sitl.plant import Plant
 
     spec = read_airframe("quad-x-500")
-    model = dynamics.model_from_spec(spec)
-    hover = dynamics.hover_rotor_speed(model)
+    hover = hover_rotor_speeds(airframe_from_spec(spec))
     plant = Plant(spec, "rigid-body", position_ned_m=(0.0, 0.0, -10.0), rotor_rad_s=hover)
-    plant.set_motor_commands(np.full(4, hover / spec.rotors[0].max_rad_s))
+    plant.set_motor_commands(hover / spec.rotors[0].max_rad_s)
     plant.advance(2.0)
     m = plant.true_measurement()
     assert abs(m[2] + 10.0) < 1e-6 and np.max(np.abs(m[6:12])) < 1e-9, m
+
+
+def _full_inertia_x() -> dict:
+    frame = copy.deepcopy(QUAD_X)
+    frame["inertia_kgm2"] = [[0.021, 0.002, -0.001], [0.002, 0.026, 0.0015],
+                             [-0.001, 0.0015, 0.041]]
+    return frame
+
+
+def test_the_nominal_drift_is_the_papers_for_a_diagonal_inertia_and_newton_euler_else():
+    n = plus_numbers("paper")
+    p, q, r, w_r = 0.7, -1.3, 0.9, 25.0
+    f = attitude_drift(p, q, r, n.rotor_inertia_kgm2 * w_r, PAPER)
+    a1, a2 = (n.iyy_kgm2 - n.izz_kgm2) / n.ixx_kgm2, n.rotor_inertia_kgm2 / n.ixx_kgm2
+    a3, a4 = (n.izz_kgm2 - n.ixx_kgm2) / n.iyy_kgm2, n.rotor_inertia_kgm2 / n.iyy_kgm2
+    np.testing.assert_allclose(f[:2], (a1 * q * r - a2 * q * w_r, a3 * p * r + a4 * p * w_r),
+                               rtol=1e-14)
+    assert f[2] == 0.0  # Ixx = Iyy: nothing to identify on yaw, exactly
+    af = airframe_from_spec(parse_airframe(_full_inertia_x()))
+    omega, h_r = np.array([p, q, r]), 0.03
+    expected = -np.linalg.solve(af.inertia_kgm2, np.cross(
+        omega, af.inertia_kgm2 @ omega + [0.0, 0.0, h_r]))
+    np.testing.assert_allclose(attitude_drift(p, q, r, h_r, af), expected, rtol=1e-12)
+
+
+@pytest.mark.parametrize("name, frame", [("quad_x", QUAD_X), ("h_frame", H_FRAME),
+                                         ("full_inertia_x", _full_inertia_x())])
+def test_each_input_accelerates_its_own_axis_only(name, frame):
+    """What the controller assumes, phi'' = f_phi + b1 U_phi etc., on the rigid-body plant:
+    at rest, the mixer's rotor speeds for (weight, U) give angular acceleration b * U, the
+    other axes untouched, products of inertia included."""
+    for rotor in frame["rotor"]:
+        rotor["time_constant_s"] = 0.0
+    af = airframe_from_spec(parse_airframe(copy.deepcopy(frame)))
+    weight = af.mass_kg * 9.81
+    for axis, u in ((0, 0.4), (1, -0.3), (2, 0.01)):
+        demand = np.zeros(3)
+        demand[axis] = u
+        w = rotor_speeds(mix(weight, *demand, af), af)
+        state = np.zeros(dynamics.RIGID_STATE_SIZE)
+        state[6] = 1.0
+        state[dynamics.RIGID_ROTOR:] = w
+        accel = dynamics.rigid_body_derivative(state, w, af, dynamics.no_disturbance())
+        np.testing.assert_allclose(accel[10:13], af.input_gains * demand, rtol=1e-9,
+                                   atol=1e-9 * abs(af.input_gains[axis] * u))
+        assert accel[5] == pytest.approx(0.0, abs=1e-9)  # the weight carried
+
+
+def test_max_thrust_and_hover_of_the_shipped_quad_x():
+    af = airframe_by_name("quad-x-500")
+    assert max_thrust_n(af) == pytest.approx(4 * 8.55e-6 * 1000.0**2, rel=1e-12)
+    assert max_thrust_n(af) / (af.mass_kg * 9.81) == pytest.approx(1.743, abs=1e-3)
+    np.testing.assert_allclose(hover_rotor_speeds(af), math.sqrt(2.0 * 9.81 / (4 * 8.55e-6)),
+                               rtol=1e-12)

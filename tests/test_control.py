@@ -22,55 +22,105 @@ from autopilot.control.sliding_mode import (
     boundary_layer_distance,
     lyapunov,
 )
-from contracts.airframe import PAPER, hover_rotor_speed_rad_s
-from sitl.dynamics import rotor_forces
+from contracts.airframe import (
+    PAPER,
+    airframe_by_name,
+    airframe_from_spec,
+    controller_inputs,
+    hover_rotor_speeds,
+    max_thrust_n,
+    rotor_speeds,
+)
+from contracts.airframe_file import parse_airframe, read_airframe
 
 
-def forward(commands: np.ndarray) -> tuple[float, float, float, float]:
-    u_z, u_phi, u_theta, u_psi, _ = rotor_forces(commands * PAPER.rotor_max_rad_s, np.ones(4),
-                                                 PAPER)
-    return u_z, u_phi, u_theta, u_psi
+def _tilted_h_frame():
+    """An asymmetric H with products of inertia and the thrust command map: every part of
+    the mixer that the shipped frames leave at zero is used."""
+    data = {"mass_kg": 1.6,
+            "inertia_kgm2": [[0.021, 0.002, -0.001], [0.002, 0.026, 0.0015],
+                             [-0.001, 0.0015, 0.041]],
+            "command_map": "thrust", "rotor": []}
+    for x, y, spin, k in ((0.20, 0.25, "ccw", 1.2e-5), (-0.15, -0.18, "ccw", 1e-5),
+                          (0.20, -0.25, "cw", 1.2e-5), (-0.15, 0.18, "cw", 1e-5)):
+        data["rotor"].append({"position_m": [x, y, 0.0], "spin": spin, "thrust_coeff_ns2": k,
+                              "moment_coeff_nms2": 1.6e-7, "max_rad_s": 1000.0})
+    return airframe_from_spec(parse_airframe(data, "h-frame"))
 
 
-def test_mixer_inverts_the_rotor_map_when_unsaturated() -> None:
+FRAMES = {"paper": PAPER, "quad-x-500": airframe_by_name("quad-x-500"),
+          "h-tilted": _tilted_h_frame()}
+
+
+def forward(commands: np.ndarray, af=PAPER) -> tuple[float, float, float, float]:
+    """(U_z, U_phi, U_theta, U_psi) the plant gets from these motor commands."""
+    return controller_inputs(rotor_speeds(commands, af), np.ones(4), af)
+
+
+@pytest.mark.parametrize("name", FRAMES)
+def test_mixer_inverts_the_rotor_map_when_unsaturated(name) -> None:
+    af = FRAMES[name]
     rng = np.random.default_rng(0)
-    weight = PAPER.mass_kg * PAPER.gravity_mps2
+    weight = af.mass_kg * af.gravity_mps2
+    scale = 0.05 * max_thrust_n(af) * 0.2  # U_phi, U_theta [N] well inside authority
     for _ in range(200):
         wanted = (
-            weight * rng.uniform(0.6, 1.6),
-            rng.uniform(-2, 2),
-            rng.uniform(-2, 2),
-            rng.uniform(-0.05, 0.05),
+            weight * rng.uniform(0.8, 1.3),
+            rng.uniform(-scale, scale),
+            rng.uniform(-scale, scale),
+            rng.uniform(-0.002, 0.002) * weight,
         )
-        c = mix(*wanted, PAPER)
+        c = mix(*wanted, af)
         assert np.all((c > 0) & (c < 1))
-        assert np.allclose(forward(c), wanted, rtol=1e-9, atol=1e-9)
+        assert np.allclose(forward(c, af), wanted, rtol=1e-9, atol=1e-9)
 
 
-def test_mixer_hover() -> None:
-    c = mix(PAPER.mass_kg * PAPER.gravity_mps2, 0.0, 0.0, 0.0, PAPER)
-    assert np.allclose(c, hover_rotor_speed_rad_s(PAPER) / PAPER.rotor_max_rad_s)
+@pytest.mark.parametrize("name", FRAMES)
+def test_mixer_hover(name) -> None:
+    af = FRAMES[name]
+    c = mix(af.mass_kg * af.gravity_mps2, 0.0, 0.0, 0.0, af)
+    np.testing.assert_allclose(rotor_speeds(c, af), hover_rotor_speeds(af), rtol=1e-12)
+    if name != "h-tilted":  # four alike rotors: equal commands
+        assert np.ptp(c) < 1e-12
 
 
-def test_mixer_saturation_keeps_roll_pitch_before_thrust_and_yaw() -> None:
-    top_thrust = 4 * PAPER.thrust_coeff_ns2 * PAPER.rotor_max_rad_s**2
+def test_max_thrust_is_where_the_first_rotor_tops_out() -> None:
+    n = read_airframe("paper").rotors[0]
+    assert max_thrust_n(PAPER) == pytest.approx(4 * n.thrust_coeff_ns2 * n.max_rad_s**2,
+                                                rel=1e-12)
+    af = FRAMES["h-tilted"]
+    c = mix(max_thrust_n(af), 0.0, 0.0, 0.0, af)
+    assert np.max(c) == pytest.approx(1.0, rel=1e-12) and np.min(c) < 0.95
+
+
+@pytest.mark.parametrize("name", FRAMES)
+def test_mixer_saturation_keeps_roll_pitch_before_thrust_and_yaw(name) -> None:
+    af = FRAMES[name]
+    top_thrust = max_thrust_n(af)
+    arm = top_thrust / 8.0  # a roll demand of half of one rotor's thrust
     # Near full thrust with a roll demand: roll is delivered, thrust gives way, yaw is cut.
-    c = mix(0.98 * top_thrust, 3.0, 0.0, 0.3, PAPER)
-    u_z, u_phi, u_theta, u_psi = forward(c)
+    c = mix(0.98 * top_thrust, arm, 0.0, 0.3 * arm, af)
+    u_z, u_phi, u_theta, u_psi = forward(c, af)
     assert np.all((c >= 0) & (c <= 1))
-    assert u_phi == pytest.approx(3.0, rel=1e-9)
+    assert u_phi == pytest.approx(arm, rel=1e-9)
     assert u_theta == pytest.approx(0.0, abs=1e-9)
-    assert u_z < 0.98 * top_thrust
-    assert abs(u_psi) < 0.3
+    unconstrained = af.mixing @ [0.98 * top_thrust, arm, 0.0, 0.0]
+    if np.any(unconstrained > af.max_rad_s**2):
+        assert u_z < 0.98 * top_thrust  # it gave way
+    else:  # the frame has the room where this roll needs it
+        assert u_z == pytest.approx(0.98 * top_thrust, rel=1e-9)
+    assert abs(u_psi) < 0.3 * arm
     # A roll/pitch demand beyond authority keeps its direction (ratio), scaled down.
-    c = mix(0.5 * top_thrust, 40.0, 20.0, 0.0, PAPER)
-    _, u_phi, u_theta, _ = forward(c)
+    c = mix(0.5 * top_thrust, 40.0 * arm, 20.0 * arm, 0.0, af)
+    _, u_phi, u_theta, _ = forward(c, af)
     assert u_phi / u_theta == pytest.approx(2.0, rel=1e-9)
+    assert np.min(c) == pytest.approx(0.0, abs=1e-6)  # it used the authority there is
     # At low collective roll/pitch shrink instead of the collective rising.
-    c = mix(1.0, 5.0, 0.0, 0.0, PAPER)
-    u_z, u_phi, _, _ = forward(c)
-    assert u_z == pytest.approx(1.0, rel=1e-9)
-    assert 0 < u_phi < 5.0
+    low = 0.01 * top_thrust
+    c = mix(low, arm, 0.0, 0.0, af)
+    u_z, u_phi, _, _ = forward(c, af)
+    assert u_z == pytest.approx(low, rel=1e-9)
+    assert 0 < u_phi < arm
 
 
 def test_boundary_layer_distance() -> None:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from contracts.airframe import PAPER, REALISTIC, attitude_coefficients, hover_rotor_speed_rad_s
+from contracts.airframe import PAPER, REALISTIC, attitude_coefficients, hover_rotor_speeds
 from contracts.frames import (
     body_rates_from_euler_rates,
     euler_from_quat,
@@ -18,22 +18,23 @@ from contracts.frames import (
 )
 from contracts.perturbations import Perturbations
 from sitl import dynamics
+from tests.airframes import PAPER_NUMBERS, REALISTIC_NUMBERS, plus_airframe
 from sitl.plant import Plant
 
 FIDELITIES = ("paper", "rigid-body")
 
 
-def hover_fraction(af=PAPER) -> float:
-    return hover_rotor_speed_rad_s(af) / af.rotor_max_rad_s
+def hover_fraction(af=PAPER) -> np.ndarray:
+    return hover_rotor_speeds(af) / af.max_rad_s
 
 
 @pytest.mark.parametrize("fidelity", FIDELITIES)
 @pytest.mark.parametrize("af", [PAPER, REALISTIC], ids=["paper", "realistic"])
 def test_hover_is_an_equilibrium(fidelity: str, af) -> None:
     plant = Plant(
-        af, fidelity, position_ned_m=(0.0, 0.0, -1.0), rotor_rad_s=hover_rotor_speed_rad_s(af)
+        af, fidelity, position_ned_m=(0.0, 0.0, -1.0), rotor_rad_s=hover_rotor_speeds(af)
     )
-    plant.set_motor_commands(np.full(4, hover_fraction(af)))
+    plant.set_motor_commands(hover_fraction(af))
     plant.advance(5.0)
     state = plant.state()
     assert np.allclose(state.position_ned_m, [0.0, 0.0, -1.0], atol=1e-9)
@@ -42,7 +43,7 @@ def test_hover_is_an_equilibrium(fidelity: str, af) -> None:
 
 
 def _accelerate(fidelity: str, euler, commands) -> np.ndarray:
-    plant = Plant(PAPER, fidelity, euler_rad=euler, rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
+    plant = Plant(PAPER, fidelity, euler_rad=euler, rotor_rad_s=hover_rotor_speeds(PAPER))
     plant.set_motor_commands(np.asarray(commands))
     plant.advance(0.05)
     return plant.state()
@@ -50,28 +51,28 @@ def _accelerate(fidelity: str, euler, commands) -> np.ndarray:
 
 @pytest.mark.parametrize("fidelity", FIDELITIES)
 def test_positive_pitch_accelerates_toward_minus_x(fidelity: str) -> None:
-    s = _accelerate(fidelity, (0.0, 0.2, 0.0), np.full(4, hover_fraction()))
+    s = _accelerate(fidelity, (0.0, 0.2, 0.0), hover_fraction())
     assert s.velocity_ned_mps[0] < -0.05
     assert abs(s.velocity_ned_mps[1]) < 1e-9
 
 
 @pytest.mark.parametrize("fidelity", FIDELITIES)
 def test_positive_roll_accelerates_toward_plus_y(fidelity: str) -> None:
-    s = _accelerate(fidelity, (0.2, 0.0, 0.0), np.full(4, hover_fraction()))
+    s = _accelerate(fidelity, (0.2, 0.0, 0.0), hover_fraction())
     assert s.velocity_ned_mps[1] > 0.05
 
 
 @pytest.mark.parametrize("fidelity", FIDELITIES)
 def test_more_thrust_climbs(fidelity: str) -> None:
-    s = _accelerate(fidelity, (0.0, 0.0, 0.0), np.full(4, 1.1 * hover_fraction()))
+    s = _accelerate(fidelity, (0.0, 0.0, 0.0), 1.1 * hover_fraction())
     assert s.velocity_ned_mps[2] < -0.05  # NED: up is -z
-    s = _accelerate(fidelity, (0.0, 0.0, 0.0), np.full(4, 0.9 * hover_fraction()))
+    s = _accelerate(fidelity, (0.0, 0.0, 0.0), 0.9 * hover_fraction())
     assert s.velocity_ned_mps[2] > 0.05
 
 
 @pytest.mark.parametrize("fidelity", FIDELITIES)
 def test_rotor_layout_signs(fidelity: str) -> None:
-    h = hover_fraction()
+    h = hover_fraction()[0]
     # Rotor 4 (left) faster than rotor 2 (right): positive roll rate (right wing down).
     s = _accelerate(fidelity, (0, 0, 0), [h, h * 0.99, h, h * 1.01])
     assert s.body_rate_rad_s[0] > 0
@@ -86,19 +87,22 @@ def test_rotor_layout_signs(fidelity: str) -> None:
 # Three distinct inertias, so every a_i of the paper's model is non-zero (on PAPER,
 # Ixx = Iyy makes a5 = 0), and a rotor inertia large enough for the gyroscopic terms to
 # be of the same order as the others.
-ASYMMETRIC = PAPER._replace(ixx_kgm2=0.15, iyy_kgm2=0.21, izz_kgm2=0.09)
+ASYMMETRIC_NUMBERS = PAPER_NUMBERS._replace(ixx_kgm2=0.15, iyy_kgm2=0.21, izz_kgm2=0.09)
+ASYMMETRIC = plus_airframe(ASYMMETRIC_NUMBERS)
+NUMBERS = {id(PAPER): PAPER_NUMBERS, id(ASYMMETRIC): ASYMMETRIC_NUMBERS}
 RATES = (0.7, -1.3, 0.9)  # phi', theta', psi' (paper) or p, q, r (rigid body at level)
 
 
 def _rotor_speeds(af) -> np.ndarray:
-    w = hover_rotor_speed_rad_s(af)
+    w = hover_rotor_speeds(af)[0]
     return np.array([w + 15.0, w - 5.0, w + 8.0, w + 3.0])  # W_r = 15 + 5 + 8 - 3 = 25
 
 
 def _paper_attitude_acceleration_by_hand(af, rates, rotors) -> tuple[list, list, list]:
     """The paper model (docs/mathematics.md) written out: phi'', theta'', psi'' term by term."""
-    ixx, iyy, izz, jr = af.ixx_kgm2, af.iyy_kgm2, af.izz_kgm2, af.rotor_inertia_kgm2
-    arm, b, d = af.arm_m, af.thrust_coeff_ns2, af.drag_coeff_nms2
+    n = NUMBERS[id(af)]
+    ixx, iyy, izz, jr = n.ixx_kgm2, n.iyy_kgm2, n.izz_kgm2, n.rotor_inertia_kgm2
+    arm, b, d = n.arm_m, n.thrust_coeff_ns2, n.drag_coeff_nms2
     p, q, r = rates
     w1, w2, w3, w4 = rotors
     w_r = w1 - w2 + w3 - w4
@@ -125,8 +129,7 @@ def test_paper_attitude_model_term_by_term(af) -> None:
     state[6:9] = (0.2, -0.1, 0.4)  # the paper's model does not depend on the angles
     state[9:12] = RATES
     state[12:16] = _rotor_speeds(af)
-    d = dynamics.paper_derivative(state, state[12:16].copy(), dynamics.model_from_airframe(af),
-                                 dynamics.no_disturbance())
+    d = dynamics.paper_derivative(state, state[12:16].copy(), af, dynamics.no_disturbance())
     terms = _paper_attitude_acceleration_by_hand(af, RATES, state[12:16])
     for i, axis_terms in enumerate(terms):
         assert d[9 + i] == pytest.approx(sum(axis_terms), rel=1e-12, abs=1e-12), i
@@ -154,15 +157,16 @@ def test_rigid_body_rates_follow_newton_euler_with_the_rotor_gyroscope(af) -> No
     dist = dynamics.no_disturbance()
     rotors = _rotor_speeds(af)
     w_r = rotors[0] - rotors[1] + rotors[2] - rotors[3]
-    inertia = np.diag([af.ixx_kgm2, af.iyy_kgm2, af.izz_kgm2])
+    n = NUMBERS[id(af)]
+    inertia = np.diag([n.ixx_kgm2, n.iyy_kgm2, n.izz_kgm2])
     omega = np.array(RATES)
-    b, d_ = af.thrust_coeff_ns2, af.drag_coeff_nms2
-    tau = np.array([af.arm_m * b * (rotors[3] ** 2 - rotors[1] ** 2),
-                    af.arm_m * b * (rotors[0] ** 2 - rotors[2] ** 2),
+    b, d_ = n.thrust_coeff_ns2, n.drag_coeff_nms2
+    tau = np.array([n.arm_m * b * (rotors[3] ** 2 - rotors[1] ** 2),
+                    n.arm_m * b * (rotors[0] ** 2 - rotors[2] ** 2),
                     d_ * (rotors[1] ** 2 + rotors[3] ** 2 - rotors[0] ** 2 - rotors[2] ** 2)])
-    gyro = -np.cross(omega, af.rotor_inertia_kgm2 * w_r * np.array([0.0, 0.0, 1.0]))
+    gyro = -np.cross(omega, n.rotor_inertia_kgm2 * w_r * np.array([0.0, 0.0, 1.0]))
     expected = np.linalg.solve(inertia, -np.cross(omega, inertia @ omega) + gyro + tau)
-    model = dynamics.model_from_airframe(af)
+    model = af
     for quat in (np.array([1.0, 0.0, 0.0, 0.0]), quat_from_euler(0.3, -0.2, 1.1)):
         state = _rigid_state(af, quat, omega)
         d = dynamics.rigid_body_derivative(state, rotors.copy(), model, dist)
@@ -179,7 +183,8 @@ def test_gyroscopic_terms_have_opposite_signs_on_roll_and_pitch(fidelity: str) -
     """The rotor gyroscope alone (the derivative with Jr minus the one with Jr = 0):
     -a2 theta' W_r on roll, +a4 phi' W_r on pitch, nothing on yaw, on both plants."""
     af = ASYMMETRIC
-    no_jr = af._replace(rotor_inertia_kgm2=0.0)
+    n = ASYMMETRIC_NUMBERS
+    no_jr = plus_airframe(n._replace(rotor_inertia_kgm2=0.0))
     rotors = _rotor_speeds(af)
     w_r = 25.0
     p, q, _r = RATES
@@ -194,10 +199,10 @@ def test_gyroscopic_terms_have_opposite_signs_on_roll_and_pitch(fidelity: str) -
         accel = slice(10, 13)
         derivative = dynamics.rigid_body_derivative
     dist = dynamics.no_disturbance()
-    gyro = (derivative(state, rotors.copy(), dynamics.model_from_airframe(af), dist)[accel]
-            - derivative(state, rotors.copy(), dynamics.model_from_airframe(no_jr), dist)[accel])
-    jr = af.rotor_inertia_kgm2
-    expected = [-jr / af.ixx_kgm2 * q * w_r, jr / af.iyy_kgm2 * p * w_r, 0.0]
+    gyro = (derivative(state, rotors.copy(), af, dist)[accel]
+            - derivative(state, rotors.copy(), no_jr, dist)[accel])
+    jr = n.rotor_inertia_kgm2
+    expected = [-jr / n.ixx_kgm2 * q * w_r, jr / n.iyy_kgm2 * p * w_r, 0.0]
     np.testing.assert_allclose(gyro, expected, rtol=1e-9, atol=1e-12)
     assert gyro[0] > 0 and gyro[1] > 0  # theta' < 0, phi' > 0, W_r > 0: both push up
 
@@ -207,7 +212,7 @@ def test_rk4_matches_scipy_reference_integration(fidelity: str) -> None:
     """The fixed-step RK4 against scipy's adaptive DOP853 on a tumbling manoeuvre."""
     code = dynamics.FIDELITIES[fidelity]
     plant = Plant(
-        REALISTIC._replace(motor_tau_s=0.02),
+        plus_airframe(REALISTIC_NUMBERS._replace(motor_tau_s=0.02)),
         fidelity,
         step_s=0.001,
         euler_rad=(0.3, -0.2, 0.5),
@@ -216,7 +221,7 @@ def test_rk4_matches_scipy_reference_integration(fidelity: str) -> None:
     plant.set_perturbations(Perturbations(wind_ned_mps=(2.0, -1.0, 0.0)))
     x0 = plant.raw_state
     cmd = np.array([0.62, 0.55, 0.58, 0.66])
-    command_rad_s = cmd * REALISTIC.rotor_max_rad_s
+    command_rad_s = cmd * REALISTIC.max_rad_s
     dist = dynamics.no_disturbance()
     dist[dynamics.DIST_WIND : dynamics.DIST_WIND + 3] = (2.0, -1.0, 0.0)
 
@@ -235,11 +240,11 @@ def test_rk4_matches_scipy_reference_integration(fidelity: str) -> None:
 def test_fidelities_agree_at_small_angles() -> None:
     h = hover_fraction()
     plants = [
-        Plant(PAPER, f, euler_rad=(0.01, -0.01, 0.0), rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
+        Plant(PAPER, f, euler_rad=(0.01, -0.01, 0.0), rotor_rad_s=hover_rotor_speeds(PAPER))
         for f in FIDELITIES
     ]
     for p in plants:
-        p.set_motor_commands([h * 1.001, h, h * 0.999, h])
+        p.set_motor_commands(h * [1.001, 1.0, 0.999, 1.0])
         p.advance(0.5)
     a, b = (p.state() for p in plants)
     assert np.allclose(a.euler_rad, b.euler_rad, atol=2e-4)
@@ -291,8 +296,8 @@ def test_perturbations_change_the_plant_and_are_validated() -> None:
 
 
 def test_motor_failure_and_external_torque_act() -> None:
-    h = hover_fraction()
-    plant = Plant(PAPER, "rigid-body", rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
+    h = hover_fraction()[0]
+    plant = Plant(PAPER, "rigid-body", rotor_rad_s=hover_rotor_speeds(PAPER))
     plant.set_perturbations(Perturbations(motor_efficiency=(1.0, 0.0, 1.0, 1.0)))
     plant.set_motor_commands(np.full(4, h))
     plant.advance(0.1)

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from contracts.airframe import PAPER, hover_rotor_speed_rad_s
+from contracts.airframe import PAPER, hover_rotor_speeds
 from contracts.mavlink import (
     LinkDataError,
     actuator_message,
@@ -29,7 +29,7 @@ from tests.harness import free_port
 
 def _flying_plant(fidelity: str) -> Plant:
     plant = Plant(PAPER, fidelity, position_ned_m=(1.0, -2.0, -3.0), euler_rad=(0.3, -0.2, 1.0),
-                  rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
+                  rotor_rad_s=hover_rotor_speeds(PAPER))
     plant.set_motor_commands(np.array([0.5, 0.45, 0.48, 0.47]))
     plant.advance(0.5)
     return plant

@@ -15,7 +15,7 @@ import pytest
 
 from autopilot.control.factory import make_controller
 from autopilot.vehicle import Vehicle
-from contracts.airframe import PAPER, hover_rotor_speed_rad_s
+from contracts.airframe import PAPER, hover_rotor_speeds
 from contracts.mavlink import (
     actuator_message,
     measurement_from_odometry,
@@ -69,7 +69,7 @@ def test_the_vehicle_starts_on_the_ground_or_hovering_at_the_start_altitude():
     assert (msg.x, msg.y, msg.z) == (0.0, 0.0, 0.0)
     hover, _ = make_simulator(start_altitude_m=2.0, fidelity="rigid-body")
     assert odometry(hover).z == -2.0
-    assert np.all(hover.plant.state().rotor_rad_s == hover_rotor_speed_rad_s(PAPER))
+    assert np.all(hover.plant.state().rotor_rad_s == hover_rotor_speeds(PAPER))
     for _ in range(100):  # hover commands keep it there
         hover.advance()
     assert abs(hover.plant.state().position_ned_m[2] + 2.0) < 0.01

@@ -11,7 +11,7 @@ import pytest
 
 from autopilot.control.factory import CONTROLLERS, make_controller
 from autopilot.shaping import Setpoint
-from contracts.airframe import PAPER, hover_rotor_speed_rad_s, max_thrust_n
+from contracts.airframe import PAPER, hover_rotor_speeds, max_thrust_n
 from contracts.frames import wrap_pi
 from contracts.modes import FlightMode
 from contracts.vectors import REF_EULER, REF_POS, REF_SIZE
@@ -50,7 +50,7 @@ def test_every_controller_turns_across_180_deg_the_short_way(controller, plant):
     """The controller alone, the reference stepped: the error is wrapped in every law."""
     for start, goal in TURNS:
         sim = Plant(PAPER, plant, 0.001, position_ned_m=(0.0, 0.0, -2.0),
-                    euler_rad=(0.0, 0.0, start), rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
+                    euler_rad=(0.0, 0.0, start), rotor_rad_s=hover_rotor_speeds(PAPER))
         models = shipped_models() if controller in ("ivfc", "t1fc") else None
         law = make_controller(controller, PAPER, 0.01, models)
         ref = np.zeros(REF_SIZE)

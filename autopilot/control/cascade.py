@@ -22,10 +22,11 @@ from autopilot.identification.dataset import CHANNEL_REGRESSORS
 from autopilot.identification.ts_model import it2_regressor, t1_regressor
 from contracts.airframe import (
     Airframe,
-    attitude_coefficients,
+    attitude_drift,
     max_thrust_n,
-    paper_attitude_drift,
     residual_rotor_speed,
+    rotor_momentum,
+    rotor_speeds,
 )
 from contracts.vectors import (
     ATTITUDE_CHANNELS,
@@ -120,13 +121,15 @@ def cascade_step(
     filter_state: np.ndarray,
     filter_limits: np.ndarray,
     max_tilt: float,
-    w_r: float,
+    rotor_rad_s: np.ndarray,
     period_s: float,
     telemetry: np.ndarray,
     collective_thrust_n: float,
     total_tilt: bool,
 ) -> np.ndarray:
     """One control period: altitude, position (if active), attitude, mixer -> c_i.
+
+    ``rotor_rad_s``: the rotor speeds of the last command (W_r and the rotors' momentum).
 
     ``collective_thrust_n``: NaN to run the altitude loop, else the total thrust a tool
     asked for (attitude setpoints in PX4's reading). ``total_tilt``: see desired_angles.
@@ -188,7 +191,9 @@ def cascade_step(
 
     # Attitude: y'' = f(x) + g U.
     rates = meas[MEAS_EULER_RATE:MEAS_EULER_RATE + 3]
-    f_nominal = paper_attitude_drift(rates[0], rates[1], rates[2], w_r, af)
+    w_r = residual_rotor_speed(rotor_rad_s, af)
+    f_nominal = attitude_drift(rates[0], rates[1], rates[2], rotor_momentum(rotor_rad_s, af),
+                               af)
     u_att = np.empty(3)
     for ch in range(3):
         if basis_kind == BASIS_IT2:
@@ -231,10 +236,10 @@ def regressor_scales(input_ranges: np.ndarray, n_rules: int, halves: int) -> np.
 
 def nominal_attitude_model(af: Airframe) -> AttitudeModel:
     """SMC baseline: the paper's model with the nominal airframe, nothing to adapt."""
-    co = attitude_coefficients(af)
     empty = np.zeros((0, 0, 3))
+    b1, b2, b3 = (float(b) for b in af.input_gains)
     return AttitudeModel(
-        BASIS_NOMINAL, (empty,) * 3, (empty,) * 3, (np.zeros(0),) * 3, (co.b1, co.b2, co.b3),
+        BASIS_NOMINAL, (empty,) * 3, (empty,) * 3, (np.zeros(0),) * 3, (b1, b2, b3),
         (np.zeros(0),) * 3,
     )
 
@@ -290,8 +295,9 @@ class SlidingModeCascade:
         return self._theta_f
 
     def residual_rotor_speed(self) -> float:
-        """W_r = W1 - W2 + W3 - W4 of the last command (the controller knows what it sent)."""
-        return float(residual_rotor_speed(self._last_commands * self.airframe.rotor_max_rad_s))
+        """W_r = sum s_i W_i of the last command (the controller knows what it sent)."""
+        return float(residual_rotor_speed(rotor_speeds(self._last_commands, self.airframe),
+                                          self.airframe))
 
     def step(self, meas: np.ndarray, ref: np.ndarray, position_mode: bool,
              kick: np.ndarray | None = None, collective_thrust_n: float = math.nan,
@@ -302,7 +308,8 @@ class SlidingModeCascade:
             self.model.basis_kind, self.model.mf_lower, self.model.mf_upper, self._theta_f,
             self._theta_min, self._theta_max, self.model.eta_scale, self.theta_g, self._gains,
             self.airframe, self._filter_state, self._filter_limits, self._max_tilt,
-            self.residual_rotor_speed(), self.period_s, self.telemetry, collective_thrust_n,
+            rotor_speeds(self._last_commands, self.airframe), self.period_s, self.telemetry,
+            collective_thrust_n,
             total_tilt,
         )
         self._last_commands = commands

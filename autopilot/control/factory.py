@@ -17,7 +17,7 @@ from autopilot.control.cascade import (
 )
 from autopilot.control.pid import PidCascade
 from autopilot.identification.ts_model import FuzzyModelSet
-from contracts.airframe import Airframe, attitude_coefficients
+from contracts.airframe import Airframe
 from contracts.airframe_file import read_airframe
 from contracts.vectors import ATTITUDE_CHANNELS
 
@@ -29,8 +29,7 @@ def attitude_model_from_fuzzy(models: FuzzyModelSet, kind: str, af: Airframe) ->
 
     g starts from identification where the data allowed it, else from the airframe.
     """
-    nominal_g = attitude_coefficients(af)
-    nominal = {"phi": nominal_g.b1, "theta": nominal_g.b2, "psi": nominal_g.b3}
+    nominal = dict(zip(ATTITUDE_CHANNELS, (float(b) for b in af.input_gains), strict=True))
     missing = [name for name in ATTITUDE_CHANNELS if name not in models.channels]
     if missing:
         raise ValueError(f"fuzzy model lacks attitude channel(s) {', '.join(missing)}")

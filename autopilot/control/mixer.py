@@ -1,4 +1,9 @@
-"""Mixer: invert the rotor map (docs/mathematics.md), saturating with roll/pitch authority first."""
+"""Mixer: the airframe's inverse input map with saturation priorities (docs/mathematics.md).
+
+Like PX4's multirotor mixer: roll and pitch come first, the collective moves to make room
+for them, and yaw gets what is left. Any quadrotor geometry: the rotors enter through
+``Airframe.mixing`` (W_i^2 per unit of U_z, U_phi, U_theta, U_psi).
+"""
 
 from __future__ import annotations
 
@@ -14,40 +19,53 @@ from contracts.airframe import Airframe
 def mix(
     u_z: float, u_phi: float, u_theta: float, u_psi: float, af: Airframe
 ) -> np.ndarray:
-    """Normalised motor commands c_i = W_i / W_max in [0, 1] for the wanted forces.
+    """Normalised motor commands c_i in [0, 1] (the airframe's command map) for the
+    wanted inputs.
 
-    Squared speeds W_i^2 = a +- r/p -+ y with a = U_z/4b, r = U_phi/2b, p = U_theta/2b,
-    y = U_psi/4d. When they do not fit in [0, W_max^2]: roll/pitch are scaled to fit,
-    thrust then moves to make room for them, and yaw gets what is left (as PX4's mixer
-    gives up yaw first).
+    W_i^2 = t_i U_z + rp_i + y_i with t, rp, y the mixing matrix's thrust, roll/pitch and
+    yaw parts; each must stay in [0, W_max,i^2]. When they do not fit: roll/pitch are
+    scaled to fit at some collective (and, below it, shrink rather than the collective
+    rising, so a vehicle asked to descend does not climb on attitude demands); the
+    collective then moves into the range that fits them; yaw is limited to what keeps
+    every rotor in range.
     """
-    b, d = af.thrust_coeff_ns2, af.drag_coeff_nms2
-    top = af.rotor_max_rad_s * af.rotor_max_rad_s
-    a = u_z / (4.0 * b)
-    r = u_phi / (2.0 * b)
-    p = u_theta / (2.0 * b)
-    y = u_psi / (4.0 * d)
-    a = min(max(a, 0.0), top)
-    spread = max(abs(r), abs(p))
-    # Roll/pitch must fit between 0 and top around the collective: above, the collective
-    # gives way (attitude first); below, roll/pitch shrink rather than the collective
-    # rising, so a vehicle asked to descend does not climb on attitude demands.
-    room = min(a, top / 2.0) if a < spread else top / 2.0
-    if spread > room:
-        scale = room / spread
-        r *= scale
-        p *= scale
-        spread = room
-    a = min(max(a, spread), top - spread)
-    # Yaw must keep every rotor in [0, top]: rotors 1, 3 carry -y, rotors 2, 4 carry +y.
-    y_low = max(a + abs(p) - top, -(a - abs(r)))
-    y_high = min(a - abs(p), top - a - abs(r))
-    y = min(max(y, y_low), y_high)
-    out = np.empty(4)
-    out[0] = a + p - y
-    out[1] = a - r + y
-    out[2] = a - p - y
-    out[3] = a + r + y
+    m = af.mixing
+    top = af.max_rad_s * af.max_rad_s
+    t = m[:, 0]
+    rp = m[:, 1] * u_phi + m[:, 2] * u_theta
+    thrust = max(u_z, 0.0)
+    # The collective must be at least `need` for no rotor to go below 0.
+    need = 0.0
     for i in range(4):
-        out[i] = math.sqrt(min(max(out[i], 0.0), top)) / af.rotor_max_rad_s
+        need = max(need, -rp[i] / t[i])
+    if need > 0.0:
+        scale = 1.0
+        for i in range(4):
+            # At collective `need`, rotor i sits at t_i need + rp_i, within its top?
+            used = t[i] * need + rp[i]
+            if used > top[i]:
+                scale = min(scale, top[i] / used)
+        scale = min(scale, thrust / need)
+        if scale < 1.0:
+            rp *= scale
+            need *= scale
+    room = math.inf
+    for i in range(4):
+        room = min(room, (top[i] - rp[i]) / t[i])
+    thrust = min(max(thrust, need), room)
+    w2 = t * thrust + rp
+    y_low, y_high = -math.inf, math.inf
+    for i in range(4):
+        k = m[i, 3]
+        if k > 0.0:
+            y_low = max(y_low, -w2[i] / k)
+            y_high = min(y_high, (top[i] - w2[i]) / k)
+        elif k < 0.0:
+            y_low = max(y_low, (top[i] - w2[i]) / k)
+            y_high = min(y_high, -w2[i] / k)
+    yaw = min(max(u_psi, y_low), y_high)
+    out = np.empty(4)
+    for i in range(4):
+        x = min(max(w2[i] + m[i, 3] * yaw, 0.0), top[i])
+        out[i] = x / top[i] if af.thrust_command_map else math.sqrt(x) / af.max_rad_s[i]
     return out

@@ -140,10 +140,9 @@ def pid_step(
     telemetry[3, 0] = ref[REF_POS + 2]
     telemetry[3, 1] = meas[MEAS_POS + 2]
     telemetry[3, 2] = ref[REF_POS + 2] - meas[MEAS_POS + 2]
-    u_phi = af.ixx_kgm2 * alpha[0] / af.arm_m
-    u_theta = af.iyy_kgm2 * alpha[1] / af.arm_m
-    u_psi = af.izz_kgm2 * alpha[2]
-    return mix(u_z, u_phi, u_theta, u_psi, af)
+    # The channel inputs with b U = alpha (the mixer applies the full inertia).
+    b = af.input_gains
+    return mix(u_z, alpha[0] / b[0], alpha[1] / b[1], alpha[2] / b[2], af)
 
 
 class PidCascade:

@@ -28,7 +28,7 @@ from autopilot.shaping import (  # noqa: E402
     SetpointShaper,
     limits_from_parameters,  # noqa: E402
 )
-from contracts.airframe import PAPER, hover_rotor_speed_rad_s  # noqa: E402
+from contracts.airframe import PAPER, hover_rotor_speeds  # noqa: E402
 from ground.excitation import excitation_dataset  # noqa: E402
 from ground.inprocess import run_inprocess  # noqa: E402
 from ground.scenarios import shipped_scenarios  # noqa: E402
@@ -51,7 +51,7 @@ def main() -> None:
     ref = shipped_scenarios()["attitude-sine"].reference.at(1.0)
     pos_ref = shipped_scenarios()["position-sine"].reference.at(1.0)
     plant = Plant(PAPER, "paper", position_ned_m=(0, 0, -1),
-                  rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
+                  rotor_rad_s=hover_rotor_speeds(PAPER))
     meas = plant.true_measurement()
     print("Controller step (all channels + mixer), median us per call:")
     for kind in ("ivfc", "t1fc", "smc", "pid"):
@@ -71,7 +71,7 @@ def main() -> None:
         print(f"  {what:<20} {us:6.2f} us")
     print("Plant step, median us:")
     for fidelity in ("paper", "rigid-body"):
-        p = Plant(PAPER, fidelity, rotor_rad_s=hover_rotor_speed_rad_s(PAPER))
+        p = Plant(PAPER, fidelity, rotor_rad_s=hover_rotor_speeds(PAPER))
         p.set_motor_commands(np.full(4, 0.47))
         one = per_call_us(lambda p=p: p.advance(0.001), 20000)
         period = per_call_us(lambda p=p: p.advance(0.01), 5000)

@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 from autopilot.control.factory import load_models, make_controller  # noqa: E402
 from autopilot.reference import Reference  # noqa: E402
 from autopilot.vehicle import Vehicle  # noqa: E402
-from contracts.airframe import PAPER, hover_rotor_speed_rad_s  # noqa: E402
+from contracts.airframe import PAPER, hover_rotor_speeds  # noqa: E402
 from contracts.mavlink import (  # noqa: E402
     actuator_message,
     commands_from_actuator,
@@ -66,7 +66,7 @@ def _per_call_us(fn, n: int = 3000) -> float:
 def cycle_parts() -> dict[str, float]:
     models = load_models(None)
     plant = Plant(PAPER, "paper", 0.001, position_ned_m=(0, 0, -1),
-                  rotor_rad_s=hover_rotor_speed_rad_s(PAPER), ground_contact=True)
+                  rotor_rad_s=hover_rotor_speeds(PAPER), ground_contact=True)
     vehicle = Vehicle(lambda p: make_controller("ivfc", PAPER, 0.01, models, p), 0.01,
                       reference=Reference("attitude-sine"))
     vehicle.sample(0.0, plant.true_measurement())

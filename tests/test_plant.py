@@ -18,8 +18,8 @@ from contracts.frames import (
 )
 from contracts.perturbations import Perturbations
 from sitl import dynamics
-from tests.airframes import PAPER_NUMBERS, REALISTIC_NUMBERS, plus_airframe
 from sitl.plant import Plant
+from tests.airframes import PAPER_NUMBERS, REALISTIC_NUMBERS, plus_airframe
 
 FIDELITIES = ("paper", "rigid-body")
 

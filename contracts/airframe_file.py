@@ -124,8 +124,6 @@ def checked_argument(load: Callable[[str], object]) -> Callable[[str], str]:
     return argument
 
 
-airframe_file_argument = checked_argument(read_airframe)  # the simulator flies any file
-
 
 def parse_airframe(data: dict[str, Any], where: str = "airframe") -> AirframeSpec:
     unknown = sorted(set(data) - _TOP_KEYS)

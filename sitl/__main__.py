@@ -7,7 +7,8 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from contracts.airframe_file import airframe_file_argument, read_airframe
+from contracts.airframe import airframe_argument
+from contracts.airframe_file import read_airframe
 from contracts.mavlink import SIM_TCP_PORT
 from contracts.perturbations import load_schedule
 from contracts.zenoh_link import (
@@ -31,7 +32,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--rate-hz", type=float, default=100.0,
                    help="samples per second; in lockstep the autopilot's rate or a multiple")
     p.add_argument("--plant", default="rigid-body", choices=list(FIDELITIES))
-    p.add_argument("--airframe", default="paper", type=airframe_file_argument,
+    p.add_argument("--airframe", default="paper", type=airframe_argument,
                    help="shipped airframe name or airframe .toml file")
     p.add_argument("--start-altitude", type=float, default=0.0, metavar="M",
                    help="start hovering at this altitude (default: on the ground)")

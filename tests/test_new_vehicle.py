@@ -54,3 +54,59 @@ def test_the_same_name_with_other_numbers_is_another_airframe(tmp_path: Path) ->
     with pytest.raises(ValueError, match="identified on airframe 'paper' \\(other numbers\\)"):
         load_models(None, str(heavier))
     assert load_models(None, str(heavier), any_airframe=True).channels
+
+
+def test_the_quad_x_flies_the_papers_tests_with_the_model_the_workflow_identifies(
+        tmp_path: Path) -> None:
+    """The shipped quad X on the rigid-body plant, with a model identified on it by
+    ``ivfm identify``: the issue's targets (x, y <= 0.05 m after 3 s; phi, theta <= 0.02 rad
+    after 2 s at the largest amplitude its thrust allows, 0.7 rad), and our numbers (rel
+    2 %). The shipped model for it is that same identification, value for value."""
+    model = tmp_path / "x500.json"
+    assert main(["identify", "--airframe", "quad-x-500", "--out", str(model)]) == 0
+    mine, shipped = (json.loads(p.read_text()) for p in (
+        model, Path(str(resources.files("autopilot.models").joinpath("quad-x-500.json")))))
+    assert mine["channels"] == shipped["channels"]
+    measured = {"x500-position-sine": {"x": 0.00489, "y": 0.00451},
+                "x500-attitude-sine": {"phi": 0.00106, "theta": 0.00214}}
+    targets = {"x": 0.05, "y": 0.05, "phi": 0.02, "theta": 0.02}
+    for scenario, golden in measured.items():
+        run = tmp_path / scenario
+        assert main(["run", scenario, "--inprocess", "--no-figures", "--model", str(model),
+                     "--out", str(run)]) == 0
+        metrics = json.loads((run / "metrics.json").read_text())
+        assert metrics["airframe"] == "quad-x-500" and metrics["plant"] == "rigid-body"
+        for axis, value in golden.items():
+            rmse = metrics["axes"][axis]["rmse"]
+            assert rmse <= targets[axis]
+            assert rmse == pytest.approx(value, rel=0.02), (scenario, axis, rmse)
+
+
+def test_an_x_frame_listed_in_another_rotor_order_flies_the_same_closed_loop() -> None:
+    """The autopilot and the plant on the quad X in PX4's motor order, and on the same
+    vehicle with its rotors listed in another order: the same flight, and each motor's
+    command moves with its rotor."""
+    import tomllib
+
+    import numpy as np
+
+    from autopilot.control.factory import load_models
+    from contracts.airframe import airframe_from_spec
+    from contracts.airframe_file import parse_airframe
+    from ground.inprocess import run_inprocess
+    from ground.scenarios import scenario_by_name
+
+    data = tomllib.loads(resources.files("contracts").joinpath(
+        "airframes", "quad-x-500.toml").read_text())
+    order = [2, 0, 3, 1]  # listed rotor j is PX4's motor order[j] + 1
+    shuffled = dict(data, rotor=[data["rotor"][m] for m in order])
+    models = load_models(None, "quad-x-500")
+    scenario = scenario_by_name("x500-position-sine")
+    px4, other = (run_inprocess(scenario, "ivfc", "rigid-body",
+                                airframe_from_spec(parse_airframe(d)), models)
+                  for d in (data, shuffled))
+    assert not px4.diverged
+    np.testing.assert_allclose(other.measurement, px4.measurement, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(other.motor_commands, px4.motor_commands[:, order], rtol=0,
+                               atol=1e-9)
+    assert np.ptp(px4.motor_commands[200:], axis=0).min() > 0.01  # the motors did work

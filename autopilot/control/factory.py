@@ -72,18 +72,28 @@ def make_controller(
                               period_s, parameters, adaptive=True)
 
 
-SHIPPED_MODEL = "paper.json"
+SHIPPED_MODEL = "paper.json"  # the paper's airframe; others have theirs by name
+
+
+def shipped_model_name(airframe: str | None) -> str:
+    """The model shipped for an airframe (``autopilot/models/<airframe name>.json``), or
+    the paper's when none is."""
+    if airframe is None:
+        return SHIPPED_MODEL
+    own = f"{read_airframe(airframe).name}.json"
+    return own if resources.files("autopilot.models").joinpath(own).is_file() else SHIPPED_MODEL
 
 
 def load_models(path: Path | None, airframe: str | None = None,
                 any_airframe: bool = False) -> FuzzyModelSet:
-    """The given model file, or the model shipped with the autopilot. With ``airframe`` (a
+    """The given model file, or the model shipped for the airframe. With ``airframe`` (a
     name or file), a model identified on another airframe is refused unless
     ``any_airframe``."""
     from autopilot.identification.model_file import load_model
 
     if path is None:
-        with resources.as_file(resources.files("autopilot.models") / SHIPPED_MODEL) as shipped:
+        name = shipped_model_name(airframe)
+        with resources.as_file(resources.files("autopilot.models") / name) as shipped:
             models = load_model(shipped)
     else:
         models = load_model(path)
@@ -92,7 +102,8 @@ def load_models(path: Path | None, airframe: str | None = None,
         raise ValueError(f"{path}: the controller needs channel(s) {', '.join(missing)}, "
                          f"the model has {', '.join(models.channels) or 'none'}")
     if airframe is not None and not any_airframe:
-        check_model_airframe(models, airframe, str(path or "the shipped model"))
+        check_model_airframe(models, airframe, str(path or f"the shipped model "
+                                                   f"{shipped_model_name(airframe)}"))
     return models
 
 

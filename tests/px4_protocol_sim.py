@@ -43,11 +43,12 @@ class Vehicle:
     rotors: tuple[Rotor, ...]
 
 
-# The paper's quadrotor in its "+" layout, motors in the autopilot's order: front (cw),
-# right (ccw), rear (cw), left (ccw).
-PLUS = Vehicle(1.2, (0.18, 0.18, 0.09), 54.2e-6, 1.1e-6, 500.0, (
-    Rotor((0.23, 0.0, 0.0), +1), Rotor((0.0, 0.23, 0.0), -1),
-    Rotor((-0.23, 0.0, 0.0), +1), Rotor((0.0, -0.23, 0.0), -1)))
+# PX4's quad X in its motor order (PX4's airframe reference: 1 front right ccw, 2 rear
+# left ccw, 3 front left cw, 4 rear right cw), with the numbers of PX4's x500 simulation
+# model: 2 kg, motor constant 8.54858e-6, moment constant 0.016, 1000 rad/s.
+QUAD_X = Vehicle(2.0, (0.0217, 0.0217, 0.040), 8.54858e-6, 0.016 * 8.54858e-6, 1000.0, (
+    Rotor((0.175, 0.175, 0.0), -1), Rotor((-0.175, -0.175, 0.0), -1),
+    Rotor((0.175, -0.175, 0.0), +1), Rotor((-0.175, 0.175, 0.0), +1)))
 
 
 def _rotation(q: np.ndarray) -> np.ndarray:
@@ -108,7 +109,7 @@ class Px4ProtocolSim(threading.Thread):
     """Listens on ``port``; after the flight stack's first HEARTBEAT, sends HIL_SENSOR and
     HIL_STATE_QUATERNION every sample and waits for HIL_ACTUATOR_CONTROLS (lockstep)."""
 
-    def __init__(self, port: int, vehicle: Vehicle = PLUS, rate_hz: float = 250.0,
+    def __init__(self, port: int, vehicle: Vehicle = QUAD_X, rate_hz: float = 250.0,
                  start_time_us: int = 7_123_456_789, substeps: int = 4) -> None:
         super().__init__(daemon=True)
         self.vehicle = vehicle

@@ -1,7 +1,8 @@
 """The autopilot driven by a simulator of PX4's protocol that is not ours
-(tests/px4_protocol_sim.py): it waits for the autopilot's HEARTBEAT, runs at 250 Hz from
-an arbitrary clock origin and sends only HIL_SENSOR and HIL_STATE_QUATERNION. With no
-option given, the autopilot takes off, holds and lands it, answering every sample."""
+(tests/px4_protocol_sim.py): a quad X in PX4's motor order that waits for the autopilot's
+HEARTBEAT, runs at 250 Hz from an arbitrary clock origin and sends only HIL_SENSOR and
+HIL_STATE_QUATERNION. With no option but the airframe, the autopilot takes off, holds and
+lands it, answering every sample."""
 
 from __future__ import annotations
 
@@ -26,7 +27,7 @@ def test_a_px4_protocol_simulator_that_waits_for_heartbeat_is_flown_on_hil_messa
     autopilot = subprocess.Popen(
         [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{sim_port}", "--gcs",
          f"127.0.0.1:{gcs_port}", "--gcs-bind", str(vehicle_port), "--api", "none",
-         "--api-bind", "0", "--no-zenoh"], stdout=log, stderr=subprocess.STDOUT)
+         "--api-bind", "0", "--no-zenoh", "--airframe", "quad-x-500"], stdout=log, stderr=subprocess.STDOUT)
     tool = GroundTool(gcs_port)
     try:
         tool.connect()

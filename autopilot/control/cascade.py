@@ -121,7 +121,7 @@ def cascade_step(
     filter_state: np.ndarray,
     filter_limits: np.ndarray,
     max_tilt: float,
-    rotor_rad_s: np.ndarray,
+    last_commands: np.ndarray,
     period_s: float,
     telemetry: np.ndarray,
     collective_thrust_n: float,
@@ -129,7 +129,8 @@ def cascade_step(
 ) -> np.ndarray:
     """One control period: altitude, position (if active), attitude, mixer -> c_i.
 
-    ``rotor_rad_s``: the rotor speeds of the last command (W_r and the rotors' momentum).
+    ``last_commands``: the motor commands sent last period (their rotor speeds give W_r and
+    the rotors' momentum: the controller knows what it sent).
 
     ``collective_thrust_n``: NaN to run the altitude loop, else the total thrust a tool
     asked for (attitude setpoints in PX4's reading). ``total_tilt``: see desired_angles.
@@ -191,6 +192,7 @@ def cascade_step(
 
     # Attitude: y'' = f(x) + g U.
     rates = meas[MEAS_EULER_RATE:MEAS_EULER_RATE + 3]
+    rotor_rad_s = rotor_speeds(last_commands, af)
     w_r = residual_rotor_speed(rotor_rad_s, af)
     f_nominal = attitude_drift(rates[0], rates[1], rates[2], rotor_momentum(rotor_rad_s, af),
                                af)
@@ -308,8 +310,7 @@ class SlidingModeCascade:
             self.model.basis_kind, self.model.mf_lower, self.model.mf_upper, self._theta_f,
             self._theta_min, self._theta_max, self.model.eta_scale, self.theta_g, self._gains,
             self.airframe, self._filter_state, self._filter_limits, self._max_tilt,
-            rotor_speeds(self._last_commands, self.airframe), self.period_s, self.telemetry,
-            collective_thrust_n,
+            self._last_commands, self.period_s, self.telemetry, collective_thrust_n,
             total_tilt,
         )
         self._last_commands = commands

@@ -27,7 +27,8 @@ def test_a_px4_protocol_simulator_that_waits_for_heartbeat_is_flown_on_hil_messa
     autopilot = subprocess.Popen(
         [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{sim_port}", "--gcs",
          f"127.0.0.1:{gcs_port}", "--gcs-bind", str(vehicle_port), "--api", "none",
-         "--api-bind", "0", "--no-zenoh", "--airframe", "quad-x-500"], stdout=log, stderr=subprocess.STDOUT)
+         "--api-bind", "0", "--no-zenoh", "--airframe", "quad-x-500"],
+        stdout=log, stderr=subprocess.STDOUT)
     tool = GroundTool(gcs_port)
     try:
         tool.connect()

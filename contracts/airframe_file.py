@@ -109,7 +109,7 @@ def read_airframe(source: str | Path) -> AirframeSpec:
         raise AirframeError(f"{where}: no such file") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise AirframeError(f"{where}: not TOML: {exc}") from None
-    return parse_airframe(data, where)
+    return parse_airframe(data, where, default_name=Path(text_source).stem)
 
 
 def checked_argument(load: Callable[[str], object]) -> Callable[[str], str]:
@@ -125,14 +125,15 @@ def checked_argument(load: Callable[[str], object]) -> Callable[[str], str]:
 
 
 
-def parse_airframe(data: dict[str, Any], where: str = "airframe") -> AirframeSpec:
+def parse_airframe(data: dict[str, Any], where: str = "airframe",
+                   default_name: str = "airframe") -> AirframeSpec:
     unknown = sorted(set(data) - _TOP_KEYS)
     if unknown:
         raise AirframeError(f"{where}: unknown field(s) {', '.join(unknown)}")
     for key in ("mass_kg", "inertia_kgm2", "rotor"):
         if key not in data:
             raise AirframeError(f"{where}: {key} is required")
-    name = data.get("name", Path(where).stem)
+    name = data.get("name", default_name)
     if not isinstance(name, str) or not name:
         raise AirframeError(f"{where}: name must be a non-empty string")
     command_map = data.get("command_map", "speed")
@@ -221,11 +222,14 @@ def _check_controllable(spec: AirframeSpec, where: str) -> None:
     if np.linalg.matrix_rank(spec.effectiveness(), tol=1e-12) < 4:
         raise AirframeError(f"{where}: the rotors cannot produce thrust, roll, pitch and yaw "
                             "independently (the effectiveness matrix is rank deficient)")
-    if np.any(np.linalg.inv(spec.effectiveness())[:, 0] <= 0.0):
+    hover_share = np.linalg.inv(spec.effectiveness())[:, 0]  # W_i^2 per newton, no torque
+    if np.any(hover_share <= 0.0):
         raise AirframeError(f"{where}: thrust without torque needs a rotor to push down (the "
                             "centre of mass is outside the rotors): no mixer can hover it")
-    max_thrust = sum(r.thrust_coeff_ns2 * r.max_rad_s**2 for r in spec.rotors)
+    # The largest thrust with no torque: until the first rotor is at its top.
+    max_thrust = min(r.max_rad_s**2 / share for r, share in zip(spec.rotors, hover_share,
+                                                                 strict=True))
     weight = spec.mass_kg * 9.81
     if max_thrust <= weight:
-        raise AirframeError(f"{where}: the rotors give at most {max_thrust:.3g} N, not more "
-                            f"than the weight {weight:.3g} N: it cannot fly")
+        raise AirframeError(f"{where}: the rotors give at most {max_thrust:.3g} N without "
+                            f"torque, not more than the weight {weight:.3g} N: it cannot fly")

@@ -59,7 +59,7 @@ SIGNS = {
 }
 
 
-def test_the_shipped_airframes_are_the_papers_and_the_realistic_one():
+def test_the_shipped_airframes_are_the_papers_the_realistic_one_and_a_quad_x():
     assert PlusNumbers(1.2, 0.18, 0.18, 0.09, 0.23, 54.2e-6, 1.1e-6, 1.32e-3, 500.0, 0.0,
                        0.0) == plus_numbers("paper")
     assert PlusNumbers(1.5, 0.0215, 0.0215, 0.0380, 0.225, 1.22e-5, 1.9e-7, 6.0e-5,
@@ -117,6 +117,11 @@ def test_the_paper_inputs_are_its_rotor_map_exactly():
     (lambda d: [r.update(position_m=[0.0, 0.0, 0.0]) for r in d["rotor"]],
      "rank deficient"),
     (lambda d: d.update(mass_kg=50.0), "cannot fly"),
+    # Enough thrust in all (4 x 10 N against 26.5 N) but the rear rotors, which carry
+    # most of the weight of a centre of mass this far back, top out first: 25.5 N.
+    (lambda d: (d.update(mass_kg=2.7), [r.update(position_m=[r["position_m"][0] + 0.1,
+                                                             r["position_m"][1], 0.0])
+                                        for r in d["rotor"]]), "without torque"),
 ])
 def test_bad_airframe_files_are_refused_naming_the_field(change, message):
     data = copy.deepcopy(QUAD_X)
@@ -140,11 +145,14 @@ def test_files_by_path_and_bad_paths(tmp_path):
         read_airframe(str(tmp_path / "absent.toml"))
     with pytest.raises(AirframeError, match="unknown airframe 'quad'; shipped: paper"):
         read_airframe("quad")
+    (tmp_path / "unnamed.toml").write_text(
+        "\n".join(line for line in text.splitlines() if not line.startswith("name =")))
+    assert read_airframe(str(tmp_path / "unnamed.toml")).name == "unnamed"  # the file's stem
 
 
 @pytest.mark.parametrize("fidelity", ["paper", "rigid-body"])
 def test_one_rotors_extra_thrust_turns_the_plant_the_way_the_convention_says(fidelity):
-    """The plant, rotor by rotor, for the "+" layout it flies (the signs of SIGNS)."""
+    """The plant, rotor by rotor, on the paper's "+" airframe (the signs of SIGNS)."""
     n = plus_numbers("paper")
     hover = math.sqrt(n.mass_kg * 9.81 / (4 * n.thrust_coeff_ns2))
     for i, expected in enumerate(SIGNS["plus"]):

@@ -6,8 +6,10 @@ columns, then one row per sample. Units SI, frames NED / FRD (docs/conventions.m
     time_s                                   sample time [s], strictly increasing
     phi_rad, theta_rad, psi_rad              Euler angles [rad]
     phi_rate_rad_s, theta_rate_rad_s, psi_rate_rad_s   Euler angle rates [rad/s]
-    w_r_rad_s                                  residual rotor speed W1 - W2 + W3 - W4 [rad/s]
-    u_phi_n, u_theta_n                       roll / pitch force pairs U_phi, U_theta [N]
+    w_r_rad_s                                residual rotor speed sum s_i W_i [rad/s]
+                                             (W1 - W2 + W3 - W4 on the paper's "+")
+    u_phi_n, u_theta_n                       roll / pitch torques as forces at the
+                                             reference arms, U_phi, U_theta [N]
     u_psi_nm                                 yaw torque U_psi [N m]
     phi_acc_rad_s2, theta_acc_rad_s2, psi_acc_rad_s2   angular accelerations [rad/s^2]
     f_phi, f_theta, f_psi                    optional: the unknown functions f_i(x)

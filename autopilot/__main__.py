@@ -45,9 +45,9 @@ def _address(text: str) -> tuple[str, int] | None:
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     from autopilot.control.factory import CONTROLLERS
-    from autopilot.process import STATE_SOURCES
     from autopilot.reference import REFERENCE_KINDS
     from contracts.airframe import airframe_argument
+    from contracts.mavlink import STATE_SOURCES
 
     p = parser or argparse.ArgumentParser(prog="python -m autopilot", description=__doc__)
     p.add_argument("--sim", type=_address, default=("127.0.0.1", SIM_TCP_PORT),

@@ -37,6 +37,7 @@ DEFAULT_STREAMS: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 0.1,
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: 5.0,
     mavlink.MAVLINK_MSG_ID_VFR_HUD: 0.25,
+    mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
 }
 # What REQUEST_MESSAGE and SET_MESSAGE_INTERVAL can have, beyond the streams.
 PRODUCIBLE = set(DEFAULT_STREAMS) | {mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION}
@@ -83,11 +84,43 @@ def sys_status(v: Vehicle, drop_rate: float, errors: int) -> mavlink.MAVLink_sys
     """Sensor health and the pre-arm check; PX4's meanings for the link figures:
     ``drop_rate`` (0-1) goes out in centi-percent, ``errors`` are datagrams refused."""
     health = SENSORS if v.sim_link_ok else 0
-    if v.sim_link_ok and (v.armed or v.landed):
+    status = v.estimator_status
+    if status is not None and not status.gps_ok:
+        health &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
+    if v.sim_link_ok and (v.armed or v.landed) and v.navigation_problem is None:
         health |= PREARM
     return mavlink.MAVLink_sys_status_message(
         SENSORS | PREARM, SENSORS | PREARM, health, 0, 12000, -1, -1,
         min(10_000, round(10_000 * drop_rate)), min(errors, 65535), 0, 0, 0, 0)
+
+
+# ESTIMATOR_STATUS flags of a solution good for position control.
+ESTIMATOR_GOOD = (mavlink.ESTIMATOR_ATTITUDE | mavlink.ESTIMATOR_VELOCITY_HORIZ
+                  | mavlink.ESTIMATOR_VELOCITY_VERT | mavlink.ESTIMATOR_POS_HORIZ_REL
+                  | mavlink.ESTIMATOR_POS_HORIZ_ABS | mavlink.ESTIMATOR_POS_VERT_ABS)
+
+
+def estimator_status(v: Vehicle, time_us: int) -> mavlink.MAVLink_estimator_status_message:
+    """ESTIMATOR_STATUS as PX4 fills it: what the solution is good for, the innovation test
+    ratios (> 1: rejected) and the 1-sigma accuracies. On the simulator's truth: perfect."""
+    s = v.estimator_status
+    if s is None:
+        flags = ESTIMATOR_GOOD if v.sim_link_ok else 0
+        return mavlink.MAVLink_estimator_status_message(time_us, flags, 0, 0, 0, 0, 0, 0, 0, 0)
+    flags = 0
+    if s.aligned:
+        flags |= mavlink.ESTIMATOR_ATTITUDE | mavlink.ESTIMATOR_VELOCITY_VERT | \
+            mavlink.ESTIMATOR_POS_VERT_ABS
+        if s.gps_ok:
+            flags |= mavlink.ESTIMATOR_VELOCITY_HORIZ | mavlink.ESTIMATOR_POS_HORIZ_REL | \
+                mavlink.ESTIMATOR_POS_HORIZ_ABS
+        else:
+            flags |= mavlink.ESTIMATOR_PRED_POS_HORIZ_REL
+    if s.gps_test_ratio > 1.0:
+        flags |= mavlink.ESTIMATOR_GPS_GLITCH
+    return mavlink.MAVLink_estimator_status_message(
+        time_us, flags, s.gps_test_ratio, s.gps_test_ratio, s.baro_test_ratio,
+        s.mag_test_ratio, 0, 0, s.horizontal_sigma_m, s.vertical_sigma_m)
 
 
 def landed_state(v: Vehicle) -> int:
@@ -155,4 +188,6 @@ def telemetry_message(msg_id: int, v: Vehicle, flavour: str, boot_ms: int,
                                                HOME_ALT_AMSL_M - m[MEAS_Z], -m[MEAS_VZ])
     if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
         return autopilot_version()
+    if msg_id == mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
+        return estimator_status(v, round(v.sim_t_s * 1e6))
     raise ValueError(f"no telemetry for message {msg_id}")

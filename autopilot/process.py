@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from autopilot import shaping
+from autopilot.estimation.estimator import Estimator, GpsFix
 from autopilot.mavlink_server import MavlinkServer
 from autopilot.vehicle import Vehicle
 from contracts.airframe import max_thrust_n
@@ -41,10 +42,16 @@ from contracts.frames import (
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
+    HIL_SENSOR_ALL_FIELDS,
     SIM_TCP_PORT,
+    STATE_SOURCES,
+    GpsSample,
     LinkDataError,
     SensorSample,
+    TruthSample,
     actuator_message,
+    fix_from_hil_gps,
+    imu_from_hil_sensor,
     mavlink,
     measurement_from_hil_state,
     measurement_from_odometry,
@@ -57,6 +64,10 @@ from contracts.realtime import LoopTiming, set_realtime_priority
 from contracts.telemetry import (
     AUTOPILOT,
     CONTROL,
+    ESTIMATE,
+    ESTIMATE_ALIGNED,
+    ESTIMATE_CONVERGED,
+    ESTIMATE_GPS_OK,
     FLAG_ARMED,
     FLAG_FAILSAFE,
     TIMING,
@@ -65,10 +76,6 @@ from contracts.telemetry import (
 from contracts.vectors import CHANNEL_INTERNALS, MEAS_Z, MEASUREMENT_SIZE, REF_SIZE
 from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
 
-# Which simulator message the controller flies on. "auto" (PX4's way) takes ODOMETRY when
-# the simulator sends it and HIL_STATE_QUATERNION when it does not.
-STATE_SOURCES = {"auto": ("ODOMETRY", "HIL_STATE_QUATERNION"), "odometry": ("ODOMETRY",),
-                 "hil-state": ("HIL_STATE_QUATERNION",)}
 SIM_HEARTBEAT_S = 1.0  # to the simulator, from the connection on (jMAVSim waits for one)
 RECONNECT_S = 0.5
 SPIN_S = 0.0005  # the last stretch before a real-time deadline is busy-waited
@@ -116,10 +123,12 @@ class AutopilotConfig:
 class SimLink:
     """TCP client of the simulator; reconnects while the simulator is away."""
 
-    def __init__(self, host: str, port: int, source: str, sysid: int = AUTOPILOT_SYSID) -> None:
+    def __init__(self, host: str, port: int, source: str, sysid: int = AUTOPILOT_SYSID,
+                 estimator: Estimator | None = None) -> None:
         self.address = (host, port)
         self.sock: socket.socket | None = None
         self.source_types = STATE_SOURCES[source]
+        self.estimator = estimator if source == "estimator" else None
         self.source_ids = frozenset(getattr(mavlink, f"MAVLINK_MSG_ID_{t}")
                                     for t in self.source_types) | {-1}
         self._pending = b""
@@ -158,19 +167,32 @@ class SimLink:
             mavlink.MAV_STATE_ACTIVE, 3)
         return self.send(msg.pack(self.mav))
 
-    def decode(self, msg) -> np.ndarray:
-        """The measurement of a state message (raises LinkDataError on bad data)."""
-        if msg.get_type() == "ODOMETRY":
+    def decode(self, msg) -> np.ndarray | None:
+        """The measurement of a state message (raises LinkDataError on bad data). On the
+        estimator: a fix goes into it (None: not a sample), an IMU sample steps it and the
+        sample's measurement is the estimate (None until it has aligned)."""
+        kind = msg.get_type()
+        if kind == "ODOMETRY":
             return measurement_from_odometry(msg)
-        return measurement_from_hil_state(msg)
+        if kind == "HIL_STATE_QUATERNION":
+            return measurement_from_hil_state(msg)
+        est = self.estimator
+        if kind == "HIL_GPS":
+            position, velocity, fix_type, satellites = fix_from_hil_gps(msg)
+            est.gps(msg.time_usec, GpsFix(position, velocity, fix_type, satellites))
+            return None
+        gyro, accel, baro_alt, mag = imu_from_hil_sensor(msg)
+        est.imu(msg.time_usec, gyro, accel, baro_alt, mag)
+        return est.measurement() if est.aligned else None
 
     def close(self) -> None:
         if self.sock is not None:
             self.sock.close()
             self.sock = None
 
-    def read(self) -> list[tuple[int, np.ndarray]] | None:
-        """Samples (time_us, measurement) now available; None when the link closed."""
+    def read(self) -> list[tuple[int, np.ndarray | None]] | None:
+        """Samples (time_us, measurement) now available (measurement None: the estimator
+        has not aligned yet); None when the link closed."""
         try:
             data = self.sock.recv(262144)
         except (BlockingIOError, InterruptedError):
@@ -190,10 +212,13 @@ class SimLink:
             if self.odometry_seen and msg.get_type() != "ODOMETRY":
                 continue  # the same sample, from the message the controller prefers
             try:
-                samples.append((msg.time_usec, self.decode(msg)))
+                measurement = self.decode(msg)
             except LinkDataError as exc:
                 self.bad_messages += 1
                 self.last_bad = str(exc)
+                continue
+            if msg.get_type() != "HIL_GPS":
+                samples.append((msg.time_usec, measurement))
         return samples
 
     def send(self, data: bytes) -> bool:
@@ -213,11 +238,17 @@ class Autopilot:
         self.arm_in_reference = arm_in_reference
         self.log = log or (lambda text: print(f"autopilot: {text}", file=sys.stderr, flush=True))
         self.period_us = round(1e6 / config.rate_hz)
-        self.sim = SimLink(config.sim_host, config.sim_port, config.state_source, config.sysid)
+        estimator = (Estimator(gps_delay_s=vehicle.parameters["EKF2_GPS_DELAY"] / 1e3)
+                     if config.state_source == "estimator" else None)
+        self.sim = SimLink(config.sim_host, config.sim_port, config.state_source, config.sysid,
+                           estimator)
         self.timing = LoopTiming(self.period_us / 1e6)
         self.node = TelemetryNode(config.zenoh, config.sysid, AUTOPILOT, self.log)
         self._control_pub = self.node.publisher("control")
         self._timing_pub = self.node.publisher("timing")
+        self._estimate_pub = (self.node.publisher("estimate") if estimator is not None
+                              else None)
+        self._estimate_record = ESTIMATE.buffer()
         self._event_pub = self.node.publisher("perturbation")
         self.node.serve("perturb")
         self._control_record = CONTROL.buffer()
@@ -244,6 +275,7 @@ class Autopilot:
         self._next_service = 0.0               # are read within a budget (_ground_work)
         self._stop = False
         self._progress_at = 0.1
+        self._gps_ok: bool | None = None
 
     def stop(self, *_args) -> None:
         self._stop = True
@@ -309,6 +341,8 @@ class Autopilot:
         record["compute_s"] = compute_s
         record["period_s"] = math.nan if previous is None else start_wall_s - previous
         self._timing_pub.put(record.encode())
+        if self._estimate_pub is not None and v.estimator_status is not None:
+            self._publish_estimate(time_us, v.estimator_status)
         if v.perturbations.entries:
             for event, e in v.perturbations.changes(time_us / 1e6):
                 self._event_pub.put(json_record(self._event_pub.count, time_us, event=event,
@@ -320,6 +354,22 @@ class Autopilot:
                 msg = self.ground.telemetry(msg_id, boot_ms=(time_us // 1000) & 0xFFFFFFFF)
                 self.node.mirror(self.config.sysid, AUTOPILOT_COMPID, msg.get_type(),
                                  msg.pack(self._mirror_mav), time_us)
+
+    def _publish_estimate(self, time_us: int, status) -> None:
+        x = self.sim.estimator.x
+        record = self._estimate_record
+        record["seq"], record["sim_time_us"] = self._estimate_pub.count, time_us
+        record["flags"] = ((ESTIMATE_ALIGNED if status.aligned else 0)
+                           | (ESTIMATE_CONVERGED if status.converged else 0)
+                           | (ESTIMATE_GPS_OK if status.gps_ok else 0))
+        record["position_ned_m"], record["velocity_ned_mps"] = x[0:3], x[3:6]
+        record["quaternion"], record["gyro_bias_rad_s"] = x[6:10], x[10:13]
+        record["accel_bias_mps2"], record["baro_offset_m"] = x[13:16], x[16]
+        for name in ("tilt_sigma_rad", "yaw_sigma_rad", "horizontal_sigma_m",
+                     "vertical_sigma_m", "velocity_sigma_mps", "gps_test_ratio",
+                     "baro_test_ratio", "mag_test_ratio"):
+            record[name] = getattr(status, name)
+        self._estimate_pub.put(record.encode())
 
     def _mirror_tool_message(self, link, msg, frame: bytes) -> None:
         """Announcements and acknowledgements to ground tools go into the log too."""
@@ -377,6 +427,11 @@ class Autopilot:
             self.log(f"refused simulator data: {self.sim.last_bad}")
             self.sim.last_bad = None
         for time_us, measurement in samples:
+            if measurement is None:  # the estimator is aligning: nothing to fly on yet
+                self._answer(time_us, np.zeros(4), False)
+                continue
+            if self.sim.estimator is not None:
+                self._estimator_news(time_us)
             if self.latest is not None and time_us < self.latest[0]:
                 self.next_control_us = None  # a new simulator: its clock starts again
             self.latest = (time_us, measurement)
@@ -398,6 +453,20 @@ class Autopilot:
             if self.steps >= self.max_steps:
                 self._stop = True
                 return
+
+    def _estimator_news(self, time_us: int) -> None:
+        """Arming waits for the estimator; GPS loss and return are announced."""
+        est = self.sim.estimator
+        est.gps_delay_us = round(self.vehicle.parameters["EKF2_GPS_DELAY"] * 1e3)
+        status = est.status(time_us)
+        self.vehicle.navigation_problem = None if status.converged else \
+            f"estimator {status.reason}"
+        if status.gps_ok != self._gps_ok:
+            if self._gps_ok is not None:
+                self.vehicle.say("GPS regained" if status.gps_ok else
+                                 "GPS lost: dead reckoning", 6 if status.gps_ok else 4)
+            self._gps_ok = status.gps_ok
+        self.vehicle.estimator_status = status
 
     def _sim_watchdog(self, now: float) -> None:
         """Real time: no sample for COM_SIM_LOSS_T means the simulator is gone."""
@@ -450,13 +519,20 @@ class Autopilot:
         wrap_pi(1.0)
         euler_from_quat(np.array([1.0, 0.0, 0.0, 0.0]))
         max_thrust_n(scratch.airframe)
-        # A first decoded sample and a first round of ground work cost milliseconds.
-        hover = SensorSample(0, (0.0, 0.0, -GRAVITY_MPS2), (0.0, 0.0, 0.0), (0.2, 0.0, 0.4),
-                             950.0, 500.0, 20.0, HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_AMSL_M + 1,
-                             (0.0, 0.0, -1.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0))
-        for msg in sample_messages(hover):
-            if msg.get_type() in self.sim.source_types:
-                self.sim.decode(msg)
+        # A first decoded sample and a first round of ground work cost milliseconds; the
+        # estimator's compiled steps load on a scratch estimator.
+        scratch_link = SimLink(*self.sim.address, self.config.state_source, self.config.sysid,
+                               Estimator())
+        for k in range(3):
+            truth = TruthSample(k * 10_000, (0.0, 0.0, -1.0), (0.0, 0.0, 0.0),
+                                (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, -GRAVITY_MPS2))
+            sensor = SensorSample(k * 10_000, (0.0, 0.0, -GRAVITY_MPS2), (0.0, 0.0, 0.0),
+                                  (0.2, 0.0, 0.4), 950.0, 500.0, 20.0, HIL_SENSOR_ALL_FIELDS)
+            fix = GpsSample(k * 10_000, HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_AMSL_M + 1.0,
+                            (0.0, 0.0, 0.0), 80, 120, 3, 12)
+            for msg in sample_messages(truth, sensor, fix):
+                if msg.get_type() in scratch_link.source_types:
+                    scratch_link.decode(msg)
         self._ground_work(LOCKSTEP_GROUND_BUDGET_S)
         # What exists now lives for the whole run: out of the collector's sight, so its
         # passes in the loop look at the few objects a step makes, not at all of them.

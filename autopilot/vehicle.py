@@ -83,6 +83,9 @@ class Vehicle:
         self.failsafe: str | None = None
         self.messages: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) for STATUSTEXT
         self.sim_link_ok = False
+        # Why the state is not good enough to arm on (the estimator's reason), None if it is.
+        self.navigation_problem: str | None = None
+        self.estimator_status = None  # EstimatorStatus when flying on the estimator
         self.last_ref = np.zeros(REF_SIZE)
         self.last_kick = np.zeros(2)
         self.last_commands = np.zeros(4)
@@ -146,6 +149,8 @@ class Vehicle:
             return
         if not self.sim_link_ok or self.measurement is None:
             raise RefusedError("arming denied: no state from the simulator", temporary=True)
+        if self.navigation_problem is not None:
+            raise RefusedError(f"arming denied: {self.navigation_problem}", temporary=True)
         if self.mode not in ARMABLE_MODES:
             raise RefusedError(f"arming denied in {self.mode.value} mode")
         if not self.landed:

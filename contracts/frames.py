@@ -171,6 +171,33 @@ HOME_LAT_DEG = 47.397742
 HOME_LON_DEG = 8.545594
 HOME_ALT_AMSL_M = 488.0
 EARTH_RADIUS_M = 6_378_137.0
+# The Earth's field at home (the world magnetic model at Zurich, 2026): what the simulated
+# magnetometer measures and what the autopilot's estimator takes as north, as PX4 looks up
+# the declination for its position.
+HOME_MAG_DECLINATION_RAD = math.radians(3.2)
+HOME_MAG_INCLINATION_RAD = math.radians(63.6)
+HOME_MAG_STRENGTH_GAUSS = 0.479
+
+
+def home_mag_field_ned_gauss() -> tuple[float, float, float]:
+    """The field at home in NED [gauss] from its declination and inclination."""
+    horizontal = HOME_MAG_STRENGTH_GAUSS * math.cos(HOME_MAG_INCLINATION_RAD)
+    return (horizontal * math.cos(HOME_MAG_DECLINATION_RAD),
+            horizontal * math.sin(HOME_MAG_DECLINATION_RAD),
+            HOME_MAG_STRENGTH_GAUSS * math.sin(HOME_MAG_INCLINATION_RAD))
+
+
+SEA_LEVEL_PRESSURE_HPA = 1013.25
+
+
+def pressure_hpa(alt_amsl_m: float) -> float:
+    """International standard atmosphere below 11 km: what a barometer reads."""
+    return SEA_LEVEL_PRESSURE_HPA * (1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588
+
+
+def altitude_from_pressure_m(pressure_hpa_: float) -> float:
+    """Altitude AMSL [m] of a pressure in the standard atmosphere (pressure_hpa inverted)."""
+    return (1.0 - (pressure_hpa_ / SEA_LEVEL_PRESSURE_HPA) ** (1.0 / 5.25588)) / 2.25577e-5
 
 
 def geodetic_from_ned(north_m: float, east_m: float, down_m: float) -> tuple[float, float, float]:

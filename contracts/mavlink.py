@@ -16,9 +16,12 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from contracts.frames import (
     GRAVITY_MPS2,
+    HOME_ALT_AMSL_M,
+    altitude_from_pressure_m,
     body_to_world,
     euler_from_quat,
     euler_rates_from_body_rates,
+    geodetic_from_ned,
     ned_from_geodetic,
 )
 from contracts.vectors import MEASUREMENT
@@ -35,6 +38,13 @@ AUTOPILOT_COMPID = mavlink.MAV_COMP_ID_AUTOPILOT1
 SIMULATOR_SYSID = 1
 SIMULATOR_COMPID = 51  # any id that is not the autopilot's
 
+# What the autopilot flies on. "auto" (PX4's way with a simulator's ground truth) takes
+# ODOMETRY when the simulator sends it and HIL_STATE_QUATERNION when it does not;
+# "estimator" flies on the onboard estimator fed by HIL_SENSOR and HIL_GPS, as hardware.
+STATE_SOURCES = {"auto": ("ODOMETRY", "HIL_STATE_QUATERNION"), "odometry": ("ODOMETRY",),
+                 "hil-state": ("HIL_STATE_QUATERNION",),
+                 "estimator": ("HIL_GPS", "HIL_SENSOR")}
+
 # HIL_ACTUATOR_CONTROLS
 HIL_FLAG_LOCKSTEP = 1  # flags bit 0
 HIL_MODE_ARMED = mavlink.MAV_MODE_FLAG_SAFETY_ARMED
@@ -42,27 +52,52 @@ HIL_MOTORS = 4
 
 # HIL_SENSOR fields_updated: accel 0-2, gyro 3-5, mag 6-8, abs/diff pressure, pressure alt,
 # temperature 9-12 (the groups PX4's simulator_mavlink reads).
-HIL_SENSOR_ALL_FIELDS = 0x1FFF
+HIL_SENSOR_IMU = 0x3F
+HIL_SENSOR_MAG = 0x1C0
+HIL_SENSOR_BARO = 0x1E00  # absolute and differential pressure, pressure altitude, temperature
+HIL_SENSOR_ABS_PRESSURE = 0x200
+HIL_SENSOR_ALL_FIELDS = HIL_SENSOR_IMU | HIL_SENSOR_MAG | HIL_SENSOR_BARO
 MG_PER_MPS2 = 1000.0 / GRAVITY_MPS2
 
 
-class SensorSample(NamedTuple):
-    """What the simulator link carries for one sample (sitl/sensors.py computes it):
-    IMU, magnetometer, barometer and GPS readings, and the state the simulator reports."""
+class TruthSample(NamedTuple):
+    """The simulator's true state at one sample: HIL_STATE_QUATERNION and ODOMETRY carry
+    it (ground truth, what an autopilot flies on when it does not estimate)."""
 
     time_us: int
-    accel_frd_mps2: tuple[float, float, float]  # specific force R^T (a - g)
+    position_ned_m: tuple[float, float, float]
+    velocity_ned_mps: tuple[float, float, float]
+    quaternion: tuple[float, float, float, float]  # body FRD -> NED, [w, x, y, z]
+    body_rate_frd_rad_s: tuple[float, float, float]
+    specific_force_frd_mps2: tuple[float, float, float]  # R^T (a - g)
+
+
+class SensorSample(NamedTuple):
+    """HIL_SENSOR: the IMU, and the magnetometer and barometer when ``fields_updated``
+    says they are fresh (sitl/sensors.py computes it)."""
+
+    time_us: int
+    accel_frd_mps2: tuple[float, float, float]  # specific force
     gyro_frd_rad_s: tuple[float, float, float]
     mag_frd_gauss: tuple[float, float, float]
     pressure_hpa: float
     pressure_alt_m: float
     temperature_c: float
+    fields_updated: int  # HIL_SENSOR_* bits
+
+
+class GpsSample(NamedTuple):
+    """HIL_GPS: one fix, as the receiver reports it."""
+
+    time_us: int
     lat_deg: float
     lon_deg: float
     alt_amsl_m: float
-    position_ned_m: tuple[float, float, float]
     velocity_ned_mps: tuple[float, float, float]
-    quaternion: tuple[float, float, float, float]  # body FRD -> NED, [w, x, y, z]
+    eph_cm: int  # horizontal dilution of precision x 100 (HIL_GPS's unit)
+    epv_cm: int
+    fix_type: int  # 0-1 no fix, 2 2D, 3 3D
+    satellites: int
 
 
 def new_mavlink(sysid: int, compid: int) -> mavlink.MAVLink:
@@ -78,37 +113,56 @@ def _int_clamped(value: float, low: int, high: int) -> int:
     return int(min(high, max(low, round(value))))
 
 
-def sample_messages(s: SensorSample) -> list[mavlink.MAVLink_message]:
-    """The four messages of one sample: HIL_SENSOR, HIL_GPS, HIL_STATE_QUATERNION and
-    ODOMETRY (units and integer scalings as PX4's simulator_mavlink reads them)."""
-    w, x, y, z = s.quaternion
-    n, e, d = s.position_ned_m
-    vn, ve, vd = s.velocity_ned_mps
-    p, q, r = s.gyro_frd_rad_s
-    lat_e7 = _int_clamped(s.lat_deg * 1e7, -2**31, 2**31 - 1)
-    lon_e7 = _int_clamped(s.lon_deg * 1e7, -2**31, 2**31 - 1)
-    alt_mm = _int_clamped(s.alt_amsl_m * 1000, -2**31, 2**31 - 1)
+def truth_messages(t: TruthSample) -> list[mavlink.MAVLink_message]:
+    """HIL_STATE_QUATERNION and ODOMETRY of the true state (units and integer scalings as
+    PX4's simulator_mavlink reads them)."""
+    w, x, y, z = t.quaternion
+    n, e, d = t.position_ned_m
+    vn, ve, vd = t.velocity_ned_mps
+    p, q, r = t.body_rate_frd_rad_s
+    lat, lon, alt = geodetic_from_ned(n, e, d)
+    lat_e7 = _int_clamped(lat * 1e7, -2**31, 2**31 - 1)
+    lon_e7 = _int_clamped(lon * 1e7, -2**31, 2**31 - 1)
+    alt_mm = _int_clamped(alt * 1000, -2**31, 2**31 - 1)
     vn_cm, ve_cm, vd_cm = (_int_clamped(v * 100, -32768, 32767) for v in (vn, ve, vd))
-    ground_speed = math.hypot(vn, ve)
-    course_cdeg = math.degrees(math.atan2(ve, vn)) % 360.0 * 100.0
-    accel_mg = (_int_clamped(a * MG_PER_MPS2, -32768, 32767) for a in s.accel_frd_mps2)
+    speed_cm = _int_clamped(math.hypot(vn, ve) * 100, 0, 65535)
+    accel_mg = (_int_clamped(a * MG_PER_MPS2, -32768, 32767)
+                for a in t.specific_force_frd_mps2)
     return [
-        mavlink.MAVLink_hil_sensor_message(
-            s.time_us, *s.accel_frd_mps2, p, q, r, *s.mag_frd_gauss,
-            s.pressure_hpa, 0.0, s.pressure_alt_m, s.temperature_c, HIL_SENSOR_ALL_FIELDS, 0),
-        mavlink.MAVLink_hil_gps_message(
-            s.time_us, 3, lat_e7, lon_e7, alt_mm, 30, 30,
-            _int_clamped(ground_speed * 100, 0, 65534), vn_cm, ve_cm, vd_cm,
-            _int_clamped(course_cdeg, 0, 35999), 12),
         mavlink.MAVLink_hil_state_quaternion_message(
-            s.time_us, [w, x, y, z], p, q, r, lat_e7, lon_e7, alt_mm, vn_cm, ve_cm, vd_cm,
-            _int_clamped(ground_speed * 100, 0, 65535), _int_clamped(ground_speed * 100, 0, 65535),
-            *accel_mg),
+            t.time_us, [w, x, y, z], p, q, r, lat_e7, lon_e7, alt_mm, vn_cm, ve_cm, vd_cm,
+            speed_cm, speed_cm, *accel_mg),
         mavlink.MAVLink_odometry_message(
-            s.time_us, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_NED, n, e, d,
+            t.time_us, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_NED, n, e, d,
             [w, x, y, z], vn, ve, vd, p, q, r, [math.nan] * 21, [math.nan] * 21, 0,
             mavlink.MAV_ESTIMATOR_TYPE_MOCAP, 100),
     ]
+
+
+def sensor_message(s: SensorSample) -> mavlink.MAVLink_hil_sensor_message:
+    return mavlink.MAVLink_hil_sensor_message(
+        s.time_us, *s.accel_frd_mps2, *s.gyro_frd_rad_s, *s.mag_frd_gauss, s.pressure_hpa, 0.0,
+        s.pressure_alt_m, s.temperature_c, s.fields_updated, 0)
+
+
+def gps_message(g: GpsSample) -> mavlink.MAVLink_hil_gps_message:
+    vn, ve, vd = g.velocity_ned_mps
+    course_cdeg = math.degrees(math.atan2(ve, vn)) % 360.0 * 100.0
+    return mavlink.MAVLink_hil_gps_message(
+        g.time_us, g.fix_type, _int_clamped(g.lat_deg * 1e7, -2**31, 2**31 - 1),
+        _int_clamped(g.lon_deg * 1e7, -2**31, 2**31 - 1),
+        _int_clamped(g.alt_amsl_m * 1000, -2**31, 2**31 - 1), g.eph_cm, g.epv_cm,
+        _int_clamped(math.hypot(vn, ve) * 100, 0, 65534),
+        *(_int_clamped(v * 100, -32768, 32767) for v in (vn, ve, vd)),
+        _int_clamped(course_cdeg, 0, 35999), g.satellites)
+
+
+def sample_messages(truth: TruthSample, sensor: SensorSample,
+                    gps: GpsSample | None = None) -> list[mavlink.MAVLink_message]:
+    """One sample's messages: HIL_GPS when a fix is out (first, so a receiver has it with
+    the sample's IMU), HIL_SENSOR, then the truth."""
+    return ([gps_message(gps)] if gps is not None else []) + [sensor_message(sensor)] + \
+        truth_messages(truth)
 
 
 class LinkDataError(ValueError):
@@ -170,6 +224,42 @@ def measurement_from_hil_state(msg: mavlink.MAVLink_hil_state_quaternion_message
     velocity = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
     return _measurement(position, velocity, msg.attitude_quaternion,
                         (msg.rollspeed, msg.pitchspeed, msg.yawspeed))
+
+
+def imu_from_hil_sensor(msg: mavlink.MAVLink_hil_sensor_message
+                        ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray | None]:
+    """(gyro FRD, specific force FRD, baro altitude above home [m] or NaN, magnetometer FRD
+    [gauss] or None) of HIL_SENSOR, the baro and magnetometer only when fields_updated says
+    they are fresh. The altitude is the standard atmosphere's for abs_pressure, as a
+    flight controller computes it."""
+    updated = msg.fields_updated
+    if updated & HIL_SENSOR_IMU != HIL_SENSOR_IMU:
+        raise LinkDataError(f"HIL_SENSOR without its IMU fields (fields_updated "
+                            f"{updated:#x})")
+    gyro = np.array((msg.xgyro, msg.ygyro, msg.zgyro))
+    accel = np.array((msg.xacc, msg.yacc, msg.zacc))
+    _finite([*gyro, *accel], "HIL_SENSOR's IMU")
+    baro_alt = math.nan
+    if updated & HIL_SENSOR_ABS_PRESSURE:
+        if not (math.isfinite(msg.abs_pressure) and 100.0 < msg.abs_pressure < 1200.0):
+            raise LinkDataError(f"HIL_SENSOR abs_pressure {msg.abs_pressure!r} hPa is not a "
+                                "pressure in the air")
+        baro_alt = altitude_from_pressure_m(msg.abs_pressure) - HOME_ALT_AMSL_M
+    mag = None
+    if updated & HIL_SENSOR_MAG:
+        mag = np.array((msg.xmag, msg.ymag, msg.zmag))
+        _finite(list(mag), "HIL_SENSOR's magnetometer")
+    return gyro, accel, baro_alt, mag
+
+
+def fix_from_hil_gps(msg: mavlink.MAVLink_hil_gps_message
+                     ) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """(position NED [m] from home, velocity NED [m/s], fix type, satellites) of HIL_GPS."""
+    if not (-90e7 <= msg.lat <= 90e7 and -180e7 <= msg.lon <= 180e7):
+        raise LinkDataError(f"HIL_GPS position {msg.lat}, {msg.lon} (1e-7 deg) is not on Earth")
+    position = np.array(ned_from_geodetic(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3))
+    velocity = np.array((msg.vn, msg.ve, msg.vd)) * 0.01
+    return position, velocity, int(msg.fix_type), int(msg.satellites_visible)
 
 
 def actuator_message(time_us: int, commands: np.ndarray, armed: bool,

@@ -210,6 +210,20 @@ TIMING = RecordSchema(
     comment="Autopilot loop timing on the wall clock (period NaN when the loop restarted)",
 )
 
+ESTIMATE = RecordSchema(
+    "ivfm_msgs/msg/Estimate",
+    (("seq", "u8", 0), ("sim_time_us", "i8", 0), ("flags", "i8", 0),
+     ("position_ned_m", "f8", 3), ("velocity_ned_mps", "f8", 3), ("quaternion", "f8", 4),
+     ("gyro_bias_rad_s", "f8", 3), ("accel_bias_mps2", "f8", 3), ("baro_offset_m", "f8", 0),
+     ("tilt_sigma_rad", "f8", 0), ("yaw_sigma_rad", "f8", 0), ("horizontal_sigma_m", "f8", 0),
+     ("vertical_sigma_m", "f8", 0), ("velocity_sigma_mps", "f8", 0),
+     ("gps_test_ratio", "f8", 0), ("baro_test_ratio", "f8", 0), ("mag_test_ratio", "f8", 0)),
+    comment="The autopilot's onboard estimate at one control step (flying on the estimator) "
+            "and its health: flags bit 0 aligned, bit 1 converged, bit 2 GPS fused within 1 s; "
+            "test ratios above 1 were rejected",
+)
+ESTIMATE_ALIGNED, ESTIMATE_CONVERGED, ESTIMATE_GPS_OK = 1, 2, 4
+
 STATE = RecordSchema(
     "ivfm_msgs/msg/TruthState",
     (("seq", "u8", 0), ("sim_time_us", "i8", 0), ("position_ned_m", "f8", 3),
@@ -223,6 +237,7 @@ STATE = RecordSchema(
 
 CDR_TOPICS: dict[tuple[str, str], RecordSchema] = {
     (SITL, "state"): STATE, (AUTOPILOT, "control"): CONTROL, (AUTOPILOT, "timing"): TIMING,
+    (AUTOPILOT, "estimate"): ESTIMATE,
 }
 JSON_TOPICS = ("status", "perturbation")
 

@@ -16,8 +16,10 @@ def _build_parser() -> argparse.ArgumentParser:
     from autopilot.__main__ import param_argument
     from autopilot.control.factory import CONTROLLERS
     from contracts.airframe import airframe_argument
+    from contracts.mavlink import STATE_SOURCES
     from ground.scenarios import PAPER_SCENARIOS, shipped_names
     from sitl.dynamics import FIDELITIES
+    from sitl.sensors import profile_argument
 
     parser = argparse.ArgumentParser(prog="ivfm", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -39,8 +41,13 @@ def _build_parser() -> argparse.ArgumentParser:
     pace.add_argument("--realtime", action="store_true",
                       help="the two processes paced to the wall clock (default: lockstep)")
     run.add_argument("--rate-hz", type=float, default=100.0, help="control rate")
-    run.add_argument("--state-source", default="auto", choices=["auto", "odometry", "hil-state"],
-                     help="what the autopilot reads its state from")
+    run.add_argument("--state-source", choices=list(STATE_SOURCES),
+                     help="what the autopilot flies on: the simulator's truth (auto, odometry, "
+                          "hil-state) or its estimator on the sensors (default: the "
+                          "scenario's, else auto)")
+    run.add_argument("--sensors", type=profile_argument,
+                     help="the simulator's sensor profile: ideal, typical, degraded or a "
+                          ".toml file (default: the scenario's, else ideal)")
     run.add_argument("--controller", choices=CONTROLLERS, help="(default: the scenario's)")
     run.add_argument("--plant", choices=list(FIDELITIES), help="(default: the scenario's)")
     run.add_argument("--out", type=Path, required=True, help="output directory (run folder)")

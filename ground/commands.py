@@ -35,6 +35,8 @@ def run_command(args: argparse.Namespace) -> int:
     plant = args.plant or scenario.plant
     airframe_name = args.airframe or scenario.airframe
     airframe = airframe_by_name(airframe_name)
+    sensors = args.sensors or scenario.sensors
+    state_source = args.state_source or scenario.state_source
     parameters = validate_parameters({**scenario.parameters, **dict(args.param)})
     model_path = args.model or scenario.model_path
     models = (load_models(model_path, airframe_name, args.any_airframe_model)
@@ -42,11 +44,13 @@ def run_command(args: argparse.Namespace) -> int:
     how = ("in process" if args.inprocess else
            "logger + simulator + autopilot, real time" if args.realtime else
            "logger + simulator + autopilot, lockstep")
-    print(f"ivfm: {scenario.name} with {controller} on the {plant} plant "
-          f"({scenario.duration_s:g} s sim, {how})", file=sys.stderr)
+    flying_on = ("its estimator" if state_source == "estimator" else "the simulator's truth")
+    print(f"ivfm: {scenario.name} with {controller} on the {plant} plant, {sensors} sensors, "
+          f"flying on {flying_on} ({scenario.duration_s:g} s sim, {how})", file=sys.stderr)
     if args.inprocess:
         record = run_inprocess(scenario, controller, plant, airframe, models,
-                               period_s=1.0 / args.rate_hz, parameters=parameters)
+                               period_s=1.0 / args.rate_hz, parameters=parameters,
+                               sensors=sensors, state_source=state_source)
         metrics = compute_metrics(record, scenario, airframe_name)
         metrics["mode"] = "inprocess"
         metrics["parameters"] = parameters
@@ -58,7 +62,7 @@ def run_command(args: argparse.Namespace) -> int:
                                {k: v for k, v in parameters.items() if k in
                                 {**scenario.parameters, **dict(args.param)}},
                                realtime=args.realtime, rate_hz=args.rate_hz,
-                               state_source=args.state_source,
+                               state_source=state_source, sensors=sensors,
                                any_airframe_model=args.any_airframe_model)
         accounting = run_processes(scenario, settings, args.out)
         timing = accounting.pop("timing")
@@ -67,7 +71,7 @@ def run_command(args: argparse.Namespace) -> int:
             "scenario": scenario.name, "controller": controller, "plant": plant,
             "airframe": airframe_name, "rate_hz": args.rate_hz, "vehicle": settings.vehicle,
             "mode": "realtime" if args.realtime else "lockstep",
-            "state_source": args.state_source, "parameters": parameters,
+            "state_source": state_source, "sensors": sensors, "parameters": parameters,
             "model": str(model_path) if model_path else None,
             "telemetry": accounting, "timing": timing})
         metrics, record = report(args.out, figures=not args.no_figures)
@@ -98,6 +102,12 @@ def format_metrics(metrics: dict[str, Any]) -> str:
     for axis, m in metrics["axes"].items():
         lines.append(f"    {axis:>5}: rmse {m['rmse']:.5f}  mse {m['mse']:.3e}  "
                      f"max {m['max_abs']:.4f}")
+    est = metrics.get("estimation")
+    if est:
+        lines.append(f"  estimation: attitude {est['attitude_rmse_rad']:.4f} rad  yaw "
+                     f"{est['yaw_rmse_rad']:.4f} rad  position {est['position_rmse_m']:.3f} m  "
+                     f"altitude {est['altitude_rmse_m']:.3f} m  velocity "
+                     f"{est['velocity_rmse_mps']:.3f} m/s (RMSE against truth)")
     c = metrics["control"]
     lines.append(f"  effort {c['effort_mean_sum_c2']:.4f}  chattering "
                  f"{c['chattering_per_s']:.3f}/s  saturated {100 * c['saturated_fraction']:.1f} %")

@@ -34,7 +34,7 @@ def plot_tracking(record: RunRecord, scenario: Scenario, out_dir: Path) -> Path:
     t = record.time_s
     for row, axis in enumerate(axes):
         _, meas_index = AXES[axis]
-        output = record.measurement[:, meas_index]
+        output = record.true_state[:, meas_index]
         error = axis_error(record, axis)
         reference = output + error
         shown = altitude_m if axis == "z" else (lambda v: v)  # altitude up, as people read it
@@ -101,9 +101,38 @@ def plot_motors(record: RunRecord, out_dir: Path) -> Path:
     return _save(fig, out_dir / "motors.png")
 
 
+def plot_estimation(record: RunRecord, scenario: Scenario, out_dir: Path) -> Path:
+    """What the vehicle believed against what was: position, velocity and attitude, the
+    estimate over the truth, and the error beside each."""
+    rows = (("north", 0, "m"), ("east", 1, "m"), ("altitude", 2, "m"), ("v north", 3, "m/s"),
+            ("v east", 4, "m/s"), ("roll", 6, "rad"), ("pitch", 7, "rad"), ("yaw", 8, "rad"))
+    fig, plots = plt.subplots(len(rows), 2, figsize=(11, 1.9 * len(rows)), squeeze=False)
+    t = record.time_s
+    for row, (label, index, unit) in enumerate(rows):
+        truth, estimate = record.truth[:, index], record.measurement[:, index]
+        if index == 2:
+            truth, estimate = altitude_m(truth), altitude_m(estimate)
+        error = estimate - truth
+        if index >= 6:
+            error = (error + np.pi) % (2 * np.pi) - np.pi
+        plots[row, 0].plot(t, truth, "k--", lw=1.0, label="truth")
+        plots[row, 0].plot(t, estimate, "C0", lw=1.1, label="estimate")
+        plots[row, 0].set_ylabel(f"{label} [{unit}]")
+        plots[row, 1].plot(t, error, "C3", lw=1.0)
+        plots[row, 1].set_ylabel(f"error [{unit}]")
+        plots[row, 1].axvline(scenario.transient_s, color="0.6", lw=0.8, ls=":")
+    plots[0, 0].legend(loc="upper right", fontsize=8)
+    plots[-1, 0].set_xlabel("t [s]")
+    plots[-1, 1].set_xlabel("t [s]")
+    fig.suptitle(f"{scenario.name}: onboard estimate against the simulator's truth")
+    return _save(fig, out_dir / "estimation.png")
+
+
 def plot_run(record: RunRecord, scenario: Scenario, out_dir: Path) -> list[Path]:
     paths = [plot_tracking(record, scenario, out_dir), plot_sliding(record, out_dir),
              plot_motors(record, out_dir)]
+    if record.truth is not None:
+        paths.append(plot_estimation(record, scenario, out_dir))
     adaptive = plot_adaptive(record, out_dir)
     if adaptive is not None:
         paths.append(adaptive)

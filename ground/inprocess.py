@@ -12,13 +12,28 @@ import numpy as np
 
 from autopilot.control.cascade import SlidingModeCascade
 from autopilot.control.factory import make_controller
+from autopilot.control.parameters import validate_parameters
+from autopilot.estimation.estimator import Estimator, GpsFix
 from autopilot.identification.ts_model import FuzzyModelSet
 from contracts.airframe import Airframe, hover_rotor_speeds
-from contracts.perturbations import IN_PROCESS_KINDS, Perturbations
+from contracts.mavlink import (
+    fix_from_hil_gps,
+    gps_message,
+    imu_from_hil_sensor,
+    new_mavlink,
+    sensor_message,
+)
+from contracts.perturbations import (
+    IN_PROCESS_KINDS,
+    Perturbations,
+    SensorEffects,
+    sensor_effects_at,
+)
 from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT_SIZE, REF_SIZE
 from ground.run_files import RunRecord, left_the_envelope
 from ground.scenarios import Scenario
 from sitl.plant import Plant
+from sitl.sensors import SensorSuite, read_profile
 
 
 def run_inprocess(
@@ -30,7 +45,14 @@ def run_inprocess(
     period_s: float = 0.01,
     plant_step_s: float = 0.001,
     parameters: dict[str, float] | None = None,
+    sensors: str = "ideal",
+    state_source: str = "auto",
+    seed: int = 0,
 ) -> RunRecord:
+    """The scenario flown in one process. ``state_source`` "estimator" flies on the onboard
+    estimator fed by the ``sensors`` profile's readings (one sample per control period,
+    seeded as the simulator seeds them), as the processes do; otherwise on the plant's
+    truth."""
     unsupported = sorted({e.kind for e in scenario.perturbations
                           if e.kind not in IN_PROCESS_KINDS})
     if unsupported:
@@ -45,6 +67,14 @@ def run_inprocess(
                   position_ned_m=(0.0, 0.0, -scenario.reference.altitude_m),
                   rotor_rad_s=hover_rotor_speeds(airframe))
     ctrl = make_controller(controller, airframe, period_s, models, parameters)
+    onboard = None
+    if state_source == "estimator":
+        suite = SensorSuite(read_profile(sensors), 1.0 / period_s, seed=seed)
+        onboard = Estimator(gps_delay_s=validate_parameters(parameters or {})[
+            "EKF2_GPS_DELAY"] / 1e3)
+        previous_velocity = plant.state().velocity_ned_mps
+        acceleration = np.zeros(3)
+        truth_log = np.zeros((n, MEASUREMENT_SIZE))
     adaptive = isinstance(ctrl, SlidingModeCascade)
     meas_log = np.zeros((n, MEASUREMENT_SIZE))
     ref_log = np.zeros((n, REF_SIZE))
@@ -65,6 +95,10 @@ def run_inprocess(
             plant.set_perturbations(wanted)
             active = wanted
         meas = plant.true_measurement()
+        if onboard is not None:
+            truth_log[k] = meas
+            meas = _estimate(onboard, suite, k * period_us, plant, acceleration,
+                             sensor_effects_at(scenario.perturbations, t))
         ref = scenario.reference.at(t)
         kick = np.array(scenario.kick_at(t))
         cmd = ctrl.step(meas, ref, scenario.reference.position_mode, kick)
@@ -80,11 +114,36 @@ def run_inprocess(
             break
         plant.set_motor_commands(cmd)
         plant.advance(period_s)
+        if onboard is not None:
+            velocity = plant.state().velocity_ned_mps
+            acceleration = (velocity - previous_velocity) / period_s
+            previous_velocity = velocity
     wall = time.perf_counter() - start
     return RunRecord(
         scenario=scenario.name, controller=controller, plant=plant_fidelity, period_s=period_s,
         time_s=np.arange(n) * period_us / 1e6, measurement=meas_log[:n], reference=ref_log[:n],
         kick=kick_log[:n], motor_commands=cmd_log[:n], channel_telemetry=tel_log[:n],
         theta_g=theta_g_log[:n], theta_f=[t[:n] for t in theta_f_log], wall_time_s=wall,
-        diverged=diverged,
+        diverged=diverged, truth=None if onboard is None else truth_log[:n],
     )
+
+
+def _estimate(onboard: Estimator, suite: SensorSuite, time_us: int, plant: Plant,
+              acceleration: np.ndarray, effects: SensorEffects) -> np.ndarray:
+    """The sensors read the plant; the estimator takes them as the autopilot's link does:
+    the messages packed and parsed (float32 fields, integer scalings), so a lockstep run
+    through the processes gives the same numbers."""
+    readings, fix = suite.sample(time_us, plant.state(), acceleration, effects)
+    if fix is not None:
+        position, velocity, fix_type, satellites = fix_from_hil_gps(_over_the_link(
+            gps_message(fix)))
+        onboard.gps(time_us, GpsFix(position, velocity, fix_type, satellites))
+    onboard.imu(time_us, *imu_from_hil_sensor(_over_the_link(sensor_message(readings))))
+    return onboard.measurement()
+
+
+_LINK = new_mavlink(1, 51)
+
+
+def _over_the_link(msg):
+    return _LINK.parse_buffer(msg.pack(_LINK))[0]

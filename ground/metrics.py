@@ -30,13 +30,39 @@ AXES: dict[str, tuple[int, int]] = {
 }
 
 
+ESTIMATION_DEFINITION = (
+    "estimate - truth at each control step over t >= transient_s: attitude_rmse_rad pools "
+    "roll and pitch (sqrt of the mean of both squared errors), position_rmse_m is the "
+    "horizontal distance, velocity_rmse_mps the 3-D one")
+
+
+def estimation_metrics(record: RunRecord, window: np.ndarray) -> dict[str, float]:
+    """How far the onboard estimate was from the truth (the controller flew on it)."""
+    e = (record.measurement - record.truth)[window]
+    e[:, 6:9] = wrap_pi_array(e[:, 6:9].ravel()).reshape(-1, 3)
+
+    def rms(values: np.ndarray) -> float:
+        return float(math.sqrt(np.mean(values))) if values.size else math.nan
+
+    return {
+        "attitude_rmse_rad": rms((e[:, 6] ** 2 + e[:, 7] ** 2) / 2.0),
+        "roll_rmse_rad": rms(e[:, 6] ** 2),
+        "pitch_rmse_rad": rms(e[:, 7] ** 2),
+        "yaw_rmse_rad": rms(e[:, 8] ** 2),
+        "position_rmse_m": rms(e[:, 0] ** 2 + e[:, 1] ** 2),
+        "altitude_rmse_m": rms(e[:, 2] ** 2),
+        "velocity_rmse_mps": rms(np.sum(e[:, 3:6] ** 2, axis=1)),
+        "euler_rate_rmse_rad_s": rms(np.mean(e[:, 9:12] ** 2, axis=1)),
+    }
+
+
 def axis_error(record: RunRecord, axis: str) -> np.ndarray:
     """Reference minus output for one axis (angles wrapped to [-pi, pi))."""
     ref_index, meas_index = AXES[axis]
     reference = record.reference[:, ref_index].copy()
     if axis in ("phi", "theta"):
         reference += record.kick[:, 0 if axis == "phi" else 1]
-    error = reference - record.measurement[:, meas_index]
+    error = reference - record.true_state[:, meas_index]
     if axis in ("phi", "theta", "psi"):
         error = wrap_pi_array(error)
     return error
@@ -53,6 +79,7 @@ def compute_metrics(record: RunRecord, scenario: Scenario, airframe_name: str) -
         mse = float(np.mean(e**2))
         axes[axis] = {"rmse": math.sqrt(mse), "mse": mse, "max_abs": float(np.max(np.abs(e)))}
     c = record.motor_commands[window]
+    estimation = estimation_metrics(record, window) if record.truth is not None else None
     duration = float(np.count_nonzero(window)) * record.period_s
     tv = float(np.sum(np.abs(np.diff(c, axis=0)))) if len(c) > 1 else 0.0
     sim_time = float(len(record.time_s)) * record.period_s
@@ -68,6 +95,7 @@ def compute_metrics(record: RunRecord, scenario: Scenario, airframe_name: str) -
         "transient_s": scenario.transient_s,
         "diverged": record.diverged,
         "axes": axes,
+        **({"estimation": estimation} if estimation is not None else {}),
         "control": {
             "effort_mean_sum_c2": float(np.mean(np.sum(c**2, axis=1))) if len(c) else None,
             "chattering_total_variation": tv,
@@ -78,5 +106,6 @@ def compute_metrics(record: RunRecord, scenario: Scenario, airframe_name: str) -
             "error": "reference - output over t >= transient_s (angles wrapped)",
             "effort_mean_sum_c2": "mean over samples of sum_i c_i^2, c_i = W_i / W_max",
             "chattering_total_variation": "sum_k sum_i |c_i[k] - c_i[k-1]|",
+            **({"estimation": ESTIMATION_DEFINITION} if estimation is not None else {}),
         },
     }

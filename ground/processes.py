@@ -63,6 +63,7 @@ class RunSettings:
     realtime: bool = False
     rate_hz: float = 100.0
     state_source: str = "auto"
+    sensors: str = "ideal"  # the simulator's sensor profile
     vehicle: int = 1
     any_airframe_model: bool = False  # fly a model identified on another airframe
 
@@ -76,7 +77,8 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
     sim = [sys.executable, "-m", "sitl", "--port", str(sim_port), *pace,
            "--rate-hz", str(settings.rate_hz), "--plant", settings.plant,
            "--airframe", settings.airframe, "--start-altitude", str(ref.altitude_m),
-           "--exit-on-disconnect", "--vehicle", str(settings.vehicle), "--hold", *zenoh_args]
+           "--exit-on-disconnect", "--vehicle", str(settings.vehicle), "--hold",
+           "--sensors", settings.sensors, *zenoh_args]
     autopilot = [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{sim_port}", *pace,
                  "--rate-hz", str(settings.rate_hz), "--state-source", settings.state_source,
                  "--controller", settings.controller, "--airframe", settings.airframe,
@@ -257,5 +259,6 @@ def fly(scenario: Scenario, settings: RunSettings, out_dir: Path):
 
     accounting = run_processes(scenario, settings, out_dir)
     record = record_from_log(out_dir, settings.vehicle, scenario, settings.controller,
-                             settings.plant, settings.rate_hz)
+                             settings.plant, settings.rate_hz,
+                             with_truth=settings.state_source == "estimator")
     return record, accounting

@@ -36,7 +36,7 @@ def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunReco
         raise ValueError(f"{run_dir / RUN_FILE} is not JSON: {exc}") from None
     scenario = load_scenario(run_dir / SCENARIO_FILE)
     record = record_from_log(run_dir, run["vehicle"], scenario, run["controller"], run["plant"],
-                             run["rate_hz"])
+                             run["rate_hz"], with_truth=run.get("state_source") == "estimator")
     metrics = compute_metrics(record, scenario, run["airframe"])
     metrics["mode"] = run["mode"]
     metrics["parameters"] = run.get("parameters", {})

@@ -17,7 +17,7 @@ import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from contracts.telemetry import AUTOPILOT, CONTROL, SITL, vehicle_key
+from contracts.telemetry import AUTOPILOT, CONTROL, SITL, STATE, vehicle_key
 from contracts.vectors import CHANNEL_INTERNALS, MEASUREMENT
 from ground.scenarios import Scenario
 
@@ -45,6 +45,13 @@ class RunRecord:
     theta_f: list[np.ndarray]  # per attitude channel (N, len)
     wall_time_s: float
     diverged: bool
+    # The true state at each step when the controller flew on an estimate (else None:
+    # the measurement is the truth).
+    truth: np.ndarray | None = None
+
+    @property
+    def true_state(self) -> np.ndarray:
+        return self.measurement if self.truth is None else self.truth
 
 
 def left_the_envelope(measurement: np.ndarray) -> bool:
@@ -118,8 +125,32 @@ def control_records(log: Path, vehicle: int) -> dict[str, np.ndarray]:
     return out
 
 
+def truth_at(log: Path, vehicle: int, sim_time_us: np.ndarray) -> np.ndarray:
+    """The simulator's true state (the measurement layout) at each of the given sample
+    times, from its STATE records."""
+    key = vehicle_key(vehicle, SITL, "state")
+    by_time: dict[int, np.ndarray] = {}
+    for topic, _message, data in iter_messages(log, key):
+        if topic != key:
+            continue
+        r = STATE.decode(data)
+        row = np.empty(MEASUREMENT.size)
+        row[MEASUREMENT.position_ned_m] = r["position_ned_m"]
+        row[MEASUREMENT.velocity_ned_mps] = r["velocity_ned_mps"]
+        row[MEASUREMENT.euler_rad] = r["euler_rad"]
+        row[MEASUREMENT.euler_rate_rad_s] = r["euler_rate_rad_s"]
+        by_time[int(r["sim_time_us"])] = row
+    missing = [int(t) for t in sim_time_us if int(t) not in by_time]
+    if missing:
+        raise ValueError(f"the log lacks the simulator's truth at {len(missing)} control "
+                         f"steps (first t = {missing[0] / 1e6:.3f} s) of vehicle {vehicle}")
+    return np.array([by_time[int(t)] for t in sim_time_us])
+
+
 def record_from_log(log: Path, vehicle: int, scenario: Scenario, controller: str, plant: str,
-                    rate_hz: float) -> RunRecord:
+                    rate_hz: float, with_truth: bool = False) -> RunRecord:
+    """The run as arrays; ``with_truth``: the controller flew on an estimate, so the truth
+    comes from the simulator's records."""
     r = control_records(log, vehicle)
     n = len(r["seq"])
     measurement = r["measurement"]
@@ -132,7 +163,8 @@ def record_from_log(log: Path, vehicle: int, scenario: Scenario, controller: str
         time_s=r["reference_time_s"], measurement=measurement, reference=r["reference"],
         kick=r["kick_rad"], motor_commands=r["motor_commands"], channel_telemetry=internals,
         theta_g=r["theta_g"], theta_f=[r["theta_f_phi"], r["theta_f_theta"], r["theta_f_psi"]],
-        wall_time_s=wall or math.nan, diverged=diverged)
+        wall_time_s=wall or math.nan, diverged=diverged,
+        truth=truth_at(log, vehicle, r["sim_time_us"]) if with_truth else None)
 
 
 def perturbation_events(log: Path, vehicle: int) -> list[dict[str, Any]]:

@@ -41,6 +41,8 @@ class Scenario:
     controller: str = "ivfc"
     plant: str = "paper"
     airframe: str = "paper"
+    sensors: str = "ideal"  # the simulator's sensor profile (sitl/sensor_profiles)
+    state_source: str = "auto"  # what the autopilot flies on (contracts.mavlink.STATE_SOURCES)
     parameters: dict[str, float] = field(default_factory=dict)
     model_path: Path | None = None
     source: Path | None = None
@@ -71,7 +73,9 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     from autopilot.control.factory import CONTROLLERS
     from autopilot.control.parameters import validate_parameters
     from contracts.airframe import airframe_by_name
+    from contracts.mavlink import STATE_SOURCES
     from sitl.dynamics import FIDELITIES
+    from sitl.sensors import read_profile
 
     unknown = sorted(set(data) - _TOP)
     if unknown:
@@ -94,8 +98,16 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
         raise ValueError("reference needs a kind")
     reference = Reference(**{k: v if k == "kind" else float(v) for k, v in ref.items()})
     plant = _table(data, "plant")
+    bad = sorted(set(plant) - {"fidelity", "airframe", "sensors"})
+    if bad:
+        raise ValueError(f"plant: unknown field(s) {', '.join(bad)}")
     fidelity = plant.get("fidelity", "paper")
     airframe = plant.get("airframe", "paper")
+    sensors = plant.get("sensors", "ideal")
+    try:
+        read_profile(sensors)
+    except ValueError as exc:
+        raise ValueError(f"plant.sensors: {exc}") from None
     if fidelity not in FIDELITIES:
         raise ValueError(f"plant.fidelity must be one of {', '.join(FIDELITIES)}")
     try:
@@ -110,18 +122,22 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     if not isinstance(params, dict):
         raise ValueError("controller.parameters must be a table NAME = value")
     validate_parameters(params)
+    state_source = ctrl.get("state_source", "auto")
+    if state_source not in STATE_SOURCES:
+        raise ValueError(f"controller.state_source must be one of {', '.join(STATE_SOURCES)}")
     model = ctrl.get("model")
     model_path = (path.parent / model) if isinstance(model, str) else None
     if model is not None and model_path is None:
         raise ValueError("controller.model must be a path (relative to the scenario file)")
-    bad = sorted(set(ctrl) - {"name", "parameters", "model"})
+    bad = sorted(set(ctrl) - {"name", "parameters", "model", "state_source"})
     if bad:
         raise ValueError(f"controller: unknown field(s) {', '.join(bad)}")
     perturbations = parse_schedule(data.get("perturbation", []))
     return Scenario(name=name, description=_text(data, "description", ""),
                     reference=reference, axes=tuple(axes), transient_s=transient,
                     duration_s=duration, perturbations=perturbations, controller=controller,
-                    plant=fidelity, airframe=airframe,
+                    plant=fidelity, airframe=airframe, sensors=sensors,
+                    state_source=state_source,
                     parameters={k: float(v) for k, v in params.items()},
                     model_path=model_path, source=path)
 

@@ -18,6 +18,7 @@ from contracts.zenoh_link import (
     zenoh_options_from_args,
 )
 from sitl.dynamics import FIDELITIES
+from sitl.sensors import profile_argument, read_profile
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
@@ -46,6 +47,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--hold", action="store_true",
                    help="lockstep: wait for a start request over Zenoh before the first sample")
     p.add_argument("--seed", type=int, default=0, help="seed of sensor noise and link loss")
+    p.add_argument("--sensors", default="ideal", type=profile_argument,
+                   help="sensor profile: ideal, typical, degraded or a .toml file "
+                        "(docs/sensors.md)")
     p.add_argument("--rt-priority", type=int, default=40, metavar="N",
                    help="real time: SCHED_FIFO priority (1-99; 0: normal scheduling)")
     add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT)
@@ -62,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         schedule=load_schedule(args.schedule) if args.schedule else (),
         exit_on_disconnect=args.exit_on_disconnect, duration_s=args.duration,
         vehicle_id=args.vehicle, zenoh=zenoh_options_from_args(args), hold=args.hold,
-        seed=args.seed, rt_priority=args.rt_priority)
+        seed=args.seed, rt_priority=args.rt_priority, sensors=read_profile(args.sensors))
     return Simulator(config).run()
 
 

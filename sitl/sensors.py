@@ -1,48 +1,289 @@
-"""What the simulator's sensors read (pure): the IMU, magnetometer, barometer and GPS
-readings of one sample from the true state, and what sensor perturbations (noise, bias,
-delay) do to the state it reports.
+"""What the simulator's sensors read (pure, seeded): an IMU, a magnetometer, a barometer and
+a GPS receiver modelled as hardware is (noise, biases that wander, their own rates, the
+GPS late and wrong by decimetres), from a named profile (docs/sensors.md); and what the
+older state perturbations (noise, bias, delay on the reported truth) do to the truth
+messages.
 """
 
 from __future__ import annotations
 
 import collections
+import math
+import tomllib
+from dataclasses import dataclass, fields
+from importlib import resources
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
-from contracts.frames import GRAVITY_MPS2, geodetic_from_ned, quat_from_euler, world_to_body
-from contracts.mavlink import SensorSample
-from contracts.perturbations import SensorEffects
+from contracts.frames import (
+    GRAVITY_MPS2,
+    SEA_LEVEL_PRESSURE_HPA,
+    geodetic_from_ned,
+    home_mag_field_ned_gauss,
+    pressure_hpa,
+    quat_from_euler,
+    rotation_from_quat,
+)
+from contracts.mavlink import (
+    HIL_SENSOR_BARO,
+    HIL_SENSOR_IMU,
+    HIL_SENSOR_MAG,
+    GpsSample,
+    SensorSample,
+    TruthSample,
+)
+from contracts.perturbations import NO_SENSOR_EFFECTS, SensorEffects
 from sitl.plant import VehicleState
 
-# Earth field at home (Zurich), gauss in NED, for the magnetometer.
-MAG_FIELD_NED_GAUSS = (0.216, 0.006, 0.424)
-SEA_LEVEL_PRESSURE_HPA = 1013.25
 TEMPERATURE_C = 20.0
+PROFILES_DIR = "sensor_profiles"
 
 
-def pressure_hpa(alt_amsl_m: float) -> float:
-    """International standard atmosphere below 11 km."""
-    return SEA_LEVEL_PRESSURE_HPA * (1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588
+def truth_sample(time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
+                 position=None, velocity=None, quaternion=None, body_rate=None) -> TruthSample:
+    """The true state of one sample (or the given replacements, e.g. perturbed); the
+    specific force is R^T (a - g) of the kinematic acceleration."""
+    q = np.asarray(state.quaternion if quaternion is None else quaternion, dtype=float)
+    specific = rotation_from_quat(q).T @ (np.asarray(accel_ned_mps2) - (0.0, 0.0, GRAVITY_MPS2))
+    return TruthSample(
+        time_us, _tuple(state.position_ned_m if position is None else position),
+        _tuple(state.velocity_ned_mps if velocity is None else velocity), _tuple(q),
+        _tuple(state.body_rate_rad_s if body_rate is None else body_rate), _tuple(specific))
 
 
-def read_sensors(time_us: int, position_ned_m: np.ndarray, velocity_ned_mps: np.ndarray,
-                 quaternion: np.ndarray, body_rate_rad_s: np.ndarray,
-                 accel_ned_mps2: np.ndarray) -> SensorSample:
-    """Ideal readings of one sample. ``accel_ned_mps2`` is the kinematic acceleration; the
-    accelerometer reads the specific force R^T (a - g) in FRD."""
-    w, x, y, z = (float(v) for v in quaternion)
-    ax, ay, az = (float(v) for v in accel_ned_mps2)
-    n, e, d = (float(v) for v in position_ned_m)
-    lat, lon, alt = geodetic_from_ned(n, e, d)
-    return SensorSample(
-        time_us=time_us,
-        accel_frd_mps2=world_to_body(w, x, y, z, ax, ay, az - GRAVITY_MPS2),
-        gyro_frd_rad_s=tuple(float(v) for v in body_rate_rad_s),
-        mag_frd_gauss=world_to_body(w, x, y, z, *MAG_FIELD_NED_GAUSS),
-        pressure_hpa=pressure_hpa(alt), pressure_alt_m=alt, temperature_c=TEMPERATURE_C,
-        lat_deg=lat, lon_deg=lon, alt_amsl_m=alt, position_ned_m=(n, e, d),
-        velocity_ned_mps=tuple(float(v) for v in velocity_ned_mps),
-        quaternion=(w, x, y, z))
+def ideal_readings(time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray
+                   ) -> tuple[TruthSample, SensorSample, GpsSample]:
+    """One sample's truth, and perfect readings of every sensor (all fresh, a fix now)."""
+    truth = truth_sample(time_us, state, accel_ned_mps2)
+    rot = rotation_from_quat(np.asarray(state.quaternion, dtype=float))
+    lat, lon, alt = geodetic_from_ned(*(float(v) for v in state.position_ned_m))
+    sensor = SensorSample(time_us, truth.specific_force_frd_mps2, truth.body_rate_frd_rad_s,
+                          _tuple(rot.T @ np.array(home_mag_field_ned_gauss())),
+                          pressure_hpa(alt), alt, TEMPERATURE_C,
+                          HIL_SENSOR_IMU | HIL_SENSOR_MAG | HIL_SENSOR_BARO)
+    fix = GpsSample(time_us, lat, lon, alt, truth.velocity_ned_mps, 80, 120, 3, 14)
+    return truth, sensor, fix
+
+
+def _tuple(values) -> tuple[float, ...]:
+    return tuple(float(v) for v in values)
+
+
+@dataclass(frozen=True)
+class SensorProfile:
+    """One sensor suite's numbers (1-sigma); zero means perfect."""
+
+    name: str = "ideal"
+    description: str = ""
+    # IMU, at the sample rate (noise densities, as datasheets and PX4's Gazebo IMU give them)
+    gyro_noise_rad_s_rthz: float = 0.0
+    gyro_bias_walk_rad_s2_rthz: float = 0.0
+    gyro_turn_on_bias_rad_s: float = 0.0
+    accel_noise_mps2_rthz: float = 0.0
+    accel_bias_walk_mps3_rthz: float = 0.0
+    accel_turn_on_bias_mps2: float = 0.0
+    gyro_range_rad_s: float = math.radians(2000.0)
+    accel_range_mps2: float = 16.0 * GRAVITY_MPS2
+    # magnetometer
+    mag_rate_hz: float = 100.0
+    mag_noise_gauss: float = 0.0
+    mag_offset_gauss: float = 0.0  # hard-iron offset left after calibration, per axis
+    # barometer
+    baro_rate_hz: float = 50.0
+    baro_noise_m: float = 0.0
+    baro_drift_m_rts: float = 0.0  # random walk of its offset [m/sqrt(s)]
+    # GPS
+    gps_rate_hz: float = 10.0
+    gps_latency_s: float = 0.0
+    gps_horizontal_m: float = 0.0  # Gauss-Markov position error
+    gps_vertical_m: float = 0.0
+    gps_error_time_constant_s: float = 60.0
+    gps_velocity_noise_mps: float = 0.0
+    gps_eph_cm: int = 80
+    gps_epv_cm: int = 120
+    gps_satellites: int = 14
+
+
+_RATES = {"mag_rate_hz", "baro_rate_hz", "gps_rate_hz"}
+_INTS = {"gps_eph_cm", "gps_epv_cm", "gps_satellites"}
+
+
+class SensorProfileError(ValueError):
+    """A sensor profile that breaks the format; the message names the field."""
+
+
+def shipped_profile_names() -> list[str]:
+    return sorted(p.name[:-5] for p in resources.files("sitl").joinpath(PROFILES_DIR).iterdir()
+                  if p.name.endswith(".toml"))
+
+
+def read_profile(source: str | Path) -> SensorProfile:
+    """A shipped profile by name (ideal, typical, degraded), or a TOML file by path."""
+    text = str(source)
+    if text in shipped_profile_names():
+        path = resources.files("sitl").joinpath(PROFILES_DIR, f"{text}.toml")
+        where = f"sensor profile {text}"
+    elif text.endswith(".toml") or "/" in text:
+        path, where = Path(text), f"sensor profile file {text}"
+    else:
+        raise SensorProfileError(f"unknown sensor profile {text!r}; shipped: "
+                                 f"{', '.join(shipped_profile_names())} (or a .toml file)")
+    try:
+        data = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise SensorProfileError(f"{where}: no such file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise SensorProfileError(f"{where}: not TOML: {exc}") from None
+    return parse_profile(data, where)
+
+
+def parse_profile(data: dict[str, Any], where: str = "sensor profile") -> SensorProfile:
+    known = {f.name for f in fields(SensorProfile)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise SensorProfileError(f"{where}: unknown field(s) {', '.join(unknown)}")
+    values: dict[str, Any] = {}
+    for key, value in data.items():
+        if key in ("name", "description"):
+            if not isinstance(value, str):
+                raise SensorProfileError(f"{where}: {key} must be text")
+            values[key] = value
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or \
+                not math.isfinite(value) or value < 0:
+            raise SensorProfileError(f"{where}: {key} must be a number >= 0, got {value!r}")
+        if key in _RATES and not 0.5 <= value <= 1000.0:
+            raise SensorProfileError(f"{where}: {key} must be in [0.5, 1000] Hz, got {value!r}")
+        if key == "gps_latency_s" and value > 1.0:
+            raise SensorProfileError(f"{where}: gps_latency_s must be at most 1 s")
+        if key == "gps_error_time_constant_s" and value <= 0:
+            raise SensorProfileError(f"{where}: {key} must be > 0")
+        values[key] = int(value) if key in _INTS else float(value)
+    values.setdefault("name", Path(where).stem)
+    return SensorProfile(**values)
+
+
+def profile_argument(text: str) -> str:
+    """argparse type of ``--sensors PROFILE``: checked now, passed on as given."""
+    import argparse
+
+    try:
+        read_profile(text)
+    except SensorProfileError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
+class _Every:
+    """A sensor at its own rate on sample time: due at 0, 1/rate, 2/rate, ..."""
+
+    def __init__(self, rate_hz: float) -> None:
+        self.period_us = round(1e6 / rate_hz)
+        self.next_us = 0
+
+    def due(self, time_us: int) -> bool:
+        if time_us < self.next_us:
+            return False
+        self.next_us += self.period_us * max(1, (time_us - self.next_us) // self.period_us + 1)
+        return True
+
+
+class SensorSuite:
+    """The sensors of one vehicle: their biases and errors evolve sample by sample.
+
+    Seeded: the same seed and the same true states give the same readings, bit for bit.
+    """
+
+    def __init__(self, profile: SensorProfile, sample_rate_hz: float, seed: int = 0) -> None:
+        self.profile = profile
+        self.dt = 1.0 / sample_rate_hz
+        self.rng = np.random.default_rng([seed, 0x5E2502])
+        p = profile
+        self.gyro_bias = self.rng.normal(size=3) * p.gyro_turn_on_bias_rad_s
+        self.accel_bias = self.rng.normal(size=3) * p.accel_turn_on_bias_mps2
+        self.mag_offset = self.rng.normal(size=3) * p.mag_offset_gauss
+        self.baro_offset_m = 0.0
+        self.gps_error = self.rng.normal(size=3) * (p.gps_horizontal_m, p.gps_horizontal_m,
+                                                     p.gps_vertical_m)
+        self._mag, self._baro, self._gps = (_Every(p.mag_rate_hz), _Every(p.baro_rate_hz),
+                                            _Every(p.gps_rate_hz))
+        self._field_ned = np.array(home_mag_field_ned_gauss())
+        self._last_mag = (0.0, 0.0, 0.0)
+        self._last_baro = (SEA_LEVEL_PRESSURE_HPA, 0.0)
+        # Fixes waiting out the receiver's latency: (release time, fix).
+        self._gps_queue: collections.deque[tuple[int, GpsSample]] = collections.deque()
+        self._started = False
+
+    def sample(self, time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
+               effects: SensorEffects | None = None) -> tuple[SensorSample, GpsSample | None]:
+        """This sample's HIL_SENSOR and, when a fix comes out of the receiver, HIL_GPS;
+        ``effects``: the sensor perturbations in force (biases, a field, an outage)."""
+        p, rng, dt = self.profile, self.rng, self.dt
+        fx = effects if effects is not None else NO_SENSOR_EFFECTS
+        rot = rotation_from_quat(np.asarray(state.quaternion, dtype=float))
+        # IMU: white noise of the density over the sample, biases as random walks.
+        self.gyro_bias += rng.normal(size=3) * p.gyro_bias_walk_rad_s2_rthz * math.sqrt(dt)
+        self.accel_bias += rng.normal(size=3) * p.accel_bias_walk_mps3_rthz * math.sqrt(dt)
+        gyro = state.body_rate_rad_s + self.gyro_bias + \
+            rng.normal(size=3) * p.gyro_noise_rad_s_rthz / math.sqrt(dt)
+        specific = rot.T @ (np.asarray(accel_ned_mps2) - (0.0, 0.0, GRAVITY_MPS2))
+        accel = specific + self.accel_bias + \
+            rng.normal(size=3) * p.accel_noise_mps2_rthz / math.sqrt(dt)
+        if fx is not NO_SENSOR_EFFECTS:
+            gyro = gyro + fx.gyro_bias_rad_s
+            accel = accel + fx.accel_bias_mps2
+            self.baro_offset_m += fx.baro_drift_mps * dt
+        gyro = np.clip(gyro, -p.gyro_range_rad_s, p.gyro_range_rad_s)
+        accel = np.clip(accel, -p.accel_range_mps2, p.accel_range_mps2)
+        fields_updated = HIL_SENSOR_IMU
+        _lat, _lon, alt = geodetic_from_ned(*(float(v) for v in state.position_ned_m))
+        self.baro_offset_m += rng.normal() * p.baro_drift_m_rts * math.sqrt(dt)
+        if self._mag.due(time_us):
+            mag = rot.T @ self._field_ned + self.mag_offset + rng.normal(size=3) * \
+                p.mag_noise_gauss + fx.mag_field_gauss
+            self._last_mag = _tuple(mag)
+            fields_updated |= HIL_SENSOR_MAG
+        if self._baro.due(time_us):
+            baro_alt = alt + self.baro_offset_m + rng.normal() * p.baro_noise_m
+            self._last_baro = (pressure_hpa(baro_alt), baro_alt)
+            fields_updated |= HIL_SENSOR_BARO
+        sensor = SensorSample(time_us, _tuple(accel), _tuple(gyro), self._last_mag,
+                              self._last_baro[0], self._last_baro[1], TEMPERATURE_C,
+                              fields_updated)
+        return sensor, self._gps_sample(time_us, state, fx.gps_outage > 0)
+
+    def _gps_sample(self, time_us: int, state: VehicleState,
+                    outage: bool) -> GpsSample | None:
+        p = self.profile
+        if not self._started:
+            # The receiver ran before the simulation did: a fix of the same state is out.
+            self._started = True
+            if p.gps_latency_s > 0:
+                self._gps_queue.append((time_us, self._fix(time_us, state)))
+        if self._gps.due(time_us):
+            decay = math.exp(-self._gps.period_us / 1e6 / p.gps_error_time_constant_s)
+            sigma = np.array([p.gps_horizontal_m, p.gps_horizontal_m, p.gps_vertical_m])
+            self.gps_error = self.gps_error * decay + self.rng.normal(size=3) * sigma * \
+                math.sqrt(1.0 - decay * decay)
+            fix = self._fix(time_us, state)
+            if outage:
+                fix = fix._replace(fix_type=0, satellites=0, eph_cm=9999, epv_cm=9999)
+            self._gps_queue.append((time_us + round(p.gps_latency_s * 1e6), fix))
+        out = None
+        while self._gps_queue and self._gps_queue[0][0] <= time_us:
+            _release, fix = self._gps_queue.popleft()
+            out = fix._replace(time_us=time_us)  # stamped on arrival, as PX4 stamps it
+        return out
+
+    def _fix(self, time_us: int, state: VehicleState) -> GpsSample:
+        p = self.profile
+        position = state.position_ned_m + self.gps_error
+        velocity = state.velocity_ned_mps + self.rng.normal(size=3) * p.gps_velocity_noise_mps
+        lat, lon, alt = geodetic_from_ned(*(float(v) for v in position))
+        return GpsSample(time_us, lat, lon, alt, _tuple(velocity), p.gps_eph_cm, p.gps_epv_cm,
+                         3, p.gps_satellites)
 
 
 def sensed_state(state: VehicleState, history: collections.deque[VehicleState],

@@ -51,7 +51,7 @@ from contracts.realtime import Histogram, set_realtime_priority
 from contracts.telemetry import SITL, STATE, json_record
 from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
 from sitl.plant import Plant, VehicleState
-from sitl.sensors import read_sensors, sensed_state
+from sitl.sensors import SensorProfile, SensorSuite, sensed_state, truth_sample
 
 # STATE record fields that are VehicleState's of the same name (then the plant effects).
 STATE_FROM_PLANT = ("position_ned_m", "velocity_ned_mps", "quaternion", "euler_rad",
@@ -76,6 +76,7 @@ class SimulatorConfig:
     zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(enabled=False))
     hold: bool = False  # wait for a start request before the first sample
     seed: int = 0  # sensor noise and link loss
+    sensors: SensorProfile = field(default_factory=SensorProfile)  # ideal by default
     rt_priority: int = 40  # real time: SCHED_FIFO priority (0: normal), below the autopilot's
 
     def __post_init__(self) -> None:
@@ -126,6 +127,7 @@ class Simulator:
         self._sensor = NO_SENSOR_EFFECTS
         self.book = PerturbationBook(SITL, config.schedule)
         self.rng = np.random.default_rng(config.seed)
+        self.sensors = SensorSuite(config.sensors, config.rate_hz, config.seed)
         self._state = self.plant.state()
         self._history: collections.deque[VehicleState] = collections.deque(maxlen=101)
         self._commands = np.zeros(4)
@@ -156,18 +158,19 @@ class Simulator:
             self._update_perturbations(self.time_us / 1e6)
         self._publish_state()
         self.node.status(self.time_us, **self._status_fields())
-        sensor = self._sensor
-        if sensor is NO_SENSOR_EFFECTS:
-            s = self._state
-            return self._encode(s.position_ned_m, s.velocity_ned_mps, s.quaternion,
-                                s.body_rate_rad_s)
-        if sensor.loss_fraction > 0.0 and self.rng.random() < sensor.loss_fraction:
-            return None
-        return self._encode(*sensed_state(self._state, self._history, sensor, self.rng))
-
-    def _encode(self, position, velocity, quaternion, body_rate) -> bytes:
-        msgs = sample_messages(read_sensors(self.time_us, position, velocity, quaternion,
-                                            body_rate, self._acceleration))
+        effects = self._sensor
+        readings, fix = self.sensors.sample(self.time_us, self._state, self._acceleration,
+                                            effects)
+        if effects is NO_SENSOR_EFFECTS:
+            truth = truth_sample(self.time_us, self._state, self._acceleration)
+        else:
+            if effects.loss_fraction > 0.0 and self.rng.random() < effects.loss_fraction:
+                return None
+            position, velocity, quaternion, body_rate = sensed_state(
+                self._state, self._history, effects, self.rng)
+            truth = truth_sample(self.time_us, self._state, self._acceleration, position,
+                                 velocity, quaternion, body_rate)
+        msgs = sample_messages(truth, readings, fix)
         return b"".join(m.pack(self.mav) for m in msgs)
 
     def _update_perturbations(self, t_s: float) -> None:

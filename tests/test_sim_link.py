@@ -23,7 +23,7 @@ from contracts.mavlink import (
     split_frames,
 )
 from sitl.plant import Plant
-from sitl.sensors import read_sensors
+from sitl.sensors import ideal_readings
 from tests.harness import free_port
 
 
@@ -38,9 +38,7 @@ def _flying_plant(fidelity: str) -> Plant:
 def _decoded(plant: Plant) -> dict[str, object]:
     s = plant.state()
     mav = mavlink.MAVLink(None, 1, 51)
-    data = b"".join(m.pack(mav) for m in sample_messages(read_sensors(
-        123456, s.position_ned_m, s.velocity_ned_mps, s.quaternion, s.body_rate_rad_s,
-        np.zeros(3))))
+    data = b"".join(m.pack(mav) for m in sample_messages(*ideal_readings(123456, s, np.zeros(3))))
     return {m.get_type(): m for m in mavlink.MAVLink(None, 1, 1).parse_buffer(data)}
 
 
@@ -96,10 +94,9 @@ def test_split_frames_keeps_partial_frames_for_later():
     plant = _flying_plant("paper")
     s = plant.state()
     mav = mavlink.MAVLink(None, 1, 51)
-    data = b"".join(m.pack(mav) for m in sample_messages(read_sensors(
-        1, s.position_ned_m, s.velocity_ned_mps, s.quaternion, s.body_rate_rad_s, np.zeros(3))))
+    data = b"".join(m.pack(mav) for m in sample_messages(*ideal_readings(1, s, np.zeros(3))))
     frames, rest = split_frames(b"\x00\x01" + data + data[:20])
-    assert [i for i, _ in frames] == [-1, 107, 113, 115, 331] and rest == data[:20]
+    assert [i for i, _ in frames] == [-1, 113, 107, 115, 331] and rest == data[:20]
 
 
 def test_simulator_survives_garbage_and_bad_commands(tmp_path):
@@ -170,15 +167,11 @@ def test_autopilot_refuses_bad_simulator_data_and_keeps_serving(tmp_path):
         mav = mavlink.MAVLink(None, 1, 51)
         plant = Plant(PAPER, "paper", ground_contact=True)
         s = plant.state()
-        msgs = sample_messages(read_sensors(0, s.position_ned_m, s.velocity_ned_mps,
-                                            s.quaternion,
-                               s.body_rate_rad_s, np.zeros(3)))
+        msgs = sample_messages(*ideal_readings(0, s, np.zeros(3)))
         msgs[3].vx = math.nan
         conn.sendall(b"".join(m.pack(mav) for m in msgs))
         time.sleep(0.5)
-        good = sample_messages(read_sensors(10000, s.position_ned_m, s.velocity_ned_mps,
-                                            s.quaternion,
-                               s.body_rate_rad_s, np.zeros(3)))
+        good = sample_messages(*ideal_readings(10000, s, np.zeros(3)))
         conn.sendall(b"".join(m.pack(mav) for m in good))
         reply = []
         reader = mavlink.MAVLink(None, 1, 51)
@@ -251,8 +244,7 @@ def _send_samples(theirs: socket.socket, times_us, kinds=("HIL_STATE_QUATERNION"
     s = plant.state()
     mav = mavlink.MAVLink(None, 1, 51)
     for t in times_us:
-        msgs = sample_messages(read_sensors(t, s.position_ned_m, s.velocity_ned_mps,
-                                            s.quaternion, s.body_rate_rad_s, np.zeros(3)))
+        msgs = sample_messages(*ideal_readings(t, s, np.zeros(3)))
         theirs.sendall(b"".join(m.pack(mav) for m in msgs if m.get_type() in kinds))
 
 

@@ -197,6 +197,25 @@ def test_arming_needs_state_from_the_simulator_temporarily():
     assert v.armed
 
 
+def test_arming_waits_for_the_estimator_and_says_why():
+    """On the estimator, the pre-arm check is its convergence: refused (temporarily) with
+    its reason, then accepted once it has converged; SYS_STATUS says the same."""
+    from autopilot.mavlink_telemetry import PREARM, sys_status
+
+    v = make_vehicle()
+    v.sample(0.0, GROUND)
+    v.navigation_problem = "estimator settling after alignment"
+    with pytest.raises(RefusedError, match="^arming denied: estimator settling after "
+                                           "alignment$") as refused:
+        v.arm(LINK0)
+    assert refused.value.temporary and not v.armed
+    assert not sys_status(v, 0.0, 0).onboard_control_sensors_health & PREARM
+    v.navigation_problem = None
+    assert sys_status(v, 0.0, 0).onboard_control_sensors_health & PREARM
+    v.arm(LINK0)
+    assert v.armed
+
+
 @pytest.mark.parametrize("mode", [FlightMode.LAND, FlightMode.REFERENCE])
 def test_arming_is_denied_in_a_mode_that_cannot_be_armed(mode):
     # No command leaves a disarmed vehicle in these modes (disarming leaves them), so the

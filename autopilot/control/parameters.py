@@ -100,6 +100,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_YAWRAUTO_MAX", 45.0, 5.0, 360.0, "deg/s", "largest yaw rate"),
     ParamSpec("MPC_YAWRAUTO_ACC", 60.0, 5.0, 1000.0, "deg/s^2", "largest yaw acceleration"),
     ParamSpec("COM_SIM_LOSS_T", 0.5, 0.05, 60.0, "s", "simulator link loss timeout (-> land)"),
+    # The estimator (--state-source estimator), PX4's EKF2 name.
+    ParamSpec("EKF2_GPS_DELAY", 110.0, 0.0, 300.0, "ms", "GPS fix age on arrival"),
 )
 PARAMETER_SPECS: dict[str, ParamSpec] = {spec.name: spec for spec in PARAMETERS}
 assert all(len(name) <= 16 for name in PARAMETER_SPECS)

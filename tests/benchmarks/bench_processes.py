@@ -38,7 +38,7 @@ from contracts.mavlink import (  # noqa: E402
 from ground.processes import RunSettings, fly  # noqa: E402
 from ground.scenarios import scenario_by_name  # noqa: E402
 from sitl.plant import Plant
-from sitl.sensors import read_sensors  # noqa: E402
+from sitl.sensors import ideal_readings  # noqa: E402
 
 ECHO = """
 import socket, sys
@@ -76,8 +76,7 @@ def cycle_parts() -> dict[str, float]:
     s = plant.state()
 
     def encode_sample():
-        msgs = sample_messages(read_sensors(0, s.position_ned_m, s.velocity_ned_mps, s.quaternion,
-                               s.body_rate_rad_s, np.zeros(3)))
+        msgs = sample_messages(*ideal_readings(0, s, np.zeros(3)))
         return b"".join(m.pack(sim_mav) for m in msgs)
 
     sample = encode_sample()

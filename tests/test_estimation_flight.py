@@ -1,0 +1,129 @@
+"""Flying on the onboard estimator: the paper's position test and a GPS outage in hover,
+in one process (golden numbers) and through the processes (the same flight, what the
+autopilot says, what the log holds), and arming on a ground tool's command waiting for
+the estimator."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+import pytest
+
+from contracts.airframe import PAPER
+from contracts.mavlink import mavlink
+from contracts.telemetry import ESTIMATE, mavlink_key, vehicle_key
+from ground.inprocess import run_inprocess
+from ground.metrics import compute_metrics
+from ground.processes import RunSettings, fly
+from ground.run_files import iter_messages
+from ground.scenarios import scenario_by_name
+from tests.harness import GroundTool, start_processes
+
+M = mavlink
+ON_ESTIMATOR = RunSettings("ivfc", "rigid-body", "paper", state_source="estimator",
+                           sensors="typical")
+
+
+def _outage_drift_m(record, start_s: float, end_s: float) -> float:
+    """How far the true position wandered from where it was when the GPS went."""
+    t, truth = record.time_s, record.truth
+    at_start = truth[np.searchsorted(t, start_s), 0:2]
+    during = truth[(t >= start_s) & (t < end_s), 0:2]
+    return float(np.max(np.hypot(*(during - at_start).T)))
+
+
+def test_the_position_test_on_the_estimator_in_one_process(shipped_models):
+    """position-sine on the rigid body, typical sensors, flying on the estimate (seed 0).
+    Golden numbers (rel 2 %); against the issue's targets: roll/pitch estimate <= 0.01 rad,
+    yaw <= 0.03, velocity <= 0.15 m/s are met; the horizontal position (0.578 m) and the
+    x tracking (0.567 m) are not: seed 0's GPS wanders 0.57 m north for the whole flight,
+    and no filter sees a GPS's own slow error (8 of 10 seeds are within 0.5 m)."""
+    scenario = dataclasses.replace(scenario_by_name("position-sine"), plant="rigid-body")
+    record = run_inprocess(scenario, "ivfc", "rigid-body", PAPER, shipped_models,
+                           sensors="typical", state_source="estimator")
+    metrics = compute_metrics(record, scenario, "paper")
+    est = metrics["estimation"]
+    assert est["attitude_rmse_rad"] == pytest.approx(0.0047, rel=0.02)
+    assert est["yaw_rmse_rad"] == pytest.approx(0.0044, rel=0.02)
+    assert est["velocity_rmse_mps"] == pytest.approx(0.032, rel=0.02)
+    assert est["position_rmse_m"] == pytest.approx(0.578, rel=0.02)
+    assert metrics["axes"]["x"]["rmse"] == pytest.approx(0.567, rel=0.02)
+    assert metrics["axes"]["y"]["rmse"] == pytest.approx(0.108, rel=0.02)
+    assert est["attitude_rmse_rad"] <= 0.01 and est["yaw_rmse_rad"] <= 0.03
+    assert est["velocity_rmse_mps"] <= 0.15
+
+
+def test_the_attitude_test_on_the_estimator_in_one_process(shipped_models):
+    """attitude-sine on the rigid body, typical sensors: phi, theta tracking (against the
+    truth) within the issue's 0.03 rad."""
+    scenario = dataclasses.replace(scenario_by_name("attitude-sine"), plant="rigid-body")
+    record = run_inprocess(scenario, "ivfc", "rigid-body", PAPER, shipped_models,
+                           sensors="typical", state_source="estimator")
+    axes = compute_metrics(record, scenario, "paper")["axes"]
+    assert axes["phi"]["rmse"] == pytest.approx(0.00777, rel=0.02)
+    assert axes["theta"]["rmse"] == pytest.approx(0.00498, rel=0.02)
+    assert axes["phi"]["rmse"] <= 0.03 and axes["theta"]["rmse"] <= 0.03
+
+
+def test_a_gps_outage_in_hover_through_the_processes(shipped_models, tmp_path):
+    """gps-outage (no fix from 10 to 15 s) in lockstep: the same flight as in one process;
+    the vehicle stays within 2 m; the autopilot says when the GPS goes and comes back; the
+    log holds the estimate and its health at every control step, beside the truth."""
+    scenario = scenario_by_name("gps-outage")
+    ours, accounting = fly(scenario, ON_ESTIMATOR, tmp_path)
+    assert accounting["lost"] == {} and not ours.diverged
+    reference = run_inprocess(scenario, "ivfc", "rigid-body", PAPER, shipped_models,
+                              sensors="typical", state_source="estimator")
+    a = compute_metrics(ours, scenario, "paper")
+    b = compute_metrics(reference, scenario, "paper")
+    # Motor commands cross the link as float32: the two flights part at that level.
+    for axis in scenario.axes:
+        assert a["axes"][axis]["rmse"] == pytest.approx(b["axes"][axis]["rmse"], rel=2e-3)
+    drift = _outage_drift_m(ours, 10.0, 15.0)
+    assert drift == pytest.approx(_outage_drift_m(reference, 10.0, 15.0), abs=0.01)
+    assert drift < 2.0
+    texts = {}
+    for _topic, _message, data in iter_messages(tmp_path, mavlink_key(1, 1, "STATUSTEXT")):
+        msg = M.MAVLink(None, 1, 1).parse_buffer(data)[0]
+        texts.setdefault(msg.text, _message.log_time)
+    assert "GPS lost: dead reckoning" in texts and "GPS regained" in texts
+    key = vehicle_key(1, "autopilot", "estimate")
+    records = [ESTIMATE.decode(d) for topic, _m, d in iter_messages(tmp_path, key)
+               if topic == key]
+    assert len(records) == len(ours.time_s) == 2500
+    lost = [r["sim_time_us"] / 1e6 for r in records if not int(r["flags"]) & 4]
+    # The last good fix (valid at 9.9 s) arrives 110 ms late, at 10.01 s; 1 s after it the
+    # GPS is lost; the first fix of 15 s arrives at 15.11 s.
+    assert lost[0] == pytest.approx(11.02, abs=0.011)
+    assert lost[-1] == pytest.approx(15.10, abs=0.011)
+    flags = [int(r["flags"]) for r in records[300:]]
+    assert all(f & 1 for f in flags)  # aligned
+    assert all(bool(f & 2) == bool(f & 4) for f in flags)  # converged whenever GPS is in
+
+
+def test_arming_waits_for_the_estimator_to_converge(tmp_path):
+    """A ground tool arms as soon as the simulator's samples flow: denied, temporarily,
+    saying the estimator is not ready; accepted once it has converged; then ESTIMATOR_STATUS
+    reports a solution good for position control."""
+    procs = start_processes(tmp_path, sim_args=["--sensors", "typical"],
+                            autopilot_args=["--state-source", "estimator"])
+    tool = GroundTool(procs.gcs_port)
+    try:
+        tool.connect()
+        tool.wait_text("simulator link up", 20)
+        ack = tool.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+        assert ack.result == M.MAV_RESULT_TEMPORARILY_REJECTED
+        tool.wait_text("arming denied: estimator", 5)
+        deadline = time.monotonic() + 20.0  # about 6 s: the tilt is slow to converge at rest
+        while tool.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1).result != M.MAV_RESULT_ACCEPTED:
+            assert time.monotonic() < deadline, "never armed"
+            time.sleep(0.5)
+        status = tool.wait_type("ESTIMATOR_STATUS", 5)
+        good = (M.ESTIMATOR_ATTITUDE | M.ESTIMATOR_VELOCITY_HORIZ | M.ESTIMATOR_POS_HORIZ_ABS)
+        assert status.flags & good == good
+        assert 0 < status.pos_horiz_accuracy < 1.5
+    finally:
+        tool.close()
+        procs.stop()

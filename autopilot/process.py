@@ -428,6 +428,8 @@ class Autopilot:
             self.sim.last_bad = None
         for time_us, measurement in samples:
             if measurement is None:  # the estimator is aligning: nothing to fly on yet
+                self.vehicle.navigation_problem = \
+                    f"estimator {self.sim.estimator.status(time_us).reason}"
                 self._answer(time_us, np.zeros(4), False)
                 continue
             if self.sim.estimator is not None:

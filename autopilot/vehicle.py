@@ -147,10 +147,10 @@ class Vehicle:
     def arm(self, link_t_s: float) -> None:
         if self.armed:
             return
-        if not self.sim_link_ok or self.measurement is None:
-            raise RefusedError("arming denied: no state from the simulator", temporary=True)
         if self.navigation_problem is not None:
             raise RefusedError(f"arming denied: {self.navigation_problem}", temporary=True)
+        if not self.sim_link_ok or self.measurement is None:
+            raise RefusedError("arming denied: no state from the simulator", temporary=True)
         if self.mode not in ARMABLE_MODES:
             raise RefusedError(f"arming denied in {self.mode.value} mode")
         if not self.landed:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numba import njit
 
 from contracts.frames import (
     GRAVITY_MPS2,
@@ -190,6 +191,34 @@ class _Every:
         return True
 
 
+_DRAWS = 17
+_BARO_WALK, _BARO_NOISE = 15, 16
+
+
+@njit(cache=True)
+def _read_imu_and_mag(q: np.ndarray, body_rate: np.ndarray, accel_ned: np.ndarray,
+                      z: np.ndarray, gyro_bias: np.ndarray, accel_bias: np.ndarray,
+                      mag_offset: np.ndarray, field_ned: np.ndarray, extra_gyro: np.ndarray,
+                      extra_accel: np.ndarray, extra_mag: np.ndarray, gyro_range: float,
+                      accel_range: float, out: np.ndarray) -> None:
+    """Gyro, accelerometer (specific force R^T (a - g)) and magnetometer (R^T B) readings
+    into out[0:3], out[3:6], out[6:9]; the biases walk by z[0:6] (in place); z[6:15] is
+    this sample's noise."""
+    rot = rotation_from_quat(q)
+    for i in range(3):
+        gyro_bias[i] += z[i]
+        accel_bias[i] += z[3 + i]
+    for i in range(3):
+        specific = rot[0, i] * accel_ned[0] + rot[1, i] * accel_ned[1] + \
+            rot[2, i] * (accel_ned[2] - GRAVITY_MPS2)
+        field = rot[0, i] * field_ned[0] + rot[1, i] * field_ned[1] + rot[2, i] * field_ned[2]
+        gyro = body_rate[i] + gyro_bias[i] + z[6 + i] + extra_gyro[i]
+        accel = specific + accel_bias[i] + z[9 + i] + extra_accel[i]
+        out[i] = min(max(gyro, -gyro_range), gyro_range)
+        out[3 + i] = min(max(accel, -accel_range), accel_range)
+        out[6 + i] = field + mag_offset[i] + z[12 + i] + extra_mag[i]
+
+
 class SensorSuite:
     """The sensors of one vehicle: their biases and errors evolve sample by sample.
 
@@ -210,6 +239,14 @@ class SensorSuite:
         self._mag, self._baro, self._gps = (_Every(p.mag_rate_hz), _Every(p.baro_rate_hz),
                                             _Every(p.gps_rate_hz))
         self._field_ned = np.array(home_mag_field_ned_gauss())
+        root_dt = math.sqrt(self.dt)
+        # The standard deviation, over one sample, of each of the numbers drawn each sample.
+        self._scales = np.array(
+            [p.gyro_bias_walk_rad_s2_rthz * root_dt] * 3
+            + [p.accel_bias_walk_mps3_rthz * root_dt] * 3
+            + [p.gyro_noise_rad_s_rthz / root_dt] * 3 + [p.accel_noise_mps2_rthz / root_dt] * 3
+            + [p.mag_noise_gauss] * 3 + [p.baro_drift_m_rts * root_dt, p.baro_noise_m])
+        self._out = np.empty(9)
         self._last_mag = (0.0, 0.0, 0.0)
         self._last_baro = (SEA_LEVEL_PRESSURE_HPA, 0.0)
         # Fixes waiting out the receiver's latency: (release time, fix).
@@ -220,38 +257,32 @@ class SensorSuite:
                effects: SensorEffects | None = None) -> tuple[SensorSample, GpsSample | None]:
         """This sample's HIL_SENSOR and, when a fix comes out of the receiver, HIL_GPS;
         ``effects``: the sensor perturbations in force (biases, a field, an outage)."""
-        p, rng, dt = self.profile, self.rng, self.dt
+        p, dt = self.profile, self.dt
         fx = effects if effects is not None else NO_SENSOR_EFFECTS
-        rot = rotation_from_quat(np.asarray(state.quaternion, dtype=float))
-        # IMU: white noise of the density over the sample, biases as random walks.
-        self.gyro_bias += rng.normal(size=3) * p.gyro_bias_walk_rad_s2_rthz * math.sqrt(dt)
-        self.accel_bias += rng.normal(size=3) * p.accel_bias_walk_mps3_rthz * math.sqrt(dt)
-        gyro = state.body_rate_rad_s + self.gyro_bias + \
-            rng.normal(size=3) * p.gyro_noise_rad_s_rthz / math.sqrt(dt)
-        specific = rot.T @ (np.asarray(accel_ned_mps2) - (0.0, 0.0, GRAVITY_MPS2))
-        accel = specific + self.accel_bias + \
-            rng.normal(size=3) * p.accel_noise_mps2_rthz / math.sqrt(dt)
-        if fx is not NO_SENSOR_EFFECTS:
-            gyro = gyro + fx.gyro_bias_rad_s
-            accel = accel + fx.accel_bias_mps2
-            self.baro_offset_m += fx.baro_drift_mps * dt
-        gyro = np.clip(gyro, -p.gyro_range_rad_s, p.gyro_range_rad_s)
-        accel = np.clip(accel, -p.accel_range_mps2, p.accel_range_mps2)
+        # One draw a sample, whatever is fresh: the streams do not depend on the rates.
+        z = self.rng.standard_normal(_DRAWS) * self._scales
+        _read_imu_and_mag(np.asarray(state.quaternion, dtype=np.float64),
+                          np.asarray(state.body_rate_rad_s, dtype=np.float64),
+                          np.asarray(accel_ned_mps2, dtype=np.float64), z, self.gyro_bias,
+                          self.accel_bias, self.mag_offset, self._field_ned,
+                          np.asarray(fx.gyro_bias_rad_s, dtype=np.float64),
+                          np.asarray(fx.accel_bias_mps2, dtype=np.float64),
+                          np.asarray(fx.mag_field_gauss, dtype=np.float64),
+                          p.gyro_range_rad_s, p.accel_range_mps2, self._out)
+        readings = self._out.tolist()
+        self.baro_offset_m += z[_BARO_WALK] + fx.baro_drift_mps * dt
         fields_updated = HIL_SENSOR_IMU
-        _lat, _lon, alt = geodetic_from_ned(*(float(v) for v in state.position_ned_m))
-        self.baro_offset_m += rng.normal() * p.baro_drift_m_rts * math.sqrt(dt)
         if self._mag.due(time_us):
-            mag = rot.T @ self._field_ned + self.mag_offset + rng.normal(size=3) * \
-                p.mag_noise_gauss + fx.mag_field_gauss
-            self._last_mag = _tuple(mag)
+            self._last_mag = tuple(readings[6:9])
             fields_updated |= HIL_SENSOR_MAG
         if self._baro.due(time_us):
-            baro_alt = alt + self.baro_offset_m + rng.normal() * p.baro_noise_m
+            _lat, _lon, alt = geodetic_from_ned(*state.position_ned_m.tolist())
+            baro_alt = alt + self.baro_offset_m + z[_BARO_NOISE]
             self._last_baro = (pressure_hpa(baro_alt), baro_alt)
             fields_updated |= HIL_SENSOR_BARO
-        sensor = SensorSample(time_us, _tuple(accel), _tuple(gyro), self._last_mag,
-                              self._last_baro[0], self._last_baro[1], TEMPERATURE_C,
-                              fields_updated)
+        sensor = SensorSample(time_us, tuple(readings[3:6]), tuple(readings[0:3]),
+                              self._last_mag, self._last_baro[0], self._last_baro[1],
+                              TEMPERATURE_C, fields_updated)
         return sensor, self._gps_sample(time_us, state, fx.gps_outage > 0)
 
     def _gps_sample(self, time_us: int, state: VehicleState,

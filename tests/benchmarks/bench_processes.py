@@ -124,12 +124,15 @@ def cycle_parts() -> dict[str, float]:
     return parts
 
 
-def lockstep_rtf(repeats: int = 3) -> list[float]:
+PAPER_IVFC = RunSettings("ivfc", "paper", "paper")
+
+
+def lockstep_rtf(settings: RunSettings = PAPER_IVFC, repeats: int = 3) -> list[float]:
     scenario = dataclasses.replace(scenario_by_name("attitude-sine"), duration_s=60.0)
     out = []
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(repeats):
-            record, _ = fly(scenario, RunSettings("ivfc", "paper", "paper"), Path(tmp) / str(i))
+            record, _ = fly(scenario, settings, Path(tmp) / str(i))
             out.append(scenario.duration_s / record.wall_time_s)
     return out
 
@@ -165,6 +168,14 @@ def main() -> None:
           f"{statistics.median(rtf):.0f}x real time (runs: "
           f"{', '.join(f'{r:.0f}x' for r in rtf)}; control loop only, process start "
           f"excluded)")
+    # The onboard estimator's cost: the same flight on the rigid body, on truth and on the
+    # estimator fed by the typical sensors.
+    truth = statistics.median(lockstep_rtf(RunSettings("ivfc", "rigid-body", "paper")))
+    estimator = statistics.median(lockstep_rtf(RunSettings(
+        "ivfc", "rigid-body", "paper", state_source="estimator", sensors="typical")))
+    print(f"lockstep attitude-sine on the rigid body, 60 s sim: on truth {truth:.1f}x real "
+          f"time, on the estimator (typical sensors) {estimator:.1f}x: "
+          f"{100 * (truth / estimator - 1):.0f} % slower")
 
 
 if __name__ == "__main__":

@@ -119,8 +119,8 @@ def estimator_status(v: Vehicle, time_us: int) -> mavlink.MAVLink_estimator_stat
     if s.gps_test_ratio > 1.0:
         flags |= mavlink.ESTIMATOR_GPS_GLITCH
     return mavlink.MAVLink_estimator_status_message(
-        time_us, flags, s.gps_test_ratio, s.gps_test_ratio, s.baro_test_ratio,
-        s.mag_test_ratio, 0, 0, s.horizontal_sigma_m, s.vertical_sigma_m)
+        time_us, flags, s.gps_velocity_test_ratio, s.gps_position_test_ratio,
+        s.baro_test_ratio, s.mag_test_ratio, 0, 0, s.horizontal_sigma_m, s.vertical_sigma_m)
 
 
 def landed_state(v: Vehicle) -> int:

@@ -531,7 +531,7 @@ class Autopilot:
             sensor = SensorSample(k * 10_000, (0.0, 0.0, -GRAVITY_MPS2), (0.0, 0.0, 0.0),
                                   (0.2, 0.0, 0.4), 950.0, 500.0, 20.0, HIL_SENSOR_ALL_FIELDS)
             fix = GpsSample(k * 10_000, HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_AMSL_M + 1.0,
-                            (0.0, 0.0, 0.0), 80, 120, 3, 12)
+                            (0.0, 0.0, 0.0), 0.8, 1.2, 3, 12)
             for msg in sample_messages(truth, sensor, fix):
                 if msg.get_type() in scratch_link.source_types:
                     scratch_link.decode(msg)

@@ -94,8 +94,8 @@ class GpsSample(NamedTuple):
     lon_deg: float
     alt_amsl_m: float
     velocity_ned_mps: tuple[float, float, float]
-    eph_cm: int  # horizontal dilution of precision x 100 (HIL_GPS's unit)
-    epv_cm: int
+    hdop: float  # horizontal dilution of precision (HIL_GPS carries it x 100)
+    vdop: float
     fix_type: int  # 0-1 no fix, 2 2D, 3 3D
     satellites: int
 
@@ -151,7 +151,8 @@ def gps_message(g: GpsSample) -> mavlink.MAVLink_hil_gps_message:
     return mavlink.MAVLink_hil_gps_message(
         g.time_us, g.fix_type, _int_clamped(g.lat_deg * 1e7, -2**31, 2**31 - 1),
         _int_clamped(g.lon_deg * 1e7, -2**31, 2**31 - 1),
-        _int_clamped(g.alt_amsl_m * 1000, -2**31, 2**31 - 1), g.eph_cm, g.epv_cm,
+        _int_clamped(g.alt_amsl_m * 1000, -2**31, 2**31 - 1),
+        _int_clamped(g.hdop * 100, 0, 65535), _int_clamped(g.vdop * 100, 0, 65535),
         _int_clamped(math.hypot(vn, ve) * 100, 0, 65534),
         *(_int_clamped(v * 100, -32768, 32767) for v in (vn, ve, vd)),
         _int_clamped(course_cdeg, 0, 35999), g.satellites)

@@ -14,6 +14,7 @@ from autopilot.identification.ts_model import FuzzyModelSet
 from contracts.airframe import airframe_by_name
 from ground.run_files import write_json
 from ground.scenarios import scenario_by_name, shipped_scenarios
+from sitl.sensors import read_profile
 
 
 class UsageError(Exception):
@@ -37,7 +38,11 @@ def run_command(args: argparse.Namespace) -> int:
     airframe = airframe_by_name(airframe_name)
     sensors = args.sensors or scenario.sensors
     state_source = args.state_source or scenario.state_source
-    parameters = validate_parameters({**scenario.parameters, **dict(args.param)})
+    given = {**scenario.parameters, **dict(args.param)}
+    if state_source == "estimator" and "EKF2_GPS_DELAY" not in given:
+        # The vehicle's estimator is set up for its GPS receiver, as a user would set it.
+        given["EKF2_GPS_DELAY"] = 1000.0 * read_profile(sensors).gps_latency_s
+    parameters = validate_parameters(given)
     model_path = args.model or scenario.model_path
     models = (load_models(model_path, airframe_name, args.any_airframe_model)
               if controller in ("ivfc", "t1fc") else None)
@@ -53,14 +58,14 @@ def run_command(args: argparse.Namespace) -> int:
                                sensors=sensors, state_source=state_source)
         metrics = compute_metrics(record, scenario, airframe_name)
         metrics["mode"] = "inprocess"
+        metrics["sensors"], metrics["state_source"] = sensors, state_source
         metrics["parameters"] = parameters
         write_json(args.out / "metrics.json", metrics)
         if not args.no_figures:
             plot_run(record, scenario, args.out)
     else:
         settings = RunSettings(controller, plant, airframe_name, model_path,
-                               {k: v for k, v in parameters.items() if k in
-                                {**scenario.parameters, **dict(args.param)}},
+                               {k: v for k, v in parameters.items() if k in given},
                                realtime=args.realtime, rate_hz=args.rate_hz,
                                state_source=state_source, sensors=sensors,
                                any_airframe_model=args.any_airframe_model)

@@ -39,6 +39,8 @@ def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunReco
                              run["rate_hz"], with_truth=run.get("state_source") == "estimator")
     metrics = compute_metrics(record, scenario, run["airframe"])
     metrics["mode"] = run["mode"]
+    metrics["sensors"] = run.get("sensors", "ideal")
+    metrics["state_source"] = run.get("state_source", "auto")
     metrics["parameters"] = run.get("parameters", {})
     metrics["perturbations_applied"] = [
         {k: e[k] for k in ("process", "sim_time_us", "event", "id", "kind")}

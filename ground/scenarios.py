@@ -104,6 +104,10 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     fidelity = plant.get("fidelity", "paper")
     airframe = plant.get("airframe", "paper")
     sensors = plant.get("sensors", "ideal")
+    if not isinstance(sensors, str):
+        raise ValueError("plant.sensors must be a profile name or a .toml path")
+    if sensors.endswith(".toml") or "/" in sensors:
+        sensors = str(path.parent / sensors)  # a file beside the scenario, as the model
     try:
         read_profile(sensors)
     except ValueError as exc:

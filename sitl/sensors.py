@@ -64,7 +64,7 @@ def ideal_readings(time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray
                           _tuple(rot.T @ np.array(home_mag_field_ned_gauss())),
                           pressure_hpa(alt), alt, TEMPERATURE_C,
                           HIL_SENSOR_IMU | HIL_SENSOR_MAG | HIL_SENSOR_BARO)
-    fix = GpsSample(time_us, lat, lon, alt, truth.velocity_ned_mps, 80, 120, 3, 14)
+    fix = GpsSample(time_us, lat, lon, alt, truth.velocity_ned_mps, 0.8, 1.2, 3, 14)
     return truth, sensor, fix
 
 
@@ -102,13 +102,13 @@ class SensorProfile:
     gps_vertical_m: float = 0.0
     gps_error_time_constant_s: float = 60.0
     gps_velocity_noise_mps: float = 0.0
-    gps_eph_cm: int = 80
-    gps_epv_cm: int = 120
+    gps_hdop: float = 0.8  # dilution of precision, as the receiver reports it
+    gps_vdop: float = 1.2
     gps_satellites: int = 14
 
 
 _RATES = {"mag_rate_hz", "baro_rate_hz", "gps_rate_hz"}
-_INTS = {"gps_eph_cm", "gps_epv_cm", "gps_satellites"}
+_INTS = {"gps_satellites"}
 
 
 class SensorProfileError(ValueError):
@@ -137,10 +137,11 @@ def read_profile(source: str | Path) -> SensorProfile:
         raise SensorProfileError(f"{where}: no such file") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise SensorProfileError(f"{where}: not TOML: {exc}") from None
-    return parse_profile(data, where)
+    return parse_profile(data, where, Path(text).stem)
 
 
-def parse_profile(data: dict[str, Any], where: str = "sensor profile") -> SensorProfile:
+def parse_profile(data: dict[str, Any], where: str = "sensor profile",
+                  default_name: str = "custom") -> SensorProfile:
     known = {f.name for f in fields(SensorProfile)}
     unknown = sorted(set(data) - known)
     if unknown:
@@ -157,12 +158,13 @@ def parse_profile(data: dict[str, Any], where: str = "sensor profile") -> Sensor
             raise SensorProfileError(f"{where}: {key} must be a number >= 0, got {value!r}")
         if key in _RATES and not 0.5 <= value <= 1000.0:
             raise SensorProfileError(f"{where}: {key} must be in [0.5, 1000] Hz, got {value!r}")
-        if key == "gps_latency_s" and value > 1.0:
-            raise SensorProfileError(f"{where}: gps_latency_s must be at most 1 s")
+        if key == "gps_latency_s" and value > 0.3:
+            raise SensorProfileError(f"{where}: gps_latency_s must be at most 0.3 s (what "
+                                     "the estimator's EKF2_GPS_DELAY can match)")
         if key == "gps_error_time_constant_s" and value <= 0:
             raise SensorProfileError(f"{where}: {key} must be > 0")
         values[key] = int(value) if key in _INTS else float(value)
-    values.setdefault("name", Path(where).stem)
+    values.setdefault("name", default_name)
     return SensorProfile(**values)
 
 
@@ -259,7 +261,8 @@ class SensorSuite:
         ``effects``: the sensor perturbations in force (biases, a field, an outage)."""
         p, dt = self.profile, self.dt
         fx = effects if effects is not None else NO_SENSOR_EFFECTS
-        # One draw a sample, whatever is fresh: the streams do not depend on the rates.
+        # One draw a sample, whatever is fresh: the IMU, magnetometer and barometer streams
+        # do not depend on those sensors' rates (the GPS draws at its own).
         z = self.rng.standard_normal(_DRAWS) * self._scales
         _read_imu_and_mag(np.asarray(state.quaternion, dtype=np.float64),
                           np.asarray(state.body_rate_rad_s, dtype=np.float64),
@@ -300,7 +303,7 @@ class SensorSuite:
                 math.sqrt(1.0 - decay * decay)
             fix = self._fix(time_us, state)
             if outage:
-                fix = fix._replace(fix_type=0, satellites=0, eph_cm=9999, epv_cm=9999)
+                fix = fix._replace(fix_type=0, satellites=0, hdop=99.99, vdop=99.99)
             self._gps_queue.append((time_us + round(p.gps_latency_s * 1e6), fix))
         out = None
         while self._gps_queue and self._gps_queue[0][0] <= time_us:
@@ -313,7 +316,7 @@ class SensorSuite:
         position = state.position_ned_m + self.gps_error
         velocity = state.velocity_ned_mps + self.rng.normal(size=3) * p.gps_velocity_noise_mps
         lat, lon, alt = geodetic_from_ned(*(float(v) for v in position))
-        return GpsSample(time_us, lat, lon, alt, _tuple(velocity), p.gps_eph_cm, p.gps_epv_cm,
+        return GpsSample(time_us, lat, lon, alt, _tuple(velocity), p.gps_hdop, p.gps_vdop,
                          3, p.gps_satellites)
 
 

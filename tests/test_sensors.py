@@ -144,7 +144,7 @@ def test_bad_profiles_are_refused_naming_the_field(tmp_path):
                           (dict(gps_rate_hz=0.0), "gps_rate_hz must be in [0.5, 1000]"),
                           (dict(baro_noise_m=-1.0), "baro_noise_m must be a number >= 0"),
                           (dict(mag_noise_gauss=math.nan), "mag_noise_gauss must be"),
-                          (dict(gps_latency_s=2.0), "gps_latency_s must be at most 1 s"),
+                          (dict(gps_latency_s=0.5), "gps_latency_s must be at most 0.3 s"),
                           (dict(name=3), "name must be text")):
         with pytest.raises(SensorProfileError, match=None) as info:
             parse_profile(data, "sensor profile file mine.toml")
@@ -201,3 +201,15 @@ def test_a_fix_off_the_earth_is_refused():
     msg.lat = 91 * 10**7
     with pytest.raises(LinkDataError, match="not on Earth"):
         fix_from_hil_gps(msg)
+
+
+def test_a_profile_beside_a_scenario_file_is_found_from_it(tmp_path):
+    from ground.scenarios import load_scenario
+
+    (tmp_path / "noisy.toml").write_text("gyro_noise_rad_s_rthz = 1e-3\n")
+    scenario_text = (
+        'name = "mine"\n[reference]\nkind = "hover"\n[plant]\nsensors = "noisy.toml"\n')
+    (tmp_path / "mine.toml").write_text(scenario_text)
+    scenario = load_scenario(tmp_path / "mine.toml")
+    assert scenario.sensors == str(tmp_path / "noisy.toml")
+    assert read_profile(scenario.sensors).name == "noisy"  # a file's name is its stem

@@ -18,7 +18,9 @@ from contracts.frames import (
 )
 from contracts.vectors import MEASUREMENT
 
-HISTORY_SAMPLES = 128  # 0.32 s at 400 Hz, 0.51 s at 250 Hz: longer than any GPS delay
+# The history reaches back 0.4 s at 1000 Hz (1.6 s at 250 Hz): beyond EKF2_GPS_DELAY's
+# 300 ms at any simulator rate.
+HISTORY_SAMPLES = 400
 GPS_TIMEOUT_S = 1.0  # no fix fused for this long: dead reckoning
 # Converged: what the pre-arm check waits for (1-sigma; tilt is roll and pitch together,
 # which at rest is slow to part from the accelerometer's bias).
@@ -51,6 +53,8 @@ class EstimatorStatus:
     vertical_sigma_m: float
     velocity_sigma_mps: float
     gps_test_ratio: float  # largest of the last fix's axes (> 1: rejected)
+    gps_position_test_ratio: float  # horizontal position axes
+    gps_velocity_test_ratio: float
     baro_test_ratio: float
     mag_test_ratio: float
     gps_rejected: int
@@ -137,7 +141,8 @@ class Estimator:
             self.gps_late += 1
         elif np.any(self._gps_ratios > 1.0):
             self.gps_rejected += 1
-        if fused and np.all(self._gps_ratios <= 1.0):
+        # GPS counts as in use while its horizontal position is fused.
+        if fused and np.all(self._gps_ratios[0:2] <= 1.0):
             self._last_fused_gps_us = received_us
 
     def imu(self, time_us: int, gyro_frd_rad_s: np.ndarray, accel_frd_mps2: np.ndarray,
@@ -249,6 +254,8 @@ class Estimator:
             tilt_sigma_rad=tilt, yaw_sigma_rad=yaw, horizontal_sigma_m=horizontal,
             vertical_sigma_m=vertical, velocity_sigma_mps=velocity,
             gps_test_ratio=float(np.max(self._gps_ratios)),
+            gps_position_test_ratio=float(np.max(self._gps_ratios[0:2])),
+            gps_velocity_test_ratio=float(np.max(self._gps_ratios[3:6])),
             baro_test_ratio=float(self._ratios[0]), mag_test_ratio=float(self._ratios[1]),
             gps_rejected=self.gps_rejected, gps_late=self.gps_late)
 

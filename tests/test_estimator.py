@@ -193,3 +193,23 @@ def test_bad_readings_do_not_reach_the_filter():
     est2 = _fly_static(0.0, 0, n=100)
     est2.imu(99 * 4000, np.zeros(3), np.array([0.0, 0.0, -9.81]))
     np.testing.assert_array_equal(est2.x, before)
+
+
+def test_a_gyro_bias_step_is_learned():
+    """At rest, the gyro's z bias steps by 0.02 rad/s (an imu_bias_step): the filter learns
+    it from the magnetometer (85 % of it 15 s later: the bias is modelled as a slow random
+    walk, as PX4's EKF2 models it) and the yaw estimate stays put meanwhile."""
+    rng = np.random.default_rng(11)
+    est = Estimator(gps_delay_s=0.0)
+    tilt = (0.05, -0.03, 1.0)
+    for k in range(250 * 20):  # 20 s at 250 Hz, the step at 5 s
+        t_us = k * 4000
+        if k % 25 == 0:
+            est.gps(t_us, GpsFix(rng.normal(size=3) * 0.2, rng.normal(size=3) * 0.05, 3, 12))
+        gyro, accel, mag = _hover_imu(rng, tilt)
+        if k >= 250 * 5:
+            gyro = gyro + (0.0, 0.0, 0.02)
+        est.imu(t_us, gyro, accel, rng.normal() * 0.1 if k % 5 == 0 else math.nan,
+                mag if k % 2 == 0 else None)
+    assert est.x[eskf.X_GYRO_BIAS + 2] == pytest.approx(0.0169, rel=0.03)
+    assert est.measurement()[8] == pytest.approx(tilt[2], abs=0.01)

@@ -48,6 +48,8 @@ def _build_parser() -> argparse.ArgumentParser:
     run.add_argument("--sensors", type=profile_argument,
                      help="the simulator's sensor profile: ideal, typical, degraded or a "
                           ".toml file (default: the scenario's, else ideal)")
+    run.add_argument("--seed", type=int, default=0,
+                     help="seed of the simulator's sensors and link loss (default 0)")
     run.add_argument("--controller", choices=CONTROLLERS, help="(default: the scenario's)")
     run.add_argument("--plant", choices=list(FIDELITIES), help="(default: the scenario's)")
     run.add_argument("--out", type=Path, required=True, help="output directory (run folder)")

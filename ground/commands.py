@@ -55,10 +55,11 @@ def run_command(args: argparse.Namespace) -> int:
     if args.inprocess:
         record = run_inprocess(scenario, controller, plant, airframe, models,
                                period_s=1.0 / args.rate_hz, parameters=parameters,
-                               sensors=sensors, state_source=state_source)
+                               sensors=sensors, state_source=state_source, seed=args.seed)
         metrics = compute_metrics(record, scenario, airframe_name)
         metrics["mode"] = "inprocess"
         metrics["sensors"], metrics["state_source"] = sensors, state_source
+        metrics["seed"] = args.seed
         metrics["parameters"] = parameters
         write_json(args.out / "metrics.json", metrics)
         if not args.no_figures:
@@ -67,7 +68,7 @@ def run_command(args: argparse.Namespace) -> int:
         settings = RunSettings(controller, plant, airframe_name, model_path,
                                {k: v for k, v in parameters.items() if k in given},
                                realtime=args.realtime, rate_hz=args.rate_hz,
-                               state_source=state_source, sensors=sensors,
+                               state_source=state_source, sensors=sensors, seed=args.seed,
                                any_airframe_model=args.any_airframe_model)
         accounting = run_processes(scenario, settings, args.out)
         timing = accounting.pop("timing")
@@ -76,7 +77,8 @@ def run_command(args: argparse.Namespace) -> int:
             "scenario": scenario.name, "controller": controller, "plant": plant,
             "airframe": airframe_name, "rate_hz": args.rate_hz, "vehicle": settings.vehicle,
             "mode": "realtime" if args.realtime else "lockstep",
-            "state_source": state_source, "sensors": sensors, "parameters": parameters,
+            "state_source": state_source, "sensors": sensors, "seed": args.seed,
+            "parameters": parameters,
             "model": str(model_path) if model_path else None,
             "telemetry": accounting, "timing": timing})
         metrics, record = report(args.out, figures=not args.no_figures)

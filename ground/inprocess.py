@@ -63,9 +63,10 @@ def run_inprocess(
     period_us = round(period_s * 1e6)
     # Scenarios start in hover at the reference's altitude over the origin: the paper's
     # tests are about tracking, not take-off.
+    # The ground is there, as in the simulator: a vehicle that flies into it stops.
     plant = Plant(airframe, plant_fidelity, plant_step_s,
                   position_ned_m=(0.0, 0.0, -scenario.reference.altitude_m),
-                  rotor_rad_s=hover_rotor_speeds(airframe))
+                  rotor_rad_s=hover_rotor_speeds(airframe), ground_contact=True)
     ctrl = make_controller(controller, airframe, period_s, models, parameters)
     onboard = None
     if state_source == "estimator":

@@ -64,6 +64,7 @@ class RunSettings:
     rate_hz: float = 100.0
     state_source: str = "auto"
     sensors: str = "ideal"  # the simulator's sensor profile
+    seed: int = 0  # the simulator's sensors and link loss
     vehicle: int = 1
     any_airframe_model: bool = False  # fly a model identified on another airframe
 
@@ -78,7 +79,7 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
            "--rate-hz", str(settings.rate_hz), "--plant", settings.plant,
            "--airframe", settings.airframe, "--start-altitude", str(ref.altitude_m),
            "--exit-on-disconnect", "--vehicle", str(settings.vehicle), "--hold",
-           "--sensors", settings.sensors, *zenoh_args]
+           "--sensors", settings.sensors, "--seed", str(settings.seed), *zenoh_args]
     autopilot = [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{sim_port}", *pace,
                  "--rate-hz", str(settings.rate_hz), "--state-source", settings.state_source,
                  "--controller", settings.controller, "--airframe", settings.airframe,

@@ -41,6 +41,7 @@ def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunReco
     metrics["mode"] = run["mode"]
     metrics["sensors"] = run.get("sensors", "ideal")
     metrics["state_source"] = run.get("state_source", "auto")
+    metrics["seed"] = run.get("seed", 0)
     metrics["parameters"] = run.get("parameters", {})
     metrics["perturbations_applied"] = [
         {k: e[k] for k in ("process", "sim_time_us", "event", "id", "kind")}

@@ -45,9 +45,9 @@ class FilterNoise(NamedTuple):
     accel_mps2_rthz: float = 6e-3
     gyro_bias_walk_rad_s2_rthz: float = 4e-5
     accel_bias_walk_mps3_rthz: float = 6e-3
-    baro_drift_m_rts: float = 0.02  # offset random walk [m/sqrt(s)]
+    baro_drift_m_rts: float = 0.01  # offset random walk [m/sqrt(s)]
     gps_horizontal_m: float = 0.5  # GPS position (its error is correlated; white here)
-    gps_vertical_m: float = 0.8
+    gps_vertical_m: float = 1.5  # the baro is the height reference; GPS corrects its drift
     gps_velocity_mps: float = 0.15
     baro_m: float = 0.15
     mag_gauss: float = 0.01  # magnetometer, per axis (noise, offsets, disturbances)

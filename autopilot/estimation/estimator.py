@@ -29,6 +29,7 @@ CONVERGED_YAW_RAD = 0.1
 CONVERGED_HORIZONTAL_M = 1.5
 CONVERGED_VELOCITY_MPS = 0.3
 SETTLE_S = 2.0  # after alignment, before the estimate may be called converged
+BARO_REFERENCE_M = 0.1  # 1-sigma of the baro's offset from home's altitude at alignment
 
 
 @dataclass
@@ -178,8 +179,11 @@ class Estimator:
             self._fuse_gps(received_us, received_us - self.gps_delay_us, fix)
 
     def _align(self, time_us: int, accel: np.ndarray, mag: np.ndarray, baro_alt_m: float) -> None:
-        """Attitude from gravity and the magnetometer, position and velocity from the
-        fix, the baro offset that makes the baro agree with it."""
+        """Attitude from gravity and the magnetometer, horizontal position and velocity
+        from the fix, height from the barometer: as PX4's EKF2 (EKF2_HGT_REF baro), the
+        baro is the height reference, its altitude above home read in the standard
+        atmosphere; the GPS's vertical error (often a metre) would otherwise be the
+        vehicle's height error from the start."""
         fix = self._pending_fix
         ax, ay, az = accel
         phi = math.atan2(-ay, -az)
@@ -187,14 +191,15 @@ class Estimator:
         psi = heading_from_mag(mag, phi, theta, self.declination_rad)
         x = self.x
         x[:] = 0.0
-        x[eskf.X_POS:eskf.X_POS + 3] = fix.position_ned_m
+        x[eskf.X_POS:eskf.X_POS + 2] = fix.position_ned_m[0:2]
+        x[eskf.X_POS + 2] = -baro_alt_m
         x[eskf.X_VEL:eskf.X_VEL + 3] = fix.velocity_ned_mps
         x[eskf.X_QUAT:eskf.X_QUAT + 4] = quat_from_euler(phi, theta, psi)
-        x[eskf.X_BARO] = baro_alt_m + fix.position_ned_m[2]
+        x[eskf.X_BARO] = 0.0
         n = self.noise
-        sigma = np.array([n.gps_horizontal_m] * 2 + [n.gps_vertical_m]
+        sigma = np.array([n.gps_horizontal_m] * 2 + [n.baro_m]
                          + [n.gps_velocity_mps * 2] * 3 + [0.05, 0.05, 0.2]
-                         + [0.01] * 3 + [0.2] * 3 + [n.gps_vertical_m])
+                         + [0.01] * 3 + [0.2] * 3 + [BARO_REFERENCE_M])
         self.p = np.diag(sigma**2)
         self._last_time_us = time_us
         self._aligned_at_us = time_us

@@ -159,3 +159,16 @@ def test_on_perfect_sensors_the_estimate_is_the_truth_to_millimetres(tmp_path, c
     assert est["velocity_rmse_mps"] < 0.01
     assert metrics["axes"]["x"]["rmse"] == pytest.approx(0.01922, rel=0.02)
     assert metrics["axes"]["y"]["rmse"] == pytest.approx(0.01828, rel=0.02)
+
+
+def test_a_gps_reading_high_does_not_fly_the_vehicle_into_the_ground(shipped_models):
+    """Seed 7: the GPS starts 0.67 m high and wanders to over a metre. Height comes from the
+    barometer, so the vehicle started at 1 m stays above 0.5 m (with the GPS as height
+    reference it flew into the ground); the GPS pulls the baro's offset by 0.3 m in 20 s."""
+    scenario = dataclasses.replace(scenario_by_name("position-sine"), plant="rigid-body")
+    record = run_inprocess(scenario, "ivfc", "rigid-body", PAPER, shipped_models,
+                           sensors="typical", state_source="estimator", seed=7)
+    lowest_m = -float(np.max(record.truth[:, 2]))
+    assert lowest_m == pytest.approx(0.554, abs=0.01)
+    est = compute_metrics(record, scenario, "paper")["estimation"]
+    assert est["altitude_rmse_m"] == pytest.approx(0.316, rel=0.02)

@@ -20,6 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from autopilot.mavlink_commands import CommandProtocol
+from autopilot.mavlink_mission import MissionProtocol
 from autopilot.mavlink_params import ParameterProtocol
 from autopilot.mavlink_setpoints import SetpointProtocol
 from autopilot.mavlink_telemetry import DEFAULT_STREAMS, telemetry_message
@@ -188,12 +189,13 @@ class MavlinkServer:
         self.commands = CommandProtocol(self)
         self.parameters = ParameterProtocol(self)
         self.setpoints = SetpointProtocol(self)
+        self.missions = MissionProtocol(self)
         # Message type -> handler(link, address, msg, now); what is not here is ignored.
         self.handlers: dict[str, Callable] = {
             "HEARTBEAT": self._on_heartbeat, "PING": self._on_ping,
-            "TIMESYNC": self._on_timesync, "MISSION_REQUEST_LIST": self._on_mission_request_list,
-            **self.commands.handlers(), **self.parameters.handlers(),
-            **self.setpoints.handlers()}
+            "TIMESYNC": self._on_timesync, **self.commands.handlers(),
+            **self.parameters.handlers(), **self.setpoints.handlers(),
+            **self.missions.handlers()}
 
     # -- receiving -----------------------------------------------------------------------
     def receive(self, link: GroundLink, budget_s: float = math.inf,
@@ -305,11 +307,6 @@ class MavlinkServer:
                 mavlink.MAV_COMP_ID_MISSIONPLANNER:
             self.vehicle.gcs_heartbeat(now)
 
-    def _on_mission_request_list(self, link, address, msg, now) -> None:
-        self.send(link, mavlink.MAVLink_mission_count_message(
-            msg.get_srcSystem(), msg.get_srcComponent(), 0, getattr(msg, "mission_type", 0)),
-            address)
-
     def _on_ping(self, link, address, msg, now) -> None:
         if msg.target_system == 0:
             self.send(link, mavlink.MAVLink_ping_message(
@@ -325,6 +322,7 @@ class MavlinkServer:
         """Send what is due and queued; check the link failsafes."""
         now = self.clock()
         self.vehicle.check_links(now)
+        self.missions.service(now)
         shown = (self.vehicle.armed, self.vehicle.mode)
         if shown != self._shown:  # tools read arming and mode off heartbeats
             self._shown = shown

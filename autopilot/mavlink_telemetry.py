@@ -38,6 +38,7 @@ DEFAULT_STREAMS: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_HOME_POSITION: 5.0,
     mavlink.MAVLINK_MSG_ID_VFR_HUD: 0.25,
     mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
+    mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
 }
 # What REQUEST_MESSAGE and SET_MESSAGE_INTERVAL can have, beyond the streams.
 PRODUCIBLE = set(DEFAULT_STREAMS) | {mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION}
@@ -123,6 +124,15 @@ def estimator_status(v: Vehicle, time_us: int) -> mavlink.MAVLink_estimator_stat
         s.baro_test_ratio, s.mag_test_ratio, 0, 0, s.horizontal_sigma_m, s.vertical_sigma_m)
 
 
+def mission_current(v: Vehicle) -> mavlink.MAVLink_mission_current_message:
+    """The mission's current item, its length and state (PX4 streams it at 1 Hz)."""
+    store = v.mission
+    total = len(store.lists[mavlink.MAV_MISSION_TYPE_MISSION])
+    return mavlink.MAVLink_mission_current_message(
+        store.current, total,
+        mavlink.MISSION_STATE_NOT_STARTED if total else mavlink.MISSION_STATE_NO_MISSION, 0)
+
+
 def landed_state(v: Vehicle) -> int:
     if not v.armed or v.landed:
         return mavlink.MAV_LANDED_STATE_ON_GROUND
@@ -188,6 +198,8 @@ def telemetry_message(msg_id: int, v: Vehicle, flavour: str, boot_ms: int,
                                                HOME_ALT_AMSL_M - m[MEAS_Z], -m[MEAS_VZ])
     if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
         return autopilot_version()
+    if msg_id == mavlink.MAVLINK_MSG_ID_MISSION_CURRENT:
+        return mission_current(v)
     if msg_id == mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
         return estimator_status(v, round(v.sim_t_s * 1e6))
     raise ValueError(f"no telemetry for message {msg_id}")

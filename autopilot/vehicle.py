@@ -30,6 +30,7 @@ from autopilot.flight_tasks import (
     checked_position_setpoint,
 )
 from autopilot.land_detector import LANDED_ALTITUDE_M, LANDED_SPEED_MPS, LandDetector
+from autopilot.mission import MissionStore
 from autopilot.reference import Reference
 from autopilot.refusal import RefusedError
 from autopilot.shaping import Setpoint, ShapingLimits, limits_from_parameters
@@ -86,6 +87,7 @@ class Vehicle:
         # Why the state is not good enough to arm on (the estimator's reason), None if it is.
         self.navigation_problem: str | None = None
         self.estimator_status = None  # EstimatorStatus when flying on the estimator
+        self.mission = MissionStore()  # mission, fence and rally lists, kept across modes
         self.last_ref = np.zeros(REF_SIZE)
         self.last_kick = np.zeros(2)
         self.last_commands = np.zeros(4)

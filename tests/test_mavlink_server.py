@@ -447,7 +447,7 @@ def test_a_non_finite_message_id_is_denied(station, command, value):
 STREAMS = {"HEARTBEAT": 1.0, "SYS_STATUS": 1.0, "EXTENDED_SYS_STATE": 1.0, "ATTITUDE": 0.05,
            "ATTITUDE_QUATERNION": 0.05, "LOCAL_POSITION_NED": 0.05,
            "GLOBAL_POSITION_INT": 0.1, "HOME_POSITION": 5.0, "VFR_HUD": 0.25,
-           "ESTIMATOR_STATUS": 1.0}
+           "ESTIMATOR_STATUS": 1.0, "MISSION_CURRENT": 1.0}
 
 
 def stream_counts(s: Station, start: float, seconds: float, every: float = 0.005,

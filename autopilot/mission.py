@@ -1,0 +1,177 @@
+"""Missions, fences and rally points as the vehicle stores them, and the check each item
+passes before it is stored (pure: no I/O). The MAVLink mission protocol that fills them
+is autopilot/mavlink_mission.py; docs/missions.md describes both.
+
+What PX4 takes is what we take: the commands below in the frames below, each parameter in
+its range. An item that fails says which MAV_MISSION_RESULT (the protocol's ACK) and why.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from contracts.mavlink import mavlink
+
+M = mavlink
+MISSION, FENCE, RALLY = (M.MAV_MISSION_TYPE_MISSION, M.MAV_MISSION_TYPE_FENCE,
+                         M.MAV_MISSION_TYPE_RALLY)
+MISSION_TYPES = (MISSION, FENCE, RALLY)
+MAX_ITEMS = {MISSION: 500, FENCE: 64, RALLY: 8}  # MISSION_COUNT above: NO_SPACE
+
+GLOBAL_FRAMES = frozenset({M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                           M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT})
+POSITION_FRAMES = GLOBAL_FRAMES | {M.MAV_FRAME_LOCAL_NED}
+# The commands each mission type holds, and whether they carry a position.
+NAV_COMMANDS = {M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME,
+                M.MAV_CMD_NAV_RETURN_TO_LAUNCH, M.MAV_CMD_NAV_LAND, M.MAV_CMD_NAV_TAKEOFF}
+DO_COMMANDS = {M.MAV_CMD_DO_JUMP, M.MAV_CMD_DO_CHANGE_SPEED}
+FENCE_COMMANDS = {M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+                  M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION,
+                  M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION}
+COMMANDS = {MISSION: NAV_COMMANDS | DO_COMMANDS, FENCE: FENCE_COMMANDS,
+            RALLY: {M.MAV_CMD_NAV_RALLY_POINT}}
+WITHOUT_POSITION = DO_COMMANDS | {M.MAV_CMD_NAV_RETURN_TO_LAUNCH}
+MAX_ALTITUDE_M = 10_000.0
+MAX_LOCAL_M = 100_000.0
+MAX_SPEED_MPS = 30.0
+
+
+@dataclass(frozen=True)
+class MissionItem:
+    """One item as MISSION_ITEM_INT carries it: x, y in 1e-7 deg for global frames (metres
+    for LOCAL_NED), z in metres."""
+
+    seq: int
+    frame: int
+    command: int
+    current: int
+    autocontinue: int
+    params: tuple[float, float, float, float]
+    x: float
+    y: float
+    z: float
+    mission_type: int = MISSION
+
+    @property
+    def is_global(self) -> bool:
+        return self.frame in GLOBAL_FRAMES
+
+
+class ItemError(ValueError):
+    """An item refused: ``result`` is the MAV_MISSION_RESULT to acknowledge it with."""
+
+    def __init__(self, result: int, text: str) -> None:
+        super().__init__(text)
+        self.result = result
+
+
+def check_item(item: MissionItem, count: int) -> None:
+    """Raise ItemError unless the vehicle can fly (or fence with) this item of a list of
+    ``count`` items."""
+    commands = COMMANDS[item.mission_type]
+    if item.command not in commands:
+        raise ItemError(M.MAV_MISSION_UNSUPPORTED,
+                        f"item {item.seq}: command {item.command} is not supported here")
+    positioned = item.command not in WITHOUT_POSITION
+    if positioned and item.frame not in POSITION_FRAMES:
+        raise ItemError(M.MAV_MISSION_UNSUPPORTED_FRAME,
+                        f"item {item.seq}: frame {item.frame} is not supported")
+    if item.mission_type != MISSION and item.frame not in GLOBAL_FRAMES:
+        raise ItemError(M.MAV_MISSION_UNSUPPORTED_FRAME,
+                        f"item {item.seq}: fence and rally items are global")
+    p1, p2, p3, p4 = item.params
+    for i, value in enumerate(item.params):
+        if math.isinf(value):
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM1 + i,
+                            f"item {item.seq}: param{i + 1} is infinite")
+    if positioned:
+        _check_position(item)
+    command = item.command
+    if command == M.MAV_CMD_NAV_WAYPOINT:
+        _at_least(item, 1, p1, 0.0, "hold time")
+        _at_least(item, 2, p2, 0.0, "acceptance radius")
+        _yaw(item, p4)
+    elif command == M.MAV_CMD_NAV_LOITER_TIME:
+        _at_least(item, 1, p1, 0.0, "loiter time")
+    elif command in (M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND):
+        _yaw(item, p4)
+    elif command == M.MAV_CMD_DO_JUMP:
+        if math.isnan(p1) or not (0 <= p1 < count and p1 == int(p1)) or p1 == item.seq:
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM1,
+                            f"item {item.seq}: jump target {p1} is not another item of "
+                            f"the {count}")
+        if math.isnan(p2) or p2 < -1 or p2 != int(p2):
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM2,
+                            f"item {item.seq}: repeat count {p2} (-1 for ever)")
+    elif command == M.MAV_CMD_DO_CHANGE_SPEED:
+        if math.isnan(p2) or not (p2 == -1 or 0 < p2 <= MAX_SPEED_MPS):
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM2,
+                            f"item {item.seq}: speed {p2} m/s (0-{MAX_SPEED_MPS:g}, -1 "
+                            "no change)")
+    elif command in (M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+                     M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION):
+        if math.isnan(p1) or p1 < 3 or p1 != int(p1):
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM1,
+                            f"item {item.seq}: a polygon has at least 3 vertices, not {p1}")
+    elif command in (M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION,
+                     M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION) and (math.isnan(p1) or p1 <= 0):
+        raise ItemError(M.MAV_MISSION_INVALID_PARAM1, f"item {item.seq}: circle radius {p1} m")
+
+
+def _check_position(item: MissionItem) -> None:
+    if item.is_global:
+        if not (math.isfinite(item.x) and -90e7 <= item.x <= 90e7):
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM5_X,
+                            f"item {item.seq}: latitude {item.x * 1e-7} deg")
+        if not (math.isfinite(item.y) and -180e7 <= item.y <= 180e7):
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM6_Y,
+                            f"item {item.seq}: longitude {item.y * 1e-7} deg")
+        if not (math.isfinite(item.z) and abs(item.z) <= MAX_ALTITUDE_M):
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM7,
+                            f"item {item.seq}: altitude {item.z} m")
+        return
+    for value, result, name in ((item.x, M.MAV_MISSION_INVALID_PARAM5_X, "x"),
+                                (item.y, M.MAV_MISSION_INVALID_PARAM6_Y, "y"),
+                                (item.z, M.MAV_MISSION_INVALID_PARAM7, "z")):
+        if not (math.isfinite(value) and abs(value) <= MAX_LOCAL_M):
+            raise ItemError(result, f"item {item.seq}: {name} {value} m")
+
+
+def _at_least(item: MissionItem, index: int, value: float, low: float, what: str) -> None:
+    if not math.isnan(value) and value < low:
+        raise ItemError(M.MAV_MISSION_INVALID_PARAM1 + index - 1,
+                        f"item {item.seq}: {what} {value} below {low:g}")
+
+
+def _yaw(item: MissionItem, value: float) -> None:
+    if not math.isnan(value) and abs(value) > 360.0:
+        raise ItemError(M.MAV_MISSION_INVALID_PARAM4,
+                        f"item {item.seq}: yaw {value} deg (NaN: keep the heading)")
+
+
+@dataclass
+class MissionStore:
+    """The stored lists, one per mission type, and the mission's current item. A list is
+    replaced only by a complete, valid upload (or cleared); the stored mission survives
+    mode changes."""
+
+    lists: dict[int, tuple[MissionItem, ...]] = field(
+        default_factory=lambda: {t: () for t in MISSION_TYPES})
+    current: int = 0
+
+    def replace(self, mission_type: int, items: tuple[MissionItem, ...]) -> None:
+        self.lists[mission_type] = items
+        if mission_type == MISSION:
+            self.current = 0
+
+    def clear(self, mission_type: int) -> None:
+        for t in (MISSION_TYPES if mission_type == M.MAV_MISSION_TYPE_ALL else (mission_type,)):
+            self.replace(t, ())
+
+    def set_current(self, seq: int) -> None:
+        if not 0 <= seq < len(self.lists[MISSION]):
+            raise ItemError(M.MAV_MISSION_INVALID_SEQUENCE,
+                            f"no mission item {seq} (the mission has "
+                            f"{len(self.lists[MISSION])})")
+        self.current = seq

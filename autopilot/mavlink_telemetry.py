@@ -155,7 +155,10 @@ def autopilot_version() -> mavlink.MAVLink_autopilot_version_message:
             | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
             | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED
             | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_GLOBAL_INT
-            | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2)
+            | mavlink.MAV_PROTOCOL_CAPABILITY_MAVLINK2
+            | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_INT
+            | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_FENCE
+            | mavlink.MAV_PROTOCOL_CAPABILITY_MISSION_RALLY)
     return mavlink.MAVLink_autopilot_version_message(
         caps, FIRMWARE_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1, [0] * 18)
 

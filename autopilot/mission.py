@@ -26,12 +26,14 @@ POSITION_FRAMES = GLOBAL_FRAMES | {M.MAV_FRAME_LOCAL_NED}
 NAV_COMMANDS = {M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME,
                 M.MAV_CMD_NAV_RETURN_TO_LAUNCH, M.MAV_CMD_NAV_LAND, M.MAV_CMD_NAV_TAKEOFF}
 DO_COMMANDS = {M.MAV_CMD_DO_JUMP, M.MAV_CMD_DO_CHANGE_SPEED}
+# Waits without a position of their own (MAVSDK sends a loiter time as NAV_DELAY).
+WAIT_COMMANDS = {M.MAV_CMD_NAV_DELAY}
 FENCE_COMMANDS = {M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
                   M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION,
                   M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION}
-COMMANDS = {MISSION: NAV_COMMANDS | DO_COMMANDS, FENCE: FENCE_COMMANDS,
+COMMANDS = {MISSION: NAV_COMMANDS | DO_COMMANDS | WAIT_COMMANDS, FENCE: FENCE_COMMANDS,
             RALLY: {M.MAV_CMD_NAV_RALLY_POINT}}
-WITHOUT_POSITION = DO_COMMANDS | {M.MAV_CMD_NAV_RETURN_TO_LAUNCH}
+WITHOUT_POSITION = DO_COMMANDS | WAIT_COMMANDS | {M.MAV_CMD_NAV_RETURN_TO_LAUNCH}
 MAX_ALTITUDE_M = 10_000.0
 MAX_LOCAL_M = 100_000.0
 MAX_SPEED_MPS = 30.0
@@ -94,6 +96,9 @@ def check_item(item: MissionItem, count: int) -> None:
         _yaw(item, p4)
     elif command == M.MAV_CMD_NAV_LOITER_TIME:
         _at_least(item, 1, p1, 0.0, "loiter time")
+    elif command == M.MAV_CMD_NAV_DELAY and (math.isnan(p1) or p1 < 0):
+        raise ItemError(M.MAV_MISSION_INVALID_PARAM1,
+                        f"item {item.seq}: delay {p1} s (a time of day is not supported)")
     elif command in (M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND):
         _yaw(item, p4)
     elif command == M.MAV_CMD_DO_JUMP:

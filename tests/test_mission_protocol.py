@@ -140,6 +140,8 @@ BAD_ITEMS = [
     ("a yaw of 400 deg", item(1, params=(0.0, 1.0, 0.0, 400.0)), M.MAV_MISSION_INVALID_PARAM4),
     ("a jump past the end", item(1, M.MAV_CMD_DO_JUMP, M.MAV_FRAME_MISSION,
                                  params=(7.0, 1.0, 0.0, 0.0)), M.MAV_MISSION_INVALID_PARAM1),
+    ("a negative delay", item(1, M.MAV_CMD_NAV_DELAY, M.MAV_FRAME_MISSION,
+                              params=(-1.0, 10.0, 30.0, 0.0)), M.MAV_MISSION_INVALID_PARAM1),
     ("a speed of 50 m/s", item(1, M.MAV_CMD_DO_CHANGE_SPEED, M.MAV_FRAME_MISSION,
                                params=(1.0, 50.0, -1.0, 0.0)), M.MAV_MISSION_INVALID_PARAM2),
 ]

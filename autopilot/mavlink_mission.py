@@ -226,8 +226,11 @@ class MissionProtocol:
         if t is None:
             return
         if now - t.heard_s > TIMEOUT_S:
-            self._say(t.link, t.address, "mission: transfer timed out")
-            self._end(M.MAV_MISSION_OPERATION_CANCELLED if t.upload else None)
+            if t.upload:
+                self._say(t.link, t.address, "mission: upload timed out")
+                self._end(M.MAV_MISSION_OPERATION_CANCELLED)
+            else:  # many tools never acknowledge a download: it just ends
+                self._end()
         elif t.upload and now - t.asked_s >= RETRY_S:
             self._ask(t, now)
 

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pexpect
+import pytest
 
 from autopilot.control.parameters import PARAMETERS
 from tests.harness import start_processes
@@ -21,14 +22,14 @@ MODULES = "param,ftp,arm,mode,cmdlong,misc"  # what the flow needs; no GUI modul
 
 
 class Prompt:
-    def __init__(self, port: int, workdir: Path) -> None:
+    def __init__(self, port: int, workdir: Path, modules: str = MODULES) -> None:
         workdir.mkdir(parents=True, exist_ok=True)
         env = dict(os.environ, HOME=str(workdir), TERM="dumb", PYTHONUNBUFFERED="1",
                    MPLBACKEND="Agg")
         env.pop("DISPLAY", None)
         self.child = pexpect.spawn(
             str(MAVPROXY), [f"--master=udpin:127.0.0.1:{port}", "--no-state",
-                            f"--default-modules={MODULES}"],
+                            f"--default-modules={modules}"],
             cwd=str(workdir), env=env, encoding="utf-8", codec_errors="replace", timeout=30,
             echo=False)
         self.child.logfile_read = open(workdir / "mavproxy.log", "w")  # noqa: SIM115
@@ -92,3 +93,40 @@ def test_mavproxy_arms_takes_off_tunes_a_gain_and_lands(tmp_path):
     finally:
         prompt.close()
         procs.stop()
+
+
+MISSION = """QGC WPL 110
+0	1	0	16	0	0	0	0	47.397742	8.545594	488.000000	1
+1	0	3	22	0	0	0	0	0.000000	0.000000	5.000000	1
+2	0	3	16	0	1	0	0	47.397900	8.545594	5.000000	1
+3	0	3	16	2	1	0	0	47.397900	8.545800	6.000000	1
+4	0	3	20	0	0	0	0	0.000000	0.000000	0.000000	1
+"""
+
+
+def test_mavproxy_loads_and_lists_a_mission(tmp_path):
+    """``wp load`` sends a QGC WPL file item by item; ``wp list`` reads it back, the same."""
+    procs = start_processes(tmp_path, autopilot_args=["--flavour", "ardupilot"])
+    workdir = tmp_path / "mavproxy"
+    workdir.mkdir()
+    (workdir / "mission.txt").write_text(MISSION)
+    prompt = Prompt(procs.gcs_port, workdir, modules="wp,mode,misc")
+    try:
+        prompt.child.expect(r"online system 1", timeout=40)
+        prompt.type("wp load mission.txt", r"Loaded 5 waypoints from mission.txt",
+                    r"Sent all 5 waypoints")
+        # It prints each item it read: command frame lat lon alt p1..p4 cur auto.
+        item_line = r"\d+ \d+ -?[\d.]+ -?[\d.]+ [^\r\n]*auto=1\r?\n"
+        prompt.type("wp list", r"Requesting 5 waypoints", rf"(?:{item_line}){{5}}")
+        listed = [line for line in prompt.child.match.group(0).splitlines() if line]
+    finally:
+        prompt.close()
+        procs.stop()
+    assert len(listed) == 5, listed
+    for ours, theirs in zip(MISSION.splitlines()[1:], listed, strict=True):
+        a = ours.split("\t")
+        command, frame, lat, lon, alt, p1, p2, p3, p4 = (
+            theirs.replace("=", " ").split()[i] for i in (0, 1, 2, 3, 4, 6, 8, 10, 12))
+        assert (int(command), int(frame)) == (int(a[3]), int(a[2])), (ours, theirs)
+        assert [float(v) for v in (p1, p2, p3, p4, lat, lon, alt)] == pytest.approx(
+            [float(v) for v in a[4:11]], abs=1e-6), (ours, theirs)

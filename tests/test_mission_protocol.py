@@ -194,7 +194,7 @@ def test_an_unanswered_request_is_sent_again_then_the_upload_is_cancelled(statio
     msgs = c.sync()
     (ack,) = of(msgs, "MISSION_ACK")
     assert ack.type == M.MAV_MISSION_OPERATION_CANCELLED
-    assert "timed out" in of(msgs, "STATUSTEXT")[0].text
+    assert "upload timed out" in of(msgs, "STATUSTEXT")[0].text
     assert station.vehicle.mission.lists[MISSION] == ()
 
 

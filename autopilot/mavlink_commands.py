@@ -13,7 +13,9 @@ from autopilot.mavlink_telemetry import (
     PRODUCIBLE,
     autopilot_version,
     home_position,
+    mission_current,
 )
+from autopilot.mission import ItemError
 from autopilot.refusal import RefusedError
 from contracts.frames import HOME_ALT_AMSL_M
 from contracts.mavlink import mavlink
@@ -40,6 +42,7 @@ class CommandProtocol:
             mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: lambda *_: [autopilot_version()],
             mavlink.MAV_CMD_GET_HOME_POSITION: lambda *_: [home_position()],
             mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: self._message_interval,
+            mavlink.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
         }
 
     def handlers(self) -> dict[str, Callable]:
@@ -124,6 +127,15 @@ class CommandProtocol:
         if mode is None:
             raise RefusedError(f"unknown mode {main:g}/{sub:g}")
         self.server.vehicle.set_mode(mode, now)
+
+    def _set_mission_current(self, link, p, now):
+        """The mission item to go on from (MAVProxy's ``wp set`` sends this first)."""
+        seq = int(p[0]) if math.isfinite(p[0]) and p[0] == int(p[0]) else -1
+        try:
+            self.server.vehicle.mission.set_current(seq)
+        except ItemError as exc:
+            raise RefusedError(str(exc)) from None
+        return [mission_current(self.server.vehicle)]
 
     def _request_message(self, link, p, now):
         msg_id = int(p[0]) if math.isfinite(p[0]) else -1

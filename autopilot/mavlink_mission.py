@@ -54,9 +54,12 @@ def item_from_message(msg, legacy: bool) -> MissionItem:
     degrees, turned into the integer form's 1e-7 deg)."""
     x, y = float(msg.x), float(msg.y)
     frame = msg.frame
-    if legacy and frame in (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-                            M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT):
+    is_global = frame in (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                          M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
+    if legacy and is_global:
         x, y = x * 1e7, y * 1e7
+    elif not legacy and not is_global:
+        x, y = x * 1e-4, y * 1e-4  # MISSION_ITEM_INT carries local metres x 1e4
     return MissionItem(msg.seq, frame, msg.command, msg.current, msg.autocontinue,
                        (float(msg.param1), float(msg.param2), float(msg.param3),
                         float(msg.param4)), x, y, float(msg.z),
@@ -64,7 +67,8 @@ def item_from_message(msg, legacy: bool) -> MissionItem:
 
 
 def item_message(item: MissionItem, partner: tuple[int, int], legacy: bool):
-    """MISSION_ITEM_INT (or, to a legacy request, MISSION_ITEM) of a stored item."""
+    """MISSION_ITEM_INT (or, to a legacy request, MISSION_ITEM) of a stored item; the
+    integer form carries global positions in 1e-7 deg and local ones in metres x 1e4."""
     if legacy:
         scale = 1e-7 if item.is_global else 1.0
         return M.MAVLink_mission_item_message(
@@ -72,7 +76,8 @@ def item_message(item: MissionItem, partner: tuple[int, int], legacy: bool):
             *item.params, item.x * scale, item.y * scale, item.z, item.mission_type)
     return M.MAVLink_mission_item_int_message(
         *partner, item.seq, item.frame, item.command, item.current, item.autocontinue,
-        *item.params, int(round(item.x)), int(round(item.y)), item.z, item.mission_type)
+        *item.params, *(int(round(v * (1.0 if item.is_global else 1e4)))
+                        for v in (item.x, item.y)), item.z, item.mission_type)
 
 
 class MissionProtocol:
@@ -97,7 +102,7 @@ class MissionProtocol:
     def _say(self, link, address, text: str) -> None:
         self.server.send(link, M.MAVLink_statustext_message(4, text.encode()[:50]), address)
 
-    def _busy(self, link, address, msg, now: float) -> bool:
+    def _busy(self, link, address, msg) -> bool:
         """Another tool's transfer is under way: this one is denied."""
         t = self.transfer
         if t is None or (t.link is link and t.partner == _partner(msg)):
@@ -120,7 +125,7 @@ class MissionProtocol:
 
     # -- upload ----------------------------------------------------------------------------
     def on_count(self, link, address, msg, now: float) -> None:
-        if self._busy(link, address, msg, now):
+        if self._busy(link, address, msg):
             return
         mission_type = getattr(msg, "mission_type", MISSION)
         if mission_type not in MISSION_TYPES:
@@ -169,7 +174,7 @@ class MissionProtocol:
 
     # -- download --------------------------------------------------------------------------
     def on_request_list(self, link, address, msg, now: float) -> None:
-        if self._busy(link, address, msg, now):
+        if self._busy(link, address, msg):
             return
         mission_type = getattr(msg, "mission_type", MISSION)
         if mission_type not in MISSION_TYPES:
@@ -203,12 +208,13 @@ class MissionProtocol:
 
     # -- the rest ----------------------------------------------------------------------------
     def on_clear_all(self, link, address, msg, now: float) -> None:
-        if self._busy(link, address, msg, now):
+        if self._busy(link, address, msg):
             return
         mission_type = getattr(msg, "mission_type", MISSION)
         if mission_type not in (*MISSION_TYPES, M.MAV_MISSION_TYPE_ALL):
             self._ack(link, address, _partner(msg), M.MAV_MISSION_UNSUPPORTED, mission_type)
             return
+        self.transfer = None  # the tool's own transfer, if any, ends with the lists
         self.store.clear(mission_type)
         self._ack(link, address, _partner(msg), M.MAV_MISSION_ACCEPTED, mission_type)
 

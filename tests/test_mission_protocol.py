@@ -263,3 +263,33 @@ def test_set_current_and_requests_out_of_range(station):
     assert station.vehicle.mission.lists[MISSION] == ()
     c.send(M.MAVLink_mission_request_list_message(1, 1, MISSION))
     assert of(c.sync(), "MISSION_COUNT")[0].count == 0
+
+
+def test_local_items_carry_metres_times_1e4_and_come_back_the_same(station):
+    """MISSION_ITEM_INT's x, y are metres x 1e4 in local frames (1e-7 deg in global ones)."""
+    local = [M.MAVLink_mission_item_int_message(1, 1, 0, M.MAV_FRAME_LOCAL_NED, WAYPOINT, 0, 1,
+                                                0.0, 1.0, 0.0, math.nan, 123_456, -78_900,
+                                                -5.0, MISSION)]
+    assert upload(station, local)[0].type == M.MAV_MISSION_ACCEPTED
+    stored = station.vehicle.mission.lists[MISSION][0]
+    assert (stored.x, stored.y) == pytest.approx((12.3456, -7.89))
+    (back,) = download(station)
+    assert (back.x, back.y, back.z) == (123_456, -78_900, -5.0)
+
+
+def test_do_set_mission_current_and_clear_all_mid_transfer(station):
+    upload(station, three_waypoints())
+    ack, others = station.client.command(M.MAV_CMD_DO_SET_MISSION_CURRENT, 1)
+    assert ack.result == M.MAV_RESULT_ACCEPTED
+    assert station.vehicle.mission.current == 1 and of(others, "MISSION_CURRENT")[0].seq == 1
+    ack, _ = station.client.command(M.MAV_CMD_DO_SET_MISSION_CURRENT, 9)
+    assert ack.result == M.MAV_RESULT_DENIED and station.vehicle.mission.current == 1
+    # A tool that clears in the middle of its own upload ends the upload with it.
+    c = station.client
+    c.send(M.MAVLink_mission_count_message(1, 1, 3, MISSION))
+    c.sync()
+    c.send(M.MAVLink_mission_clear_all_message(1, 1, MISSION))
+    assert of(c.sync(), "MISSION_ACK")[0].type == M.MAV_MISSION_ACCEPTED
+    c.send(three_waypoints()[0])
+    assert not of(c.sync(), "MISSION_REQUEST_INT")  # no upload goes on
+    assert station.vehicle.mission.lists[MISSION] == ()

@@ -29,8 +29,9 @@ from autopilot.flight_tasks import (
     checked_attitude_target,
     checked_position_setpoint,
 )
+from autopilot.geofence import breach, zones_from_items
 from autopilot.land_detector import LANDED_ALTITUDE_M, LANDED_SPEED_MPS, LandDetector
-from autopilot.mission import MissionStore
+from autopilot.mission import FENCE, MissionStore
 from autopilot.reference import Reference
 from autopilot.refusal import RefusedError
 from autopilot.shaping import Setpoint, ShapingLimits, limits_from_parameters
@@ -40,7 +41,7 @@ from contracts.modes import FlightMode
 from contracts.perturbation_book import PerturbationBook
 from contracts.perturbations import Perturbation, kick_at
 from contracts.telemetry import AUTOPILOT
-from contracts.vectors import MEAS_VZ, MEAS_YAW, MEAS_Z, REF_POS, REF_SIZE
+from contracts.vectors import MEAS_VZ, MEAS_YAW, MEAS_Z, MEASUREMENT, REF_POS, REF_SIZE
 
 __all__ = ["LANDED_ALTITUDE_M", "LANDED_SPEED_MPS", "TAKEOFF_REACHED_M", "RefusedError",
            "Vehicle"]
@@ -49,6 +50,10 @@ TAKEOFF_REACHED_M = 0.1
 LAND_REFERENCE_Z_M = 0.5  # landing descends towards 0.5 m below the ground: it touches down
 ARMABLE_MODES = (FlightMode.HOLD, FlightMode.GUIDED, FlightMode.OFFBOARD, FlightMode.TAKEOFF)
 TOOL_SETPOINT_MODES = (FlightMode.OFFBOARD, FlightMode.GUIDED)  # fly streamed setpoints
+
+
+# GF_ACTION -> the mode a breach puts the vehicle in (None: a warning only).
+GEOFENCE_ACTIONS = {0: None, 1: None, 2: FlightMode.HOLD, 5: FlightMode.LAND}
 
 
 class Vehicle:
@@ -88,6 +93,9 @@ class Vehicle:
         self.navigation_problem: str | None = None
         self.estimator_status = None  # EstimatorStatus when flying on the estimator
         self.mission = MissionStore()  # mission, fence and rally lists, kept across modes
+        self.fence_breach: str | None = None  # why the vehicle is outside its fence
+        self._fence_of: tuple | None = None  # the fence list the zones were built from
+        self._fence_zones: tuple = ()
         self.last_ref = np.zeros(REF_SIZE)
         self.last_kick = np.zeros(2)
         self.last_commands = np.zeros(4)
@@ -324,6 +332,28 @@ class Vehicle:
         self.sim_t_s = sim_t_s
         self.measurement = measurement
         self._detect_landing()
+        if self.armed and not self.landed and self.mode != FlightMode.REFERENCE:
+            self._check_geofence()
+
+    def _check_geofence(self) -> None:
+        """GF_ACTION on crossing out of the fence (once per breach), as PX4: a STATUSTEXT,
+        and hold or land."""
+        fence = self.mission.lists[FENCE]
+        if fence is not self._fence_of:
+            self._fence_of, self._fence_zones = fence, zones_from_items(fence)
+        p = self.parameters
+        reason = breach(self.measurement[MEASUREMENT.position_ned_m], self._fence_zones,
+                        p["GF_MAX_HOR_DIST"], p["GF_MAX_VER_DIST"])
+        if reason is None or self.fence_breach is not None:
+            self.fence_breach = reason
+            return
+        self.fence_breach = reason
+        action = GEOFENCE_ACTIONS[int(p["GF_ACTION"])]
+        if action is None:
+            if p["GF_ACTION"] == 1:  # a warning, not a failsafe
+                self.say(f"geofence: {reason}", 4)
+            return
+        self._failsafe(f"geofence: {reason}", action)
 
     def _lifting_off(self) -> bool:
         """Armed and asked to be up: taking off, or a reference above the ground (not

@@ -100,6 +100,11 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_YAWRAUTO_MAX", 45.0, 5.0, 360.0, "deg/s", "largest yaw rate"),
     ParamSpec("MPC_YAWRAUTO_ACC", 60.0, 5.0, 1000.0, "deg/s^2", "largest yaw acceleration"),
     ParamSpec("COM_SIM_LOSS_T", 0.5, 0.05, 60.0, "s", "simulator link loss timeout (-> land)"),
+    # The geofence (docs/missions.md): PX4's names; a limit of 0 is off.
+    ParamSpec("GF_ACTION", 2.0, 0.0, 5.0, "", "on a fence breach: 0 none, 1 warn, 2 hold, "
+              "5 land", choices=(0.0, 1.0, 2.0, 5.0)),
+    ParamSpec("GF_MAX_HOR_DIST", 0.0, 0.0, 10000.0, "m", "largest distance from home (0 off)"),
+    ParamSpec("GF_MAX_VER_DIST", 0.0, 0.0, 10000.0, "m", "largest height above home (0 off)"),
     # The estimator (--state-source estimator), PX4's EKF2 name.
     ParamSpec("EKF2_GPS_DELAY", 110.0, 0.0, 300.0, "ms", "GPS fix age on arrival"),
 )

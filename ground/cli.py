@@ -88,6 +88,14 @@ def _build_parser() -> argparse.ArgumentParser:
     autopilot_parser(sub.add_parser("autopilot", help="the autopilot process (MAVLink vehicle)"))
     _ground_parsers(sub.add_parser("ground", help="ground station: logger, perturbations, "
                                                   "router, .tlog export"))
+    plan = sub.add_parser("plan", help="upload a QGroundControl .plan file to a vehicle "
+                                       "(docs/missions.md)")
+    plan.add_argument("file", type=Path, help="the .plan file")
+    plan.add_argument("--connect", default="udpin:0.0.0.0:14550",
+                      help="where the vehicle's ground link arrives (default: "
+                           "udpin:0.0.0.0:14550, where QGroundControl listens)")
+    plan.add_argument("--timeout", type=float, default=30.0,
+                      help="seconds to wait for the vehicle's heartbeat")
     sub.add_parser("scenarios", help="list the scenarios")
     sub.add_parser("params", help="list the controller parameters with defaults")
     return parser
@@ -161,6 +169,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "params": commands.params_command,
             "sitl": commands.sitl_command,
             "autopilot": commands.autopilot_command,
+            "plan": commands.plan_command,
         }[args.command]
         return handler(args)
     except (commands.UsageError, ValueError, OSError) as exc:

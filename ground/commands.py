@@ -313,3 +313,21 @@ def ground_tlog_command(args: argparse.Namespace) -> int:
     count = export_tlog(args.log, out)
     print(f"wrote {count} MAVLink frames to {out}")
     return 0
+
+
+def plan_command(args: argparse.Namespace) -> int:
+    """Read a .plan file (every item checked first), wait for a vehicle, upload it."""
+    from pymavlink import mavutil
+
+    from ground.plan import read_plan, upload
+
+    lists = read_plan(args.file)
+    conn = mavutil.mavlink_connection(args.connect, source_system=255, source_component=190)
+    try:
+        print(f"ivfm: waiting for a vehicle on {args.connect}", file=sys.stderr)
+        if conn.wait_heartbeat(timeout=args.timeout) is None:
+            raise UsageError(f"no vehicle heard on {args.connect} within {args.timeout:g} s")
+        upload(conn, lists)
+    finally:
+        conn.close()
+    return 0

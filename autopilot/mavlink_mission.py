@@ -111,6 +111,18 @@ class MissionProtocol:
                   getattr(msg, "mission_type", MISSION))
         return True
 
+    def _start(self, link, address, msg, types: tuple[int, ...]) -> int | None:
+        """The mission type a tool's COUNT, REQUEST_LIST or CLEAR_ALL is about, or None
+        when it has been answered already: DENIED (another tool's transfer is under way)
+        or UNSUPPORTED (a type not in ``types``)."""
+        if self._busy(link, address, msg):
+            return None
+        mission_type = getattr(msg, "mission_type", MISSION)
+        if mission_type not in types:
+            self._ack(link, address, _partner(msg), M.MAV_MISSION_UNSUPPORTED, mission_type)
+            return None
+        return mission_type
+
     def _ask(self, t: Transfer, now: float) -> None:
         seq = len(t.items)
         make = M.MAVLink_mission_request_message if t.legacy else \
@@ -125,11 +137,8 @@ class MissionProtocol:
 
     # -- upload ----------------------------------------------------------------------------
     def on_count(self, link, address, msg, now: float) -> None:
-        if self._busy(link, address, msg):
-            return
-        mission_type = getattr(msg, "mission_type", MISSION)
-        if mission_type not in MISSION_TYPES:
-            self._ack(link, address, _partner(msg), M.MAV_MISSION_UNSUPPORTED, mission_type)
+        mission_type = self._start(link, address, msg, MISSION_TYPES)
+        if mission_type is None:
             return
         if msg.count > MAX_ITEMS[mission_type]:
             self._ack(link, address, _partner(msg), M.MAV_MISSION_NO_SPACE, mission_type)
@@ -174,11 +183,8 @@ class MissionProtocol:
 
     # -- download --------------------------------------------------------------------------
     def on_request_list(self, link, address, msg, now: float) -> None:
-        if self._busy(link, address, msg):
-            return
-        mission_type = getattr(msg, "mission_type", MISSION)
-        if mission_type not in MISSION_TYPES:
-            self._ack(link, address, _partner(msg), M.MAV_MISSION_UNSUPPORTED, mission_type)
+        mission_type = self._start(link, address, msg, MISSION_TYPES)
+        if mission_type is None:
             return
         count = len(self.store.lists[mission_type])
         self.transfer = Transfer(link, address, _partner(msg), mission_type, count,
@@ -208,11 +214,9 @@ class MissionProtocol:
 
     # -- the rest ----------------------------------------------------------------------------
     def on_clear_all(self, link, address, msg, now: float) -> None:
-        if self._busy(link, address, msg):
-            return
-        mission_type = getattr(msg, "mission_type", MISSION)
-        if mission_type not in (*MISSION_TYPES, M.MAV_MISSION_TYPE_ALL):
-            self._ack(link, address, _partner(msg), M.MAV_MISSION_UNSUPPORTED, mission_type)
+        mission_type = self._start(link, address, msg,
+                                   (*MISSION_TYPES, M.MAV_MISSION_TYPE_ALL))
+        if mission_type is None:
             return
         self.transfer = None  # the tool's own transfer, if any, ends with the lists
         self.store.clear(mission_type)

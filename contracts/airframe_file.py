@@ -19,14 +19,14 @@ import argparse
 import hashlib
 import json
 import math
-import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from contracts.toml_files import read_named_toml, shipped_names
 
 SHIPPED_DIR = "airframes"
 COMMAND_MAPS = ("speed", "thrust")  # c -> W = c W_max (jMAVSim, Gazebo) / T = c T_max (SIH)
@@ -87,29 +87,13 @@ class AirframeSpec:
 
 
 def shipped_airframe_names() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("contracts").joinpath(
-        SHIPPED_DIR).iterdir() if p.name.endswith(".toml"))
+    return shipped_names("contracts", SHIPPED_DIR)
 
 
 def read_airframe(source: str | Path) -> AirframeSpec:
     """A shipped airframe by name, or an airframe file by path."""
-    text_source = str(source)
-    if text_source in shipped_airframe_names():
-        path = resources.files("contracts").joinpath(SHIPPED_DIR, f"{text_source}.toml")
-        where = f"airframe {text_source}"
-    elif text_source.endswith(".toml") or "/" in text_source:
-        path = Path(text_source)
-        where = f"airframe file {text_source}"
-    else:
-        raise AirframeError(f"unknown airframe {text_source!r}; shipped: "
-                            f"{', '.join(shipped_airframe_names())} (or a .toml file)")
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise AirframeError(f"{where}: no such file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise AirframeError(f"{where}: not TOML: {exc}") from None
-    return parse_airframe(data, where, default_name=Path(text_source).stem)
+    data, where = read_named_toml(source, "contracts", SHIPPED_DIR, "airframe", AirframeError)
+    return parse_airframe(data, where, default_name=Path(str(source)).stem)
 
 
 def checked_argument(load: Callable[[str], object]) -> Callable[[str], str]:

@@ -9,9 +9,7 @@ from __future__ import annotations
 
 import collections
 import math
-import tomllib
 from dataclasses import dataclass, fields
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +34,7 @@ from contracts.mavlink import (
     TruthSample,
 )
 from contracts.perturbations import NO_SENSOR_EFFECTS, SensorEffects
+from contracts.toml_files import read_named_toml, shipped_names
 from sitl.plant import VehicleState
 
 TEMPERATURE_C = 20.0
@@ -116,28 +115,14 @@ class SensorProfileError(ValueError):
 
 
 def shipped_profile_names() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("sitl").joinpath(PROFILES_DIR).iterdir()
-                  if p.name.endswith(".toml"))
+    return shipped_names("sitl", PROFILES_DIR)
 
 
 def read_profile(source: str | Path) -> SensorProfile:
     """A shipped profile by name (ideal, typical, degraded), or a TOML file by path."""
-    text = str(source)
-    if text in shipped_profile_names():
-        path = resources.files("sitl").joinpath(PROFILES_DIR, f"{text}.toml")
-        where = f"sensor profile {text}"
-    elif text.endswith(".toml") or "/" in text:
-        path, where = Path(text), f"sensor profile file {text}"
-    else:
-        raise SensorProfileError(f"unknown sensor profile {text!r}; shipped: "
-                                 f"{', '.join(shipped_profile_names())} (or a .toml file)")
-    try:
-        data = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise SensorProfileError(f"{where}: no such file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise SensorProfileError(f"{where}: not TOML: {exc}") from None
-    return parse_profile(data, where, Path(text).stem)
+    data, where = read_named_toml(source, "sitl", PROFILES_DIR, "sensor profile",
+                                  SensorProfileError)
+    return parse_profile(data, where, Path(str(source)).stem)
 
 
 def parse_profile(data: dict[str, Any], where: str = "sensor profile",

@@ -152,11 +152,15 @@ class FlightTasks:
                               period_s: float) -> np.ndarray:
         """The setpoint shaped into this period's reference (the shaper starts from the
         vehicle's own position and velocity when it takes over)."""
+        self.start_translation(measurement)
+        return self.shaper.step(self.setpoint, limits, period_s)
+
+    def start_translation(self, measurement: np.ndarray) -> None:
+        """Start translation shaping from the vehicle's state, unless it is on already."""
         if self.shaped != "translation":
             self.shaper.reset(measurement[MEASUREMENT.position_ned_m],
                               measurement[MEASUREMENT.velocity_ned_mps], measurement[MEAS_YAW])
             self.shaped = "translation"
-        return self.shaper.step(self.setpoint, limits, period_s)
 
     def attitude_reference(self, measurement: np.ndarray, limits: ShapingLimits,
                            filter_limits: tuple[float, float, float, float], period_s: float,

@@ -21,8 +21,14 @@ from collections.abc import Callable
 
 import numpy as np
 
+from autopilot import manual
 from autopilot.control.parameters import validate_parameters
-from autopilot.failsafe import GCS_LOSS_ACTIONS, LinkWatch, offboard_loss_action
+from autopilot.failsafe import (
+    GCS_LOSS_ACTIONS,
+    MANUAL_LOSS_ACTIONS,
+    LinkWatch,
+    offboard_loss_action,
+)
 from autopilot.flight_tasks import (
     AttitudeTarget,
     FlightTasks,
@@ -31,13 +37,14 @@ from autopilot.flight_tasks import (
 )
 from autopilot.geofence import breach, zones_from_items
 from autopilot.land_detector import LANDED_ALTITUDE_M, LANDED_SPEED_MPS, LandDetector
-from autopilot.mission import FENCE, MissionStore
+from autopilot.mission import FENCE, MISSION, MissionStore
+from autopilot.navigator import LAND_DOWN_M, Goal, MissionRunner, ReturnToLaunch
 from autopilot.reference import Reference
 from autopilot.refusal import RefusedError
 from autopilot.shaping import Setpoint, ShapingLimits, limits_from_parameters
 from contracts.airframe import max_thrust_n
 from contracts.frames import wrap_pi
-from contracts.modes import FlightMode
+from contracts.modes import MANUAL_MODES, FlightMode
 from contracts.perturbation_book import PerturbationBook
 from contracts.perturbations import Perturbation, kick_at
 from contracts.telemetry import AUTOPILOT
@@ -47,13 +54,16 @@ __all__ = ["LANDED_ALTITUDE_M", "LANDED_SPEED_MPS", "TAKEOFF_REACHED_M", "Refuse
            "Vehicle"]
 
 TAKEOFF_REACHED_M = 0.1
-LAND_REFERENCE_Z_M = 0.5  # landing descends towards 0.5 m below the ground: it touches down
-ARMABLE_MODES = (FlightMode.HOLD, FlightMode.GUIDED, FlightMode.OFFBOARD, FlightMode.TAKEOFF)
+LAND_REFERENCE_Z_M = LAND_DOWN_M  # landing descends below the ground: it touches down
+ARMABLE_MODES = (FlightMode.HOLD, FlightMode.GUIDED, FlightMode.OFFBOARD, FlightMode.TAKEOFF,
+                 FlightMode.MISSION, *MANUAL_MODES)
 TOOL_SETPOINT_MODES = (FlightMode.OFFBOARD, FlightMode.GUIDED)  # fly streamed setpoints
+NAVIGATOR_MODES = (FlightMode.MISSION, FlightMode.RTL)  # fly the navigator's goals
 
 
 # GF_ACTION -> the mode a breach puts the vehicle in (None: a warning only).
-GEOFENCE_ACTIONS = {0: None, 1: None, 2: FlightMode.HOLD, 5: FlightMode.LAND}
+GEOFENCE_ACTIONS = {0: None, 1: None, 2: FlightMode.HOLD, 3: FlightMode.RTL,
+                    5: FlightMode.LAND}
 
 
 class Vehicle:
@@ -93,6 +103,13 @@ class Vehicle:
         self.navigation_problem: str | None = None
         self.estimator_status = None  # EstimatorStatus when flying on the estimator
         self.mission = MissionStore()  # mission, fence and rally lists, kept across modes
+        self.navigator: MissionRunner | None = None  # the mission being flown (or paused)
+        self.mission_complete = False
+        self.returning: ReturnToLaunch | None = None  # AUTO.RTL's phases
+        self.reached: list[int] = []  # mission items reached, for MISSION_ITEM_REACHED
+        self.hold_speed_mps = math.nan  # a go-to's speed (DO_REPOSITION), NaN: the limit
+        self.sticks = manual.Sticks()  # the newest MANUAL_CONTROL
+        self._stick_hold = [False, False, False]  # POSCTL: horizontal, vertical, yaw held
         self.fence_breach: str | None = None  # why the vehicle is outside its fence
         self._fence_of: tuple | None = None  # the fence list the zones were built from
         self._fence_zones: tuple = ()
@@ -181,6 +198,8 @@ class Vehicle:
         else:
             self.tasks.apply_streamed(self.measurement)
         self.land_detector.set(self.landed, self.sim_t_s)
+        if self.mode == FlightMode.MISSION:
+            self._start_mission()
 
     def arm_in_reference(self) -> None:
         """Scenario runs: fly the reference from the first sample, wherever the vehicle is."""
@@ -203,9 +222,19 @@ class Vehicle:
         self.armed = False
         self.tasks.shaped = None
         self.takeoff_altitude_m = None
-        if self.mode in (FlightMode.LAND, FlightMode.TAKEOFF, FlightMode.REFERENCE):
+        self.returning = None
+        if self.navigator is not None and (self.navigator.landing or self.navigator.finished):
+            self._mission_done()
+        if self.mode in (FlightMode.LAND, FlightMode.TAKEOFF, FlightMode.REFERENCE,
+                         *NAVIGATOR_MODES):
             self.mode = self._idle_mode()
         self.say(text)
+
+    def _mission_done(self) -> None:
+        """A mission flown to its end: the next start begins again at its first item."""
+        self.navigator = None
+        self.mission_complete = False
+        self.mission.current = 0
 
     def takeoff(self, relative_altitude_m: float | None) -> None:
         alt = self.parameters["MIS_TAKEOFF_ALT"] if relative_altitude_m is None \
@@ -244,15 +273,29 @@ class Vehicle:
             return
         if mode == FlightMode.LAND and not self.armed:
             raise RefusedError("landing denied: disarmed", temporary=True)
+        if mode == FlightMode.MISSION and not self.mission.lists[MISSION]:
+            raise RefusedError("mission denied: no mission uploaded")
+        if mode == FlightMode.RTL and (not self.armed or self.landed):
+            raise RefusedError("return denied: not in the air", temporary=True)
+        if mode in MANUAL_MODES and not self.manual_streaming(link_t_s):
+            raise RefusedError(f"{mode.value} denied: no manual control input", temporary=True)
         self._enter(mode)
 
     def _enter(self, mode: FlightMode) -> None:
         previous = self.mode
         self.mode = mode
         self.takeoff_altitude_m = None
-        if mode in (FlightMode.HOLD, FlightMode.LAND) or (
+        self.hold_speed_mps = math.nan
+        self.returning = None
+        if mode in (FlightMode.HOLD, FlightMode.LAND, *MANUAL_MODES) or (
                 mode == FlightMode.GUIDED and previous != FlightMode.OFFBOARD):
             self.tasks.hold_here(self.measurement, self.limits)
+        self._stick_hold = [False, False, False]
+        if mode == FlightMode.MISSION and self.armed:
+            self._start_mission()
+        if mode == FlightMode.RTL:
+            self.returning = ReturnToLaunch(self.parameters)
+            self.returning.start(self._stopping_point(), self.heading_rad)
         if mode == FlightMode.LAND:
             self.tasks.setpoint.position_ned_m[2] = LAND_REFERENCE_Z_M
         if mode == FlightMode.OFFBOARD:
@@ -260,6 +303,84 @@ class Vehicle:
         if mode == FlightMode.REFERENCE:
             self.reference_start_s = self.sim_t_s
         self.say(f"mode {mode.value}")
+
+    # -- missions, return and go-to -----------------------------------------------------
+    def start_mission(self, first_seq: int, link_t_s: float) -> None:
+        """MAV_CMD_MISSION_START: fly the mission from item ``first_seq``."""
+        items = self.mission.lists[MISSION]
+        if not items:
+            raise RefusedError("mission denied: no mission uploaded")
+        if not 0 <= first_seq < len(items):
+            raise RefusedError(f"mission start: no item {first_seq} (the mission has "
+                               f"{len(items)})")
+        self.mission.current = first_seq
+        self.navigator, self.mission_complete = None, False
+        if self.mode == FlightMode.MISSION:
+            self._start_mission()
+        else:
+            self.set_mode(FlightMode.MISSION, link_t_s)
+
+    def _start_mission(self) -> None:
+        """Begin or resume the stored mission at its current item (a mission flown to its
+        end begins again)."""
+        items = self.mission.lists[MISSION]
+        if self.mission_complete or self.mission.current >= len(items):
+            self.mission.current = 0
+        self.mission_complete = False
+        nav = self.navigator
+        if nav is None or nav.items is not items or nav.parameters is not self.parameters:
+            self.navigator = MissionRunner(items, self.parameters)  # (resuming keeps jumps)
+        self.navigator.start(self.mission.current, self._stopping_point(), self.heading_rad,
+                             self.landed, self.parameters["MIS_TAKEOFF_ALT"])
+        self._navigator_events()
+
+    def _stopping_point(self) -> np.ndarray:
+        """Where the vehicle can come to rest from here (the reference's stopping point
+        while one is flown)."""
+        if self.tasks.shaped == "translation":
+            return self.tasks.shaper.stopping_point(self.limits)
+        if self.measurement is None:
+            return np.zeros(3)
+        return self.measurement[MEASUREMENT.position_ned_m].copy()
+
+    def _navigator_events(self) -> None:
+        nav = self.navigator
+        self.mission.current = nav.seq if nav.seq < len(nav.items) else len(nav.items) - 1
+        while nav.events:
+            event = nav.events.pop(0)
+            if event[0] == "reached":
+                self.reached.append(event[1])
+            elif event[0] == "finished":
+                self.mission_complete = True
+                self.say(event[1])
+            elif event[0] == "rtl" and self.mode == FlightMode.MISSION:
+                self.say("mission: returning to launch")
+                self._enter(FlightMode.RTL)
+
+    def reposition(self, target_ned_m: np.ndarray, yaw_rad: float, speed_mps: float) -> None:
+        """MAV_CMD_DO_REPOSITION: fly to a position (NaN: keep that coordinate) and hold
+        there, in HOLD (PX4's AUTO.LOITER)."""
+        if not self.armed or self.landed:
+            raise RefusedError("go-to denied: not in the air", temporary=True)
+        values = (*target_ned_m, yaw_rad, speed_mps)
+        if any(math.isinf(v) for v in values):
+            raise RefusedError("go-to position, yaw and speed must be finite or NaN")
+        if math.isfinite(speed_mps) and not 0 < speed_mps <= self.parameters["MPC_XY_VEL_MAX"]:
+            speed_mps = math.nan  # -1 (the default speed) or beyond the limit
+        here = self._stopping_point()
+        target = np.where(np.isfinite(target_ned_m), target_ned_m, here)
+        if np.any(np.abs(target) > 1000.0):
+            raise RefusedError("go-to position is more than 1 km from home")
+        if self.mode != FlightMode.HOLD:
+            self._enter(FlightMode.HOLD)
+        yaw = yaw_rad if math.isfinite(yaw_rad) else self.tasks.setpoint.yaw_rad
+        self.tasks.setpoint = Setpoint.hold(target, yaw)
+        self.hold_speed_mps = speed_mps
+        self.say(f"going to {target[0]:.1f} N {target[1]:.1f} E {-target[2]:.1f} m up")
+
+    @property
+    def mission_active(self) -> bool:
+        return self.mode == FlightMode.MISSION and self.armed and self.navigator is not None
 
     # -- setpoints from tools ----------------------------------------------------------
     def setpoints_streaming(self, link_t_s: float) -> bool:
@@ -285,6 +406,65 @@ class Vehicle:
         if self.mode in TOOL_SETPOINT_MODES:
             self.tasks.apply_streamed(self.measurement)
 
+    # -- manual control ------------------------------------------------------------------
+    def manual_streaming(self, link_t_s: float) -> bool:
+        return self.links.manual_streaming(link_t_s, self.parameters["COM_RC_LOSS_T"])
+
+    def manual_input(self, link_t_s: float, sticks: manual.Sticks) -> None:
+        """MANUAL_CONTROL's sticks (checked by manual.sticks_from_manual_control)."""
+        self.links.manual_heard_s = link_t_s
+        self.sticks = sticks
+
+    def _manual_reference(self, limits: ShapingLimits) -> tuple[np.ndarray, bool, float]:
+        """POSCTL through the translation shaper; ALTCTL and STABILIZED through the
+        attitude shaper, as an attitude setpoint from a tool would."""
+        p, sticks = self.parameters, self.sticks
+        if self.mode == FlightMode.POSCTL:
+            sp, shaper = self.tasks.setpoint, self.tasks.shaper
+            self.tasks.start_translation(self.measurement)
+            stop = shaper.stopping_point(limits)
+            velocity = manual.horizontal_velocity(sticks, shaper.yaw_rad, p)
+            climb = manual.climb_stick(sticks.throttle, p)
+            rate = manual.yaw_rate(sticks, p)
+            held = [velocity is None, climb == 0.0, rate == 0.0]
+            if velocity is None:
+                if not self._stick_hold[0]:  # centred now: stop, and hold there
+                    sp.position_ned_m[0:2], sp.velocity_ned_mps[0:2] = stop[0:2], np.nan
+            else:
+                sp.position_ned_m[0:2] = np.nan
+                sp.velocity_ned_mps[0:2] = velocity
+            if climb == 0.0:
+                if not self._stick_hold[1]:
+                    sp.position_ned_m[2], sp.velocity_ned_mps[2] = stop[2], np.nan
+            else:
+                sp.position_ned_m[2] = np.nan
+                sp.velocity_ned_mps[2] = -climb
+            if rate == 0.0:
+                if not self._stick_hold[2]:
+                    sp.yaw_rad, sp.yaw_rate_rad_s = shaper.yaw_rad, math.nan
+            else:
+                sp.yaw_rad, sp.yaw_rate_rad_s = math.nan, rate
+            self._stick_hold = held
+            return self.tasks.translation_reference(self.measurement, limits,
+                                                    self.period_s), True, math.nan
+        roll, pitch = manual.tilt(sticks, p)
+        previous = self.tasks.attitude_target
+        yaw = previous.euler_rad[2] if previous is not None else self.heading_rad
+        yaw = wrap_pi(yaw + manual.yaw_rate(sticks, p) * self.period_s)
+        target = AttitudeTarget(np.array([roll, pitch, yaw]))
+        if self.mode == FlightMode.STABILIZED:
+            af = self.controller.airframe
+            hover = af.mass_kg * af.gravity_mps2 / max_thrust_n(af)
+            target.thrust_fraction = manual.thrust_fraction(sticks.throttle, hover)
+        else:
+            target.climb_rate_mps = manual.climb_stick(sticks.throttle, p)
+        self.tasks.streamed = target
+        self.tasks.apply_streamed(self.measurement)
+        return self.tasks.attitude_reference(
+            self.measurement, limits,
+            (p["CMDF_OMEGA"], p["CMDF_ZETA"], p["CMDF_RATE_MAX"], p["CMDF_ACC_MAX"]),
+            self.period_s, max_thrust_n(self.controller.airframe))
+
     # -- links and failsafes -------------------------------------------------------------
     def gcs_heartbeat(self, link_t_s: float) -> None:
         if self.links.gcs_heartbeat(link_t_s):
@@ -298,6 +478,11 @@ class Vehicle:
         if self.mode == FlightMode.OFFBOARD and not self.setpoints_streaming(link_t_s):
             if self.armed:
                 self._failsafe("offboard setpoints lost", offboard_loss_action(p["COM_OBL_ACT"]))
+            else:
+                self.mode = FlightMode.HOLD
+        if self.mode in MANUAL_MODES and not self.manual_streaming(link_t_s):
+            if self.armed:
+                self._failsafe("manual control lost", MANUAL_LOSS_ACTIONS[int(p["NAV_RCL_ACT"])])
             else:
                 self.mode = FlightMode.HOLD
 
@@ -335,6 +520,14 @@ class Vehicle:
         if self.armed and not self.landed and self.mode != FlightMode.REFERENCE:
             self._check_geofence()
 
+    def _landing(self) -> bool:
+        """Descending to land: LAND, or the landing of a mission or a return."""
+        return self.mode == FlightMode.LAND or (
+            self.mode == FlightMode.MISSION and self.navigator is not None
+            and self.navigator.landing) or (
+            self.mode == FlightMode.RTL and self.returning is not None
+            and self.returning.landing)
+
     def _check_geofence(self) -> None:
         """GF_ACTION on crossing out of the fence (once per breach), as PX4: a STATUSTEXT,
         and hold or land."""
@@ -360,7 +553,7 @@ class Vehicle:
         while landing)."""
         return self.armed and (
             self.mode == FlightMode.TAKEOFF or self.takeoff_altitude_m is not None
-            or (self.mode != FlightMode.LAND
+            or (not self._landing()
                 and self.last_ref[REF_POS + 2] < -LANDED_ALTITUDE_M))
 
     def _detect_landing(self) -> None:
@@ -369,7 +562,7 @@ class Vehicle:
                                            self._lifting_off())
         if change == "landed" and self.armed:
             self.say("landed", 6)
-        if (self.armed and self.mode == FlightMode.LAND and self.landed
+        if (self.armed and self._landing() and self.landed
                 and self.land_detector.landed_since_s is not None
                 and self.land_detector.landed_for_s(self.sim_t_s)
                 >= self.parameters["COM_DISARM_LAND"]):
@@ -400,17 +593,26 @@ class Vehicle:
             t = self.sim_t_s - self.reference_start_s
             return self.reference.at(t), self.reference.position_mode, math.nan
         p = self.parameters
-        if self.tasks.attitude_target is not None and self.mode not in (
-                FlightMode.HOLD, FlightMode.LAND, FlightMode.TAKEOFF):
+        if self.mode in MANUAL_MODES:
+            return self._manual_reference(self.limits)
+        if self.tasks.attitude_target is not None and self.mode in TOOL_SETPOINT_MODES:
             return self.tasks.attitude_reference(
                 self.measurement, self.limits,
                 (p["CMDF_OMEGA"], p["CMDF_ZETA"], p["CMDF_RATE_MAX"], p["CMDF_ACC_MAX"]),
                 self.period_s, max_thrust_n(self.controller.airframe))
         limits = self.limits
-        if self.takeoff_altitude_m is not None:
+        vertical = "land" if self.mode == FlightMode.LAND else ""
+        speed = self.hold_speed_mps if self.mode == FlightMode.HOLD else math.nan
+        if self.mode in NAVIGATOR_MODES:
+            goal = self._navigator_goal()
+            self.tasks.setpoint = goal.setpoint
+            speed, vertical = goal.speed_mps, goal.vertical
+        if math.isfinite(speed):
+            limits = limits._replace(xy_vel_max_mps=min(limits.xy_vel_max_mps, speed))
+        if self.takeoff_altitude_m is not None or vertical == "takeoff":
             limits = limits._replace(z_vel_max_up_mps=min(limits.z_vel_max_up_mps,
                                                           p["MPC_TKO_SPEED"]))
-        elif self.mode == FlightMode.LAND:
+        elif vertical == "land":
             limits = limits._replace(z_vel_max_dn_mps=p["MPC_LAND_SPEED"])
         ref = self.tasks.translation_reference(self.measurement, limits, self.period_s)
         if self.takeoff_altitude_m is not None and \
@@ -422,6 +624,19 @@ class Vehicle:
                 self._enter(FlightMode.HOLD)
                 self.tasks.setpoint = target
         return ref, True, math.nan
+
+    def _navigator_goal(self) -> Goal:
+        """The mission's or the return's goal for this period."""
+        here = self.measurement[MEASUREMENT.position_ned_m]
+        reference = self.tasks.shaper.position_ned_m if self.tasks.shaped == "translation" \
+            else here
+        if self.mode == FlightMode.RTL:
+            return self.returning.step(here, reference)
+        goal = self.navigator.step(self.sim_t_s, here, reference, self.landed)
+        self._navigator_events()
+        if self.mode == FlightMode.RTL:  # the mission handed over to a return
+            return self.returning.step(here, reference)
+        return goal
 
     def step(self, sim_t_s: float, measurement: np.ndarray) -> np.ndarray:
         """One control period: take the sample, then compute the motor commands."""

@@ -17,15 +17,27 @@ class FlightMode(enum.Enum):
     OFFBOARD = "offboard"  # follow streamed setpoints (PX4)
     GUIDED = "guided"  # follow setpoints, hold the last one (ArduPilot)
     REFERENCE = "reference"  # the onboard reference generator of the paper's scenarios
+    MISSION = "mission"  # fly the uploaded mission (PX4 AUTO.MISSION)
+    RTL = "rtl"  # return to launch: climb, fly home, land, disarm
+    POSCTL = "posctl"  # manual: sticks command velocities, centred sticks hold position
+    ALTCTL = "altctl"  # manual: sticks command tilt and climb rate, altitude held
+    STABILIZED = "stabilized"  # manual: sticks command tilt and collective thrust
+
+
+MANUAL_MODES = (FlightMode.POSCTL, FlightMode.ALTCTL, FlightMode.STABILIZED)
 
 
 # PX4 custom mode: main mode in bits 16-23, sub mode in bits 24-31.
+PX4_MAIN_ALTCTL = 2
 PX4_MAIN_POSCTL = 3
 PX4_MAIN_AUTO = 4
 PX4_MAIN_OFFBOARD = 6
+PX4_MAIN_STABILIZED = 7
+PX4_SUB_AUTO_READY = 1
 PX4_SUB_AUTO_TAKEOFF = 2
 PX4_SUB_AUTO_LOITER = 3
 PX4_SUB_AUTO_MISSION = 4
+PX4_SUB_AUTO_RTL = 5
 PX4_SUB_AUTO_LAND = 6
 
 PX4_MODES: dict[FlightMode, tuple[int, int]] = {
@@ -33,15 +45,28 @@ PX4_MODES: dict[FlightMode, tuple[int, int]] = {
     FlightMode.TAKEOFF: (PX4_MAIN_AUTO, PX4_SUB_AUTO_TAKEOFF),
     FlightMode.LAND: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LAND),
     FlightMode.OFFBOARD: (PX4_MAIN_OFFBOARD, 0),
-    FlightMode.REFERENCE: (PX4_MAIN_AUTO, PX4_SUB_AUTO_MISSION),
+    FlightMode.MISSION: (PX4_MAIN_AUTO, PX4_SUB_AUTO_MISSION),
+    FlightMode.RTL: (PX4_MAIN_AUTO, PX4_SUB_AUTO_RTL),
+    FlightMode.POSCTL: (PX4_MAIN_POSCTL, 0),
+    FlightMode.ALTCTL: (PX4_MAIN_ALTCTL, 0),
+    FlightMode.STABILIZED: (PX4_MAIN_STABILIZED, 0),
+    # PX4 has no such mode: the paper's reference shows as AUTO.READY.
+    FlightMode.REFERENCE: (PX4_MAIN_AUTO, PX4_SUB_AUTO_READY),
 }
+# PX4 modes without a sub mode (any sub mode a tool sends selects them).
+PX4_MAIN_ONLY = (PX4_MAIN_OFFBOARD, PX4_MAIN_POSCTL, PX4_MAIN_ALTCTL, PX4_MAIN_STABILIZED)
 
 # ArduPilot Copter mode numbers (custom_mode is the number itself).
 COPTER_MODES: dict[FlightMode, int] = {
-    FlightMode.REFERENCE: 3,  # AUTO
+    FlightMode.STABILIZED: 0,  # STABILIZE
+    FlightMode.ALTCTL: 2,  # ALT_HOLD
+    FlightMode.MISSION: 3,  # AUTO
     FlightMode.GUIDED: 4,
     FlightMode.HOLD: 5,  # LOITER
+    FlightMode.RTL: 6,
     FlightMode.LAND: 9,
+    FlightMode.POSCTL: 16,  # POSHOLD
+    FlightMode.REFERENCE: 25,  # SYSTEMID: ArduPilot's own excitation mode
 }
 
 FLAVOURS = ("px4", "ardupilot")
@@ -54,10 +79,8 @@ def px4_custom_mode(mode: FlightMode) -> int:
 
 def mode_from_px4(custom_mode: int) -> FlightMode | None:
     main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
-    if main == PX4_MAIN_POSCTL:  # position control: the nearest we have is hold
-        return FlightMode.HOLD
     for mode, (m, s) in PX4_MODES.items():
-        if m == main and (s == sub or main == PX4_MAIN_OFFBOARD):
+        if m == main and (s == sub or main in PX4_MAIN_ONLY):
             return mode
     return None
 

@@ -320,15 +320,19 @@ def test_land_is_accepted_armed(station):
 
 @pytest.mark.parametrize("params, result, said", [
     (px4(4, 3), ACCEPTED, []),  # HOLD, the mode in force
-    (px4(3), ACCEPTED, []),  # POSCTL is taken as HOLD
+    (px4(3), TEMPORARILY_REJECTED, ["posctl denied: no manual control input"]),
+    (px4(2), TEMPORARILY_REJECTED, ["altctl denied: no manual control input"]),
+    (px4(7), TEMPORARILY_REJECTED, ["stabilized denied: no manual control input"]),
     (px4(42), DENIED, ["unknown mode 42/0"]),
     (px4(4, 9), DENIED, ["unknown mode 4/9"]),
+    (px4(4, 4), DENIED, ["mission denied: no mission uploaded"]),
+    (px4(4, 5), TEMPORARILY_REJECTED, ["return denied: not in the air"]),
     ((0.0, 4.0, 3.0), DENIED, ["only custom modes are supported"]),
     ((float(CUSTOM), math.nan, 0.0), DENIED, ["mode parameters must be finite"]),
     (px4(6), TEMPORARILY_REJECTED, ["offboard denied: no setpoint stream"]),
     (px4(4, 2), TEMPORARILY_REJECTED, ["take-off denied: disarmed"]),
     (px4(4, 6), TEMPORARILY_REJECTED, ["landing denied: disarmed"]),
-    (px4(4, 4), DENIED, ["no reference generator configured"]),
+    (px4(4, 1), DENIED, ["no reference generator configured"]),
 ])
 @pytest.mark.parametrize("kind", ["long", "int"])
 def test_px4_mode_changes_disarmed(station, params, result, said, kind):
@@ -631,7 +635,7 @@ def test_param_set_takes_effect_and_is_echoed_on_every_link(two_links):
 @pytest.mark.parametrize("name, value, why", [
     ("ATT_LAM", math.nan, "ATT_LAM: parameter ATT_LAM must be finite and in"),
     ("ATT_LAM", 1e9, "ATT_LAM: parameter ATT_LAM must be finite and in"),
-    ("NAV_DLL_ACT", 2.0, "NAV_DLL_ACT: parameter NAV_DLL_ACT must be one of"),
+    ("NAV_DLL_ACT", 2.5, "NAV_DLL_ACT: parameter NAV_DLL_ACT must be one of"),
     ("COM_OF_LOSS_T", 0.0, "COM_OF_LOSS_T: parameter COM_OF_LOSS_T must be fin")])
 def test_a_refused_param_set_keeps_the_old_value_and_says_why(station, name, value, why):
     old = DEFAULTS[name]

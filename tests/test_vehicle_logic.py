@@ -169,7 +169,7 @@ def test_a_new_vehicle_is_disarmed_landed_in_its_flavours_start_mode_and_silent(
 
 
 @pytest.mark.parametrize("name, value", [
-    ("COM_DL_LOSS_T", 0.5), ("COM_DL_LOSS_T", math.nan), ("NAV_DLL_ACT", 2.0),
+    ("COM_DL_LOSS_T", 0.5), ("COM_DL_LOSS_T", math.nan), ("NAV_DLL_ACT", 2.5),
     ("COM_OBL_ACT", 0.5), ("NO_SUCH_PARAM", 1.0), ("MIS_TAKEOFF_ALT", math.inf)])
 def test_a_refused_parameter_keeps_the_value_in_force(name, value):
     v = on_the_ground()

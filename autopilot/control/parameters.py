@@ -83,8 +83,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_LAND_SPEED", 0.7, 0.1, 3.0, "m/s", "descent speed of landing"),
     ParamSpec("COM_DISARM_LAND", 1.0, 0.0, 20.0, "s", "disarm this long after touchdown"),
     ParamSpec("COM_DL_LOSS_T", 10.0, 1.0, 300.0, "s", "ground-station heartbeat loss timeout"),
-    ParamSpec("NAV_DLL_ACT", 1.0, 0.0, 3.0, "", "on GCS loss: 0 none, 1 hold, 3 land",
-              choices=(0.0, 1.0, 3.0)),
+    ParamSpec("NAV_DLL_ACT", 1.0, 0.0, 3.0, "", "on GCS loss: 0 none, 1 hold, 2 return, "
+              "3 land", choices=(0.0, 1.0, 2.0, 3.0)),
     ParamSpec("COM_OF_LOSS_T", 1.0, 0.1, 60.0, "s", "offboard setpoint loss timeout"),
     ParamSpec("COM_OBL_ACT", 1.0, 0.0, 1.0, "", "on setpoint loss: 0 land, 1 hold",
               choices=(0.0, 1.0)),
@@ -102,9 +102,26 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("COM_SIM_LOSS_T", 0.5, 0.05, 60.0, "s", "simulator link loss timeout (-> land)"),
     # The geofence (docs/missions.md): PX4's names; a limit of 0 is off.
     ParamSpec("GF_ACTION", 2.0, 0.0, 5.0, "", "on a fence breach: 0 none, 1 warn, 2 hold, "
-              "5 land", choices=(0.0, 1.0, 2.0, 5.0)),
+              "3 return, 5 land", choices=(0.0, 1.0, 2.0, 3.0, 5.0)),
     ParamSpec("GF_MAX_HOR_DIST", 0.0, 0.0, 10000.0, "m", "largest distance from home (0 off)"),
     ParamSpec("GF_MAX_VER_DIST", 0.0, 0.0, 10000.0, "m", "largest height above home (0 off)"),
+    # Missions and return (docs/missions.md): PX4's names; RTL altitudes lower than PX4's
+    # 60 / 30 m, for a small vehicle flown close by.
+    ParamSpec("MPC_XY_CRUISE", 5.0, 0.5, 20.0, "m/s", "mission speed (DO_CHANGE_SPEED sets it)"),
+    ParamSpec("NAV_ACC_RAD", 2.0, 0.05, 200.0, "m", "waypoint acceptance radius"),
+    ParamSpec("NAV_MC_ALT_RAD", 0.8, 0.05, 200.0, "m", "waypoint altitude acceptance"),
+    ParamSpec("RTL_RETURN_ALT", 10.0, 0.5, 500.0, "m", "return altitude above home"),
+    ParamSpec("RTL_DESCEND_ALT", 5.0, 0.5, 500.0, "m", "altitude return descends to first"),
+    # Manual flight from MANUAL_CONTROL (docs/mavlink.md): PX4's stick meanings.
+    ParamSpec("MPC_VEL_MANUAL", 5.0, 0.5, 20.0, "m/s", "full-stick speed in POSCTL"),
+    ParamSpec("MPC_HOLD_DZ", 0.1, 0.0, 0.5, "", "stick deadband"),
+    ParamSpec("MPC_XY_MAN_EXPO", 0.6, 0.0, 1.0, "", "horizontal stick expo (POSCTL)"),
+    ParamSpec("MPC_Z_MAN_EXPO", 0.6, 0.0, 1.0, "", "throttle stick expo (climb rate)"),
+    ParamSpec("MPC_MAN_TILT_MAX", 35.0, 1.0, 60.0, "deg", "full-stick tilt (ALTCTL, STAB.)"),
+    ParamSpec("MPC_MAN_Y_MAX", 90.0, 5.0, 400.0, "deg/s", "full-stick yaw rate"),
+    ParamSpec("COM_RC_LOSS_T", 0.5, 0.1, 35.0, "s", "manual control loss timeout"),
+    ParamSpec("NAV_RCL_ACT", 2.0, 1.0, 3.0, "", "on manual control loss: 1 hold, 2 return, "
+              "3 land", choices=(1.0, 2.0, 3.0)),
     # The estimator (--state-source estimator), PX4's EKF2 name.
     ParamSpec("EKF2_GPS_DELAY", 110.0, 0.0, 300.0, "ms", "GPS fix age on arrival"),
 )

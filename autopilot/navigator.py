@@ -1,0 +1,312 @@
+"""The navigator: what the vehicle flies in AUTO.MISSION and AUTO.RTL (pure: no I/O).
+
+As PX4's navigator, it does not fly anything itself: each control period it hands the
+vehicle a *goal*, a position setpoint with a speed and a vertical manner (take-off
+climb, landing descent), and the vehicle flies it through the same setpoint shaping as a
+tool's setpoints (autopilot/shaping.py). What it reports (an item reached, the current
+item, a return asked for, the mission finished) comes back as events.
+
+Missions follow PX4's rules (docs/missions.md): a waypoint is *reached* when the vehicle
+is within its acceptance radius (NAV_ACC_RAD when the item gives none) and within
+NAV_MC_ALT_RAD of its altitude; its hold time then runs; the next leg starts when the
+shaped reference has also come within the corner distance, so that the path turns on
+the waypoint rather than cutting the corner inside the acceptance radius. Headings face
+the next waypoint (PX4's MPC_YAW_MODE 0) unless the item names one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
+
+from autopilot.mission import MissionItem
+from autopilot.shaping import Setpoint
+from contracts.frames import HOME_ALT_AMSL_M, ned_from_geodetic
+from contracts.mavlink import mavlink
+
+M = mavlink
+# The reference has to come this close to a waypoint before the next leg starts (unless
+# the path goes straight on): a 90 deg corner is then flown within 0.15 m of the path.
+CORNER_M = 0.3
+STRAIGHT_ON_RAD = math.radians(10.0)  # legs this close to straight do not slow down
+FACE_TARGET_M = 2.0  # legs shorter than this keep the heading (no spinning on the spot)
+RETURN_HOME_M = 0.05  # RTL descends once its reference is this close above home
+LAND_DOWN_M = 0.5  # landing descends towards this far below the ground: it touches down
+MAX_DO_ITEMS_PER_STEP = 64  # a DO_JUMP loop without a position in it cannot stall a step
+
+
+class Goal(NamedTuple):
+    """What to fly this period: a setpoint, a horizontal speed (NaN: the vehicle's
+    limit) and how to move vertically ("" as usual, "takeoff", "land")."""
+
+    setpoint: Setpoint
+    speed_mps: float = math.nan
+    vertical: str = ""
+
+
+def item_position_ned(item: MissionItem, here_ned_m: np.ndarray) -> np.ndarray:
+    """A positioned item's target in local NED around home. A landing item at latitude
+    and longitude 0 (or x, y NaN in LOCAL_NED) lands where the vehicle is."""
+    if item.is_global:
+        here_latlon = item.x == 0 and item.y == 0
+        relative = item.frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                                  M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
+        amsl = item.z + HOME_ALT_AMSL_M if relative else item.z
+        north, east, down = ned_from_geodetic(item.x * 1e-7, item.y * 1e-7, amsl)
+        out = np.array([north, east, down])
+    else:
+        here_latlon = not (math.isfinite(item.x) and math.isfinite(item.y))
+        out = np.array([item.x, item.y, item.z], dtype=float)
+    # A take-off climbs straight up where the vehicle is, as PX4's does.
+    if item.command == M.MAV_CMD_NAV_TAKEOFF or (here_latlon and
+                                                 item.command == M.MAV_CMD_NAV_LAND):
+        out[0:2] = here_ned_m[0:2]
+    return out
+
+
+def heading_to(start_ned_m: np.ndarray, target_ned_m: np.ndarray) -> float:
+    """The heading from ``start`` to ``target`` [rad], NaN when they are close."""
+    d = target_ned_m[0:2] - start_ned_m[0:2]
+    if math.hypot(d[0], d[1]) < FACE_TARGET_M:
+        return math.nan
+    return math.atan2(d[1], d[0])
+
+
+def turn_angle(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
+    """The angle the path turns through at ``b`` going a -> b -> c [rad]."""
+    u, w = b - a, c - b
+    nu, nw = float(np.linalg.norm(u)), float(np.linalg.norm(w))
+    if nu < 1e-6 or nw < 1e-6:
+        return math.pi
+    return math.acos(max(-1.0, min(1.0, float(np.dot(u, w)) / (nu * nw))))
+
+
+@dataclass
+class MissionRunner:
+    """Flies a stored mission from its current item. ``step`` once per control period."""
+
+    items: tuple[MissionItem, ...]
+    parameters: dict[str, float]
+    seq: int = 0
+    speed_mps: float = math.nan  # DO_CHANGE_SPEED; NaN: MPC_XY_CRUISE
+    # ("reached", seq), ("rtl",), ("finished", text): for the vehicle to act on
+    events: list[tuple] = field(default_factory=list)
+    finished: bool = False
+    _phase: str = "start"  # start, takeoff, fly, wait, land, done
+    _target: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    _leg_start: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    _yaw_rad: float = 0.0
+    _reached_s: float | None = None
+    _wait_until_s: float = 0.0
+    _jumps_left: dict[int, int] = field(default_factory=dict)
+
+    def start(self, seq: int, position_ned_m: np.ndarray, yaw_rad: float, landed: bool,
+              take_off_alt_m: float) -> None:
+        """Begin (or resume) at item ``seq`` from ``position_ned_m``. On the ground a
+        mission that does not begin with a take-off climbs first, straight up, to the
+        first waypoint's altitude (at least ``take_off_alt_m``), as PX4 does."""
+        self.seq, self.finished = seq, False
+        self._yaw_rad = yaw_rad
+        self._leg_start = np.array(position_ned_m, dtype=float)
+        self._phase = "start"
+        if landed and self._nav_command(seq) != M.MAV_CMD_NAV_TAKEOFF:
+            first = self._first_position(seq, position_ned_m)
+            altitude = max(take_off_alt_m, -first[2]) if first is not None else take_off_alt_m
+            self._target = np.array([position_ned_m[0], position_ned_m[1], -altitude])
+            self._phase = "climb"
+        else:
+            self._begin_item(position_ned_m, 0.0)
+
+    # -- the items ---------------------------------------------------------------------
+    def _nav_command(self, seq: int) -> int | None:
+        for item in self.items[seq:]:
+            if item.command not in (M.MAV_CMD_DO_JUMP, M.MAV_CMD_DO_CHANGE_SPEED):
+                return item.command
+        return None
+
+    def _first_position(self, seq: int, here: np.ndarray) -> np.ndarray | None:
+        for item in self.items[seq:]:
+            if item.command in (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME,
+                                M.MAV_CMD_NAV_TAKEOFF):
+                return item_position_ned(item, here)
+        return None
+
+    def _begin_item(self, here: np.ndarray, t_s: float) -> None:
+        """Set up the current item, carrying out DO items on the way to the next one
+        with a position or a wait."""
+        for _ in range(MAX_DO_ITEMS_PER_STEP):
+            if self.seq >= len(self.items):
+                self._finish("mission finished")
+                return
+            item = self.items[self.seq]
+            command = item.command
+            if command == M.MAV_CMD_DO_CHANGE_SPEED:
+                if item.params[1] > 0:
+                    self.speed_mps = float(item.params[1])
+                self.seq += 1
+                continue
+            if command == M.MAV_CMD_DO_JUMP:
+                left = self._jumps_left.setdefault(self.seq, int(item.params[1]))
+                if left != 0:
+                    self._jumps_left[self.seq] = left - 1 if left > 0 else -1
+                    self.seq = int(item.params[0])
+                else:
+                    self.seq += 1
+                continue
+            break
+        else:
+            self._finish("mission stopped: DO_JUMP loop without a position")
+            return
+        self._reached_s = None
+        self._leg_start = self._target.copy() if self._phase not in ("start", "climb") \
+            else np.array(here, dtype=float)
+        if command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            self.events.append(("rtl",))
+            self._phase = "done"
+            return
+        if command == M.MAV_CMD_NAV_DELAY:  # wait where the last item left the vehicle
+            if self._phase == "start":
+                self._target = np.array(here, dtype=float)
+            self._phase = "wait"
+            self._wait_until_s = t_s + float(item.params[0])
+            return
+        target = item_position_ned(item, self._leg_start)
+        if command == M.MAV_CMD_NAV_LAND:
+            target[2] = self._leg_start[2]  # fly there at this altitude, then descend
+        self._target = target
+        yaw = item.params[3]
+        face = heading_to(self._leg_start, target)
+        self._yaw_rad = math.radians(yaw) if math.isfinite(yaw) else (
+            face if math.isfinite(face) else self._yaw_rad)
+        self._phase = "takeoff" if command == M.MAV_CMD_NAV_TAKEOFF else "fly"
+
+    def _finish(self, text: str) -> None:
+        if not self.finished:
+            self.events.append(("finished", text))
+        self.finished = True
+        self._phase = "done"
+
+    def _acceptance(self, item: MissionItem) -> tuple[float, float]:
+        """(horizontal, vertical) acceptance [m]."""
+        p = self.parameters
+        radius = item.params[1] if item.command == M.MAV_CMD_NAV_WAYPOINT else math.nan
+        if not (math.isfinite(radius) and radius > 0):
+            radius = p["NAV_ACC_RAD"]
+        return radius, p["NAV_MC_ALT_RAD"]
+
+    def _hold_s(self, item: MissionItem) -> float:
+        if item.command in (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME):
+            return float(item.params[0]) if math.isfinite(item.params[0]) else 0.0
+        return 0.0
+
+    def _corner_m(self, radius_m: float, here: np.ndarray) -> float:
+        """How close the reference comes before the next leg: the acceptance radius if the
+        path goes straight on, else CORNER_M."""
+        following = self.seq + 1
+        if following < len(self.items) and self.items[following].command in (
+                M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME):
+            after = item_position_ned(self.items[following], here)
+            if turn_angle(self._leg_start, self._target, after) < STRAIGHT_ON_RAD:
+                return radius_m
+        return min(radius_m, CORNER_M)
+
+    # -- the step ----------------------------------------------------------------------
+    def step(self, t_s: float, position_ned_m: np.ndarray, reference_ned_m: np.ndarray,
+             landed: bool) -> Goal:
+        """This period's goal, from the vehicle's position and the shaped reference's."""
+        hold = Setpoint.hold(self._target, self._yaw_rad)
+        if self._phase == "climb":
+            if abs(position_ned_m[2] - self._target[2]) <= self.parameters["NAV_MC_ALT_RAD"]:
+                self._begin_item(position_ned_m, t_s)
+            return Goal(hold, math.nan, "takeoff")
+        if self._phase == "start":
+            self._begin_item(position_ned_m, t_s)
+            hold = Setpoint.hold(self._target, self._yaw_rad)
+        if self._phase == "done":
+            return Goal(hold)
+        if self._phase == "land":
+            return Goal(Setpoint.hold((*self._target[0:2], LAND_DOWN_M), self._yaw_rad),
+                        math.nan, "land")
+        if self._phase == "wait":
+            if t_s >= self._wait_until_s:
+                self.events.append(("reached", self.seq))
+                self.seq += 1
+                self._begin_item(position_ned_m, t_s)
+            return Goal(Setpoint.hold(self._target, self._yaw_rad), self._speed())
+        item = self.items[self.seq]
+        radius, vertical = self._acceptance(item)
+        error = self._target - position_ned_m
+        if self._reached_s is None and math.hypot(error[0], error[1]) <= radius and \
+                abs(error[2]) <= vertical:
+            self._reached_s = t_s
+            if item.command != M.MAV_CMD_NAV_LAND:
+                self.events.append(("reached", self.seq))
+        if self._reached_s is not None:
+            if item.command == M.MAV_CMD_NAV_LAND:
+                if float(np.linalg.norm((reference_ned_m - self._target)[0:2])) <= RETURN_HOME_M:
+                    self._phase = "land"
+                    self.events.append(("reached", self.seq))
+            elif t_s - self._reached_s >= self._hold_s(item) and float(np.linalg.norm(
+                    reference_ned_m - self._target)) <= self._corner_m(radius, position_ned_m):
+                self.seq += 1
+                self._begin_item(position_ned_m, t_s)
+        return Goal(Setpoint.hold(self._target, self._yaw_rad), self._speed(),
+                    "takeoff" if self._phase == "takeoff" else "")
+
+    def _speed(self) -> float:
+        return self.speed_mps if math.isfinite(self.speed_mps) else \
+            self.parameters["MPC_XY_CRUISE"]
+
+    @property
+    def landing(self) -> bool:
+        return self._phase == "land"
+
+
+@dataclass
+class ReturnToLaunch:
+    """PX4's AUTO.RTL: climb to RTL_RETURN_ALT (or stay higher), fly home at that
+    altitude facing it, descend to RTL_DESCEND_ALT, land and (the vehicle) disarm. Home
+    is the local origin."""
+
+    parameters: dict[str, float]
+    phase: str = "climb"  # climb, return, descend, land
+    _altitude_m: float = 0.0
+    _yaw_rad: float = 0.0
+    _xy: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+    def start(self, position_ned_m: np.ndarray, yaw_rad: float) -> None:
+        self._altitude_m = max(-float(position_ned_m[2]), self.parameters["RTL_RETURN_ALT"])
+        self._xy = np.array(position_ned_m[0:2], dtype=float)
+        face = heading_to(position_ned_m, np.zeros(3))
+        self._yaw_rad = face if math.isfinite(face) else yaw_rad
+        self.phase = "climb"
+
+    def step(self, position_ned_m: np.ndarray, reference_ned_m: np.ndarray) -> Goal:
+        p = self.parameters
+        if self.phase == "climb":
+            if abs(-position_ned_m[2] - self._altitude_m) <= p["NAV_MC_ALT_RAD"]:
+                self.phase = "return"
+            else:
+                return Goal(Setpoint.hold((*self._xy, -self._altitude_m), self._yaw_rad))
+        if self.phase == "return":
+            if float(np.hypot(*reference_ned_m[0:2])) <= RETURN_HOME_M and float(
+                    np.hypot(*position_ned_m[0:2])) <= p["NAV_ACC_RAD"]:
+                self.phase = "descend"
+            else:
+                return Goal(Setpoint.hold((0.0, 0.0, -self._altitude_m), self._yaw_rad),
+                            p["MPC_XY_CRUISE"])
+        descend_to = min(self._altitude_m, p["RTL_DESCEND_ALT"])
+        if self.phase == "descend":
+            if -position_ned_m[2] - descend_to <= p["NAV_MC_ALT_RAD"]:
+                self.phase = "land"
+            else:
+                return Goal(Setpoint.hold((0.0, 0.0, -descend_to), self._yaw_rad))
+        return Goal(Setpoint.hold((0.0, 0.0, LAND_DOWN_M), self._yaw_rad), math.nan, "land")
+
+    @property
+    def landing(self) -> bool:
+        return self.phase == "land"
+

@@ -96,6 +96,12 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                    help="perturbation schedule JSON (sim time); the autopilot takes the kicks")
     p.add_argument("--arm-in-reference", action="store_true",
                    help="scenario runs: armed in REFERENCE mode from the first sample")
+    p.add_argument("--mission", type=Path, metavar="PLAN",
+                   help="a QGroundControl .plan: its mission, fence and rally points stored "
+                        "at start, as if uploaded")
+    p.add_argument("--start-mission", action="store_true",
+                   help="scenario runs: fly the --mission from the ground, armed in "
+                        "AUTO.MISSION as soon as arming is allowed")
     p.add_argument("--duration", type=float, default=float("inf"), metavar="S",
                    help="stop after this much sim time of control")
     p.add_argument("--sysid", type=int, default=1, metavar="ID",
@@ -140,6 +146,10 @@ def run(args: argparse.Namespace) -> int:
         reference = Reference(args.reference, altitude_m=args.altitude, **options)
     if args.arm_in_reference and reference is None:
         raise ValueError("--arm-in-reference needs --reference")
+    if args.start_mission and args.mission is None:
+        raise ValueError("--start-mission needs --mission")
+    if args.start_mission and args.arm_in_reference:
+        raise ValueError("--start-mission and --arm-in-reference exclude each other")
     key = None
     if args.signing_key is not None:
         try:
@@ -151,13 +161,19 @@ def run(args: argparse.Namespace) -> int:
     vehicle = Vehicle(lambda p: make_controller(args.controller, airframe, period_s, models, p),
                       period_s, parameters, reference,
                       load_schedule(args.schedule) if args.schedule else (), args.flavour)
+    if args.mission is not None:
+        from autopilot.plan_file import read_plan
+
+        for mission_type, items in read_plan(args.mission).items():
+            vehicle.mission.replace(mission_type, items)
     links = [open_link("gcs", ("0.0.0.0", args.gcs_bind), args.gcs, key, 0, config.sysid)]
     if args.api is not None or args.api_bind:
         links.append(open_link("api", ("0.0.0.0", args.api_bind), args.api, key, 1,
                                config.sysid))
     ground = MavlinkServer(vehicle, links, args.flavour, sysid=config.sysid,
                            max_peers=args.max_peers)
-    return Autopilot(config, vehicle, ground, arm_in_reference=args.arm_in_reference).run()
+    return Autopilot(config, vehicle, ground, arm_in_reference=args.arm_in_reference,
+                     start_mission=args.start_mission).run()
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -8,6 +8,8 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 from autopilot.mavlink_telemetry import (
     DEFAULT_STREAMS,
     PRODUCIBLE,
@@ -17,14 +19,17 @@ from autopilot.mavlink_telemetry import (
 )
 from autopilot.mission import ItemError
 from autopilot.refusal import RefusedError
-from contracts.frames import HOME_ALT_AMSL_M
+from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, ned_from_geodetic
 from contracts.mavlink import mavlink
-from contracts.modes import mode_from_custom, px4_custom_mode_from_command
+from contracts.modes import FlightMode, mode_from_custom, px4_custom_mode_from_command
 
 if TYPE_CHECKING:
     from autopilot.mavlink_server import GroundLink, MavlinkServer
 
 FORCE_DISARM_MAGIC = 21196
+INT32_MAX = 2**31 - 1
+RELATIVE_ALT_FRAMES = (mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                       mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
 
 
 class CommandProtocol:
@@ -43,7 +48,11 @@ class CommandProtocol:
             mavlink.MAV_CMD_GET_HOME_POSITION: lambda *_: [home_position()],
             mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: self._message_interval,
             mavlink.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
+            mavlink.MAV_CMD_MISSION_START: self._mission_start,
+            mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: self._return,
+            mavlink.MAV_CMD_DO_REPOSITION: self._reposition,
         }
+        self.frame = mavlink.MAV_FRAME_GLOBAL  # the command's frame (COMMAND_LONG: AMSL)
 
     def handlers(self) -> dict[str, Callable]:
         return {"COMMAND_LONG": self.on_command_long, "COMMAND_INT": self.on_command_int,
@@ -52,11 +61,15 @@ class CommandProtocol:
     def on_command_long(self, link: GroundLink, address, msg, now: float) -> None:
         params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6,
                   msg.param7]
+        self.frame = mavlink.MAV_FRAME_GLOBAL
         self.command(link, address, msg, msg.command, params, now)
 
     def on_command_int(self, link: GroundLink, address, msg, now: float) -> None:
-        params = [msg.param1, msg.param2, msg.param3, msg.param4, msg.x * 1e-7, msg.y * 1e-7,
-                  msg.z]
+        # INT32_MAX in x or y: "not given" (MAVLink's COMMAND_INT convention).
+        params = [msg.param1, msg.param2, msg.param3, msg.param4,
+                  math.nan if msg.x == INT32_MAX else msg.x * 1e-7,
+                  math.nan if msg.y == INT32_MAX else msg.y * 1e-7, msg.z]
+        self.frame = msg.frame
         self.command(link, address, msg, msg.command, params, now)
 
     def on_set_mode(self, link: GroundLink, address, msg, now: float) -> None:
@@ -136,6 +149,39 @@ class CommandProtocol:
         except ItemError as exc:
             raise RefusedError(str(exc)) from None
         return [mission_current(self.server.vehicle)]
+
+    def _mission_start(self, link, p, now):
+        first = p[0] if math.isfinite(p[0]) else -1.0
+        if first != int(first):
+            raise RefusedError(f"mission start: item {p[0]:g} is not a whole number")
+        self.server.vehicle.start_mission(int(first), now)
+
+    def _return(self, link, p, now):
+        self.server.vehicle.set_mode(FlightMode.RTL, now)
+
+    def _reposition(self, link, p, now):
+        """DO_REPOSITION (QGroundControl's "go to location", MAVSDK's goto_location):
+        param1 speed (-1: default), param4 yaw [deg] (NaN: keep), latitude, longitude,
+        altitude (AMSL, or above home in a relative frame; NaN keeps what the vehicle
+        has)."""
+        if self.frame not in (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT,
+                              *RELATIVE_ALT_FRAMES):
+            raise RefusedError(f"go-to frame {self.frame} is not supported")
+        lat, lon, alt = p[4], p[5], p[6]
+        if math.isfinite(lat) != math.isfinite(lon):
+            raise RefusedError("go-to gives latitude without longitude or the reverse")
+        if math.isfinite(lat) and (abs(lat) > 90.0 or abs(lon) > 180.0):
+            raise RefusedError(f"go-to latitude/longitude {lat:g}, {lon:g} is not on Earth")
+        amsl = alt + HOME_ALT_AMSL_M if self.frame in RELATIVE_ALT_FRAMES else alt
+        north, east, down = ned_from_geodetic(
+            lat if math.isfinite(lat) else HOME_LAT_DEG,
+            lon if math.isfinite(lon) else HOME_LON_DEG,
+            amsl if math.isfinite(amsl) else HOME_ALT_AMSL_M)
+        target = np.array([north if math.isfinite(lat) else math.nan,
+                           east if math.isfinite(lat) else math.nan,
+                           down if math.isfinite(amsl) else math.nan])
+        yaw = math.radians(p[3]) if math.isfinite(p[3]) else math.nan
+        self.server.vehicle.reposition(target, yaw, p[0] if math.isfinite(p[0]) else -1.0)
 
     def _request_message(self, link, p, now):
         msg_id = int(p[0]) if math.isfinite(p[0]) else -1

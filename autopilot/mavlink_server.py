@@ -333,6 +333,11 @@ class MavlinkServer:
             severity, text = self.vehicle.messages.pop(0)
             self.broadcast(lambda s=severity, t=text: mavlink.MAVLink_statustext_message(
                 s, t.encode()))
+        while self.vehicle.reached:
+            seq = self.vehicle.reached.pop(0)
+            self.broadcast(lambda q=seq: mavlink.MAVLink_mission_item_reached_message(q))
+            for link in self.links:  # the current item changes with it
+                link.next_due_s[mavlink.MAVLINK_MSG_ID_MISSION_CURRENT] = now
         for link in self.links:
             for peer in [a for a, p in link.peers.items() if now - p.heard_s > PEER_FORGET_S]:
                 del link.peers[peer]

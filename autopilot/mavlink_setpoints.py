@@ -1,5 +1,6 @@
 """Setpoint streams from ground tools (SET_POSITION_TARGET_LOCAL_NED / GLOBAL_INT,
-SET_ATTITUDE_TARGET) to the vehicle; refusals said at most once a second."""
+SET_ATTITUDE_TARGET, MANUAL_CONTROL) to the vehicle; refusals said at most once a
+second."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from autopilot.manual import sticks_from_manual_control
 from autopilot.offboard import global_setpoint, local_setpoint
 from autopilot.refusal import RefusedError
 from contracts.mavlink import mavlink
@@ -32,7 +34,7 @@ class SetpointProtocol:
     def handlers(self) -> dict[str, Callable]:
         return {"SET_POSITION_TARGET_LOCAL_NED": self.on_local,
                 "SET_POSITION_TARGET_GLOBAL_INT": self.on_global,
-                "SET_ATTITUDE_TARGET": self.on_attitude}
+                "SET_ATTITUDE_TARGET": self.on_attitude, "MANUAL_CONTROL": self.on_manual}
 
     def on_local(self, link: GroundLink, address, msg, now: float) -> None:
         v = self.server.vehicle
@@ -66,6 +68,15 @@ class SetpointProtocol:
                 None if mask & THRUST_IGNORE else msg.thrust)
         except RefusedError as exc:
             self._refuse(link, address, str(exc), now)
+
+    def on_manual(self, link: GroundLink, address, msg, now: float) -> None:
+        """MANUAL_CONTROL (QGroundControl's virtual joystick, MAVSDK's manual control)."""
+        try:
+            sticks = sticks_from_manual_control(msg.x, msg.y, msg.z, msg.r)
+        except RefusedError as exc:
+            self._refuse(link, address, str(exc), now)
+            return
+        self.server.vehicle.manual_input(now, sticks)
 
     def _refuse(self, link: GroundLink, address, text: str, now: float) -> None:
         if now - self._last_refusal_s >= REFUSAL_EVERY_S:

@@ -15,7 +15,7 @@ from autopilot.vehicle import Vehicle
 from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, geodetic_from_ned
 from contracts.frames import quat_from_euler as _quat_from_euler
 from contracts.mavlink import mavlink
-from contracts.modes import FlightMode, custom_mode
+from contracts.modes import custom_mode
 from contracts.vectors import (
     MEAS_EULER,
     MEAS_VEL,
@@ -128,15 +128,22 @@ def mission_current(v: Vehicle) -> mavlink.MAVLink_mission_current_message:
     """The mission's current item, its length and state (PX4 streams it at 1 Hz)."""
     store = v.mission
     total = len(store.lists[mavlink.MAV_MISSION_TYPE_MISSION])
-    return mavlink.MAVLink_mission_current_message(
-        store.current, total,
-        mavlink.MISSION_STATE_NOT_STARTED if total else mavlink.MISSION_STATE_NO_MISSION, 0)
+    if not total:
+        state = mavlink.MISSION_STATE_NO_MISSION
+    elif v.mission_complete:
+        state = mavlink.MISSION_STATE_COMPLETE
+    elif v.navigator is None:
+        state = mavlink.MISSION_STATE_NOT_STARTED
+    else:
+        state = mavlink.MISSION_STATE_ACTIVE if v.mission_active else \
+            mavlink.MISSION_STATE_PAUSED
+    return mavlink.MAVLink_mission_current_message(store.current, total, state, 0)
 
 
 def landed_state(v: Vehicle) -> int:
     if not v.armed or v.landed:
         return mavlink.MAV_LANDED_STATE_ON_GROUND
-    if v.mode == FlightMode.LAND:
+    if v.landing:
         return mavlink.MAV_LANDED_STATE_LANDING
     if v.takeoff_altitude_m is not None:
         return mavlink.MAV_LANDED_STATE_TAKEOFF

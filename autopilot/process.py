@@ -29,6 +29,7 @@ import numpy as np
 from autopilot import shaping
 from autopilot.estimation.estimator import Estimator, GpsFix
 from autopilot.mavlink_server import MavlinkServer
+from autopilot.refusal import RefusedError
 from autopilot.vehicle import Vehicle
 from contracts.airframe import max_thrust_n
 from contracts.frames import (
@@ -231,11 +232,13 @@ class SimLink:
 
 class Autopilot:
     def __init__(self, config: AutopilotConfig, vehicle: Vehicle, ground: MavlinkServer,
-                 arm_in_reference: bool = False, log=None) -> None:
+                 arm_in_reference: bool = False, start_mission: bool = False,
+                 log=None) -> None:
         self.config = config
         self.vehicle = vehicle
         self.ground = ground
         self.arm_in_reference = arm_in_reference
+        self.start_mission = start_mission  # until armed in AUTO.MISSION
         self.log = log or (lambda text: print(f"autopilot: {text}", file=sys.stderr, flush=True))
         self.period_us = round(1e6 / config.rate_hz)
         estimator = (Estimator(gps_delay_s=vehicle.parameters["EKF2_GPS_DELAY"] / 1e3)
@@ -280,6 +283,17 @@ class Autopilot:
     def stop(self, *_args) -> None:
         self._stop = True
 
+    def _start_mission(self, sim_t_s: float) -> None:
+        """Scenario runs: arm in AUTO.MISSION as soon as the vehicle allows it (on the
+        estimator, once it has converged), on sim time."""
+        try:
+            self.vehicle.set_mode(FlightMode.MISSION, sim_t_s)
+            self.vehicle.arm(sim_t_s)
+        except RefusedError:
+            return
+        self.start_mission = False
+        self.log(f"flying the mission from t={sim_t_s:.3f} s")
+
     def _control(self, time_us: int, measurement: np.ndarray,
                  step_start: float | None = None) -> np.ndarray:
         """One control step; ``step_start`` is when the step began (real time: its
@@ -292,6 +306,8 @@ class Autopilot:
             self.vehicle.arm_in_reference()
             self.log(f"flying the {self.vehicle.reference.kind} reference from "
                      f"t={time_us / 1e6:.3f} s")
+        if self.start_mission:
+            self._start_mission(time_us / 1e6)
         commands = self.vehicle.control()
         self._step_start = start
         self.steps += 1

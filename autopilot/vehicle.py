@@ -520,13 +520,17 @@ class Vehicle:
         if self.armed and not self.landed and self.mode != FlightMode.REFERENCE:
             self._check_geofence()
 
-    def _landing(self) -> bool:
-        """Descending to land: LAND, or the landing of a mission or a return."""
+    @property
+    def landing(self) -> bool:
+        """Descending to land: LAND, the landing of a mission or a return, or the throttle
+        stick down in a manual mode (each disarms COM_DISARM_LAND after touchdown)."""
         return self.mode == FlightMode.LAND or (
             self.mode == FlightMode.MISSION and self.navigator is not None
             and self.navigator.landing) or (
             self.mode == FlightMode.RTL and self.returning is not None
-            and self.returning.landing)
+            and self.returning.landing) or (
+            self.mode in MANUAL_MODES and manual.climb_stick(self.sticks.throttle,
+                                                             self.parameters) < 0.0)
 
     def _check_geofence(self) -> None:
         """GF_ACTION on crossing out of the fence (once per breach), as PX4: a STATUSTEXT,
@@ -553,7 +557,7 @@ class Vehicle:
         while landing)."""
         return self.armed and (
             self.mode == FlightMode.TAKEOFF or self.takeoff_altitude_m is not None
-            or (not self._landing()
+            or (not self.landing
                 and self.last_ref[REF_POS + 2] < -LANDED_ALTITUDE_M))
 
     def _detect_landing(self) -> None:
@@ -562,7 +566,7 @@ class Vehicle:
                                            self._lifting_off())
         if change == "landed" and self.armed:
             self.say("landed", 6)
-        if (self.armed and self._landing() and self.landed
+        if (self.armed and self.landing and self.landed
                 and self.land_detector.landed_since_s is not None
                 and self.land_detector.landed_for_s(self.sim_t_s)
                 >= self.parameters["COM_DISARM_LAND"]):

@@ -73,6 +73,10 @@ def run_command(args: argparse.Namespace) -> int:
         accounting = run_processes(scenario, settings, args.out)
         timing = accounting.pop("timing")
         shutil.copyfile(scenario.source, args.out / SCENARIO_FILE)
+        if scenario.plan is not None:  # beside the copy, where its [mission] names it
+            beside = args.out / scenario.plan.relative_to(scenario.source.parent)
+            beside.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(scenario.plan, beside)
         write_json(args.out / RUN_FILE, {
             "scenario": scenario.name, "controller": controller, "plant": plant,
             "airframe": airframe_name, "rate_hz": args.rate_hz, "vehicle": settings.vehicle,
@@ -115,6 +119,14 @@ def format_metrics(metrics: dict[str, Any]) -> str:
                      f"{est['yaw_rmse_rad']:.4f} rad  position {est['position_rmse_m']:.3f} m  "
                      f"altitude {est['altitude_rmse_m']:.3f} m  velocity "
                      f"{est['velocity_rmse_mps']:.3f} m/s (RMSE against truth)")
+    path = metrics.get("path")
+    if path:
+        arrivals = ", ".join("-" if t is None else f"{t:.2f}" for t in path["arrival_s"])
+        lines.append(f"  path: {'every item reached' if path['all_reached'] else 'NOT ALL REACHED'}"
+                     f" (arrivals [s]: {arrivals})")
+        if path["cross_track_rmse_m"] is not None:
+            lines.append(f"  cross-track: rmse {path['cross_track_rmse_m']:.4f} m  max "
+                         f"{path['cross_track_max_m']:.4f} m")
     c = metrics["control"]
     lines.append(f"  effort {c['effort_mean_sum_c2']:.4f}  chattering "
                  f"{c['chattering_per_s']:.3f}/s  saturated {100 * c['saturated_fraction']:.1f} %")

@@ -53,6 +53,9 @@ def run_inprocess(
     estimator fed by the ``sensors`` profile's readings (one sample per control period,
     seeded as the simulator seeds them), as the processes do; otherwise on the plant's
     truth."""
+    if scenario.plan is not None:
+        raise ValueError(f"{scenario.name} flies a mission: the vehicle's modes and navigator "
+                         "run in the autopilot process (run it without --inprocess)")
     unsupported = sorted({e.kind for e in scenario.perturbations
                           if e.kind not in IN_PROCESS_KINDS})
     if unsupported:

@@ -56,6 +56,72 @@ def estimation_metrics(record: RunRecord, window: np.ndarray) -> dict[str, float
     }
 
 
+PATH_DEFINITION = (
+    "cross-track: distance from the true position to the nearest point of the planned "
+    "legs (straight lines from home through the mission's positions, take-off straight "
+    "up), over the "
+    "samples from the arrival at the first item to the arrival at the last; arrival: the "
+    "first sample, after the arrival at the item before, within the item's acceptance "
+    "radius (NAV_ACC_RAD if it gives none) and NAV_MC_ALT_RAD of its altitude")
+
+
+def distance_to_path(points: np.ndarray, path: np.ndarray) -> np.ndarray:
+    """Each point's distance [m] to the nearest point of the polyline ``path`` (n, 3)."""
+    best = np.full(len(points), np.inf)
+    for a, b in zip(path[:-1], path[1:], strict=True):
+        ab = b - a
+        length2 = float(ab @ ab)
+        t = np.zeros(len(points)) if length2 == 0.0 else \
+            np.clip((points - a) @ ab / length2, 0.0, 1.0)
+        best = np.minimum(best, np.linalg.norm(points - (a + t[:, None] * ab), axis=1))
+    return best
+
+
+def path_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
+    """How the vehicle followed its mission: arrival at each positioned item, cross-track
+    error along the planned legs (PATH_DEFINITION)."""
+    from autopilot.control.parameters import validate_parameters
+    from autopilot.navigator import item_position_ned
+    from contracts.mavlink import mavlink
+
+    p = validate_parameters(scenario.parameters)
+    home = np.zeros(3)
+    legs, radii, seqs = [], [], []
+    for item in scenario.mission_items:
+        if item.command not in (mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_CMD_NAV_WAYPOINT,
+                                mavlink.MAV_CMD_NAV_LOITER_TIME):
+            continue
+        legs.append(item_position_ned(item, legs[-1] if legs else home))
+        given = item.params[1] if item.command == mavlink.MAV_CMD_NAV_WAYPOINT else 0.0
+        radii.append(given if np.isfinite(given) and given > 0 else p["NAV_ACC_RAD"])
+        seqs.append(item.seq)
+    position = record.true_state[:, 0:3]
+    arrivals: list[float | None] = []
+    index = 0
+    for target, radius in zip(legs, radii, strict=True):
+        error = position[index:] - target
+        inside = np.nonzero((np.hypot(error[:, 0], error[:, 1]) <= radius)
+                            & (np.abs(error[:, 2]) <= p["NAV_MC_ALT_RAD"]))[0]
+        if inside.size == 0:
+            arrivals.append(None)
+            break
+        index += int(inside[0])
+        arrivals.append(float(record.time_s[index]))
+    arrivals += [None] * (len(legs) - len(arrivals))
+    out: dict[str, Any] = {
+        "items": seqs, "arrival_s": arrivals,
+        "all_reached": all(a is not None for a in arrivals),
+        "cross_track_rmse_m": None, "cross_track_max_m": None}
+    if len(legs) >= 2 and arrivals[0] is not None:
+        end = arrivals[-1] if arrivals[-1] is not None else record.time_s[-1]
+        window = (record.time_s >= arrivals[0]) & (record.time_s <= end)
+        deviation = distance_to_path(position[window], np.array([home, *legs]))
+        if deviation.size:
+            out["cross_track_rmse_m"] = float(np.sqrt(np.mean(deviation**2)))
+            out["cross_track_max_m"] = float(np.max(deviation))
+    return out
+
+
 def axis_error(record: RunRecord, axis: str) -> np.ndarray:
     """Reference minus output for one axis (angles wrapped to [-pi, pi))."""
     ref_index, meas_index = AXES[axis]
@@ -96,6 +162,7 @@ def compute_metrics(record: RunRecord, scenario: Scenario, airframe_name: str) -
         "diverged": record.diverged,
         "axes": axes,
         **({"estimation": estimation} if estimation is not None else {}),
+        **({"path": path_metrics(record, scenario)} if scenario.plan is not None else {}),
         "control": {
             "effort_mean_sum_c2": float(np.mean(np.sum(c**2, axis=1))) if len(c) else None,
             "chattering_total_variation": tv,
@@ -107,5 +174,6 @@ def compute_metrics(record: RunRecord, scenario: Scenario, airframe_name: str) -
             "effort_mean_sum_c2": "mean over samples of sum_i c_i^2, c_i = W_i / W_max",
             "chattering_total_variation": "sum_k sum_i |c_i[k] - c_i[k-1]|",
             **({"estimation": ESTIMATION_DEFINITION} if estimation is not None else {}),
+            **({"path": PATH_DEFINITION} if scenario.plan is not None else {}),
         },
     }

@@ -80,16 +80,19 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
            "--airframe", settings.airframe, "--start-altitude", str(ref.altitude_m),
            "--exit-on-disconnect", "--vehicle", str(settings.vehicle), "--hold",
            "--sensors", settings.sensors, "--seed", str(settings.seed), *zenoh_args]
-    autopilot = [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{sim_port}", *pace,
-                 "--rate-hz", str(settings.rate_hz), "--state-source", settings.state_source,
-                 "--controller", settings.controller, "--airframe", settings.airframe,
-                 "--reference", ref.kind, "--altitude", str(ref.altitude_m),
+    if scenario.plan is not None:  # armed in AUTO.MISSION on the ground
+        flies = ["--mission", str(scenario.plan), "--start-mission"]
+    else:  # armed in the reference from the first sample
+        flies = ["--reference", ref.kind, "--altitude", str(ref.altitude_m),
                  "--reference-option", f"yaw_rad={ref.yaw_rad!r}",
                  "--reference-option", f"amplitude={ref.amplitude!r}",
                  "--reference-option", f"hold_start_s={ref.hold_start_s!r}",
                  "--reference-option", f"hold_end_s={ref.hold_end_s!r}",
-                 "--reference-option", f"seed={ref.seed!r}",
-                 "--arm-in-reference", "--duration", str(scenario.duration_s),
+                 "--reference-option", f"seed={ref.seed!r}", "--arm-in-reference"]
+    autopilot = [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{sim_port}", *pace,
+                 "--rate-hz", str(settings.rate_hz), "--state-source", settings.state_source,
+                 "--controller", settings.controller, "--airframe", settings.airframe,
+                 *flies, "--duration", str(scenario.duration_s),
                  "--sysid", str(settings.vehicle), "--gcs-bind", "0", "--api", "none",
                  "--api-bind", "0", *zenoh_args]
     if settings.model_path is not None:

@@ -26,7 +26,7 @@ from contracts.perturbations import (
 SCENARIO_DIR = Path(__file__).parent / "scenario_files"
 AXES = ("x", "y", "z", "phi", "theta", "psi")
 _TOP = {"name", "description", "duration_s", "axes", "transient_s", "reference", "plant",
-        "controller", "perturbation"}
+        "controller", "perturbation", "mission"}
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,17 @@ class Scenario:
     parameters: dict[str, float] = field(default_factory=dict)
     model_path: Path | None = None
     source: Path | None = None
+    plan: Path | None = None  # a QGroundControl .plan flown in AUTO.MISSION from the ground
+
+    @property
+    def mission_items(self) -> tuple:
+        """The plan's mission items (empty without a plan)."""
+        if self.plan is None:
+            return ()
+        from autopilot.plan_file import read_plan
+        from contracts.mavlink import mavlink
+
+        return read_plan(self.plan)[mavlink.MAV_MISSION_TYPE_MISSION]
 
     def plant_perturbations_at(self, t_s: float) -> Perturbations:
         return plant_perturbations_at(self.perturbations, t_s)
@@ -88,12 +99,17 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     axes = data.get("axes", ["x", "y", "z", "psi"])
     if not isinstance(axes, list) or not axes or any(a not in AXES for a in axes):
         raise ValueError(f"axes must be a list drawn from {', '.join(AXES)}, got {axes!r}")
+    plan = _plan(_table(data, "mission"), path)
     ref = _table(data, "reference")
     ref_fields = {f.name for f in fields(Reference)}
     bad = sorted(set(ref) - ref_fields)
     if bad:
         raise ValueError(f"reference: unknown field(s) {', '.join(bad)}; known: "
                          f"{', '.join(sorted(ref_fields))}")
+    if plan is not None:
+        if ref:
+            raise ValueError("a scenario flies a [mission] or a [reference], not both")
+        ref = {"kind": "hover", "altitude_m": 0.0}  # the mission starts on the ground
     if "kind" not in ref:
         raise ValueError("reference needs a kind")
     reference = Reference(**{k: v if k == "kind" else float(v) for k, v in ref.items()})
@@ -143,7 +159,25 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
                     plant=fidelity, airframe=airframe, sensors=sensors,
                     state_source=state_source,
                     parameters={k: float(v) for k, v in params.items()},
-                    model_path=model_path, source=path)
+                    model_path=model_path, source=path, plan=plan)
+
+
+def _plan(mission: dict[str, Any], path: Path) -> Path | None:
+    """[mission] plan = "file.plan" (beside the scenario), read and checked now."""
+    from autopilot.plan_file import read_plan
+
+    bad = sorted(set(mission) - {"plan"})
+    if bad:
+        raise ValueError(f"mission: unknown field(s) {', '.join(bad)}")
+    if not mission:
+        return None
+    name = mission.get("plan")
+    if not isinstance(name, str):
+        raise ValueError("mission.plan must be the path of a .plan file")
+    plan = path.parent / name
+    if not read_plan(plan)[0]:
+        raise ValueError(f"mission.plan: {plan} has no mission items")
+    return plan
 
 
 def _text(data: dict[str, Any], key: str, default: str) -> str:

@@ -115,3 +115,26 @@ def velocity_setpoint(north: float, east: float, down: float,
                       yaw_deg: float | None = None) -> Setpoint:
     return Setpoint(velocity_ned_mps=np.array([north, east, down], dtype=float),
                     yaw_rad=math.nan if yaw_deg is None else math.radians(yaw_deg))
+
+
+def mission_item(seq: int, north: float, east: float, altitude_m: float,
+                 command: int | None = None, params=(0.0, 0.0, 0.0, math.nan)):
+    """A MISSION_ITEM_INT-style item at ``north``, ``east`` [m] from home, ``altitude_m``
+    above home (GLOBAL_RELATIVE_ALT_INT, as QGroundControl and MAVSDK send them)."""
+    from autopilot.mission import MissionItem
+    from contracts.frames import geodetic_from_ned
+    from contracts.mavlink import mavlink
+
+    lat, lon, _ = geodetic_from_ned(north, east, 0.0)
+    return MissionItem(seq, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                       mavlink.MAV_CMD_NAV_WAYPOINT if command is None else command, 0, 1,
+                       tuple(float(p) for p in params), round(lat * 1e7), round(lon * 1e7),
+                       altitude_m)
+
+
+def do_item(seq: int, command: int, params) -> object:
+    from autopilot.mission import MissionItem
+    from contracts.mavlink import mavlink
+
+    return MissionItem(seq, mavlink.MAV_FRAME_MISSION, command, 0, 1,
+                       tuple(float(p) for p in params), 0, 0, 0.0)

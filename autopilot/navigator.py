@@ -28,9 +28,11 @@ from contracts.frames import HOME_ALT_AMSL_M, ned_from_geodetic
 from contracts.mavlink import mavlink
 
 M = mavlink
-# The reference has to come this close to a waypoint before the next leg starts (unless
-# the path goes straight on): a 90 deg corner is then flown within 0.15 m of the path.
-CORNER_M = 0.3
+# A leg that turns starts once the shaped reference has come to within this distance of
+# the waypoint (nearly at rest, its braking over): the turn then stays within a few
+# centimetres of the path. A hold time runs from the same moment. Legs that go straight
+# on start as soon as the reference is within the acceptance radius.
+AT_WAYPOINT_M = 0.05
 STRAIGHT_ON_RAD = math.radians(10.0)  # legs this close to straight do not slow down
 FACE_TARGET_M = 2.0  # legs shorter than this keep the heading (no spinning on the spot)
 RETURN_HOME_M = 0.05  # RTL descends once its reference is this close above home
@@ -100,6 +102,7 @@ class MissionRunner:
     _leg_start: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _yaw_rad: float = 0.0
     _reached_s: float | None = None
+    _hold_from_s: float | None = None
     _wait_until_s: float = 0.0
     _jumps_left: dict[int, int] = field(default_factory=dict)
 
@@ -160,7 +163,7 @@ class MissionRunner:
         else:
             self._finish("mission stopped: DO_JUMP loop without a position")
             return
-        self._reached_s = None
+        self._reached_s = self._hold_from_s = None
         self._leg_start = self._target.copy() if self._phase not in ("start", "climb") \
             else np.array(here, dtype=float)
         if command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
@@ -202,20 +205,18 @@ class MissionRunner:
             return float(item.params[0]) if math.isfinite(item.params[0]) else 0.0
         return 0.0
 
-    def _corner_m(self, radius_m: float, here: np.ndarray) -> float:
-        """How close the reference comes before the next leg: the acceptance radius if the
-        path goes straight on, else CORNER_M."""
+    def _straight_on(self) -> bool:
+        """Whether the next leg goes on in (nearly) the same direction."""
         following = self.seq + 1
         if following < len(self.items) and self.items[following].command in (
                 M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME):
-            after = item_position_ned(self.items[following], here)
-            if turn_angle(self._leg_start, self._target, after) < STRAIGHT_ON_RAD:
-                return radius_m
-        return min(radius_m, CORNER_M)
+            after = item_position_ned(self.items[following], self._target)
+            return turn_angle(self._leg_start, self._target, after) < STRAIGHT_ON_RAD
+        return False
 
     # -- the step ----------------------------------------------------------------------
-    def step(self, t_s: float, position_ned_m: np.ndarray, reference_ned_m: np.ndarray,
-             landed: bool) -> Goal:
+    def step(self, t_s: float, position_ned_m: np.ndarray, reference_ned_m: np.ndarray
+             ) -> Goal:
         """This period's goal, from the vehicle's position and the shaped reference's."""
         hold = Setpoint.hold(self._target, self._yaw_rad)
         if self._phase == "climb":
@@ -233,8 +234,7 @@ class MissionRunner:
         if self._phase == "wait":
             if t_s >= self._wait_until_s:
                 self.events.append(("reached", self.seq))
-                self.seq += 1
-                self._begin_item(position_ned_m, t_s)
+                self._next(position_ned_m, t_s)
             return Goal(Setpoint.hold(self._target, self._yaw_rad), self._speed())
         item = self.items[self.seq]
         radius, vertical = self._acceptance(item)
@@ -245,16 +245,25 @@ class MissionRunner:
             if item.command != M.MAV_CMD_NAV_LAND:
                 self.events.append(("reached", self.seq))
         if self._reached_s is not None:
+            away = float(np.linalg.norm(reference_ned_m - self._target))
             if item.command == M.MAV_CMD_NAV_LAND:
-                if float(np.linalg.norm((reference_ned_m - self._target)[0:2])) <= RETURN_HOME_M:
+                if away <= AT_WAYPOINT_M:
                     self._phase = "land"
                     self.events.append(("reached", self.seq))
-            elif t_s - self._reached_s >= self._hold_s(item) and float(np.linalg.norm(
-                    reference_ned_m - self._target)) <= self._corner_m(radius, position_ned_m):
-                self.seq += 1
-                self._begin_item(position_ned_m, t_s)
+            elif self._hold_s(item) > 0.0:
+                if self._hold_from_s is None and away <= AT_WAYPOINT_M:
+                    self._hold_from_s = t_s
+                if self._hold_from_s is not None and \
+                        t_s - self._hold_from_s >= self._hold_s(item):
+                    self._next(position_ned_m, t_s)
+            elif away <= AT_WAYPOINT_M or (away <= radius and self._straight_on()):
+                self._next(position_ned_m, t_s)
         return Goal(Setpoint.hold(self._target, self._yaw_rad), self._speed(),
                     "takeoff" if self._phase == "takeoff" else "")
+
+    def _next(self, here: np.ndarray, t_s: float) -> None:
+        self.seq += 1
+        self._begin_item(here, t_s)
 
     def _speed(self) -> float:
         return self.speed_mps if math.isfinite(self.speed_mps) else \

@@ -128,28 +128,45 @@ def sqrt_controller(error: float, gain: float, second_order_limit: float) -> flo
 
 
 @njit(cache=True)
-def braking_speed(distance_m: float, gain: float, braking_mps2: float, jerk_mps3: float
-                  ) -> tuple[float, float]:
-    """The speed from which a jerk-limited stop ends exactly ``distance_m`` ahead, and its
-    slope d(speed)/d(distance); ``gain * distance`` where that is lower (the last stretch).
-
-    The stop builds the deceleration up to ``braking`` at the jerk limit, holds it, and
-    eases it off again: it needs v^2 / 2a + v a / 2j, which inverted gives the speed.
-    """
+def _braking_junction(gain: float, braking_mps2: float, jerk_mps3: float
+                      ) -> tuple[float, float, float]:
+    """Where the last stretch (speed = gain * distance) meets the jerk-limited stop with
+    the same slope: (lead b^2 / 2j, junction speed, the stop's distance offset)."""
     lead = braking_mps2 * braking_mps2 / (2.0 * jerk_mps3)
-    root = math.sqrt(lead * lead + 2.0 * braking_mps2 * distance_m)
-    speed = root - lead
-    linear = gain * distance_m
-    if linear <= speed:
-        return linear, gain
-    return speed, braking_mps2 / root
+    junction = max(0.0, braking_mps2 / gain - lead)
+    offset = junction / gain - ((junction + lead) ** 2 - lead * lead) / (2.0 * braking_mps2)
+    return lead, junction, offset
 
 
 @njit(cache=True)
-def stopping_distance(speed_mps: float, braking_mps2: float, jerk_mps3: float) -> float:
-    """Distance of the jerk-limited stop :func:`braking_speed` plans (its inverse)."""
-    return speed_mps * speed_mps / (2.0 * braking_mps2) + speed_mps * braking_mps2 / (
-        2.0 * jerk_mps3)
+def braking_speed(distance_m: float, gain: float, braking_mps2: float, jerk_mps3: float
+                  ) -> tuple[float, float]:
+    """The speed from which a jerk-limited stop ends exactly ``distance_m`` ahead, and its
+    slope d(speed)/d(distance); ``gain * distance`` on the last stretch.
+
+    The stop builds the deceleration up to ``braking`` at the jerk limit, holds it, and
+    eases it off again: it needs v^2 / 2a + v a / 2j, which inverted gives the speed. The
+    last stretch joins it where both have the same slope, so the deceleration the profile
+    asks for (speed times slope) never jumps: a jump the reference could only follow at
+    the jerk limit, braking too late and then too much, short of the target.
+    """
+    lead, junction, offset = _braking_junction(gain, braking_mps2, jerk_mps3)
+    if gain * distance_m <= junction:
+        return gain * distance_m, gain
+    root = math.sqrt(lead * lead + 2.0 * braking_mps2 * (distance_m - offset))
+    return root - lead, braking_mps2 / root
+
+
+@njit(cache=True)
+def stopping_distance(speed_mps: float, braking_mps2: float, jerk_mps3: float,
+                      gain: float = K_POS) -> float:
+    """Distance of the stop :func:`braking_speed` plans from ``speed_mps`` (its inverse)."""
+    gain = min(gain, jerk_mps3 / braking_mps2)
+    lead, junction, offset = _braking_junction(gain, braking_mps2, jerk_mps3)
+    if speed_mps <= junction:
+        return speed_mps / gain
+    return speed_mps * speed_mps / (2.0 * braking_mps2) + speed_mps * lead / braking_mps2 \
+        + offset
 
 
 @njit(cache=True)
@@ -193,7 +210,14 @@ def _wanted_velocity(pos: np.ndarray, vel: np.ndarray, acc: np.ndarray, target: 
         # distance covered meanwhile is no longer there to brake in.
         pushing = max(0.0, _dot(acc, direction))
         unwind_s = pushing / jerk
-        ahead = max(0.0, _dot(relative, direction)) * unwind_s + pushing * unwind_s**2 / 3.0
+        closing = max(0.0, _dot(relative, direction))
+        ahead = closing * unwind_s + pushing * unwind_s**2 / 3.0
+        # Braking harder than now takes (more - now) / jerk to build up, at about the
+        # present speed: brake that much earlier, or the reference passes the curve
+        # before its deceleration catches up and then stops short.
+        speed, slope = braking_speed(max(0.0, distance - ahead), gain, braking_mps2, jerk)
+        build_s = max(0.0, min(speed, closing) * slope - max(0.0, -_dot(acc, direction))) / jerk
+        ahead += 0.5 * closing * build_s
         speed, slope = braking_speed(max(0.0, distance - ahead), gain, braking_mps2, jerk)
         if speed < speed_max:
             closing = _dot(relative, direction)

@@ -636,7 +636,7 @@ class Vehicle:
             else here
         if self.mode == FlightMode.RTL:
             return self.returning.step(here, reference)
-        goal = self.navigator.step(self.sim_t_s, here, reference, self.landed)
+        goal = self.navigator.step(self.sim_t_s, here, reference)
         self._navigator_events()
         if self.mode == FlightMode.RTL:  # the mission handed over to a return
             return self.returning.step(here, reference)

@@ -1,5 +1,6 @@
 """QGroundControl .plan files (autopilot/plan_file.py, ground/plan.py): read into mission,
-fence and rally lists, checked as the vehicle checks them, and uploaded by ``ivfm plan`` to the real processes."""
+fence and rally lists, checked as the vehicle checks them, and uploaded by ``ivfm plan``
+to the real processes."""
 
 from __future__ import annotations
 

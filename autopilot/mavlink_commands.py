@@ -161,7 +161,7 @@ class CommandProtocol:
 
     def _reposition(self, link, p, now):
         """DO_REPOSITION (QGroundControl's "go to location", MAVSDK's goto_location):
-        param1 speed (-1: default), param4 yaw [deg] (NaN: keep), latitude, longitude,
+        param1 speed (-1: default), param4 yaw [rad] (NaN: keep), latitude, longitude,
         altitude (AMSL, or above home in a relative frame; NaN keeps what the vehicle
         has)."""
         if self.frame not in (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT,
@@ -180,7 +180,9 @@ class CommandProtocol:
         target = np.array([north if math.isfinite(lat) else math.nan,
                            east if math.isfinite(lat) else math.nan,
                            down if math.isfinite(amsl) else math.nan])
-        yaw = math.radians(p[3]) if math.isfinite(p[3]) else math.nan
+        # param4 in radians, as PX4 and MAVSDK read it (the MAVLink spec said degrees
+        # until 2025 and now says radians too); NaN keeps the heading.
+        yaw = p[3]
         self.server.vehicle.reposition(target, yaw, p[0] if math.isfinite(p[0]) else -1.0)
 
     def _request_message(self, link, p, now):

@@ -364,10 +364,14 @@ class Vehicle:
             raise RefusedError("go-to denied: not in the air", temporary=True)
         values = (*target_ned_m, yaw_rad, speed_mps)
         if any(math.isinf(v) for v in values):
-            raise RefusedError("go-to position, yaw and speed must be finite or NaN")
+            raise RefusedError("go-to values must be finite or NaN")
         if math.isfinite(speed_mps) and not 0 < speed_mps <= self.parameters["MPC_XY_VEL_MAX"]:
             speed_mps = math.nan  # -1 (the default speed) or beyond the limit
-        here = self._stopping_point()
+        held = self.tasks.setpoint.position_ned_m
+        # What the tool leaves out stays as it is: the held position in HOLD, else the
+        # point where the vehicle can stop.
+        here = held if self.mode == FlightMode.HOLD and np.all(np.isfinite(held)) \
+            else self._stopping_point()
         target = np.where(np.isfinite(target_ned_m), target_ned_m, here)
         if np.any(np.abs(target) > 1000.0):
             raise RefusedError("go-to position is more than 1 km from home")

@@ -22,8 +22,9 @@ from autopilot.control.factory import make_controller
 from autopilot.control.parameters import PARAMETERS, default_parameters
 from autopilot.vehicle import Vehicle
 from contracts.airframe import PAPER
-from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG
+from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, geodetic_from_ned
 from contracts.modes import FlightMode, px4_custom_mode
+from tests.flight import mission_item
 
 M = mavlink
 ACCEPTED, DENIED = M.MAV_RESULT_ACCEPTED, M.MAV_RESULT_DENIED
@@ -120,7 +121,7 @@ class Client:
         raise AssertionError("no answer to the barrier PING")
 
     def send_command(self, command: int, *params: float, kind: str = "long",
-                     target: int = 1) -> None:
+                     target: int = 1, frame: int = M.MAV_FRAME_GLOBAL) -> None:
         """COMMAND_LONG, or COMMAND_INT (params 5 and 6 as 1e-7 integers, 7 as z)."""
         p = [*params, *[0.0] * (7 - len(params))]
         if kind == "long":
@@ -128,12 +129,12 @@ class Client:
         else:
             x, y = (INT32_MAX if math.isnan(v) else round(v * 1e7) for v in p[4:6])
             self.send(M.MAVLink_command_int_message(
-                target, 1, M.MAV_FRAME_GLOBAL, command, 0, 0, *p[0:4], x, y, p[6]))
+                target, 1, frame, command, 0, 0, *p[0:4], x, y, p[6]))
 
     def command(self, command: int, *params: float, kind: str = "long",
-                target: int = 1) -> tuple:
+                target: int = 1, frame: int = M.MAV_FRAME_GLOBAL) -> tuple:
         """(COMMAND_ACK, everything else received with it)."""
-        self.send_command(command, *params, kind=kind, target=target)
+        self.send_command(command, *params, kind=kind, target=target, frame=frame)
         msgs = self.sync()
         acks = [m for m in msgs if m.get_type() == "COMMAND_ACK"]
         assert len(acks) == (1 if target == 1 else 0), msgs
@@ -424,7 +425,7 @@ def test_home_position_on_request(station, command, params):
 
 
 @pytest.mark.parametrize("kind", ["long", "int"])
-@pytest.mark.parametrize("command", [M.MAV_CMD_USER_1, M.MAV_CMD_DO_REPOSITION,
+@pytest.mark.parametrize("command", [M.MAV_CMD_USER_1, M.MAV_CMD_DO_SET_SERVO,
                                      M.MAV_CMD_PREFLIGHT_CALIBRATION])
 def test_unsupported_commands_get_unsupported(station, command, kind):
     station.state_up()
@@ -779,3 +780,119 @@ def test_ftp_gets_a_nak_missions_are_empty_and_timesync_answers_on_the_link_cloc
         == (8, 3, 129, 5, 4)  # seq + 1, session, NAK for OpenFileRO: unsupported
     assert count.get_type() == "MISSION_COUNT" and count.count == 0
     assert (timesync.tc1, timesync.ts1) == (2_500_000_000, 123456789)
+
+
+# -- navigation commands, manual control, mission progress -------------------------------
+REPOSITION, RETURN, MISSION_START = (M.MAV_CMD_DO_REPOSITION, M.MAV_CMD_NAV_RETURN_TO_LAUNCH,
+                                     M.MAV_CMD_MISSION_START)
+REL_INT = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+
+
+def north_east(north_m: float, east_m: float) -> tuple[float, float]:
+    lat, lon, _ = geodetic_from_ned(north_m, east_m, 0.0)
+    return lat, lon
+
+
+def test_go_to_flies_to_a_global_position_in_hold(station):
+    station.flying()
+    lat, lon = north_east(20.0, -5.0)
+    # Yaw in radians, as PX4 and MAVSDK have it.
+    result = station.client.result(REPOSITION, -1, 1, 0, math.pi / 2, lat, lon, 7.0,
+                                   kind="int", frame=REL_INT)
+    assert result == (ACCEPTED, [])
+    v = station.vehicle
+    assert v.mode == FlightMode.HOLD
+    assert np.allclose(v.setpoint.position_ned_m, (20.0, -5.0, -7.0), atol=1e-2)
+    assert v.setpoint.yaw_rad == pytest.approx(math.pi / 2)
+
+
+def test_go_to_amsl_and_left_out_coordinates(station):
+    station.flying()
+    # COMMAND_LONG: altitude AMSL, latitude and longitude in float32 (0.1 m steps here);
+    # COMMAND_INT x = y = INT32_MAX: stay over this point.
+    result = station.client.result(REPOSITION, -1, 1, 0, math.nan, *north_east(3.0, 4.0),
+                                   HOME_ALT_AMSL_M + 6.0)
+    assert result == (ACCEPTED, [])
+    assert np.allclose(station.vehicle.setpoint.position_ned_m, (3.0, 4.0, -6.0), atol=0.2)
+    result = station.client.result(REPOSITION, -1, 1, 0, math.nan, math.nan, math.nan, 9.0,
+                                   kind="int", frame=REL_INT)
+    assert result == (ACCEPTED, [])
+    assert np.allclose(station.vehicle.setpoint.position_ned_m[2], -9.0)
+    assert np.allclose(station.vehicle.setpoint.position_ned_m[0:2], (3.0, 4.0), atol=0.2)
+
+
+@pytest.mark.parametrize("params, frame, result, said", [
+    ((-1, 1, 0, 0, *north_east(5, 5), 5.0), M.MAV_FRAME_LOCAL_NED, DENIED,
+     "go-to frame 1 is not supported"),
+    ((-1, 1, 0, 0, 95.0, 8.0, 5.0), REL_INT, DENIED,
+     "go-to latitude/longitude 95, 8 is not on Earth"),
+    ((-1, 1, 0, math.inf, *north_east(5, 5), 5.0), REL_INT, DENIED,
+     "go-to values must be finite or NaN"),
+])
+def test_bad_go_to_is_refused_and_changes_nothing(station, params, frame, result, said):
+    station.flying()
+    before = station.vehicle.setpoint.position_ned_m.copy()
+    assert station.client.result(REPOSITION, *params, kind="int", frame=frame) == (
+        result, [said])
+    assert np.array_equal(station.vehicle.setpoint.position_ned_m, before)
+
+
+def test_go_to_on_the_ground_is_rejected_for_now(station):
+    station.state_up()
+    assert station.client.result(REPOSITION, -1, 1, 0, 0, *north_east(5, 5), 5.0,
+                                 kind="int", frame=REL_INT) == (
+        TEMPORARILY_REJECTED, ["go-to denied: not in the air"])
+
+
+def test_return_to_launch_command_and_mission_start(station):
+    station.flying()
+    assert station.client.result(MISSION_START, 0, 0) == (
+        DENIED, ["mission denied: no mission uploaded"])
+    assert station.client.result(RETURN) == (ACCEPTED, [])
+    assert station.vehicle.mode == FlightMode.RTL
+    assert _custom_mode(station.client) == (4, 5)
+    station.vehicle.mission.replace(M.MAV_MISSION_TYPE_MISSION, tuple(
+        mission_item(i, 10.0 * i, 0.0, 3.0) for i in range(3)))
+    assert station.client.result(MISSION_START, 3, 0) == (
+        DENIED, ["mission start: no item 3 (the mission has 3)"])
+    assert station.client.result(MISSION_START, 1, 0) == (ACCEPTED, [])
+    assert station.vehicle.mode == FlightMode.MISSION and station.vehicle.mission.current == 1
+    assert _custom_mode(station.client) == (4, 4)
+
+
+def _custom_mode(client) -> tuple[int, int]:
+    client.station.service()
+    hb = of_type(client.sync(), "HEARTBEAT")[-1]
+    return (hb.custom_mode >> 16) & 0xFF, (hb.custom_mode >> 24) & 0xFF
+
+
+def test_manual_control_is_taken_and_bad_sticks_are_refused(station):
+    station.flying()
+    station.client.send(M.MAVLink_manual_control_message(1, 1000, -250, 500, 0, 0))
+    station.client.sync()
+    assert station.vehicle.sticks.forward == 1.0 and station.vehicle.sticks.right == -0.25
+    assert station.client.result(SET_MODE, *px4(3)) == (ACCEPTED, [])
+    assert station.vehicle.mode == FlightMode.POSCTL
+    station.client.send(M.MAVLink_manual_control_message(1, 0, 0, 1500, 0, 0))
+    assert texts(station.client.sync()) == [
+        cut("setpoint refused: manual control z 1500 is outside [0, 1000]")]
+    assert station.vehicle.sticks.forward == 1.0  # unchanged
+
+
+def test_mission_progress_is_announced_as_px4_does(station):
+    station.flying()
+    v = station.vehicle
+    v.mission.replace(M.MAV_MISSION_TYPE_MISSION, tuple(
+        mission_item(i, 10.0 * i, 0.0, 3.0) for i in range(3)))
+    assert station.client.request(M.MAVLINK_MSG_ID_MISSION_CURRENT).mission_state == \
+        M.MISSION_STATE_NOT_STARTED
+    v.set_mode(FlightMode.MISSION, T0)
+    v.reached.append(0)
+    station.service()
+    msgs = station.client.sync()
+    assert [m.seq for m in of_type(msgs, "MISSION_ITEM_REACHED")] == [0]
+    current = of_type(msgs, "MISSION_CURRENT")[-1]
+    assert (current.total, current.mission_state) == (3, M.MISSION_STATE_ACTIVE)
+    v.set_mode(FlightMode.HOLD, T0)
+    assert station.client.request(M.MAVLINK_MSG_ID_MISSION_CURRENT).mission_state == \
+        M.MISSION_STATE_PAUSED

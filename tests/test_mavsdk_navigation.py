@@ -1,0 +1,203 @@
+"""MAVSDK 4.x flying missions, go-to, return and joystick against the real processes in
+real time, as a user's script does: the mission plugin (upload, start, progress, pause,
+resume, finished), the action plugin (goto_location, return_to_launch) and the manual
+control plugin (position control with sticks). Judged from the vehicle's telemetry.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+
+import numpy as np
+import pytest
+from mavsdk import log_subscribe
+from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.manual_control import ManualControlAsync
+from mavsdk.asyncio.plugins.mission import MissionAsync, MissionItem, MissionPlan
+from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
+
+from contracts.frames import HOME_ALT_AMSL_M, geodetic_from_ned
+from tests.harness import start_processes
+
+log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
+
+
+def _item(north_m: float, east_m: float, alt_m: float, speed_mps: float = math.nan
+          ) -> MissionItem:
+    lat, lon, _ = geodetic_from_ned(north_m, east_m, 0.0)
+    return MissionItem(lat, lon, alt_m, speed_mps, True, math.nan, math.nan,
+                       MissionItem.CameraAction.NONE, math.nan, math.nan, 1.0, math.nan,
+                       math.nan, MissionItem.VehicleAction.NONE)
+
+
+class Watch:
+    """What telemetry has said last: position, velocity, mode, armed, in the air."""
+
+    def __init__(self) -> None:
+        self.ned = np.zeros(3)
+        self.velocity = np.zeros(3)
+        self.mode = None
+        self.armed = False
+        self.in_air = False
+        self.progress: list[tuple[int, int]] = []
+
+    async def follow(self, telem: TelemetryAsync, mission: MissionAsync | None = None) -> None:
+        async def position():
+            async for pv in telem.subscribe_position_velocity_ned():
+                p, v = pv.position, pv.velocity
+                self.ned = np.array([p.north_m, p.east_m, p.down_m])
+                self.velocity = np.array([v.north_m_s, v.east_m_s, v.down_m_s])
+
+        async def mode():
+            async for m in telem.subscribe_flight_mode():
+                self.mode = m
+
+        async def armed():
+            async for a in telem.subscribe_armed():
+                self.armed = a
+
+        async def in_air():
+            async for a in telem.subscribe_in_air():
+                self.in_air = a
+
+        async def progress():
+            async for p in mission.subscribe_mission_progress():
+                if not self.progress or self.progress[-1] != (p.current, p.total):
+                    self.progress.append((p.current, p.total))
+        await asyncio.gather(position(), mode(), armed(), in_air(),
+                             *([progress()] if mission is not None else []))
+
+
+async def _until(check, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if check():
+            return
+        await asyncio.sleep(0.05)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+async def _connect(mavsdk: Mavsdk, port: int):
+    await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
+    system = await mavsdk.first_autopilot(timeout_s=30.0)
+    assert system is not None, "no autopilot heard"
+    telem = TelemetryAsync(system)
+    await _until_async(telem.health_all_ok, 30.0, "health all ok")
+    return system, telem
+
+
+async def _until_async(check, timeout_s: float, what: str) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if await check():
+            return
+        await asyncio.sleep(0.1)
+    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
+
+
+async def _mission_session(port: int) -> dict:
+    out: dict = {}
+    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+    async with mavsdk:
+        system, telem = await _connect(mavsdk, port)
+        mission, action = MissionAsync(system), ActionAsync(system)
+        watch = Watch()
+        follower = asyncio.ensure_future(watch.follow(telem, mission))
+        await mission.upload_mission(MissionPlan([
+            _item(0, 0, 3.0, speed_mps=3.0), _item(12, 0, 3.0), _item(12, 12, 3.0),
+            _item(0, 12, 3.0)]))
+        await action.arm()
+        await mission.start_mission()  # on the ground: PX4 climbs first
+        # Pause on the leg to the third item, at speed.
+        await _until(lambda: watch.progress and watch.progress[-1][0] >= 2 and np.hypot(
+            *watch.velocity[0:2]) > 2.0, 60.0, "the leg to item 2")
+        await mission.pause_mission()
+        await asyncio.sleep(7.0)  # braking from 3 m/s, then the last centimetres
+        out["paused_speed"] = float(np.hypot(*watch.velocity[0:2]))
+        out["paused_mode"] = watch.mode
+        out["paused_at"] = watch.ned.copy()
+        await mission.start_mission()  # resume
+        await _until_async(mission.is_mission_finished, 60.0, "the mission to finish")
+        out["finished_at"] = watch.ned.copy()
+        out["progress"] = list(watch.progress)
+        await action.return_to_launch()
+        await _until(lambda: not watch.armed, 90.0, "landed and disarmed at home")
+        out["home"] = watch.ned.copy()
+        out["downloaded"] = len((await mission.download_mission()).mission_items)
+        follower.cancel()
+    return out
+
+
+def test_mavsdk_flies_pauses_resumes_and_finishes_a_mission_then_returns(tmp_path):
+    procs = start_processes(tmp_path)
+    try:
+        got = asyncio.run(asyncio.wait_for(_mission_session(procs.gcs_port), 240))
+    finally:
+        procs.stop()
+    assert got["paused_mode"] == FlightMode.HOLD and got["paused_speed"] < 0.1
+    assert abs(got["paused_at"][0] - 12.0) < 0.1  # stopped on the leg 12 m north
+    # Progress: each item in turn, as MISSION_CURRENT and MISSION_ITEM_REACHED said it.
+    currents = [current for current, total in got["progress"] if total == 4]
+    assert currents[0] <= 1 and currents[-1] == 4 and currents == sorted(currents)
+    assert np.linalg.norm(got["finished_at"] - (0.0, 12.0, -3.0)) < 0.5
+    assert np.hypot(*got["home"][0:2]) < 1.0 and got["home"][2] > -0.1  # target: 1 m
+    assert got["downloaded"] == 4
+
+
+async def _goto_and_sticks_session(port: int) -> dict:
+    out: dict = {}
+    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+    async with mavsdk:
+        system, telem = await _connect(mavsdk, port)
+        action, manual = ActionAsync(system), ManualControlAsync(system)
+        watch = Watch()
+        follower = asyncio.ensure_future(watch.follow(telem))
+        await action.set_takeoff_altitude(3.0)
+        await action.arm()
+        await action.takeoff()
+        await _until(lambda: watch.ned[2] < -2.9, 30.0, "take-off")
+        lat, lon, _ = geodetic_from_ned(15.0, -5.0, 0.0)
+        await action.goto_location(lat, lon, HOME_ALT_AMSL_M + 4.0, 90.0)
+        await _until(lambda: np.linalg.norm(watch.ned - (15.0, -5.0, -4.0)) < 0.5
+                     and np.linalg.norm(watch.velocity) < 0.05, 30.0, "the go-to")
+        await asyncio.sleep(1.0)
+        out["goto"] = watch.ned.copy()
+        async for euler in telem.subscribe_attitude_euler():
+            out["goto_yaw_deg"] = euler.yaw_deg
+            break
+        out["goto_mode"] = watch.mode
+
+        async def sticks(x: float, seconds: float) -> None:
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                await manual.set_manual_control_input(x, 0.0, 0.5, 0.0)
+                await asyncio.sleep(0.02)
+        await sticks(0.0, 0.5)
+        await manual.start_position_control()
+        await sticks(1.0, 6.0)  # full forward, facing east
+        out["stick_velocity"] = watch.velocity.copy()
+        await sticks(0.0, 7.0)
+        held = watch.ned.copy()
+        await sticks(0.0, 5.0)
+        out["hold_drift"] = float(np.linalg.norm(watch.ned - held))
+        out["posctl_mode"] = watch.mode
+        follower.cancel()
+    return out
+
+
+def test_mavsdk_goes_to_a_location_and_flies_position_control_with_sticks(tmp_path):
+    procs = start_processes(tmp_path)
+    try:
+        got = asyncio.run(asyncio.wait_for(_goto_and_sticks_session(procs.gcs_port), 150))
+    finally:
+        procs.stop()
+    assert got["goto_mode"] == FlightMode.HOLD
+    assert np.linalg.norm(got["goto"] - (15.0, -5.0, -4.0)) < 0.05  # target: 0.5 m
+    assert got["goto_yaw_deg"] == pytest.approx(90.0, abs=0.5)
+    assert got["posctl_mode"] == FlightMode.POSCTL
+    east = got["stick_velocity"][1]
+    assert abs(east - 5.0) < 0.5 and abs(got["stick_velocity"][0]) < 0.1  # MPC_VEL_MANUAL
+    assert got["hold_drift"] < 0.05  # target: 0.3 m

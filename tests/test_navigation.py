@@ -8,6 +8,7 @@ them is a change to look at. MAVLink and real tools are in test_mission_flight.p
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -320,3 +321,30 @@ def test_sticks_are_checked_and_shaped_as_px4_reads_them():
     assert deadband(0.1, 0.1) == 0.0 and deadband(1.0, 0.1) == 1.0
     assert deadband(0.55, 0.1) == pytest.approx(0.5)
     assert expo(1.0, 0.6) == 1.0 and expo(0.5, 0.6) == pytest.approx(0.275)
+
+
+# -- the navigator alone -------------------------------------------------------------------
+def test_a_jump_loop_without_a_position_ends_the_mission_instead_of_stalling():
+    from autopilot.control.parameters import default_parameters
+    from autopilot.navigator import MissionRunner
+
+    items = (mission_item(0, 5, 0, 3.0), do_item(1, M.MAV_CMD_DO_JUMP, (2, -1, 0, 0)),
+             do_item(2, M.MAV_CMD_DO_JUMP, (1, -1, 0, 0)))
+    runner = MissionRunner(items, default_parameters())
+    runner.start(1, np.zeros(3), 0.0, False, 2.5)
+    runner.step(0.0, np.zeros(3), np.zeros(3))
+    assert runner.finished
+    assert runner.events[-1] == ("finished", "mission stopped: DO_JUMP loop without a position")
+
+
+def test_local_ned_items_are_metres_from_home():
+    from autopilot.mission import MissionItem
+    from autopilot.navigator import item_position_ned
+
+    item = MissionItem(0, M.MAV_FRAME_LOCAL_NED, WAYPOINT, 0, 1, (0, 0, 0, math.nan),
+                       4.0, -3.0, -6.0)
+    assert np.array_equal(item_position_ned(item, np.zeros(3)), (4.0, -3.0, -6.0))
+    # GLOBAL_INT: the altitude is AMSL (home is 488 m).
+    amsl = dataclasses.replace(mission_item(0, 10.0, 20.0, 0.0), frame=M.MAV_FRAME_GLOBAL_INT,
+                               z=498.0)
+    assert np.allclose(item_position_ned(amsl, np.zeros(3)), (10.0, 20.0, -10.0), atol=0.01)

@@ -23,6 +23,7 @@ from autopilot.control.factory import (
 )
 from autopilot.control.parameters import default_parameters  # noqa: E402
 from autopilot.identification.identify import identify_dataset  # noqa: E402
+from autopilot.navigator import MissionRunner  # noqa: E402
 from autopilot.shaping import (  # noqa: E402
     Setpoint,
     SetpointShaper,
@@ -33,6 +34,7 @@ from ground.excitation import excitation_dataset  # noqa: E402
 from ground.inprocess import run_inprocess  # noqa: E402
 from ground.scenarios import shipped_scenarios  # noqa: E402
 from sitl.plant import Plant  # noqa: E402
+from tests.flight import mission_item  # noqa: E402
 
 
 def per_call_us(fn, n: int, repeats: int = 7) -> float:
@@ -69,6 +71,13 @@ def main() -> None:
         shaper.reset(np.zeros(3), np.zeros(3), 0.0)
         us = per_call_us(lambda s=shaper, sp=setpoint: s.step(sp, limits, 0.01), 20000)
         print(f"  {what:<20} {us:6.2f} us")
+    print("Mission navigator (autopilot/navigator.py), median us per call:")
+    runner = MissionRunner(tuple(mission_item(i, 30.0 * (i % 2), 30.0 * (i // 2), 5.0)
+                                 for i in range(6)), default_parameters())
+    runner.start(0, np.array([0.0, 0.0, -5.0]), 0.0, False, 2.5)
+    here = np.array([10.0, 0.5, -5.0])
+    us = per_call_us(lambda: runner.step(1.0, here, here), 20000)
+    print(f"  {'goal on a leg':<20} {us:6.2f} us")
     print("Plant step, median us:")
     for fidelity in ("paper", "rigid-body"):
         p = Plant(PAPER, fidelity, rotor_rad_s=hover_rotor_speeds(PAPER))

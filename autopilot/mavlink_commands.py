@@ -51,6 +51,7 @@ class CommandProtocol:
             mavlink.MAV_CMD_MISSION_START: self._mission_start,
             mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: self._return,
             mavlink.MAV_CMD_DO_REPOSITION: self._reposition,
+            mavlink.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
         }
         self.frame = mavlink.MAV_FRAME_GLOBAL  # the command's frame (COMMAND_LONG: AMSL)
 
@@ -158,6 +159,10 @@ class CommandProtocol:
 
     def _return(self, link, p, now):
         self.server.vehicle.set_mode(FlightMode.RTL, now)
+
+    def _change_speed(self, link, p, now):
+        """DO_CHANGE_SPEED (QGroundControl's "change speed"): param2 in m/s, -1 no change."""
+        self.server.vehicle.change_speed(p[1])
 
     def _reposition(self, link, p, now):
         """DO_REPOSITION (QGroundControl's "go to location", MAVSDK's goto_location):

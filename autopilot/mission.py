@@ -24,8 +24,16 @@ GLOBAL_FRAMES = frozenset({M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
 POSITION_FRAMES = GLOBAL_FRAMES | {M.MAV_FRAME_LOCAL_NED}
 # The commands each mission type holds, and whether they carry a position.
 NAV_COMMANDS = {M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME,
+                M.MAV_CMD_NAV_LOITER_UNLIM,
                 M.MAV_CMD_NAV_RETURN_TO_LAUNCH, M.MAV_CMD_NAV_LAND, M.MAV_CMD_NAV_TAKEOFF}
-DO_COMMANDS = {M.MAV_CMD_DO_JUMP, M.MAV_CMD_DO_CHANGE_SPEED}
+# Payload items (camera, gimbal): taken, so that plans with them upload, and passed over
+# in flight (there is no payload).
+PAYLOAD_COMMANDS = {M.MAV_CMD_DO_MOUNT_CONTROL, M.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW,
+                    M.MAV_CMD_IMAGE_START_CAPTURE, M.MAV_CMD_IMAGE_STOP_CAPTURE,
+                    M.MAV_CMD_VIDEO_START_CAPTURE, M.MAV_CMD_VIDEO_STOP_CAPTURE,
+                    M.MAV_CMD_DO_SET_CAM_TRIGG_DIST, M.MAV_CMD_DO_SET_CAM_TRIGG_INTERVAL,
+                    M.MAV_CMD_DO_TRIGGER_CONTROL}
+DO_COMMANDS = {M.MAV_CMD_DO_JUMP, M.MAV_CMD_DO_CHANGE_SPEED, *PAYLOAD_COMMANDS}
 # Waits without a position of their own (MAVSDK sends a loiter time as NAV_DELAY).
 WAIT_COMMANDS = {M.MAV_CMD_NAV_DELAY}
 FENCE_COMMANDS = {M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
@@ -99,7 +107,7 @@ def check_item(item: MissionItem, count: int) -> None:
     elif command == M.MAV_CMD_NAV_DELAY and (math.isnan(p1) or p1 < 0):
         raise ItemError(M.MAV_MISSION_INVALID_PARAM1,
                         f"item {item.seq}: delay {p1} s (a time of day is not supported)")
-    elif command in (M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND):
+    elif command in (M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND, M.MAV_CMD_NAV_LOITER_UNLIM):
         _yaw(item, p4)
     elif command == M.MAV_CMD_DO_JUMP:
         if math.isnan(p1) or not (0 <= p1 < count and p1 == int(p1)) or p1 == item.seq:

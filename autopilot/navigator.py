@@ -22,7 +22,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from autopilot.mission import MissionItem
+from autopilot.mission import DO_COMMANDS, PAYLOAD_COMMANDS, MissionItem
 from autopilot.shaping import Setpoint
 from contracts.frames import HOME_ALT_AMSL_M, ned_from_geodetic
 from contracts.mavlink import mavlink
@@ -37,6 +37,9 @@ STRAIGHT_ON_RAD = math.radians(10.0)  # legs this close to straight do not slow 
 FACE_TARGET_M = 2.0  # legs shorter than this keep the heading (no spinning on the spot)
 RETURN_HOME_M = 0.05  # RTL descends once its reference is this close above home
 LAND_DOWN_M = 0.5  # landing descends towards this far below the ground: it touches down
+# Items flown to a position and left (after a hold) for the next.
+WAYPOINT_COMMANDS = (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME,
+                     M.MAV_CMD_NAV_LOITER_UNLIM)
 MAX_DO_ITEMS_PER_STEP = 64  # a DO_JUMP loop without a position in it cannot stall a step
 
 
@@ -126,14 +129,13 @@ class MissionRunner:
     # -- the items ---------------------------------------------------------------------
     def _nav_command(self, seq: int) -> int | None:
         for item in self.items[seq:]:
-            if item.command not in (M.MAV_CMD_DO_JUMP, M.MAV_CMD_DO_CHANGE_SPEED):
+            if item.command not in DO_COMMANDS:
                 return item.command
         return None
 
     def _first_position(self, seq: int, here: np.ndarray) -> np.ndarray | None:
         for item in self.items[seq:]:
-            if item.command in (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME,
-                                M.MAV_CMD_NAV_TAKEOFF):
+            if item.command in (*WAYPOINT_COMMANDS, M.MAV_CMD_NAV_TAKEOFF):
                 return item_position_ned(item, here)
         return None
 
@@ -149,6 +151,9 @@ class MissionRunner:
             if command == M.MAV_CMD_DO_CHANGE_SPEED:
                 if item.params[1] > 0:
                     self.speed_mps = float(item.params[1])
+                self.seq += 1
+                continue
+            if command in PAYLOAD_COMMANDS:  # no camera or gimbal to drive
                 self.seq += 1
                 continue
             if command == M.MAV_CMD_DO_JUMP:
@@ -201,6 +206,8 @@ class MissionRunner:
         return radius, p["NAV_MC_ALT_RAD"]
 
     def _hold_s(self, item: MissionItem) -> float:
+        if item.command == M.MAV_CMD_NAV_LOITER_UNLIM:
+            return math.inf  # hold there until the mission is left or restarted
         if item.command in (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME):
             return float(item.params[0]) if math.isfinite(item.params[0]) else 0.0
         return 0.0
@@ -208,8 +215,8 @@ class MissionRunner:
     def _straight_on(self) -> bool:
         """Whether the next leg goes on in (nearly) the same direction."""
         following = self.seq + 1
-        if following < len(self.items) and self.items[following].command in (
-                M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME):
+        if following < len(self.items) and \
+                self.items[following].command in WAYPOINT_COMMANDS:
             after = item_position_ned(self.items[following], self._target)
             return turn_angle(self._leg_start, self._target, after) < STRAIGHT_ON_RAD
         return False

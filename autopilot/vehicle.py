@@ -37,7 +37,7 @@ from autopilot.flight_tasks import (
 )
 from autopilot.geofence import breach, zones_from_items
 from autopilot.land_detector import LANDED_ALTITUDE_M, LANDED_SPEED_MPS, LandDetector
-from autopilot.mission import FENCE, MISSION, MissionStore
+from autopilot.mission import FENCE, MAX_SPEED_MPS, MISSION, MissionStore
 from autopilot.navigator import LAND_DOWN_M, Goal, MissionRunner, ReturnToLaunch
 from autopilot.reference import Reference
 from autopilot.refusal import RefusedError
@@ -381,6 +381,19 @@ class Vehicle:
         self.tasks.setpoint = Setpoint.hold(target, yaw)
         self.hold_speed_mps = speed_mps
         self.say(f"going to {target[0]:.1f} N {target[1]:.1f} E {-target[2]:.1f} m up")
+
+    def change_speed(self, speed_mps: float) -> None:
+        """MAV_CMD_DO_CHANGE_SPEED in flight: the mission's speed and a go-to's (-1: no
+        change)."""
+        if speed_mps == -1.0:
+            return
+        if not (math.isfinite(speed_mps) and 0.0 < speed_mps <= MAX_SPEED_MPS):
+            raise RefusedError(f"speed {speed_mps:g} m/s is outside (0, {MAX_SPEED_MPS:g}]")
+        if self.navigator is not None:
+            self.navigator.speed_mps = speed_mps
+        if self.mode == FlightMode.HOLD:
+            self.hold_speed_mps = speed_mps
+        self.say(f"speed {speed_mps:.1f} m/s")
 
     @property
     def mission_active(self) -> bool:

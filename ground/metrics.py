@@ -81,15 +81,14 @@ def path_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
     """How the vehicle followed its mission: arrival at each positioned item, cross-track
     error along the planned legs (PATH_DEFINITION)."""
     from autopilot.control.parameters import validate_parameters
-    from autopilot.navigator import item_position_ned
+    from autopilot.navigator import WAYPOINT_COMMANDS, item_position_ned
     from contracts.mavlink import mavlink
 
     p = validate_parameters(scenario.parameters)
     home = np.zeros(3)
     legs, radii, seqs = [], [], []
     for item in scenario.mission_items:
-        if item.command not in (mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_CMD_NAV_WAYPOINT,
-                                mavlink.MAV_CMD_NAV_LOITER_TIME):
+        if item.command not in (mavlink.MAV_CMD_NAV_TAKEOFF, *WAYPOINT_COMMANDS):
             continue
         legs.append(item_position_ned(item, legs[-1] if legs else home))
         given = item.params[1] if item.command == mavlink.MAV_CMD_NAV_WAYPOINT else 0.0

@@ -348,3 +348,23 @@ def test_local_ned_items_are_metres_from_home():
     amsl = dataclasses.replace(mission_item(0, 10.0, 20.0, 0.0), frame=M.MAV_FRAME_GLOBAL_INT,
                                z=498.0)
     assert np.allclose(item_position_ned(amsl, np.zeros(3)), (10.0, 20.0, -10.0), atol=0.01)
+
+
+def test_loiter_unlimited_holds_and_payload_items_are_passed_over():
+    items = [mission_item(0, 0, 0, 3.0, TAKEOFF),
+             do_item(1, M.MAV_CMD_IMAGE_START_CAPTURE, (0, 1, 0, 0)),
+             mission_item(2, 6, 0, 3.0, M.MAV_CMD_NAV_LOITER_UNLIM, (0, 0, 0, math.nan)),
+             mission_item(3, 0, 0, 3.0)]
+    f = mission_flight(items, 30.0)
+    assert f.vehicle.reached == [0, 2] and f.vehicle.mission.current == 2
+    assert np.linalg.norm(f.log[-1, POS] - (6, 0, -3)) < 0.01
+
+
+def test_change_speed_in_flight_sets_the_mission_speed():
+    f = mission_flight(six_waypoints(), 6.0)
+    with pytest.raises(RefusedError, match="outside"):
+        f.vehicle.change_speed(0.0)
+    f.vehicle.change_speed(2.0)
+    start = f.t_s
+    f.run(10.0)
+    assert reference_speed(f.since(start + 3.0)).max() == pytest.approx(2.0, abs=1e-6)

@@ -896,3 +896,15 @@ def test_mission_progress_is_announced_as_px4_does(station):
     v.set_mode(FlightMode.HOLD, T0)
     assert station.client.request(M.MAVLINK_MSG_ID_MISSION_CURRENT).mission_state == \
         M.MISSION_STATE_PAUSED
+
+
+def test_change_speed_command_sets_the_go_to_speed(station):
+    station.flying()
+    lat, lon = north_east(20.0, 0.0)
+    assert station.client.result(REPOSITION, -1, 1, 0, math.nan, lat, lon, 3.0, kind="int",
+                                 frame=REL_INT)[0] == ACCEPTED
+    assert station.client.result(M.MAV_CMD_DO_CHANGE_SPEED, 1, 2.5, -1) == (ACCEPTED, [])
+    assert station.vehicle.hold_speed_mps == 2.5
+    assert station.client.result(M.MAV_CMD_DO_CHANGE_SPEED, 1, math.nan, -1) == (
+        DENIED, ["speed nan m/s is outside (0, 30]"])
+    assert station.vehicle.hold_speed_mps == 2.5

@@ -20,7 +20,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
+from autopilot.flight_tasks import AttitudeTarget
 from autopilot.refusal import RefusedError
+from autopilot.shaping import Setpoint
+from contracts.frames import wrap_pi
 
 STICK_FULL = 1000.0
 
@@ -100,3 +105,48 @@ def thrust_fraction(throttle: float, hover_fraction: float) -> float:
     if throttle <= 0.5:
         return hover_fraction * throttle / 0.5
     return hover_fraction + (1.0 - hover_fraction) * (throttle - 0.5) / 0.5
+
+
+def position_control(setpoint: Setpoint, sticks: Sticks, heading_rad: float,
+                     stopping_point: np.ndarray, held: list[bool], p: dict[str, float]
+                     ) -> list[bool]:
+    """POSCTL: update ``setpoint`` (in place) from the sticks, axis group by axis group: a
+    deflected stick commands a velocity (or yaw rate); a stick coming back to centre
+    holds where the reference can stop, and keeps holding there. ``held`` says which
+    groups (horizontal, vertical, yaw) were held last period; returns it for this one."""
+    velocity = horizontal_velocity(sticks, heading_rad, p)
+    climb = climb_stick(sticks.throttle, p)
+    rate = yaw_rate(sticks, p)
+    if velocity is None:
+        if not held[0]:
+            setpoint.position_ned_m[0:2] = stopping_point[0:2]
+            setpoint.velocity_ned_mps[0:2] = np.nan
+    else:
+        setpoint.position_ned_m[0:2] = np.nan
+        setpoint.velocity_ned_mps[0:2] = velocity
+    if climb == 0.0:
+        if not held[1]:
+            setpoint.position_ned_m[2], setpoint.velocity_ned_mps[2] = stopping_point[2], np.nan
+    else:
+        setpoint.position_ned_m[2], setpoint.velocity_ned_mps[2] = np.nan, -climb
+    if rate == 0.0:
+        if not held[2]:
+            setpoint.yaw_rad, setpoint.yaw_rate_rad_s = heading_rad, math.nan
+    else:
+        setpoint.yaw_rad, setpoint.yaw_rate_rad_s = math.nan, rate
+    return [velocity is None, climb == 0.0, rate == 0.0]
+
+
+def attitude_control(sticks: Sticks, yaw_rad: float, period_s: float, p: dict[str, float],
+                     hover_fraction: float | None) -> AttitudeTarget:
+    """ALTCTL (``hover_fraction`` None: the throttle is a climb rate) and STABILIZED (the
+    throttle is the collective thrust, hover at mid stick): the attitude target, its
+    yaw ``yaw_rad`` turned on by the yaw stick over one period."""
+    roll, pitch = tilt(sticks, p)
+    target = AttitudeTarget(np.array([roll, pitch, wrap_pi(
+        yaw_rad + yaw_rate(sticks, p) * period_s)]))
+    if hover_fraction is None:
+        target.climb_rate_mps = climb_stick(sticks.throttle, p)
+    else:
+        target.thrust_fraction = thrust_fraction(sticks.throttle, hover_fraction)
+    return target

@@ -437,46 +437,24 @@ class Vehicle:
         attitude shaper, as an attitude setpoint from a tool would."""
         p, sticks = self.parameters, self.sticks
         if self.mode == FlightMode.POSCTL:
-            sp, shaper = self.tasks.setpoint, self.tasks.shaper
             self.tasks.start_translation(self.measurement)
-            stop = shaper.stopping_point(limits)
-            velocity = manual.horizontal_velocity(sticks, shaper.yaw_rad, p)
-            climb = manual.climb_stick(sticks.throttle, p)
-            rate = manual.yaw_rate(sticks, p)
-            held = [velocity is None, climb == 0.0, rate == 0.0]
-            if velocity is None:
-                if not self._stick_hold[0]:  # centred now: stop, and hold there
-                    sp.position_ned_m[0:2], sp.velocity_ned_mps[0:2] = stop[0:2], np.nan
-            else:
-                sp.position_ned_m[0:2] = np.nan
-                sp.velocity_ned_mps[0:2] = velocity
-            if climb == 0.0:
-                if not self._stick_hold[1]:
-                    sp.position_ned_m[2], sp.velocity_ned_mps[2] = stop[2], np.nan
-            else:
-                sp.position_ned_m[2] = np.nan
-                sp.velocity_ned_mps[2] = -climb
-            if rate == 0.0:
-                if not self._stick_hold[2]:
-                    sp.yaw_rad, sp.yaw_rate_rad_s = shaper.yaw_rad, math.nan
-            else:
-                sp.yaw_rad, sp.yaw_rate_rad_s = math.nan, rate
-            self._stick_hold = held
+            shaper = self.tasks.shaper
+            self._stick_hold = manual.position_control(
+                self.tasks.setpoint, sticks, shaper.yaw_rad, shaper.stopping_point(limits),
+                self._stick_hold, p)
             return self.tasks.translation_reference(self.measurement, limits,
                                                     self.period_s), True, math.nan
-        roll, pitch = manual.tilt(sticks, p)
         previous = self.tasks.attitude_target
         yaw = previous.euler_rad[2] if previous is not None else self.heading_rad
-        yaw = wrap_pi(yaw + manual.yaw_rate(sticks, p) * self.period_s)
-        target = AttitudeTarget(np.array([roll, pitch, yaw]))
-        if self.mode == FlightMode.STABILIZED:
-            af = self.controller.airframe
-            hover = af.mass_kg * af.gravity_mps2 / max_thrust_n(af)
-            target.thrust_fraction = manual.thrust_fraction(sticks.throttle, hover)
-        else:
-            target.climb_rate_mps = manual.climb_stick(sticks.throttle, p)
-        self.tasks.streamed = target
+        af = self.controller.airframe
+        hover = af.mass_kg * af.gravity_mps2 / max_thrust_n(af) \
+            if self.mode == FlightMode.STABILIZED else None
+        self.tasks.streamed = manual.attitude_control(sticks, yaw, self.period_s, p, hover)
         self.tasks.apply_streamed(self.measurement)
+        return self._attitude_reference(limits)
+
+    def _attitude_reference(self, limits: ShapingLimits) -> tuple[np.ndarray, bool, float]:
+        p = self.parameters
         return self.tasks.attitude_reference(
             self.measurement, limits,
             (p["CMDF_OMEGA"], p["CMDF_ZETA"], p["CMDF_RATE_MAX"], p["CMDF_ACC_MAX"]),
@@ -617,10 +595,7 @@ class Vehicle:
         if self.mode in MANUAL_MODES:
             return self._manual_reference(self.limits)
         if self.tasks.attitude_target is not None and self.mode in TOOL_SETPOINT_MODES:
-            return self.tasks.attitude_reference(
-                self.measurement, self.limits,
-                (p["CMDF_OMEGA"], p["CMDF_ZETA"], p["CMDF_RATE_MAX"], p["CMDF_ACC_MAX"]),
-                self.period_s, max_thrust_n(self.controller.airframe))
+            return self._attitude_reference(self.limits)
         limits = self.limits
         vertical = "land" if self.mode == FlightMode.LAND else ""
         speed = self.hold_speed_mps if self.mode == FlightMode.HOLD else math.nan

@@ -628,6 +628,15 @@ class Vehicle:
             else here
         if self.mode == FlightMode.RTL:
             return self.returning.step(here, reference)
+        if self.navigator.items is not self.mission.lists[MISSION]:
+            # A new mission (or none) uploaded in flight: fly it from its first item, as
+            # PX4 does; without one, hold.
+            if not self.mission.lists[MISSION]:
+                self.say("mission cleared: holding", 4)
+                self.navigator = None
+                self._enter(FlightMode.HOLD)
+                return Goal(self.tasks.setpoint)
+            self._start_mission()
         goal = self.navigator.step(self.sim_t_s, here, reference)
         self._navigator_events()
         if self.mode == FlightMode.RTL:  # the mission handed over to a return

@@ -368,3 +368,15 @@ def test_change_speed_in_flight_sets_the_mission_speed():
     start = f.t_s
     f.run(10.0)
     assert reference_speed(f.since(start + 3.0)).max() == pytest.approx(2.0, abs=1e-6)
+
+
+def test_a_mission_uploaded_in_flight_is_flown_and_a_cleared_one_holds():
+    f = mission_flight(six_waypoints(), 8.0)
+    f.vehicle.mission.replace(MISSION, (mission_item(0, -5, -5, 4.0),))
+    f.run(15.0)
+    assert f.vehicle.reached[-1] == 0 and f.vehicle.mission_complete
+    assert np.linalg.norm(f.log[-1, POS] - (-5, -5, -4)) < 0.01
+    f.vehicle.mission.clear(MISSION)
+    f.run(0.02)
+    assert f.vehicle.mode == FlightMode.HOLD and f.vehicle.armed
+    assert "mission cleared: holding" in [text for _, text in f.vehicle.messages]

@@ -39,6 +39,7 @@ class AttitudeTarget:
     thrust_fraction: float = math.nan  # PX4: collective thrust / the airframe's maximum
     climb_rate_mps: float = 0.0  # ArduPilot (or no thrust): altitude loop at this rate
     altitude_ref_ned_m: float = math.nan  # the altitude loop's reference, integrated
+    yaw_rate_rad_s: float = math.nan  # with a NaN yaw: turn at this rate (manual sticks)
 
 
 def checked_position_setpoint(setpoint: Setpoint) -> Setpoint:
@@ -172,7 +173,8 @@ class FlightTasks:
             self.shaper.reset_attitude(measurement[MEASUREMENT.euler_rad],
                                        measurement[MEASUREMENT.euler_rate_rad_s])
             self.shaped = "attitude"
-        ref = self.shaper.step_attitude(target.euler_rad, limits, filter_limits, period_s)
+        ref = self.shaper.step_attitude(target.euler_rad, limits, filter_limits, period_s,
+                                        target.yaw_rate_rad_s)
         ref[REF_POS:REF_POS + 3] = measurement[MEASUREMENT.position_ned_m]
         if math.isfinite(target.thrust_fraction):
             return ref, False, target.thrust_fraction * max_thrust_n

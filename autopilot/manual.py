@@ -25,7 +25,6 @@ import numpy as np
 from autopilot.flight_tasks import AttitudeTarget
 from autopilot.refusal import RefusedError
 from autopilot.shaping import Setpoint
-from contracts.frames import wrap_pi
 
 STICK_FULL = 1000.0
 
@@ -137,14 +136,14 @@ def position_control(setpoint: Setpoint, sticks: Sticks, heading_rad: float,
     return [velocity is None, climb == 0.0, rate == 0.0]
 
 
-def attitude_control(sticks: Sticks, yaw_rad: float, period_s: float, p: dict[str, float],
-                     hover_fraction: float | None) -> AttitudeTarget:
+def attitude_control(sticks: Sticks, p: dict[str, float], hover_fraction: float | None
+                     ) -> AttitudeTarget:
     """ALTCTL (``hover_fraction`` None: the throttle is a climb rate) and STABILIZED (the
-    throttle is the collective thrust, hover at mid stick): the attitude target, its
-    yaw ``yaw_rad`` turned on by the yaw stick over one period."""
+    throttle is the collective thrust, hover at mid stick): the attitude target. The yaw
+    stick is a yaw rate (the heading stays where it is when the stick is centred)."""
     roll, pitch = tilt(sticks, p)
-    target = AttitudeTarget(np.array([roll, pitch, wrap_pi(
-        yaw_rad + yaw_rate(sticks, p) * period_s)]))
+    target = AttitudeTarget(np.array([roll, pitch, math.nan]),
+                            yaw_rate_rad_s=yaw_rate(sticks, p))
     if hover_fraction is None:
         target.climb_rate_mps = climb_stick(sticks.throttle, p)
     else:

@@ -152,10 +152,9 @@ class CommandProtocol:
         return [mission_current(self.server.vehicle)]
 
     def _mission_start(self, link, p, now):
-        first = p[0] if math.isfinite(p[0]) else -1.0
-        if first != int(first):
+        if not (math.isfinite(p[0]) and p[0] == int(p[0])):
             raise RefusedError(f"mission start: item {p[0]:g} is not a whole number")
-        self.server.vehicle.start_mission(int(first), now)
+        self.server.vehicle.start_mission(int(p[0]), now)
 
     def _return(self, link, p, now):
         self.server.vehicle.set_mode(FlightMode.RTL, now)
@@ -173,6 +172,8 @@ class CommandProtocol:
                               *RELATIVE_ALT_FRAMES):
             raise RefusedError(f"go-to frame {self.frame} is not supported")
         lat, lon, alt = p[4], p[5], p[6]
+        if any(math.isinf(v) for v in (p[0], p[3], lat, lon, alt)):
+            raise RefusedError("go-to values must be finite or NaN")
         if math.isfinite(lat) != math.isfinite(lon):
             raise RefusedError("go-to gives latitude without longitude or the reverse")
         if math.isfinite(lat) and (abs(lat) > 90.0 or abs(lon) > 180.0):

@@ -128,15 +128,10 @@ def mission_current(v: Vehicle) -> mavlink.MAVLink_mission_current_message:
     """The mission's current item, its length and state (PX4 streams it at 1 Hz)."""
     store = v.mission
     total = len(store.lists[mavlink.MAV_MISSION_TYPE_MISSION])
-    if not total:
-        state = mavlink.MISSION_STATE_NO_MISSION
-    elif v.mission_complete:
-        state = mavlink.MISSION_STATE_COMPLETE
-    elif v.navigator is None:
-        state = mavlink.MISSION_STATE_NOT_STARTED
-    else:
-        state = mavlink.MISSION_STATE_ACTIVE if v.mission_active else \
-            mavlink.MISSION_STATE_PAUSED
+    state = {"none": mavlink.MISSION_STATE_NO_MISSION,
+             "not started": mavlink.MISSION_STATE_NOT_STARTED,
+             "active": mavlink.MISSION_STATE_ACTIVE, "paused": mavlink.MISSION_STATE_PAUSED,
+             "complete": mavlink.MISSION_STATE_COMPLETE}[v.mission_state]
     return mavlink.MAVLink_mission_current_message(store.current, total, state, 0)
 
 

@@ -40,6 +40,9 @@ LAND_DOWN_M = 0.5  # landing descends towards this far below the ground: it touc
 # Items flown to a position and left (after a hold) for the next.
 WAYPOINT_COMMANDS = (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME,
                      M.MAV_CMD_NAV_LOITER_UNLIM)
+# Items whose param4 is a heading [deg] (NAV_LOITER_TIME's is a cross-track flag).
+YAW_COMMANDS = (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_UNLIM, M.MAV_CMD_NAV_TAKEOFF,
+                M.MAV_CMD_NAV_LAND)
 MAX_DO_ITEMS_PER_STEP = 64  # a DO_JUMP loop without a position in it cannot stall a step
 
 
@@ -171,8 +174,9 @@ class MissionRunner:
         self._reached_s = self._hold_from_s = None
         self._leg_start = self._target.copy() if self._phase not in ("start", "climb") \
             else np.array(here, dtype=float)
-        if command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+        if command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:  # the mission ends in a return
             self.events.append(("rtl",))
+            self.finished = True
             self._phase = "done"
             return
         if command == M.MAV_CMD_NAV_DELAY:  # wait where the last item left the vehicle
@@ -185,7 +189,7 @@ class MissionRunner:
         if command == M.MAV_CMD_NAV_LAND:
             target[2] = self._leg_start[2]  # fly there at this altitude, then descend
         self._target = target
-        yaw = item.params[3]
+        yaw = item.params[3] if command in YAW_COMMANDS else math.nan
         face = heading_to(self._leg_start, target)
         self._yaw_rad = math.radians(yaw) if math.isfinite(yaw) else (
             face if math.isfinite(face) else self._yaw_rad)

@@ -412,17 +412,20 @@ class SetpointShaper:
         self.yaw_acc_rad_s2 = 0.0
 
     def step_attitude(self, euler_rad: np.ndarray, limits: ShapingLimits,
-                      tilt_filter: np.ndarray, dt: float) -> np.ndarray:
+                      tilt_filter: np.ndarray, dt: float,
+                      yaw_rate_rad_s: float = math.nan) -> np.ndarray:
         """Attitude setpoints: roll and pitch through the controller's command filter
         (``tilt_filter`` = omega, zeta, rate and acceleration limits), yaw the short way
-        within MPC_YAWRAUTO_*. Returns a reference vector holding the Euler part."""
+        within MPC_YAWRAUTO_* (or, for a NaN yaw, at ``yaw_rate_rad_s``). Returns a
+        reference vector holding the Euler part."""
         ref = np.zeros(REF_SIZE)
         omega, zeta, rate_max, acc_max = tilt_filter
         for k in range(2):
             ref[REF_EULER + k], ref[REF_EULER_RATE + k], ref[REF_EULER_ACC + k] = \
                 command_filter_step(self._tilt[k], float(euler_rad[k]), dt, omega, zeta,
                                     rate_max, acc_max)
-        self._step_yaw(Setpoint(yaw_rad=float(euler_rad[2])), limits, dt)
+        self._step_yaw(Setpoint(yaw_rad=float(euler_rad[2]), yaw_rate_rad_s=yaw_rate_rad_s),
+                       limits, dt)
         ref[REF_EULER + 2] = self.yaw_rad
         ref[REF_EULER_RATE + 2] = self.yaw_rate_rad_s
         ref[REF_EULER_ACC + 2] = self.yaw_acc_rad_s2

@@ -104,6 +104,7 @@ class Vehicle:
         self.estimator_status = None  # EstimatorStatus when flying on the estimator
         self.mission = MissionStore()  # mission, fence and rally lists, kept across modes
         self.navigator: MissionRunner | None = None  # the mission being flown (or paused)
+        self._current_shown = 0  # the current item as the navigator last set it
         self.mission_complete = False
         self.returning: ReturnToLaunch | None = None  # AUTO.RTL's phases
         self.reached: list[int] = []  # mission items reached, for MISSION_ITEM_REACHED
@@ -324,12 +325,13 @@ class Vehicle:
         """Begin or resume the stored mission at its current item (a mission flown to its
         end begins again)."""
         items = self.mission.lists[MISSION]
-        if self.mission_complete or self.mission.current >= len(items):
-            self.mission.current = 0
-        self.mission_complete = False
         nav = self.navigator
-        if nav is None or nav.items is not items or nav.parameters is not self.parameters:
-            self.navigator = MissionRunner(items, self.parameters)  # (resuming keeps jumps)
+        if self.mission_complete or self.mission.current >= len(items) or nav is None or \
+                nav.items is not items:  # from the start, with fresh jump counts and speed
+            if self.mission_complete or self.mission.current >= len(items):
+                self.mission.current = 0
+            self.navigator = MissionRunner(items, self.parameters)
+        self.mission_complete = False  # (resuming keeps the jump counts and the speed)
         self.navigator.start(self.mission.current, self._stopping_point(), self.heading_rad,
                              self.landed, self.parameters["MIS_TAKEOFF_ALT"])
         self._navigator_events()
@@ -346,6 +348,7 @@ class Vehicle:
     def _navigator_events(self) -> None:
         nav = self.navigator
         self.mission.current = nav.seq if nav.seq < len(nav.items) else len(nav.items) - 1
+        self._current_shown = self.mission.current
         while nav.events:
             event = nav.events.pop(0)
             if event[0] == "reached":
@@ -354,6 +357,7 @@ class Vehicle:
                 self.mission_complete = True
                 self.say(event[1])
             elif event[0] == "rtl" and self.mode == FlightMode.MISSION:
+                self.mission_complete = True
                 self.say("mission: returning to launch")
                 self._enter(FlightMode.RTL)
 
@@ -398,6 +402,18 @@ class Vehicle:
     @property
     def mission_active(self) -> bool:
         return self.mode == FlightMode.MISSION and self.armed and self.navigator is not None
+
+    @property
+    def mission_state(self) -> str:
+        """none, not started, active, paused or complete (MISSION_CURRENT's states)."""
+        items = self.mission.lists[MISSION]
+        if not items:
+            return "none"
+        if self.mission_complete:
+            return "complete"
+        if self.navigator is None or self.navigator.items is not items:
+            return "not started"
+        return "active" if self.mission_active else "paused"
 
     # -- setpoints from tools ----------------------------------------------------------
     def setpoints_streaming(self, link_t_s: float) -> bool:
@@ -444,12 +460,10 @@ class Vehicle:
                 self._stick_hold, p)
             return self.tasks.translation_reference(self.measurement, limits,
                                                     self.period_s), True, math.nan
-        previous = self.tasks.attitude_target
-        yaw = previous.euler_rad[2] if previous is not None else self.heading_rad
         af = self.controller.airframe
         hover = af.mass_kg * af.gravity_mps2 / max_thrust_n(af) \
             if self.mode == FlightMode.STABILIZED else None
-        self.tasks.streamed = manual.attitude_control(sticks, yaw, self.period_s, p, hover)
+        self.tasks.streamed = manual.attitude_control(sticks, p, hover)
         self.tasks.apply_streamed(self.measurement)
         return self._attitude_reference(limits)
 
@@ -626,8 +640,11 @@ class Vehicle:
         here = self.measurement[MEASUREMENT.position_ned_m]
         reference = self.tasks.shaper.position_ned_m if self.tasks.shaped == "translation" \
             else here
+        # Parameters changed in flight apply at once.
         if self.mode == FlightMode.RTL:
+            self.returning.parameters = self.parameters
             return self.returning.step(here, reference)
+        self.navigator.parameters = self.parameters
         if self.navigator.items is not self.mission.lists[MISSION]:
             # A new mission (or none) uploaded in flight: fly it from its first item, as
             # PX4 does; without one, hold.
@@ -637,6 +654,8 @@ class Vehicle:
                 self._enter(FlightMode.HOLD)
                 return Goal(self.tasks.setpoint)
             self._start_mission()
+        elif self.mission.current != self._current_shown:
+            self._start_mission()  # a tool set the current item: go on from there
         goal = self.navigator.step(self.sim_t_s, here, reference)
         self._navigator_events()
         if self.mode == FlightMode.RTL:  # the mission handed over to a return

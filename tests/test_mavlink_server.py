@@ -828,6 +828,10 @@ def test_go_to_amsl_and_left_out_coordinates(station):
      "go-to latitude/longitude 95, 8 is not on Earth"),
     ((-1, 1, 0, math.inf, *north_east(5, 5), 5.0), REL_INT, DENIED,
      "go-to values must be finite or NaN"),
+    ((-1, 1, 0, 0, *north_east(5, 5), math.inf), REL_INT, DENIED,
+     "go-to values must be finite or NaN"),
+    ((math.inf, 1, 0, 0, *north_east(5, 5), 5.0), REL_INT, DENIED,
+     "go-to values must be finite or NaN"),
 ])
 def test_bad_go_to_is_refused_and_changes_nothing(station, params, frame, result, said):
     station.flying()

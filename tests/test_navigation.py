@@ -134,6 +134,7 @@ def test_a_mission_ending_in_return_lands_at_home():
     f = mission_flight(six_waypoints(last=RTL)[:3] + [do_item(3, RTL, (0, 0, 0, 0))], 60.0)
     assert f.vehicle.reached == [0, 1, 2]
     assert not f.vehicle.armed
+    assert (f.vehicle.mission.current, f.vehicle.mission_state) == (0, "not started")
     assert np.hypot(*f.log[-1, 1:3]) < 0.01 and -f.log[:, 3].min() == pytest.approx(10.0,
                                                                                     abs=0.01)
 
@@ -380,3 +381,40 @@ def test_a_mission_uploaded_in_flight_is_flown_and_a_cleared_one_holds():
     f.run(0.02)
     assert f.vehicle.mode == FlightMode.HOLD and f.vehicle.armed
     assert "mission cleared: holding" in [text for _, text in f.vehicle.messages]
+
+
+def test_setting_the_current_item_in_flight_goes_on_from_there():
+    f = mission_flight(six_waypoints(), 9.0)  # on the leg to item 1
+    f.vehicle.mission.set_current(4)  # MISSION_SET_CURRENT
+    f.run(25.0)
+    assert f.vehicle.reached[:3] == [0, 4, 5]
+
+
+def test_parameters_changed_in_a_mission_apply_at_once_and_a_new_upload_is_not_started():
+    f = mission_flight(six_waypoints(), 6.0)
+    f.vehicle.set_parameter("MPC_XY_CRUISE", 2.0)
+    start = f.t_s
+    f.run(8.0)
+    assert reference_speed(f.since(start + 2.0)).max() == pytest.approx(2.0, abs=1e-6)
+    f.vehicle.set_mode(FlightMode.HOLD, f.t_s)
+    assert f.vehicle.mission_state == "paused"
+    f.vehicle.mission.replace(MISSION, tuple(six_waypoints()))
+    assert f.vehicle.mission_state == "not started"
+
+
+def test_a_loiter_time_cross_track_flag_is_not_a_heading():
+    items = [mission_item(0, 0, 0, 3.0, TAKEOFF),
+             mission_item(1, 0, 8, 3.0, M.MAV_CMD_NAV_LOITER_TIME, (1.0, 0, 0, 0.0))]
+    f = mission_flight(items, 15.0)
+    assert f.log[-1, 9] == pytest.approx(math.pi / 2, abs=1e-3)  # faced the item (east)
+
+
+def test_altctl_yaw_stick_turns_and_stops_when_centred():
+    f = manual_flight(FlightMode.ALTCTL)
+    sticks(f, 2.0, yaw=1.0)
+    turned = f.log[-1, 9]
+    sticks(f, 3.0)
+    after = float(np.unwrap(f.since(f.t_s - 3.0)[:, 9])[-1])
+    assert turned == pytest.approx(math.radians(72.0), abs=0.05)  # 45 deg/s after 0.4 s
+    # Then only the braking: 45 deg/s stopped at MPC_YAWRAUTO_ACC 60 deg/s^2 is 17 deg.
+    assert after - turned == pytest.approx(0.31, abs=0.02)

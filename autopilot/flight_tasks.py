@@ -110,14 +110,21 @@ class FlightTasks:
         """Hold where the vehicle can stop: the shaped reference's stopping point when it
         is moving one, else the measured position; the heading it has."""
         if self.shaped == "translation":
-            position, yaw = self.shaper.stopping_point(limits), self.shaper.yaw_rad
-        elif measurement is not None:
-            position = measurement[MEASUREMENT.position_ned_m].copy()
-            yaw = wrap_pi(float(measurement[MEAS_YAW]))
+            yaw = self.shaper.yaw_rad
         else:
-            position, yaw = np.zeros(3), 0.0
-        self.setpoint = Setpoint.hold(position, yaw)
+            yaw = 0.0 if measurement is None else wrap_pi(float(measurement[MEAS_YAW]))
+        self.setpoint = Setpoint.hold(self.stopping_point(measurement, limits), yaw)
         self.attitude_target = None
+
+    def stopping_point(self, measurement: np.ndarray | None, limits: ShapingLimits
+                       ) -> np.ndarray:
+        """Where the vehicle can come to rest: the shaped reference's stopping point while
+        one is flown, else the measured position."""
+        if self.shaped == "translation":
+            return self.shaper.stopping_point(limits)
+        if measurement is None:
+            return np.zeros(3)
+        return measurement[MEASUREMENT.position_ned_m].copy()
 
     def stream_position(self, link_t_s: float, setpoint: Setpoint) -> None:
         """Take a checked position setpoint as the newest streamed one. Its velocity and

@@ -8,8 +8,6 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from autopilot.mavlink_telemetry import (
     DEFAULT_STREAMS,
     PRODUCIBLE,
@@ -19,8 +17,8 @@ from autopilot.mavlink_telemetry import (
 )
 from autopilot.mission import ItemError
 from autopilot.refusal import RefusedError
-from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, ned_from_geodetic
-from contracts.mavlink import mavlink
+from contracts.frames import HOME_ALT_AMSL_M
+from contracts.mavlink import GLOBAL_FRAMES, mavlink, ned_from_global
 from contracts.modes import FlightMode, mode_from_custom, px4_custom_mode_from_command
 
 if TYPE_CHECKING:
@@ -28,8 +26,6 @@ if TYPE_CHECKING:
 
 FORCE_DISARM_MAGIC = 21196
 INT32_MAX = 2**31 - 1
-RELATIVE_ALT_FRAMES = (mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-                       mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
 
 
 class CommandProtocol:
@@ -168,8 +164,7 @@ class CommandProtocol:
         param1 speed (-1: default), param4 yaw [rad] (NaN: keep), latitude, longitude,
         altitude (AMSL, or above home in a relative frame; NaN keeps what the vehicle
         has)."""
-        if self.frame not in (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT,
-                              *RELATIVE_ALT_FRAMES):
+        if self.frame not in GLOBAL_FRAMES:
             raise RefusedError(f"go-to frame {self.frame} is not supported")
         lat, lon, alt = p[4], p[5], p[6]
         if any(math.isinf(v) for v in (p[0], p[3], lat, lon, alt)):
@@ -178,14 +173,7 @@ class CommandProtocol:
             raise RefusedError("go-to gives latitude without longitude or the reverse")
         if math.isfinite(lat) and (abs(lat) > 90.0 or abs(lon) > 180.0):
             raise RefusedError(f"go-to latitude/longitude {lat:g}, {lon:g} is not on Earth")
-        amsl = alt + HOME_ALT_AMSL_M if self.frame in RELATIVE_ALT_FRAMES else alt
-        north, east, down = ned_from_geodetic(
-            lat if math.isfinite(lat) else HOME_LAT_DEG,
-            lon if math.isfinite(lon) else HOME_LON_DEG,
-            amsl if math.isfinite(amsl) else HOME_ALT_AMSL_M)
-        target = np.array([north if math.isfinite(lat) else math.nan,
-                           east if math.isfinite(lat) else math.nan,
-                           down if math.isfinite(amsl) else math.nan])
+        target = ned_from_global(self.frame, lat, lon, alt)
         # param4 in radians, as PX4 and MAVSDK read it (the MAVLink spec said degrees
         # until 2025 and now says radians too); NaN keeps the heading.
         yaw = p[3]

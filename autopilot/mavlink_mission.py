@@ -25,7 +25,7 @@ from autopilot.mission import (
     MissionItem,
     check_item,
 )
-from contracts.mavlink import mavlink
+from contracts.mavlink import GLOBAL_FRAMES, mavlink
 
 if TYPE_CHECKING:
     from autopilot.mavlink_server import GroundLink, MavlinkServer
@@ -54,8 +54,7 @@ def item_from_message(msg, legacy: bool) -> MissionItem:
     degrees, turned into the integer form's 1e-7 deg)."""
     x, y = float(msg.x), float(msg.y)
     frame = msg.frame
-    is_global = frame in (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-                          M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
+    is_global = frame in GLOBAL_FRAMES
     if legacy and is_global:
         x, y = x * 1e7, y * 1e7
     elif not legacy and not is_global:

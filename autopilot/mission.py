@@ -11,7 +11,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from contracts.mavlink import mavlink
+from contracts.mavlink import GLOBAL_FRAMES, mavlink
 
 M = mavlink
 MISSION, FENCE, RALLY = (M.MAV_MISSION_TYPE_MISSION, M.MAV_MISSION_TYPE_FENCE,
@@ -19,9 +19,7 @@ MISSION, FENCE, RALLY = (M.MAV_MISSION_TYPE_MISSION, M.MAV_MISSION_TYPE_FENCE,
 MISSION_TYPES = (MISSION, FENCE, RALLY)
 MAX_ITEMS = {MISSION: 500, FENCE: 64, RALLY: 8}  # MISSION_COUNT above: NO_SPACE
 
-GLOBAL_FRAMES = frozenset({M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-                           M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT})
-POSITION_FRAMES = GLOBAL_FRAMES | {M.MAV_FRAME_LOCAL_NED}
+POSITION_FRAMES = frozenset(GLOBAL_FRAMES) | {M.MAV_FRAME_LOCAL_NED}
 # The commands each mission type holds, and whether they carry a position.
 NAV_COMMANDS = {M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME,
                 M.MAV_CMD_NAV_LOITER_UNLIM,

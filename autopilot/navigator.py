@@ -8,9 +8,9 @@ item, a return asked for, the mission finished) comes back as events.
 
 Missions follow PX4's rules (docs/missions.md): a waypoint is *reached* when the vehicle
 is within its acceptance radius (NAV_ACC_RAD when the item gives none) and within
-NAV_MC_ALT_RAD of its altitude; its hold time then runs; the next leg starts when the
-shaped reference has also come within the corner distance, so that the path turns on
-the waypoint rather than cutting the corner inside the acceptance radius. Headings face
+NAV_MC_ALT_RAD of its altitude. A leg that turns starts once the shaped reference has
+also come to the waypoint (AT_WAYPOINT_M), so that the path turns on the waypoint rather
+than cutting the corner inside the acceptance radius; a hold time runs from then. Headings face
 the next waypoint (PX4's MPC_YAW_MODE 0) unless the item names one.
 """
 
@@ -24,8 +24,7 @@ import numpy as np
 
 from autopilot.mission import DO_COMMANDS, PAYLOAD_COMMANDS, MissionItem
 from autopilot.shaping import Setpoint
-from contracts.frames import HOME_ALT_AMSL_M, ned_from_geodetic
-from contracts.mavlink import mavlink
+from contracts.mavlink import mavlink, ned_from_global
 
 M = mavlink
 # A leg that turns starts once the shaped reference has come to within this distance of
@@ -60,11 +59,7 @@ def item_position_ned(item: MissionItem, here_ned_m: np.ndarray) -> np.ndarray:
     and longitude 0 (or x, y NaN in LOCAL_NED) lands where the vehicle is."""
     if item.is_global:
         here_latlon = item.x == 0 and item.y == 0
-        relative = item.frame in (M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-                                  M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
-        amsl = item.z + HOME_ALT_AMSL_M if relative else item.z
-        north, east, down = ned_from_geodetic(item.x * 1e-7, item.y * 1e-7, amsl)
-        out = np.array([north, east, down])
+        out = ned_from_global(item.frame, item.x * 1e-7, item.y * 1e-7, item.z)
     else:
         here_latlon = not (math.isfinite(item.x) and math.isfinite(item.y))
         out = np.array([item.x, item.y, item.z], dtype=float)
@@ -229,16 +224,15 @@ class MissionRunner:
     def step(self, t_s: float, position_ned_m: np.ndarray, reference_ned_m: np.ndarray
              ) -> Goal:
         """This period's goal, from the vehicle's position and the shaped reference's."""
-        hold = Setpoint.hold(self._target, self._yaw_rad)
         if self._phase == "climb":
+            goal = Goal(Setpoint.hold(self._target, self._yaw_rad), math.nan, "takeoff")
             if abs(position_ned_m[2] - self._target[2]) <= self.parameters["NAV_MC_ALT_RAD"]:
                 self._begin_item(position_ned_m, t_s)
-            return Goal(hold, math.nan, "takeoff")
+            return goal
         if self._phase == "start":
             self._begin_item(position_ned_m, t_s)
-            hold = Setpoint.hold(self._target, self._yaw_rad)
         if self._phase == "done":
-            return Goal(hold)
+            return Goal(Setpoint.hold(self._target, self._yaw_rad))
         if self._phase == "land":
             return Goal(Setpoint.hold((*self._target[0:2], LAND_DOWN_M), self._yaw_rad),
                         math.nan, "land")

@@ -28,13 +28,9 @@ import numpy as np
 from autopilot.refusal import RefusedError
 from autopilot.shaping import Setpoint
 from contracts.frames import (
-    HOME_ALT_AMSL_M,
-    HOME_LAT_DEG,
-    HOME_LON_DEG,
     heading_to_ned,
-    ned_from_geodetic,
 )
-from contracts.mavlink import mavlink
+from contracts.mavlink import GLOBAL_FRAMES, mavlink, ned_from_global
 
 # POSITION_TARGET_TYPEMASK bits.
 X_IGNORE, Y_IGNORE, Z_IGNORE = 1 << 0, 1 << 1, 1 << 2
@@ -56,13 +52,6 @@ LOCAL_FRAMES: dict[int, tuple[bool, bool, bool]] = {
     mavlink.MAV_FRAME_BODY_OFFSET_NED: (True, True, True),
     mavlink.MAV_FRAME_BODY_FRD: (True, True, True),
     mavlink.MAV_FRAME_LOCAL_FRD: (False, True, True),
-}
-# Global frames -> whether the altitude is above home (else AMSL).
-GLOBAL_FRAMES: dict[int, bool] = {
-    mavlink.MAV_FRAME_GLOBAL: False,
-    mavlink.MAV_FRAME_GLOBAL_INT: False,
-    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT: True,
-    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT: True,
 }
 
 
@@ -129,10 +118,7 @@ def global_setpoint(frame: int, type_mask: int, lat_int: int, lon_int: int, alt_
     lat, lon, alt = given
     if abs(lat) > 90.0 or abs(lon) > 180.0:  # False for NaN: left out
         raise RefusedError(f"setpoint latitude/longitude {lat:g}, {lon:g} is not on Earth")
-    amsl = alt + HOME_ALT_AMSL_M if GLOBAL_FRAMES[frame] else alt
-    ned = ned_from_geodetic(*(v if math.isfinite(v) else h for v, h in zip(
-        (lat, lon, amsl), (HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_AMSL_M), strict=True)))
-    pos = np.where(np.isfinite(given), ned, np.nan)
+    pos = ned_from_global(frame, lat, lon, alt)
     vel = _masked(type_mask, VELOCITY_BITS, velocity, "velocity")
     acc = _masked(type_mask, ACCEL_BITS, accel, "acceleration")
     return Setpoint(pos, vel, acc, *_yaw(type_mask, yaw, yaw_rate))

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from autopilot.mission import FENCE, MISSION, RALLY, ItemError, MissionItem, check_item
-from contracts.mavlink import mavlink
+from contracts.mavlink import GLOBAL_FRAMES, mavlink
 
 M = mavlink
 
@@ -79,8 +79,7 @@ def _mission(mission: dict, path: Path) -> tuple[MissionItem, ...]:
                 raise PlanError(f"{path}: mission.items[{seq}] jumps to doJumpId "
                                 f"{params[0]:g}, which no item has")
             params[0] = float(jump_ids[params[0]])
-        global_frame = frame in (M.MAV_FRAME_GLOBAL, M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
-                                 M.MAV_FRAME_GLOBAL_INT, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)
+        global_frame = frame in GLOBAL_FRAMES
         scale = 1e7 if global_frame else 1.0
         x = 0.0 if math.isnan(params[4]) else params[4] * scale
         y = 0.0 if math.isnan(params[5]) else params[5] * scale

@@ -54,7 +54,6 @@ __all__ = ["LANDED_ALTITUDE_M", "LANDED_SPEED_MPS", "TAKEOFF_REACHED_M", "Refuse
            "Vehicle"]
 
 TAKEOFF_REACHED_M = 0.1
-LAND_REFERENCE_Z_M = LAND_DOWN_M  # landing descends below the ground: it touches down
 ARMABLE_MODES = (FlightMode.HOLD, FlightMode.GUIDED, FlightMode.OFFBOARD, FlightMode.TAKEOFF,
                  FlightMode.MISSION, *MANUAL_MODES)
 TOOL_SETPOINT_MODES = (FlightMode.OFFBOARD, FlightMode.GUIDED)  # fly streamed setpoints
@@ -298,7 +297,7 @@ class Vehicle:
             self.returning = ReturnToLaunch(self.parameters)
             self.returning.start(self._stopping_point(), self.heading_rad)
         if mode == FlightMode.LAND:
-            self.tasks.setpoint.position_ned_m[2] = LAND_REFERENCE_Z_M
+            self.tasks.setpoint.position_ned_m[2] = LAND_DOWN_M
         if mode == FlightMode.OFFBOARD:
             self.tasks.apply_streamed(self.measurement)
         if mode == FlightMode.REFERENCE:
@@ -337,13 +336,7 @@ class Vehicle:
         self._navigator_events()
 
     def _stopping_point(self) -> np.ndarray:
-        """Where the vehicle can come to rest from here (the reference's stopping point
-        while one is flown)."""
-        if self.tasks.shaped == "translation":
-            return self.tasks.shaper.stopping_point(self.limits)
-        if self.measurement is None:
-            return np.zeros(3)
-        return self.measurement[MEASUREMENT.position_ned_m].copy()
+        return self.tasks.stopping_point(self.measurement, self.limits)
 
     def _navigator_events(self) -> None:
         nav = self.navigator

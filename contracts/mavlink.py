@@ -17,6 +17,8 @@ from pymavlink.dialects.v20 import common as mavlink
 from contracts.frames import (
     GRAVITY_MPS2,
     HOME_ALT_AMSL_M,
+    HOME_LAT_DEG,
+    HOME_LON_DEG,
     altitude_from_pressure_m,
     body_to_world,
     euler_from_quat,
@@ -27,6 +29,23 @@ from contracts.frames import (
 from contracts.vectors import MEASUREMENT
 
 __all__ = ["mavlink"]
+
+# MAVLink's global frames, each with whether its altitude is above home (else AMSL).
+GLOBAL_FRAMES: dict[int, bool] = {
+    mavlink.MAV_FRAME_GLOBAL: False,
+    mavlink.MAV_FRAME_GLOBAL_INT: False,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT: True,
+    mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT: True,
+}
+
+
+def ned_from_global(frame: int, lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray:
+    """Local NED around home of a position in one of GLOBAL_FRAMES; a NaN coordinate (one
+    a tool left out) stays NaN."""
+    given = (lat_deg, lon_deg, alt_m + HOME_ALT_AMSL_M if GLOBAL_FRAMES[frame] else alt_m)
+    ned = ned_from_geodetic(*(v if math.isfinite(v) else h for v, h in zip(
+        given, (HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_AMSL_M), strict=True)))
+    return np.where(np.isfinite(given), ned, np.nan)
 
 SIM_TCP_PORT = 4560
 GCS_UDP_PORT = 14550  # where a ground station listens (QGroundControl, MAVProxy)

@@ -30,6 +30,7 @@ from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 from contracts.frames import wrap_pi
 from tests.harness import start_processes
+from tests.mavsdk_helpers import until
 
 log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
 
@@ -61,15 +62,6 @@ async def _record(telem: TelemetryAsync, track: Track) -> None:
     await asyncio.gather(positions(), attitudes())
 
 
-async def _until(check, timeout_s: float, what: str):
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if await check():
-            return
-        await asyncio.sleep(0.1)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-
-
 async def _fly(port: int, script) -> tuple[Track, dict[str, float]]:
     """Connect, take off to 2.5 m, start offboard holding there, run ``script``, land."""
     mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
@@ -84,7 +76,7 @@ async def _fly(port: int, script) -> tuple[Track, dict[str, float]]:
         async def armable():
             h = await telem.health()
             return h.is_armable and h.is_local_position_ok
-        await _until(armable, 20, "armable")
+        await until(armable, 20, "armable")
         limits = {name: await param.get_param_float(name)
                   for name in ("MPC_XY_VEL_MAX", "MPC_TILTMAX_AIR", "MPC_YAWRAUTO_MAX")}
         recorder = asyncio.ensure_future(_record(telem, track))
@@ -94,7 +86,7 @@ async def _fly(port: int, script) -> tuple[Track, dict[str, float]]:
 
         async def up():
             return abs((await telem.position_velocity_ned()).position.down_m + 2.5) < 0.15
-        await _until(up, 20, "take-off altitude")
+        await until(up, 20, "take-off altitude")
         await offboard.set_position_ned(PositionNedYaw(0.0, 0.0, -2.5, 0.0))
         await offboard.start()
         try:

@@ -5,7 +5,6 @@ a geofence (an inclusion polygon and an exclusion circle) and download it."""
 from __future__ import annotations
 
 import asyncio
-import math
 
 from mavsdk import log_subscribe
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
@@ -17,22 +16,14 @@ from mavsdk.asyncio.plugins.geofence import (
     Point,
     Polygon,
 )
-from mavsdk.asyncio.plugins.mission import MissionAsync, MissionItem, MissionPlan
+from mavsdk.asyncio.plugins.mission import MissionAsync, MissionPlan
 
 from tests.harness import start_processes
+from tests.mavsdk_helpers import mission_item
 
 log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
 
 HOME = (47.397742, 8.545594)
-
-
-def _item(north_m: float, east_m: float, alt_m: float, speed_mps: float = math.nan,
-          loiter_s: float = math.nan, yaw_deg: float = math.nan) -> MissionItem:
-    return MissionItem(HOME[0] + north_m / 111_320.0, HOME[1] + east_m / 75_000.0, alt_m,
-                       speed_mps, math.isnan(loiter_s), math.nan, math.nan,
-                       MissionItem.CameraAction.NONE,
-                       loiter_s, math.nan, 1.0, yaw_deg, math.nan,
-                       MissionItem.VehicleAction.NONE)
 
 
 async def _session(port: int) -> dict:
@@ -43,8 +34,9 @@ async def _session(port: int) -> dict:
         system = await mavsdk.first_autopilot(timeout_s=30.0)
         assert system is not None, "no autopilot heard"
         mission, fence = MissionAsync(system), GeofenceAsync(system)
-        plan = MissionPlan([_item(0, 0, 5.0, speed_mps=3.0), _item(20, 0, 5.0, loiter_s=2.0),
-                            _item(20, 20, 8.0, yaw_deg=90.0)])
+        plan = MissionPlan([mission_item(0, 0, 5.0, speed_mps=3.0),
+                            mission_item(20, 0, 5.0, loiter_s=2.0),
+                            mission_item(20, 20, 8.0, yaw_deg=90.0)])
         await mission.upload_mission(plan)
         out["mission"] = (await mission.download_mission()).mission_items
         await mission.clear_mission()

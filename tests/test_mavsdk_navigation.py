@@ -7,7 +7,6 @@ control plugin (position control with sticks). Judged from the vehicle's telemet
 from __future__ import annotations
 
 import asyncio
-import math
 import time
 
 import numpy as np
@@ -16,21 +15,14 @@ from mavsdk import log_subscribe
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.manual_control import ManualControlAsync
-from mavsdk.asyncio.plugins.mission import MissionAsync, MissionItem, MissionPlan
+from mavsdk.asyncio.plugins.mission import MissionAsync, MissionPlan
 from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
 
 from contracts.frames import HOME_ALT_AMSL_M, geodetic_from_ned
 from tests.harness import start_processes
+from tests.mavsdk_helpers import mission_item, until
 
 log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
-
-
-def _item(north_m: float, east_m: float, alt_m: float, speed_mps: float = math.nan
-          ) -> MissionItem:
-    lat, lon, _ = geodetic_from_ned(north_m, east_m, 0.0)
-    return MissionItem(lat, lon, alt_m, speed_mps, True, math.nan, math.nan,
-                       MissionItem.CameraAction.NONE, math.nan, math.nan, 1.0, math.nan,
-                       math.nan, MissionItem.VehicleAction.NONE)
 
 
 class Watch:
@@ -71,31 +63,13 @@ class Watch:
                              *([progress()] if mission is not None else []))
 
 
-async def _until(check, timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if check():
-            return
-        await asyncio.sleep(0.05)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
-
-
 async def _connect(mavsdk: Mavsdk, port: int):
     await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
     system = await mavsdk.first_autopilot(timeout_s=30.0)
     assert system is not None, "no autopilot heard"
     telem = TelemetryAsync(system)
-    await _until_async(telem.health_all_ok, 30.0, "health all ok")
+    await until(telem.health_all_ok, 30.0, "health all ok")
     return system, telem
-
-
-async def _until_async(check, timeout_s: float, what: str) -> None:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if await check():
-            return
-        await asyncio.sleep(0.1)
-    raise AssertionError(f"timed out after {timeout_s} s waiting for {what}")
 
 
 async def _mission_session(port: int) -> dict:
@@ -107,12 +81,12 @@ async def _mission_session(port: int) -> dict:
         watch = Watch()
         follower = asyncio.ensure_future(watch.follow(telem, mission))
         await mission.upload_mission(MissionPlan([
-            _item(0, 0, 3.0, speed_mps=3.0), _item(12, 0, 3.0), _item(12, 12, 3.0),
-            _item(0, 12, 3.0)]))
+            mission_item(0, 0, 3.0, speed_mps=3.0), mission_item(12, 0, 3.0),
+            mission_item(12, 12, 3.0), mission_item(0, 12, 3.0)]))
         await action.arm()
         await mission.start_mission()  # on the ground: PX4 climbs first
         # Pause on the leg to the third item, at speed.
-        await _until(lambda: watch.progress and watch.progress[-1][0] >= 2 and np.hypot(
+        await until(lambda: watch.progress and watch.progress[-1][0] >= 2 and np.hypot(
             *watch.velocity[0:2]) > 2.0, 60.0, "the leg to item 2")
         await mission.pause_mission()
         await asyncio.sleep(7.0)  # braking from 3 m/s, then the last centimetres
@@ -120,11 +94,11 @@ async def _mission_session(port: int) -> dict:
         out["paused_mode"] = watch.mode
         out["paused_at"] = watch.ned.copy()
         await mission.start_mission()  # resume
-        await _until_async(mission.is_mission_finished, 60.0, "the mission to finish")
+        await until(mission.is_mission_finished, 60.0, "the mission to finish")
         out["finished_at"] = watch.ned.copy()
         out["progress"] = list(watch.progress)
         await action.return_to_launch()
-        await _until(lambda: not watch.armed, 90.0, "landed and disarmed at home")
+        await until(lambda: not watch.armed, 90.0, "landed and disarmed at home")
         out["home"] = watch.ned.copy()
         out["downloaded"] = len((await mission.download_mission()).mission_items)
         follower.cancel()
@@ -158,10 +132,10 @@ async def _goto_and_sticks_session(port: int) -> dict:
         await action.set_takeoff_altitude(3.0)
         await action.arm()
         await action.takeoff()
-        await _until(lambda: watch.ned[2] < -2.9, 30.0, "take-off")
+        await until(lambda: watch.ned[2] < -2.9, 30.0, "take-off")
         lat, lon, _ = geodetic_from_ned(15.0, -5.0, 0.0)
         await action.goto_location(lat, lon, HOME_ALT_AMSL_M + 4.0, 90.0)
-        await _until(lambda: np.linalg.norm(watch.ned - (15.0, -5.0, -4.0)) < 0.5
+        await until(lambda: np.linalg.norm(watch.ned - (15.0, -5.0, -4.0)) < 0.5
                      and np.linalg.norm(watch.velocity) < 0.05, 30.0, "the go-to")
         await asyncio.sleep(1.0)
         out["goto"] = watch.ned.copy()

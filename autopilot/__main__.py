@@ -25,7 +25,7 @@ from contracts.zenoh_link import (
 
 def param_argument(text: str) -> tuple[str, float]:
     """argparse type for NAME=VALUE (also used by ``ivfm run``)."""
-    from autopilot.control.parameters import parse_assignment
+    from autopilot.parameters import parse_assignment
 
     try:
         return parse_assignment(text)
@@ -45,7 +45,7 @@ def _address(text: str) -> tuple[str, int] | None:
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     from autopilot.control.factory import CONTROLLERS
-    from autopilot.reference import REFERENCE_KINDS
+    from autopilot.flight_tasks.reference import REFERENCE_KINDS
     from contracts.airframe import airframe_argument
     from contracts.mavlink import STATE_SOURCES
 
@@ -111,12 +111,12 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 
 def run(args: argparse.Namespace) -> int:
+    from autopilot.commander.commander import Vehicle
     from autopilot.control.factory import load_models, make_controller
-    from autopilot.control.parameters import validate_parameters
-    from autopilot.mavlink_server import MavlinkServer, open_link
-    from autopilot.process import Autopilot, AutopilotConfig
-    from autopilot.reference import Reference
-    from autopilot.vehicle import Vehicle
+    from autopilot.flight_tasks.reference import Reference
+    from autopilot.mavlink.server import MavlinkServer, open_link
+    from autopilot.parameters import validate_parameters
+    from autopilot.process.loop import Autopilot, AutopilotConfig
     from contracts.airframe import airframe_by_name
     from contracts.perturbations import load_schedule
     from contracts.telemetry import check_vehicle_id
@@ -162,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
                       period_s, parameters, reference,
                       load_schedule(args.schedule) if args.schedule else (), args.flavour)
     if args.mission is not None:
-        from autopilot.plan_file import read_plan
+        from autopilot.navigator.plan_file import read_plan
 
         for mission_type, items in read_plan(args.mission).items():
             vehicle.mission.replace(mission_type, items)

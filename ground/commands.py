@@ -9,8 +9,8 @@ import time
 from typing import Any
 
 from autopilot.control.factory import load_models, model_airframe_metadata
-from autopilot.control.parameters import PARAMETERS, validate_parameters
-from autopilot.identification.ts_model import FuzzyModelSet
+from autopilot.models.ts_model import FuzzyModelSet
+from autopilot.parameters import PARAMETERS, validate_parameters
 from contracts.airframe import airframe_by_name
 from ground.run_files import write_json
 from ground.scenarios import scenario_by_name, shipped_scenarios
@@ -148,7 +148,7 @@ def compare_command(args: argparse.Namespace) -> int:
 def identify_command(args: argparse.Namespace) -> int:
     from autopilot.identification.dataset import read_dataset, write_dataset
     from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
-    from autopilot.identification.model_file import save_model
+    from autopilot.models.model_file import save_model
     from ground.excitation import excitation_dataset
     from ground.paper_tables import TABLE_2_VALIDATION_RMSE
 

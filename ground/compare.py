@@ -12,7 +12,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from autopilot.identification.ts_model import FuzzyModelSet  # noqa: E402
+from autopilot.models.ts_model import FuzzyModelSet  # noqa: E402
 from contracts.airframe import airframe_by_name  # noqa: E402
 from contracts.frames import altitude_m  # noqa: E402
 from ground.inprocess import run_inprocess  # noqa: E402

@@ -12,9 +12,9 @@ import numpy as np
 
 from autopilot.control.cascade import SlidingModeCascade
 from autopilot.control.factory import make_controller
-from autopilot.control.parameters import validate_parameters
 from autopilot.estimation.estimator import Estimator, GpsFix
-from autopilot.identification.ts_model import FuzzyModelSet
+from autopilot.models.ts_model import FuzzyModelSet
+from autopilot.parameters import validate_parameters
 from contracts.airframe import Airframe, hover_rotor_speeds
 from contracts.mavlink import (
     fix_from_hil_gps,

@@ -80,8 +80,8 @@ def distance_to_path(points: np.ndarray, path: np.ndarray) -> np.ndarray:
 def path_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
     """How the vehicle followed its mission: arrival at each positioned item, cross-track
     error along the planned legs (PATH_DEFINITION)."""
-    from autopilot.control.parameters import validate_parameters
-    from autopilot.navigator import WAYPOINT_COMMANDS, item_position_ned
+    from autopilot.navigator.mission_runner import WAYPOINT_COMMANDS, item_position_ned
+    from autopilot.parameters import validate_parameters
     from contracts.mavlink import mavlink
 
     p = validate_parameters(scenario.parameters)

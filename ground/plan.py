@@ -1,13 +1,13 @@
 """QGroundControl ``.plan`` files uploaded with the MAVLink mission protocol as a ground
-tool does (``ivfm plan``). Reading a plan is autopilot/plan_file.py.
+tool does (``ivfm plan``). Reading a plan is autopilot/navigator/plan_file.py.
 """
 
 from __future__ import annotations
 
 import time
 
-from autopilot.mission import FENCE, MISSION, RALLY, MissionItem
-from autopilot.plan_file import PlanError, read_plan
+from autopilot.navigator.mission_store import FENCE, MISSION, RALLY, MissionItem
+from autopilot.navigator.plan_file import PlanError, read_plan
 from contracts.mavlink import mavlink
 
 M = mavlink

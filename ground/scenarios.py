@@ -14,7 +14,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from autopilot.reference import Reference
+from autopilot.flight_tasks.reference import Reference
 from contracts.perturbations import (
     Perturbation,
     Perturbations,
@@ -53,7 +53,7 @@ class Scenario:
         """The plan's mission items (empty without a plan)."""
         if self.plan is None:
             return ()
-        from autopilot.plan_file import read_plan
+        from autopilot.navigator.plan_file import read_plan
         from contracts.mavlink import mavlink
 
         return read_plan(self.plan)[mavlink.MAV_MISSION_TYPE_MISSION]
@@ -82,7 +82,7 @@ def load_scenario(path: Path) -> Scenario:
 
 def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     from autopilot.control.factory import CONTROLLERS
-    from autopilot.control.parameters import validate_parameters
+    from autopilot.parameters import validate_parameters
     from contracts.airframe import airframe_by_name
     from contracts.mavlink import STATE_SOURCES
     from sitl.dynamics import FIDELITIES
@@ -164,7 +164,7 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
 
 def _plan(mission: dict[str, Any], path: Path) -> Path | None:
     """[mission] plan = "file.plan" (beside the scenario), read and checked now."""
-    from autopilot.plan_file import read_plan
+    from autopilot.navigator.plan_file import read_plan
 
     bad = sorted(set(mission) - {"plan"})
     if bad:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from autopilot.control.factory import load_models
-from autopilot.identification.ts_model import FuzzyModelSet
+from autopilot.models.ts_model import FuzzyModelSet
 
 
 @pytest.fixture(scope="session")

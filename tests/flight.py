@@ -1,7 +1,7 @@
 """The vehicle's logic and controller flying the plant in one process, on sim time.
 
 What a ground tool does (arm, take off, stream setpoints) is called directly on
-:class:`autopilot.vehicle.Vehicle`, with sim time as the link clock, so a flight is
+:class:`autopilot.commander.commander.Vehicle`, with sim time as the link clock, so a flight is
 deterministic and takes a fraction of a second of wall time. Processes and real tools
 are tested in test_mavsdk_flights.py; this is for the logic and the numbers.
 """
@@ -13,9 +13,9 @@ from collections.abc import Callable
 
 import numpy as np
 
+from autopilot.commander.commander import Vehicle
 from autopilot.control.factory import load_models, make_controller
-from autopilot.shaping import Setpoint
-from autopilot.vehicle import Vehicle
+from autopilot.flight_tasks.shaping import Setpoint
 from contracts.airframe import PAPER, Airframe
 from sitl.plant import Plant
 
@@ -121,7 +121,7 @@ def mission_item(seq: int, north: float, east: float, altitude_m: float,
                  command: int | None = None, params=(0.0, 0.0, 0.0, math.nan)):
     """A MISSION_ITEM_INT-style item at ``north``, ``east`` [m] from home, ``altitude_m``
     above home (GLOBAL_RELATIVE_ALT_INT, as QGroundControl and MAVSDK send them)."""
-    from autopilot.mission import MissionItem
+    from autopilot.navigator.mission_store import MissionItem
     from contracts.frames import geodetic_from_ned
     from contracts.mavlink import mavlink
 
@@ -133,7 +133,7 @@ def mission_item(seq: int, north: float, east: float, altitude_m: float,
 
 
 def do_item(seq: int, command: int, params) -> object:
-    from autopilot.mission import MissionItem
+    from autopilot.navigator.mission_store import MissionItem
     from contracts.mavlink import mavlink
 
     return MissionItem(seq, mavlink.MAV_FRAME_MISSION, command, 0, 1,

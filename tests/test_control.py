@@ -9,18 +9,18 @@ import pytest
 
 from autopilot.control.cascade import desired_angles
 from autopilot.control.command_filter import command_filter_step
+from autopilot.control.gains import ChannelGains
 from autopilot.control.mixer import mix
-from autopilot.control.parameters import (
-    PARAMETERS,
-    ChannelGains,
-    default_parameters,
-    validate_parameters,
-)
 from autopilot.control.sliding_mode import (
     TEL_EEPS,
     adaptive_channel_step,
     boundary_layer_distance,
     lyapunov,
+)
+from autopilot.parameters import (
+    PARAMETERS,
+    default_parameters,
+    validate_parameters,
 )
 from contracts.airframe import (
     PAPER,

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from autopilot.geofence import breach, zones_from_items
-from autopilot.mission import FENCE, MissionItem
+from autopilot.navigator.geofence import breach, zones_from_items
+from autopilot.navigator.mission_store import FENCE, MissionItem
 from contracts.frames import geodetic_from_ned
 from contracts.mavlink import mavlink
 from contracts.modes import FlightMode

@@ -297,8 +297,8 @@ def _check_model_file_structure(path: Path, run_dir: Path) -> None:
     """The written JSON: format header, metadata of the log, and per channel the shapes
     the autopilot expects for c = DEFAULT_N_CLUSTERS clusters and the channel's regressors,
     with input ranges those of the identification half of the logged samples."""
-    from autopilot.identification.dataset import CHANNEL_REGRESSORS
     from autopilot.identification.identify import DEFAULT_N_CLUSTERS
+    from autopilot.models.regressors import CHANNEL_REGRESSORS
     from ground.excitation import dataset_from_log
 
     doc = json.loads(path.read_text())

@@ -12,7 +12,6 @@ import pytest
 from scipy.optimize import linear_sum_assignment
 
 from autopilot.identification.dataset import (
-    CHANNEL_REGRESSORS,
     OPTIONAL_COLUMNS,
     REQUIRED_COLUMNS,
     Dataset,
@@ -21,23 +20,19 @@ from autopilot.identification.dataset import (
     write_dataset,
 )
 from autopilot.identification.envelope import detect_envelopes
-from autopilot.identification.gaussian_fit import (
-    Gaussian,
-    fit_gaussian,
-    interval_holds,
-    max_log_ratio,
-    repair_interval,
-)
+from autopilot.identification.gaussian_fit import fit_gaussian, repair_interval
 from autopilot.identification.gk import gustafson_kessel, update_partition
 from autopilot.identification.identify import identify_channel, identify_dataset
 from autopilot.identification.least_squares import fit_consequents
-from autopilot.identification.model_file import (
+from autopilot.models.membership import Gaussian, interval_holds, max_log_ratio
+from autopilot.models.model_file import (
     ModelFileError,
     load_model,
     model_set_to_dict,
     save_model,
 )
-from autopilot.identification.ts_model import (
+from autopilot.models.regressors import CHANNEL_REGRESSORS
+from autopilot.models.ts_model import (
     it2_regressor,
     it2_regressor_matrix,
     normalised_firing,

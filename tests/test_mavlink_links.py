@@ -11,8 +11,9 @@ import time
 import numpy as np
 import pytest
 
+from autopilot.commander.commander import Vehicle
 from autopilot.control.factory import make_controller
-from autopilot.mavlink_server import (
+from autopilot.mavlink.server import (
     DROP_WARNING_S,
     HEARTBEAT_SHED_S,
     PEER_FORGET_S,
@@ -21,7 +22,6 @@ from autopilot.mavlink_server import (
     decode_datagram,
     open_link,
 )
-from autopilot.vehicle import Vehicle
 from contracts.airframe import PAPER
 from contracts.mavlink import mavlink, new_mavlink
 

@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from autopilot.commander.commander import Vehicle
 from autopilot.control.factory import make_controller
-from autopilot.control.parameters import PARAMETERS, default_parameters
-from autopilot.vehicle import Vehicle
+from autopilot.parameters import PARAMETERS, default_parameters
 from contracts.airframe import PAPER
 from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, geodetic_from_ned
 from contracts.modes import FlightMode, px4_custom_mode
@@ -66,13 +66,13 @@ class Clock:
 
 def make_server(vehicle: Vehicle, links: list, clock: Clock, flavour: str = "px4"):
     """The one place the server is built (its class and module may be renamed)."""
-    from autopilot.mavlink_server import MavlinkServer
+    from autopilot.mavlink.server import MavlinkServer
 
     return MavlinkServer(vehicle, links, flavour, clock=clock)
 
 
 def open_links(n: int) -> list:
-    from autopilot.mavlink_server import open_link
+    from autopilot.mavlink.server import open_link
 
     return [open_link(name, ("127.0.0.1", 0), None, None, i)
             for i, name in enumerate(("gcs", "api")[:n])]

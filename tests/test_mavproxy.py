@@ -14,7 +14,7 @@ from pathlib import Path
 import pexpect
 import pytest
 
-from autopilot.control.parameters import PARAMETERS
+from autopilot.parameters import PARAMETERS
 from tests.harness import start_processes
 
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"

@@ -1,4 +1,4 @@
-"""The MAVLink mission protocol, vehicle side (autopilot/mavlink_mission.py), over real
+"""The MAVLink mission protocol, vehicle side (autopilot/mavlink/mission_protocol.py), over real
 UDP sockets with pymavlink on an injected link clock: upload, download, clear and set
 current for missions, fences and rally points; every bad upload gets PX4's
 MAV_MISSION_RESULT and leaves the stored list as it was; retries and time-outs."""
@@ -9,8 +9,8 @@ import math
 
 import pytest
 
-from autopilot.mavlink_mission import RETRY_S, TIMEOUT_S
-from autopilot.mission import MISSION
+from autopilot.mavlink.mission_protocol import RETRY_S, TIMEOUT_S
+from autopilot.navigator.mission_store import MISSION
 from tests.test_mavlink_server import T0, M, Station
 
 HOME_LAT, HOME_LON = 47.397742, 8.545594

@@ -1,9 +1,10 @@
 """Missions, return, go-to and manual flight, flown in process on sim time (tests/flight.py).
 
-The vehicle's navigator (autopilot/navigator.py) and manual modes (autopilot/manual.py)
-fly the rigid-body plant with the paper's controller; what a tool does is called on the
-vehicle directly. Numbers are golden: a change in the navigator or the shaping that moves
-them is a change to look at. MAVLink and real tools are in test_mission_flight.py.
+The vehicle's navigator (autopilot/navigator/) and manual modes
+(autopilot/flight_tasks/manual.py) fly the rigid-body plant with the paper's controller;
+what a tool does is called on the vehicle directly. Numbers are golden: a change in the
+navigator or the shaping that moves them is a change to look at. MAVLink and real tools
+are in test_mission_flight.py.
 """
 
 from __future__ import annotations
@@ -14,8 +15,8 @@ import math
 import numpy as np
 import pytest
 
-from autopilot.manual import Sticks, deadband, expo, sticks_from_manual_control
-from autopilot.mission import MISSION
+from autopilot.flight_tasks.manual import Sticks, deadband, expo, sticks_from_manual_control
+from autopilot.navigator.mission_store import MISSION
 from autopilot.refusal import RefusedError
 from contracts.mavlink import mavlink
 from contracts.modes import FlightMode
@@ -326,8 +327,8 @@ def test_sticks_are_checked_and_shaped_as_px4_reads_them():
 
 # -- the navigator alone -------------------------------------------------------------------
 def test_a_jump_loop_without_a_position_ends_the_mission_instead_of_stalling():
-    from autopilot.control.parameters import default_parameters
-    from autopilot.navigator import MissionRunner
+    from autopilot.navigator.mission_runner import MissionRunner
+    from autopilot.parameters import default_parameters
 
     items = (mission_item(0, 5, 0, 3.0), do_item(1, M.MAV_CMD_DO_JUMP, (2, -1, 0, 0)),
              do_item(2, M.MAV_CMD_DO_JUMP, (1, -1, 0, 0)))
@@ -339,8 +340,8 @@ def test_a_jump_loop_without_a_position_ends_the_mission_instead_of_stalling():
 
 
 def test_local_ned_items_are_metres_from_home():
-    from autopilot.mission import MissionItem
-    from autopilot.navigator import item_position_ned
+    from autopilot.navigator.mission_runner import item_position_ned
+    from autopilot.navigator.mission_store import MissionItem
 
     item = MissionItem(0, M.MAV_FRAME_LOCAL_NED, WAYPOINT, 0, 1, (0, 0, 0, math.nan),
                        4.0, -3.0, -6.0)

@@ -1,4 +1,5 @@
-"""Offboard setpoint mapping (autopilot/offboard.py): type_mask and every frame PX4 takes."""
+"""Offboard setpoint mapping (autopilot/mavlink/offboard.py): type_mask and every frame PX4
+takes."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from autopilot.offboard import (
+from autopilot.mavlink.offboard import (
     ACCEL_BITS,
     FORCE_SET,
     POSITION_BITS,

@@ -1,4 +1,4 @@
-"""QGroundControl .plan files (autopilot/plan_file.py, ground/plan.py): read into mission,
+"""QGroundControl .plan files (autopilot/navigator/plan_file.py, ground/plan.py): read into mission,
 fence and rally lists, checked as the vehicle checks them, and uploaded by ``ivfm plan``
 to the real processes."""
 
@@ -8,7 +8,7 @@ import json
 
 import pytest
 
-from autopilot.mission import FENCE, MISSION, RALLY
+from autopilot.navigator.mission_store import FENCE, MISSION, RALLY
 from contracts.mavlink import mavlink
 from ground.cli import main
 from ground.plan import PlanError, read_plan

@@ -1,4 +1,5 @@
-"""Setpoint shaping (autopilot/shaping.py) and the one angle wrap (contracts/frames.py)."""
+"""Setpoint shaping (autopilot/flight_tasks/shaping.py) and the one angle wrap
+(contracts/frames.py)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from autopilot.shaping import (
+from autopilot.flight_tasks.shaping import (
     Setpoint,
     SetpointShaper,
     ShapingLimits,

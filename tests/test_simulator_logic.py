@@ -13,8 +13,8 @@ import threading
 import numpy as np
 import pytest
 
+from autopilot.commander.commander import Vehicle
 from autopilot.control.factory import make_controller
-from autopilot.vehicle import Vehicle
 from contracts.airframe import PAPER, hover_rotor_speeds
 from contracts.mavlink import (
     actuator_message,

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from autopilot.control.factory import CONTROLLERS, make_controller
-from autopilot.shaping import Setpoint
+from autopilot.flight_tasks.shaping import Setpoint
 from contracts.airframe import PAPER, hover_rotor_speeds, max_thrust_n
 from contracts.frames import wrap_pi
 from contracts.modes import FlightMode
@@ -292,7 +292,7 @@ def test_paper_scenarios_are_unchanged(plant, scenario, expected):
     (Setpoint(np.zeros(3), yaw_rate_rad_s=50.0), "beyond"),
 ])
 def test_bad_setpoints_are_refused_and_change_nothing(bad, reason):
-    from autopilot.vehicle import RefusedError
+    from autopilot.commander.commander import RefusedError
 
     flight = _airborne()
     vehicle = flight.vehicle

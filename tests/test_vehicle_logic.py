@@ -1,7 +1,7 @@
 """The vehicle's logic in process, on injected clocks: arming, modes, take-off, landing,
 setpoints, failsafes and the STATUSTEXT they queue.
 
-:class:`autopilot.vehicle.Vehicle` takes its times as arguments: ``sim_t_s`` for the
+:class:`autopilot.commander.commander.Vehicle` takes its times as arguments: ``sim_t_s`` for the
 control path and ``link_t_s`` for what ground tools do. So every timeout here is tested
 on both sides of its threshold (1 ms before and 1 ms after), with the number taken from
 the parameter table, and flights close the loop with the real controller and the real
@@ -16,17 +16,17 @@ import math
 import numpy as np
 import pytest
 
-from autopilot.control.factory import make_controller
-from autopilot.control.parameters import default_parameters
-from autopilot.reference import Reference
-from autopilot.shaping import Setpoint
-from autopilot.vehicle import (
+from autopilot.commander.commander import (
     LANDED_ALTITUDE_M,
     LANDED_SPEED_MPS,
     TAKEOFF_REACHED_M,
     RefusedError,
     Vehicle,
 )
+from autopilot.control.factory import make_controller
+from autopilot.flight_tasks.reference import Reference
+from autopilot.flight_tasks.shaping import Setpoint
+from autopilot.parameters import default_parameters
 from contracts.airframe import PAPER
 from contracts.frames import quat_from_euler
 from contracts.modes import FlightMode
@@ -200,7 +200,7 @@ def test_arming_needs_state_from_the_simulator_temporarily():
 def test_arming_waits_for_the_estimator_and_says_why():
     """On the estimator, the pre-arm check is its convergence: refused (temporarily) with
     its reason, then accepted once it has converged; SYS_STATUS says the same."""
-    from autopilot.mavlink_telemetry import PREARM, sys_status
+    from autopilot.mavlink.telemetry import PREARM, sys_status
 
     v = make_vehicle()
     v.sample(0.0, GROUND)
@@ -463,7 +463,7 @@ def test_a_restarted_simulator_disarms_a_vehicle_on_the_ground():
 def _watchdog(vehicle: Vehicle, lockstep: bool):
     """The autopilot process's simulator-link watchdog, without sockets: the simulator
     socket is a stand-in and the wall time of the last sample is set by hand."""
-    from autopilot.process import Autopilot, AutopilotConfig
+    from autopilot.process.loop import Autopilot, AutopilotConfig
 
     autopilot = Autopilot(AutopilotConfig(lockstep=lockstep), vehicle, None,
                           log=lambda text: None)  # the watchdog does not use ground links

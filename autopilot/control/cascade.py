@@ -15,11 +15,12 @@ import numpy as np
 from numba import njit
 
 from autopilot.control.command_filter import command_filter_step
+from autopilot.control.gains import channel_gains
 from autopilot.control.mixer import mix
-from autopilot.control.parameters import channel_gains, validate_parameters
 from autopilot.control.sliding_mode import adaptive_channel_step
-from autopilot.identification.dataset import CHANNEL_REGRESSORS
-from autopilot.identification.ts_model import it2_regressor, t1_regressor
+from autopilot.models.regressors import CHANNEL_REGRESSORS
+from autopilot.models.ts_model import it2_regressor, t1_regressor
+from autopilot.parameters import validate_parameters
 from contracts.airframe import (
     Airframe,
     attitude_drift,

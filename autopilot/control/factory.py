@@ -16,7 +16,7 @@ from autopilot.control.cascade import (
     regressor_scales,
 )
 from autopilot.control.pid import PidCascade
-from autopilot.identification.ts_model import FuzzyModelSet
+from autopilot.models.ts_model import FuzzyModelSet
 from contracts.airframe import Airframe
 from contracts.airframe_file import read_airframe
 from contracts.vectors import ATTITUDE_CHANNELS
@@ -89,7 +89,7 @@ def load_models(path: Path | None, airframe: str | None = None,
     """The given model file, or the model shipped for the airframe. With ``airframe`` (a
     name or file), a model identified on another airframe is refused unless
     ``any_airframe``."""
-    from autopilot.identification.model_file import load_model
+    from autopilot.models.model_file import load_model
 
     if path is None:
         name = shipped_model_name(airframe)

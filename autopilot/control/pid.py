@@ -15,7 +15,7 @@ from numba import njit
 
 from autopilot.control.cascade import desired_angles
 from autopilot.control.mixer import mix
-from autopilot.control.parameters import validate_parameters
+from autopilot.parameters import validate_parameters
 from contracts.airframe import Airframe, max_thrust_n
 from contracts.frames import wrap_pi
 from contracts.vectors import (

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from autopilot.control.parameters import ChannelGains
+from autopilot.control.gains import ChannelGains
 from contracts.frames import wrap_pi
 from contracts.vectors import CHANNEL_INTERNALS
 

@@ -5,7 +5,6 @@ from autopilot.identification.dataset import (
     CHANNEL_ACCELERATION,
     CHANNEL_FUNCTION,
     CHANNEL_INPUT,
-    CHANNEL_REGRESSORS,
     CHANNELS,
     Dataset,
     DatasetError,
@@ -17,8 +16,9 @@ from autopilot.identification.identify import (
     identify_channel,
     identify_dataset,
 )
-from autopilot.identification.model_file import ModelFileError, load_model, save_model
-from autopilot.identification.ts_model import (
+from autopilot.models.model_file import ModelFileError, load_model, save_model
+from autopilot.models.regressors import CHANNEL_REGRESSORS
+from autopilot.models.ts_model import (
     ChannelModel,
     FuzzyModelSet,
     It2Model,

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from autopilot.models.regressors import current_column_name
 from contracts.vectors import ATTITUDE_CHANNELS
 
 REQUIRED_COLUMNS: tuple[str, ...] = (
@@ -53,12 +54,6 @@ OPTIONAL_COLUMNS: tuple[str, ...] = ("f_phi", "f_theta", "f_psi")
 ALL_COLUMNS: tuple[str, ...] = REQUIRED_COLUMNS + OPTIONAL_COLUMNS
 
 CHANNELS: tuple[str, ...] = ATTITUDE_CHANNELS
-# The one place that says which regressors each channel's f uses (docs/mathematics.md).
-CHANNEL_REGRESSORS: dict[str, tuple[str, ...]] = {
-    "phi": ("theta_rate_rad_s", "psi_rate_rad_s", "w_r_rad_s"),
-    "theta": ("phi_rate_rad_s", "psi_rate_rad_s", "w_r_rad_s"),
-    "psi": ("phi_rate_rad_s", "theta_rate_rad_s"),
-}
 CHANNEL_INPUT: dict[str, str] = {"phi": "u_phi_n", "theta": "u_theta_n", "psi": "u_psi_nm"}
 CHANNEL_ACCELERATION: dict[str, str] = {
     "phi": "phi_acc_rad_s2",
@@ -66,11 +61,6 @@ CHANNEL_ACCELERATION: dict[str, str] = {
     "psi": "psi_acc_rad_s2",
 }
 CHANNEL_FUNCTION: dict[str, str] = {"phi": "f_phi", "theta": "f_theta", "psi": "f_psi"}
-
-def current_column_name(name: str) -> str:
-    """The name a column has today: files written before 0.5 wrote rad/s as ``_rps``."""
-    return name.replace("_rps2", "_rad_s2").replace("_rps", "_rad_s")
-
 
 MIN_ROWS = 10  # fewer samples cannot describe any excitation flight
 

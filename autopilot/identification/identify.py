@@ -24,14 +24,14 @@ from autopilot.identification.dataset import (
     CHANNEL_ACCELERATION,
     CHANNEL_FUNCTION,
     CHANNEL_INPUT,
-    CHANNEL_REGRESSORS,
     Dataset,
 )
 from autopilot.identification.envelope import detect_envelopes
 from autopilot.identification.gaussian_fit import fit_gaussian, repair_interval
 from autopilot.identification.gk import gustafson_kessel
 from autopilot.identification.least_squares import fit_consequents, rmse
-from autopilot.identification.ts_model import (
+from autopilot.models.regressors import CHANNEL_REGRESSORS
+from autopilot.models.ts_model import (
     ChannelModel,
     FuzzyModelSet,
     It2Model,

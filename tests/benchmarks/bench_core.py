@@ -21,14 +21,14 @@ from autopilot.control.factory import (
     load_models,  # noqa: E402
     make_controller,  # noqa: E402
 )
-from autopilot.control.parameters import default_parameters  # noqa: E402
-from autopilot.identification.identify import identify_dataset  # noqa: E402
-from autopilot.navigator import MissionRunner  # noqa: E402
-from autopilot.shaping import (  # noqa: E402
+from autopilot.flight_tasks.shaping import (  # noqa: E402
     Setpoint,
     SetpointShaper,
     limits_from_parameters,  # noqa: E402
 )
+from autopilot.identification.identify import identify_dataset  # noqa: E402
+from autopilot.navigator.mission_runner import MissionRunner  # noqa: E402
+from autopilot.parameters import default_parameters  # noqa: E402
 from contracts.airframe import PAPER, hover_rotor_speeds  # noqa: E402
 from ground.excitation import excitation_dataset  # noqa: E402
 from ground.inprocess import run_inprocess  # noqa: E402
@@ -61,7 +61,7 @@ def main() -> None:
         att = per_call_us(lambda c=ctrl: c.step(meas, ref, False), 20000)
         pos = per_call_us(lambda c=ctrl: c.step(meas, pos_ref, True), 20000)
         print(f"  {kind:<5} attitude mode {att:6.2f} us   position mode {pos:6.2f} us")
-    print("Setpoint shaper step (autopilot/shaping.py), median us per call:")
+    print("Setpoint shaper step (autopilot/flight_tasks/shaping.py), median us per call:")
     limits = limits_from_parameters(default_parameters())
     for what, setpoint in (
             ("position 50 m away", Setpoint(np.array([50.0, 0.0, -10.0]), yaw_rad=1.0)),
@@ -71,7 +71,7 @@ def main() -> None:
         shaper.reset(np.zeros(3), np.zeros(3), 0.0)
         us = per_call_us(lambda s=shaper, sp=setpoint: s.step(sp, limits, 0.01), 20000)
         print(f"  {what:<20} {us:6.2f} us")
-    print("Mission navigator (autopilot/navigator.py), median us per call:")
+    print("Mission navigator (autopilot/navigator/mission_runner.py), median us per call:")
     runner = MissionRunner(tuple(mission_item(i, 30.0 * (i % 2), 30.0 * (i // 2), 5.0)
                                  for i in range(6)), default_parameters())
     runner.start(0, np.array([0.0, 0.0, -5.0]), 0.0, False, 2.5)

@@ -23,9 +23,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import numpy as np  # noqa: E402
 
+from autopilot.commander.commander import Vehicle  # noqa: E402
 from autopilot.control.factory import load_models, make_controller  # noqa: E402
-from autopilot.reference import Reference  # noqa: E402
-from autopilot.vehicle import Vehicle  # noqa: E402
+from autopilot.flight_tasks.reference import Reference  # noqa: E402
 from contracts.airframe import PAPER, hover_rotor_speeds  # noqa: E402
 from contracts.mavlink import (  # noqa: E402
     actuator_message,

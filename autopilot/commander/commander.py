@@ -1,8 +1,8 @@
 """The vehicle's commander: arming and modes, and the parts it drives.
 
-* :class:`~autopilot.land_detector.LandDetector`: on the ground or not;
-* :class:`~autopilot.failsafe.LinkWatch`: the ground station and the setpoint stream;
-* :class:`~autopilot.flight_tasks.FlightTasks`: setpoints, take-off, landing, shaping;
+* :class:`~autopilot.commander.land_detector.LandDetector`: on the ground or not;
+* :class:`~autopilot.commander.failsafe.LinkWatch`: the ground station and the setpoint stream;
+* :class:`~autopilot.flight_tasks.setpoints.FlightTasks`: setpoints, take-off, landing, shaping;
 * the controller, fed the paper's reference or a flight task's.
 
 Pure (no sockets, no clocks): the process shell calls it with two times.
@@ -21,27 +21,27 @@ from collections.abc import Callable
 
 import numpy as np
 
-from autopilot import manual
-from autopilot.control.parameters import validate_parameters
-from autopilot.failsafe import (
+from autopilot.commander.failsafe import (
     GCS_LOSS_ACTIONS,
     MANUAL_LOSS_ACTIONS,
     LinkWatch,
     offboard_loss_action,
 )
-from autopilot.flight_tasks import (
+from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LANDED_SPEED_MPS, LandDetector
+from autopilot.flight_tasks import manual
+from autopilot.flight_tasks.reference import Reference
+from autopilot.flight_tasks.setpoints import (
     AttitudeTarget,
     FlightTasks,
     checked_attitude_target,
     checked_position_setpoint,
 )
-from autopilot.geofence import breach, zones_from_items
-from autopilot.land_detector import LANDED_ALTITUDE_M, LANDED_SPEED_MPS, LandDetector
-from autopilot.mission import FENCE, MAX_SPEED_MPS, MISSION, MissionStore
-from autopilot.navigator import LAND_DOWN_M, Goal, MissionRunner, ReturnToLaunch
-from autopilot.reference import Reference
+from autopilot.flight_tasks.shaping import Setpoint, ShapingLimits, limits_from_parameters
+from autopilot.navigator.geofence import breach, zones_from_items
+from autopilot.navigator.mission_runner import LAND_DOWN_M, Goal, MissionRunner, ReturnToLaunch
+from autopilot.navigator.mission_store import FENCE, MAX_SPEED_MPS, MISSION, MissionStore
+from autopilot.parameters import validate_parameters
 from autopilot.refusal import RefusedError
-from autopilot.shaping import Setpoint, ShapingLimits, limits_from_parameters
 from contracts.airframe import max_thrust_n
 from contracts.frames import wrap_pi
 from contracts.modes import MANUAL_MODES, FlightMode

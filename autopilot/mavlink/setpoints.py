@@ -10,14 +10,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from autopilot.manual import sticks_from_manual_control
-from autopilot.offboard import global_setpoint, local_setpoint
+from autopilot.flight_tasks.manual import sticks_from_manual_control
+from autopilot.mavlink.offboard import global_setpoint, local_setpoint
 from autopilot.refusal import RefusedError
 from contracts.mavlink import mavlink
 from contracts.vectors import MEASUREMENT
 
 if TYPE_CHECKING:
-    from autopilot.mavlink_server import GroundLink, MavlinkServer
+    from autopilot.mavlink.server import GroundLink, MavlinkServer
 
 # Attitude-target type_mask bits (ATTITUDE_TARGET_TYPEMASK).
 BODY_RATES_IGNORE = 0b111

@@ -1,6 +1,6 @@
 """Missions, fences and rally points as the vehicle stores them, and the check each item
 passes before it is stored (pure: no I/O). The MAVLink mission protocol that fills them
-is autopilot/mavlink_mission.py; docs/missions.md describes both.
+is autopilot/mavlink/mission_protocol.py; docs/missions.md describes both.
 
 What PX4 takes is what we take: the commands below in the frames below, each parameter in
 its range. An item that fails says which MAV_MISSION_RESULT (the protocol's ACK) and why.

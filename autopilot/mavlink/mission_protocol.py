@@ -16,8 +16,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from autopilot.mavlink_telemetry import mission_current
-from autopilot.mission import (
+from autopilot.mavlink.telemetry import mission_current
+from autopilot.navigator.mission_store import (
     MAX_ITEMS,
     MISSION,
     MISSION_TYPES,
@@ -28,7 +28,7 @@ from autopilot.mission import (
 from contracts.mavlink import GLOBAL_FRAMES, mavlink
 
 if TYPE_CHECKING:
-    from autopilot.mavlink_server import GroundLink, MavlinkServer
+    from autopilot.mavlink.server import GroundLink, MavlinkServer
 
 M = mavlink
 RETRY_S = 0.25  # PX4's MAVLINK_MISSION_RETRY_TIMEOUT_DEFAULT

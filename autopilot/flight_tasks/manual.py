@@ -22,9 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from autopilot.flight_tasks import AttitudeTarget
+from autopilot.flight_tasks.setpoints import AttitudeTarget
+from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.refusal import RefusedError
-from autopilot.shaping import Setpoint
 
 STICK_FULL = 1000.0
 

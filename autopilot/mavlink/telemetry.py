@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from autopilot.vehicle import Vehicle
+from autopilot.commander.commander import Vehicle
 from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, geodetic_from_ned
 from contracts.frames import quat_from_euler as _quat_from_euler
 from contracts.mavlink import mavlink

@@ -25,8 +25,8 @@ import math
 
 import numpy as np
 
+from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.refusal import RefusedError
-from autopilot.shaping import Setpoint
 from contracts.frames import (
     heading_to_ned,
 )

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
 
 
 @dataclass(frozen=True)
@@ -88,8 +87,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("COM_OF_LOSS_T", 1.0, 0.1, 60.0, "s", "offboard setpoint loss timeout"),
     ParamSpec("COM_OBL_ACT", 1.0, 0.0, 1.0, "", "on setpoint loss: 0 land, 1 hold",
               choices=(0.0, 1.0)),
-    # Setpoint shaping (autopilot/shaping.py): PX4's names, meanings and units; defaults
-    # for the paper airframe (PX4's own defaults are for a 450-class quadrotor).
+    # Setpoint shaping (autopilot/flight_tasks/shaping.py): PX4's names, meanings and
+    # units; defaults for the paper airframe (PX4's own defaults are for a 450-class quadrotor).
     ParamSpec("MPC_XY_VEL_MAX", 5.0, 0.5, 20.0, "m/s", "largest horizontal speed"),
     ParamSpec("MPC_Z_VEL_MAX_UP", 3.0, 0.5, 8.0, "m/s", "largest climb rate"),
     ParamSpec("MPC_Z_VEL_MAX_DN", 1.5, 0.5, 4.0, "m/s", "largest descent rate"),
@@ -170,33 +169,3 @@ def validate_parameters(overrides: dict[str, float]) -> dict[str, float]:
                              f"{', '.join(f'{c:g}' for c in spec.choices)}, got {value!r}")
         params[name] = number
     return params
-
-
-class ChannelGains(NamedTuple):
-    """One sliding-mode channel's gains, in the form the compiled law takes."""
-
-    lam: float
-    gam: float
-    eps: float
-    eta_f: float
-    eta_g: float
-    w_f: float
-    w_g: float
-    g0: float  # absolute lower bound of theta_g
-    g_max: float  # absolute upper bound of theta_g
-
-
-def channel_gains(params: dict[str, float], group: str, g_initial: float,
-                  adaptive: bool = True) -> ChannelGains:
-    """Gains of one channel; a non-adaptive controller sets both adaptation rates to 0."""
-    return ChannelGains(
-        lam=params[f"{group}_LAM"],
-        gam=params[f"{group}_GAM"],
-        eps=params[f"{group}_EPS"],
-        eta_f=params[f"{group}_ETA_F"] if adaptive else 0.0,
-        eta_g=params[f"{group}_ETA_G"] if adaptive else 0.0,
-        w_f=params[f"{group}_WF"],
-        w_g=params[f"{group}_WG"],
-        g0=params[f"{group}_G0"] * g_initial,
-        g_max=g_initial / params[f"{group}_G0"],
-    )

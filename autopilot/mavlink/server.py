@@ -19,12 +19,12 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from autopilot.mavlink_commands import CommandProtocol
-from autopilot.mavlink_mission import MissionProtocol
-from autopilot.mavlink_params import ParameterProtocol
-from autopilot.mavlink_setpoints import SetpointProtocol
-from autopilot.mavlink_telemetry import DEFAULT_STREAMS, telemetry_message
-from autopilot.vehicle import Vehicle
+from autopilot.commander.commander import Vehicle
+from autopilot.mavlink.commands import CommandProtocol
+from autopilot.mavlink.mission_protocol import MissionProtocol
+from autopilot.mavlink.params import ParameterProtocol
+from autopilot.mavlink.setpoints import SetpointProtocol
+from autopilot.mavlink.telemetry import DEFAULT_STREAMS, telemetry_message
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,

@@ -1,7 +1,7 @@
 """Flight tasks: what the vehicle flies to when the paper's reference does not drive it.
 
 A held or streamed position / velocity setpoint goes through the setpoint shaper
-(autopilot/shaping.py) into a smooth reference; an attitude target goes through the
+(autopilot/flight_tasks/shaping.py) into a smooth reference; an attitude target goes through the
 attitude shaper, with an altitude loop or a collective thrust. Take-off and landing are
 setpoints with their own climb and descent limits (the vehicle sets those). Pure: the
 measurement, limits and times come in as arguments.
@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from autopilot.flight_tasks.shaping import Setpoint, SetpointShaper, ShapingLimits
 from autopilot.refusal import RefusedError, check_finite, check_given
-from autopilot.shaping import Setpoint, SetpointShaper, ShapingLimits
 from contracts.frames import euler_from_quat, wrap_pi
 from contracts.vectors import MEAS_YAW, MEAS_Z, MEASUREMENT, REF_POS, REF_VEL
 

@@ -15,7 +15,14 @@ import math
 from pathlib import Path
 from typing import Any
 
-from autopilot.mission import FENCE, MISSION, RALLY, ItemError, MissionItem, check_item
+from autopilot.navigator.mission_store import (
+    FENCE,
+    MISSION,
+    RALLY,
+    ItemError,
+    MissionItem,
+    check_item,
+)
 from contracts.mavlink import GLOBAL_FRAMES, mavlink
 
 M = mavlink

@@ -26,11 +26,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from autopilot import shaping
+from autopilot.commander.commander import Vehicle
 from autopilot.estimation.estimator import Estimator, GpsFix
-from autopilot.mavlink_server import MavlinkServer
+from autopilot.flight_tasks import shaping
+from autopilot.mavlink.server import MavlinkServer
 from autopilot.refusal import RefusedError
-from autopilot.vehicle import Vehicle
 from contracts.airframe import max_thrust_n
 from contracts.frames import (
     GRAVITY_MPS2,

@@ -1,6 +1,6 @@
 """The geofence (pure): the uploaded fence (inclusion / exclusion polygons and circles) and
 PX4's distance limits (GF_MAX_HOR_DIST, GF_MAX_VER_DIST), and whether a position breaks
-them. What the vehicle does about a breach (GF_ACTION) is in autopilot/vehicle.py.
+them. What the vehicle does about a breach (GF_ACTION) is in autopilot/commander/commander.py.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from autopilot.mission import MissionItem
+from autopilot.navigator.mission_store import MissionItem
 from contracts.frames import ned_from_geodetic
 from contracts.mavlink import mavlink
 

@@ -37,9 +37,9 @@ from typing import Any
 
 import numpy as np
 
-from autopilot.identification.dataset import CHANNEL_REGRESSORS, current_column_name
-from autopilot.identification.gaussian_fit import Gaussian, interval_holds
-from autopilot.identification.ts_model import ChannelModel, FuzzyModelSet, It2Model, T1Model
+from autopilot.models.membership import Gaussian, interval_holds
+from autopilot.models.regressors import CHANNEL_REGRESSORS, current_column_name
+from autopilot.models.ts_model import ChannelModel, FuzzyModelSet, It2Model, T1Model
 
 FORMAT_NAME = "ivfm-fuzzy-model"
 FORMAT_VERSION = 1

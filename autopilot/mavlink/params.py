@@ -6,12 +6,12 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from autopilot.control.parameters import PARAMETER_SPECS, PARAMETERS
+from autopilot.parameters import PARAMETER_SPECS, PARAMETERS
 from autopilot.refusal import RefusedError
 from contracts.mavlink import mavlink
 
 if TYPE_CHECKING:
-    from autopilot.mavlink_server import GroundLink, MavlinkServer
+    from autopilot.mavlink.server import GroundLink, MavlinkServer
 
 PARAM_COUNT = len(PARAMETERS)
 PARAM_INDEX = {spec.name: i for i, spec in enumerate(PARAMETERS)}

@@ -3,7 +3,7 @@
 As PX4's navigator, it does not fly anything itself: each control period it hands the
 vehicle a *goal*, a position setpoint with a speed and a vertical manner (take-off
 climb, landing descent), and the vehicle flies it through the same setpoint shaping as a
-tool's setpoints (autopilot/shaping.py). What it reports (an item reached, the current
+tool's setpoints (autopilot/flight_tasks/shaping.py). What it reports (an item reached, the current
 item, a return asked for, the mission finished) comes back as events.
 
 Missions follow PX4's rules (docs/missions.md): a waypoint is *reached* when the vehicle
@@ -22,8 +22,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from autopilot.mission import DO_COMMANDS, PAYLOAD_COMMANDS, MissionItem
-from autopilot.shaping import Setpoint
+from autopilot.flight_tasks.shaping import Setpoint
+from autopilot.navigator.mission_store import DO_COMMANDS, PAYLOAD_COMMANDS, MissionItem
 from contracts.mavlink import mavlink, ned_from_global
 
 M = mavlink

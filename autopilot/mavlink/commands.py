@@ -8,21 +8,21 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from autopilot.mavlink_telemetry import (
+from autopilot.mavlink.telemetry import (
     DEFAULT_STREAMS,
     PRODUCIBLE,
     autopilot_version,
     home_position,
     mission_current,
 )
-from autopilot.mission import ItemError
+from autopilot.navigator.mission_store import ItemError
 from autopilot.refusal import RefusedError
 from contracts.frames import HOME_ALT_AMSL_M
 from contracts.mavlink import GLOBAL_FRAMES, mavlink, ned_from_global
 from contracts.modes import FlightMode, mode_from_custom, px4_custom_mode_from_command
 
 if TYPE_CHECKING:
-    from autopilot.mavlink_server import GroundLink, MavlinkServer
+    from autopilot.mavlink.server import GroundLink, MavlinkServer
 
 FORCE_DISARM_MAGIC = 21196
 INT32_MAX = 2**31 - 1

@@ -111,7 +111,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 
 def run(args: argparse.Namespace) -> int:
-    from autopilot.commander.commander import Vehicle
+    from autopilot.commander.commander import Commander
     from autopilot.control.factory import load_models, make_controller
     from autopilot.flight_tasks.reference import Reference
     from autopilot.mavlink.server import MavlinkServer, open_link
@@ -158,7 +158,7 @@ def run(args: argparse.Namespace) -> int:
             key = b""
         if len(key) != 32:
             raise ValueError("--signing-key must be 64 hex digits (32 bytes)")
-    vehicle = Vehicle(lambda p: make_controller(args.controller, airframe, period_s, models, p),
+    vehicle = Commander(lambda p: make_controller(args.controller, airframe, period_s, models, p),
                       period_s, parameters, reference,
                       load_schedule(args.schedule) if args.schedule else (), args.flavour)
     if args.mission is not None:

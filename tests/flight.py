@@ -1,7 +1,7 @@
 """The vehicle's logic and controller flying the plant in one process, on sim time.
 
 What a ground tool does (arm, take off, stream setpoints) is called directly on
-:class:`autopilot.commander.commander.Vehicle`, with sim time as the link clock, so a flight is
+:class:`autopilot.commander.commander.Commander`, with sim time as the link clock, so a flight is
 deterministic and takes a fraction of a second of wall time. Processes and real tools
 are tested in test_mavsdk_flights.py; this is for the logic and the numbers.
 """
@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from autopilot.commander.commander import Vehicle
+from autopilot.commander.commander import Commander
 from autopilot.control.factory import load_models, make_controller
 from autopilot.flight_tasks.shaping import Setpoint
 from contracts.airframe import PAPER, Airframe
@@ -39,7 +39,7 @@ class Flight:
         models = shipped_models() if controller in ("ivfc", "t1fc") else None
         self.plant = Plant(airframe, plant, 0.001, euler_rad=(0.0, 0.0, yaw_rad),
                            ground_contact=True)
-        self.vehicle = Vehicle(
+        self.vehicle = Commander(
             lambda p: make_controller(controller, airframe, period_s, models, p), period_s,
             parameters, flavour=flavour)
         self.period_s = period_s

@@ -11,7 +11,7 @@ import time
 import numpy as np
 import pytest
 
-from autopilot.commander.commander import Vehicle
+from autopilot.commander.commander import Commander
 from autopilot.control.factory import make_controller
 from autopilot.mavlink.server import (
     DROP_WARNING_S,
@@ -90,7 +90,7 @@ def _settle() -> None:
 @pytest.fixture
 def station():
     clock = Clock()
-    vehicle = Vehicle(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01)
+    vehicle = Commander(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01)
     vehicle.sample(0.0, np.zeros(12))
     links = [open_link("gcs", ("127.0.0.1", 0), None, None, 0)]
     ground = MavlinkServer(vehicle, links, clock=clock, max_peers=2)
@@ -204,7 +204,7 @@ def test_only_valid_frames_for_us_make_peers_and_the_table_is_bounded(station):
 
 def test_signing_on_only_signed_frames_count_and_a_forgery_cannot_age_the_stream():
     clock = Clock()
-    vehicle = Vehicle(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01)
+    vehicle = Commander(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01)
     link = open_link("gcs", ("127.0.0.1", 0), None, KEY, 0)
     ground = MavlinkServer(vehicle, [link], clock=clock)
     port = link.sock.getsockname()[1]
@@ -280,6 +280,6 @@ def test_decode_datagram_takes_whole_frames_only():
 
 
 def test_max_peers_is_checked():
-    vehicle = Vehicle(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01)
+    vehicle = Commander(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01)
     with pytest.raises(ValueError, match="max peers"):
         MavlinkServer(vehicle, [], max_peers=-1)

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from autopilot.commander.commander import Vehicle
+from autopilot.commander.commander import Commander
 from autopilot.control.factory import make_controller
 from autopilot.parameters import PARAMETERS, default_parameters
 from contracts.airframe import PAPER
@@ -64,7 +64,7 @@ class Clock:
         return self.t
 
 
-def make_server(vehicle: Vehicle, links: list, clock: Clock, flavour: str = "px4"):
+def make_server(vehicle: Commander, links: list, clock: Clock, flavour: str = "px4"):
     """The one place the server is built (its class and module may be renamed)."""
     from autopilot.mavlink.server import MavlinkServer
 
@@ -166,7 +166,7 @@ class Station:
 
     def __init__(self, n_links: int = 1, flavour: str = "px4", **parameters) -> None:
         self.clock = Clock()
-        self.vehicle = Vehicle(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01,
+        self.vehicle = Commander(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01,
                                parameters, flavour=flavour)
         self.links = open_links(n_links)
         self.server = make_server(self.vehicle, self.links, self.clock, flavour)

@@ -225,11 +225,11 @@ def test_odometry_velocity_in_body_frd_is_turned_into_ned():
 
 def _autopilot_on_a_socket(rate_hz: float = 100.0, source: str = "auto"):
     """The autopilot process's simulator side on one end of a socket pair."""
-    from autopilot.commander.commander import Vehicle
+    from autopilot.commander.commander import Commander
     from autopilot.control.factory import make_controller
     from autopilot.process.loop import Autopilot, AutopilotConfig
 
-    vehicle = Vehicle(lambda p: make_controller("smc", PAPER, 1 / rate_hz, None, p),
+    vehicle = Commander(lambda p: make_controller("smc", PAPER, 1 / rate_hz, None, p),
                       1 / rate_hz)
     autopilot = Autopilot(AutopilotConfig(rate_hz=rate_hz, state_source=source), vehicle,
                           None, log=lambda text: None)

@@ -13,7 +13,7 @@ import threading
 import numpy as np
 import pytest
 
-from autopilot.commander.commander import Vehicle
+from autopilot.commander.commander import Commander
 from autopilot.control.factory import make_controller
 from contracts.airframe import PAPER, hover_rotor_speeds
 from contracts.mavlink import (
@@ -159,7 +159,7 @@ def test_link_loss_drops_the_seeded_fraction_the_same_way_each_run(seed):
 # -- the vehicle flying the simulator through the wire format, no sockets ------------------
 def test_the_vehicle_flies_the_simulator_through_the_messages_in_lockstep():
     sim, _ = make_simulator(fidelity="rigid-body")
-    vehicle = Vehicle(lambda p: make_controller("smc", PAPER, 0.01, None, p), 0.01,
+    vehicle = Commander(lambda p: make_controller("smc", PAPER, 0.01, None, p), 0.01,
                       {"MIS_TAKEOFF_ALT": 1.5, "COM_DISARM_LAND": 0.5})
     autopilot_side = new_mavlink(1, 1)
     said: list[str] = []

@@ -1,7 +1,7 @@
 """The vehicle's logic in process, on injected clocks: arming, modes, take-off, landing,
 setpoints, failsafes and the STATUSTEXT they queue.
 
-:class:`autopilot.commander.commander.Vehicle` takes its times as arguments: ``sim_t_s`` for the
+:class:`autopilot.commander.commander.Commander` takes its times as arguments: ``sim_t_s`` for the
 control path and ``link_t_s`` for what ground tools do. So every timeout here is tested
 on both sides of its threshold (1 ms before and 1 ms after), with the number taken from
 the parameter table, and flights close the loop with the real controller and the real
@@ -20,8 +20,8 @@ from autopilot.commander.commander import (
     LANDED_ALTITUDE_M,
     LANDED_SPEED_MPS,
     TAKEOFF_REACHED_M,
+    Commander,
     RefusedError,
-    Vehicle,
 )
 from autopilot.control.factory import make_controller
 from autopilot.flight_tasks.reference import Reference
@@ -42,9 +42,9 @@ INFO, NOTICE, WARNING = 6, 5, 4  # MAV_SEVERITY
 
 # -- building blocks -------------------------------------------------------------------
 def make_vehicle(controller: str = "pid", flavour: str = "px4",
-                 reference: Reference | None = None, models=None, **parameters) -> Vehicle:
-    """A Vehicle as the autopilot process builds one, with the real controller factory."""
-    return Vehicle(lambda p: make_controller(controller, PAPER, PERIOD_S, models, p),
+                 reference: Reference | None = None, models=None, **parameters) -> Commander:
+    """A Commander as the autopilot process builds one, with the real controller factory."""
+    return Commander(lambda p: make_controller(controller, PAPER, PERIOD_S, models, p),
                    PERIOD_S, parameters, reference, flavour=flavour)
 
 
@@ -59,14 +59,14 @@ def state(altitude_m: float = 0.0, climb_mps: float = 0.0, north_m: float = 0.0,
 GROUND = state()
 
 
-def said(vehicle: Vehicle) -> list[tuple[int, str]]:
+def said(vehicle: Commander) -> list[tuple[int, str]]:
     """The STATUSTEXT queued since the last call (the shell sends and clears them)."""
     out = list(vehicle.messages)
     vehicle.messages.clear()
     return out
 
 
-def on_the_ground(**kwargs) -> Vehicle:
+def on_the_ground(**kwargs) -> Commander:
     """Disarmed on the ground with the simulator link up; messages cleared."""
     v = make_vehicle(**kwargs)
     v.sample(0.0, GROUND)
@@ -74,7 +74,7 @@ def on_the_ground(**kwargs) -> Vehicle:
     return v
 
 
-def flying(altitude_m: float = 2.5, **kwargs) -> Vehicle:
+def flying(altitude_m: float = 2.5, **kwargs) -> Commander:
     """Armed in HOLD, in the air (state jumps there: the logic only reads the state)."""
     v = on_the_ground(**kwargs)
     v.arm(LINK0)
@@ -88,7 +88,7 @@ def hold_setpoint(north: float = 0.0, east: float = 0.0, down: float = -2.5) -> 
     return Setpoint(np.array([north, east, down]))
 
 
-def offboard(vehicle: Vehicle, link_t_s: float, setpoint: Setpoint | None = None) -> None:
+def offboard(vehicle: Commander, link_t_s: float, setpoint: Setpoint | None = None) -> None:
     """Stream one setpoint at ``link_t_s`` and switch to OFFBOARD."""
     vehicle.position_setpoint(link_t_s, setpoint or hold_setpoint())
     vehicle.set_mode(FlightMode.OFFBOARD, link_t_s)
@@ -460,7 +460,7 @@ def test_a_restarted_simulator_disarms_a_vehicle_on_the_ground():
                        (INFO, "simulator restarted: disarmed on the ground")]
 
 
-def _watchdog(vehicle: Vehicle, lockstep: bool):
+def _watchdog(vehicle: Commander, lockstep: bool):
     """The autopilot process's simulator-link watchdog, without sockets: the simulator
     socket is a stand-in and the wall time of the last sample is set by hand."""
     from autopilot.process.loop import Autopilot, AutopilotConfig

@@ -51,7 +51,7 @@ from contracts.telemetry import AUTOPILOT
 from contracts.vectors import MEAS_VZ, MEAS_YAW, MEAS_Z, MEASUREMENT, REF_POS, REF_SIZE
 
 __all__ = ["LANDED_ALTITUDE_M", "LANDED_SPEED_MPS", "TAKEOFF_REACHED_M", "RefusedError",
-           "Vehicle"]
+           "Commander"]
 
 TAKEOFF_REACHED_M = 0.1
 ARMABLE_MODES = (FlightMode.HOLD, FlightMode.GUIDED, FlightMode.OFFBOARD, FlightMode.TAKEOFF,
@@ -65,7 +65,7 @@ GEOFENCE_ACTIONS = {0: None, 1: None, 2: FlightMode.HOLD, 3: FlightMode.RTL,
                     5: FlightMode.LAND}
 
 
-class Vehicle:
+class Commander:
     """Arming state, mode, failsafes, and the controller they feed."""
 
     def __init__(

@@ -19,7 +19,7 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from autopilot.commander.commander import Vehicle
+from autopilot.commander.commander import Commander
 from autopilot.mavlink.commands import CommandProtocol
 from autopilot.mavlink.mission_protocol import MissionProtocol
 from autopilot.mavlink.params import ParameterProtocol
@@ -171,7 +171,7 @@ def decode_datagram(mav: mavlink.MAVLink, data: bytes) -> list | None:
 class MavlinkServer:
     """Serves every ground link of one vehicle."""
 
-    def __init__(self, vehicle: Vehicle, links: list[GroundLink], flavour: str = "px4",
+    def __init__(self, vehicle: Commander, links: list[GroundLink], flavour: str = "px4",
                  clock: Callable[[], float] = time.monotonic,
                  sysid: int = AUTOPILOT_SYSID, max_peers: int = PEERS_MAX) -> None:
         if not 0 <= max_peers <= 64:

@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from autopilot.commander.commander import Vehicle
+from autopilot.commander.commander import Commander
 from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, geodetic_from_ned
 from contracts.frames import quat_from_euler as _quat_from_euler
 from contracts.mavlink import mavlink
@@ -68,7 +68,7 @@ def autopilot_type(flavour: str) -> int:
     return mavlink.MAV_AUTOPILOT_PX4 if flavour == "px4" else mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
 
 
-def heartbeat(v: Vehicle, flavour: str) -> mavlink.MAVLink_heartbeat_message:
+def heartbeat(v: Commander, flavour: str) -> mavlink.MAVLink_heartbeat_message:
     """Arming in base_mode, the mode in custom_mode, CRITICAL while a failsafe flies."""
     base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | \
         mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
@@ -81,7 +81,7 @@ def heartbeat(v: Vehicle, flavour: str) -> mavlink.MAVLink_heartbeat_message:
         status, 3)
 
 
-def sys_status(v: Vehicle, drop_rate: float, errors: int) -> mavlink.MAVLink_sys_status_message:
+def sys_status(v: Commander, drop_rate: float, errors: int) -> mavlink.MAVLink_sys_status_message:
     """Sensor health and the pre-arm check; PX4's meanings for the link figures:
     ``drop_rate`` (0-1) goes out in centi-percent, ``errors`` are datagrams refused."""
     health = SENSORS if v.sim_link_ok else 0
@@ -101,7 +101,7 @@ ESTIMATOR_GOOD = (mavlink.ESTIMATOR_ATTITUDE | mavlink.ESTIMATOR_VELOCITY_HORIZ
                   | mavlink.ESTIMATOR_POS_HORIZ_ABS | mavlink.ESTIMATOR_POS_VERT_ABS)
 
 
-def estimator_status(v: Vehicle, time_us: int) -> mavlink.MAVLink_estimator_status_message:
+def estimator_status(v: Commander, time_us: int) -> mavlink.MAVLink_estimator_status_message:
     """ESTIMATOR_STATUS as PX4 fills it: what the solution is good for, the innovation test
     ratios (> 1: rejected) and the 1-sigma accuracies. On the simulator's truth: perfect."""
     s = v.estimator_status
@@ -124,7 +124,7 @@ def estimator_status(v: Vehicle, time_us: int) -> mavlink.MAVLink_estimator_stat
         s.baro_test_ratio, s.mag_test_ratio, 0, 0, s.horizontal_sigma_m, s.vertical_sigma_m)
 
 
-def mission_current(v: Vehicle) -> mavlink.MAVLink_mission_current_message:
+def mission_current(v: Commander) -> mavlink.MAVLink_mission_current_message:
     """The mission's current item, its length and state (PX4 streams it at 1 Hz)."""
     store = v.mission
     total = len(store.lists[mavlink.MAV_MISSION_TYPE_MISSION])
@@ -135,7 +135,7 @@ def mission_current(v: Vehicle) -> mavlink.MAVLink_mission_current_message:
     return mavlink.MAVLink_mission_current_message(store.current, total, state, 0)
 
 
-def landed_state(v: Vehicle) -> int:
+def landed_state(v: Commander) -> int:
     if not v.armed or v.landed:
         return mavlink.MAV_LANDED_STATE_ON_GROUND
     if v.landing:
@@ -165,7 +165,7 @@ def autopilot_version() -> mavlink.MAVLink_autopilot_version_message:
         caps, FIRMWARE_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1, [0] * 18)
 
 
-def telemetry_message(msg_id: int, v: Vehicle, flavour: str, boot_ms: int,
+def telemetry_message(msg_id: int, v: Commander, flavour: str, boot_ms: int,
                       drop_rate: float = 0.0, errors: int = 0):
     """The telemetry message ``msg_id`` now (raises ValueError for one not produced)."""
     m = v.measurement if v.measurement is not None else np.zeros(MEASUREMENT_SIZE)

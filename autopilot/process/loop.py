@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from autopilot.commander.commander import Vehicle
+from autopilot.commander.commander import Commander
 from autopilot.estimation.estimator import Estimator, GpsFix
 from autopilot.flight_tasks import shaping
 from autopilot.mavlink.server import MavlinkServer
@@ -231,7 +231,7 @@ class SimLink:
 
 
 class Autopilot:
-    def __init__(self, config: AutopilotConfig, vehicle: Vehicle, ground: MavlinkServer,
+    def __init__(self, config: AutopilotConfig, vehicle: Commander, ground: MavlinkServer,
                  arm_in_reference: bool = False, start_mission: bool = False,
                  log=None) -> None:
         self.config = config

@@ -23,7 +23,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import numpy as np  # noqa: E402
 
-from autopilot.commander.commander import Vehicle  # noqa: E402
+from autopilot.commander.commander import Commander  # noqa: E402
 from autopilot.control.factory import load_models, make_controller  # noqa: E402
 from autopilot.flight_tasks.reference import Reference  # noqa: E402
 from contracts.airframe import PAPER, hover_rotor_speeds  # noqa: E402
@@ -67,7 +67,7 @@ def cycle_parts() -> dict[str, float]:
     models = load_models(None)
     plant = Plant(PAPER, "paper", 0.001, position_ned_m=(0, 0, -1),
                   rotor_rad_s=hover_rotor_speeds(PAPER), ground_contact=True)
-    vehicle = Vehicle(lambda p: make_controller("ivfc", PAPER, 0.01, models, p), 0.01,
+    vehicle = Commander(lambda p: make_controller("ivfc", PAPER, 0.01, models, p), 0.01,
                       reference=Reference("attitude-sine"))
     vehicle.sample(0.0, plant.true_measurement())
     vehicle.arm_in_reference()

@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import numpy as np  # noqa: E402
 
-from autopilot.commander.commander import Vehicle  # noqa: E402
+from autopilot.commander.commander import Commander  # noqa: E402
 from autopilot.control.factory import load_models, make_controller  # noqa: E402
 from autopilot.flight_tasks.reference import Reference  # noqa: E402
 from autopilot.mavlink.server import MavlinkServer, open_link  # noqa: E402
@@ -35,7 +35,7 @@ STEPS = 20000
 
 def autopilot(zenoh: ZenohOptions) -> Autopilot:
     models = load_models(None)
-    vehicle = Vehicle(lambda p: make_controller("ivfc", PAPER, 0.01, models, p), 0.01, {},
+    vehicle = Commander(lambda p: make_controller("ivfc", PAPER, 0.01, models, p), 0.01, {},
                       Reference("attitude-sine"))
     ground = MavlinkServer(vehicle, [open_link("gcs", ("127.0.0.1", 0), None, None, 0)])
     ap = Autopilot(AutopilotConfig(zenoh=zenoh), vehicle, ground, arm_in_reference=True,

@@ -700,11 +700,11 @@ def test_only_ground_station_heartbeats_feed_the_failsafe(station):
     companion = s.new_client(sysid=1, compid=M.MAV_COMP_ID_ONBOARD_COMPUTER)
     companion.heartbeat(M.MAV_TYPE_ONBOARD_CONTROLLER)
     companion.sync()
-    assert s.vehicle.gcs_heard_s is None
+    assert s.vehicle.links.gcs_heard_s is None
     planner = s.new_client(sysid=254, compid=M.MAV_COMP_ID_MISSIONPLANNER)
     planner.heartbeat(M.MAV_TYPE_GENERIC)  # a mission planner's component counts
     planner.sync()
-    assert s.vehicle.gcs_heard_s == T0
+    assert s.vehicle.links.gcs_heard_s == T0
 
 
 def test_offboard_setpoint_loss_holds_after_com_of_loss_t(station):
@@ -750,7 +750,7 @@ def test_refused_setpoints_are_said_at_most_once_a_second(station):
     s.at(T0 + 5.0)
     assert texts(s.client.sync()) == [cut("setpoint refused: body-rate setpoints are not "
                                           "supported")]
-    assert s.vehicle.setpoint_heard_s is None
+    assert s.vehicle.links.setpoint_heard_s is None
 
 
 def test_a_failsafe_that_is_over_does_not_mark_the_next_flight_critical(station):
@@ -874,13 +874,14 @@ def test_manual_control_is_taken_and_bad_sticks_are_refused(station):
     station.flying()
     station.client.send(M.MAVLink_manual_control_message(1, 1000, -250, 500, 0, 0))
     station.client.sync()
-    assert station.vehicle.sticks.forward == 1.0 and station.vehicle.sticks.right == -0.25
+    sticks = station.vehicle.state.sticks
+    assert sticks.forward == 1.0 and sticks.right == -0.25
     assert station.client.result(SET_MODE, *px4(3)) == (ACCEPTED, [])
     assert station.vehicle.mode == FlightMode.POSCTL
     station.client.send(M.MAVLink_manual_control_message(1, 0, 0, 1500, 0, 0))
     assert texts(station.client.sync()) == [
         cut("setpoint refused: manual control z 1500 is outside [0, 1000]")]
-    assert station.vehicle.sticks.forward == 1.0  # unchanged
+    assert station.vehicle.state.sticks.forward == 1.0  # unchanged
 
 
 def test_mission_progress_is_announced_as_px4_does(station):
@@ -908,7 +909,7 @@ def test_change_speed_command_sets_the_go_to_speed(station):
     assert station.client.result(REPOSITION, -1, 1, 0, math.nan, lat, lon, 3.0, kind="int",
                                  frame=REL_INT)[0] == ACCEPTED
     assert station.client.result(M.MAV_CMD_DO_CHANGE_SPEED, 1, 2.5, -1) == (ACCEPTED, [])
-    assert station.vehicle.hold_speed_mps == 2.5
+    assert station.vehicle.tasks[FlightMode.HOLD].speed_mps == 2.5
     assert station.client.result(M.MAV_CMD_DO_CHANGE_SPEED, 1, math.nan, -1) == (
         DENIED, ["speed nan m/s is outside (0, 30]"])
-    assert station.vehicle.hold_speed_mps == 2.5
+    assert station.vehicle.tasks[FlightMode.HOLD].speed_mps == 2.5

@@ -1,7 +1,7 @@
 """Missions, return, go-to and manual flight, flown in process on sim time (tests/flight.py).
 
 The vehicle's navigator (autopilot/navigator/) and manual modes
-(autopilot/flight_tasks/manual.py) fly the rigid-body plant with the paper's controller;
+(autopilot/flight_tasks/sticks.py) fly the rigid-body plant with the paper's controller;
 what a tool does is called on the vehicle directly. Numbers are golden: a change in the
 navigator or the shaping that moves them is a change to look at. MAVLink and real tools
 are in test_mission_flight.py.
@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from autopilot.flight_tasks.manual import Sticks, deadband, expo, sticks_from_manual_control
+from autopilot.flight_tasks.sticks import Sticks, deadband, expo, sticks_from_manual_control
 from autopilot.navigator.mission_store import MISSION
 from autopilot.refusal import RefusedError
 from contracts.mavlink import mavlink
@@ -96,7 +96,7 @@ def test_a_hold_time_keeps_the_vehicle_on_its_waypoint():
     f = mission_flight(items, 25.0)
     assert f.vehicle.reached == [0, 1, 2]
     assert time_within(f.log, (10, 0, -3), 0.05) == pytest.approx(4.17, abs=0.05)
-    assert f.vehicle.mission_complete and f.vehicle.armed  # finished in the air: holds
+    assert f.vehicle.navigator.complete and f.vehicle.armed  # finished in the air: holds
 
 
 def test_loiter_time_and_delay_wait_where_they_are():
@@ -147,7 +147,7 @@ def test_pause_stops_on_the_leg_and_resume_finishes_the_mission():
     f.run(7.0)
     stopped = f.log[-1]
     assert np.hypot(*stopped[VEL][0:2]) < 0.01 and abs(stopped[2]) < 0.02  # on the leg
-    assert not f.vehicle.mission_active and f.vehicle.navigator is not None  # paused
+    assert not f.vehicle.mission_active and f.vehicle.navigator.runner is not None  # paused
     f.vehicle.set_mode(FlightMode.MISSION, f.t_s)
     f.run(75.0)
     assert f.vehicle.reached == list(range(8)) and not f.vehicle.armed
@@ -327,7 +327,7 @@ def test_sticks_are_checked_and_shaped_as_px4_reads_them():
 
 # -- the navigator alone -------------------------------------------------------------------
 def test_a_jump_loop_without_a_position_ends_the_mission_instead_of_stalling():
-    from autopilot.navigator.mission_runner import MissionRunner
+    from autopilot.navigator.mission_runner import Event, EventKind, MissionRunner
     from autopilot.parameters import default_parameters
 
     items = (mission_item(0, 5, 0, 3.0), do_item(1, M.MAV_CMD_DO_JUMP, (2, -1, 0, 0)),
@@ -336,7 +336,8 @@ def test_a_jump_loop_without_a_position_ends_the_mission_instead_of_stalling():
     runner.start(1, np.zeros(3), 0.0, False, 2.5)
     runner.step(0.0, np.zeros(3), np.zeros(3))
     assert runner.finished
-    assert runner.events[-1] == ("finished", "mission stopped: DO_JUMP loop without a position")
+    assert runner.events[-1] == Event(EventKind.FINISHED,
+                                      text="mission stopped: DO_JUMP loop without a position")
 
 
 def test_local_ned_items_are_metres_from_home():
@@ -376,7 +377,7 @@ def test_a_mission_uploaded_in_flight_is_flown_and_a_cleared_one_holds():
     f = mission_flight(six_waypoints(), 8.0)
     f.vehicle.mission.replace(MISSION, (mission_item(0, -5, -5, 4.0),))
     f.run(15.0)
-    assert f.vehicle.reached[-1] == 0 and f.vehicle.mission_complete
+    assert f.vehicle.reached[-1] == 0 and f.vehicle.navigator.complete
     assert np.linalg.norm(f.log[-1, POS] - (-5, -5, -4)) < 0.01
     f.vehicle.mission.clear(MISSION)
     f.run(0.02)

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from autopilot.flight_tasks.shaper import SetpointShaper
 from autopilot.flight_tasks.shaping import (
     Setpoint,
-    SetpointShaper,
     ShapingLimits,
     sqrt_controller,
     velocity_filter_omega,

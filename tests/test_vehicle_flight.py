@@ -292,13 +292,13 @@ def test_paper_scenarios_are_unchanged(plant, scenario, expected):
     (Setpoint(np.zeros(3), yaw_rate_rad_s=50.0), "beyond"),
 ])
 def test_bad_setpoints_are_refused_and_change_nothing(bad, reason):
-    from autopilot.commander.commander import RefusedError
+    from autopilot.refusal import RefusedError
 
     flight = _airborne()
     vehicle = flight.vehicle
-    before, heard = vehicle.setpoint, vehicle.setpoint_heard_s
+    before, heard = vehicle.setpoint, vehicle.links.setpoint_heard_s
     with pytest.raises(RefusedError, match=reason):
         vehicle.position_setpoint(flight.t_s, bad)
-    assert vehicle.setpoint is before and vehicle.setpoint_heard_s == heard
+    assert vehicle.setpoint is before and vehicle.links.setpoint_heard_s == heard
     flight.run(1.0)
     assert np.allclose(flight.log[-1, 1:4], (0.0, 0.0, -2.5), atol=0.02)

@@ -16,17 +16,14 @@ import math
 import numpy as np
 import pytest
 
-from autopilot.commander.commander import (
-    LANDED_ALTITUDE_M,
-    LANDED_SPEED_MPS,
-    TAKEOFF_REACHED_M,
-    Commander,
-    RefusedError,
-)
+from autopilot.commander.commander import TAKEOFF_REACHED_M, Commander
+from autopilot.commander.failsafe import Stream
+from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LANDED_SPEED_MPS
 from autopilot.control.factory import make_controller
 from autopilot.flight_tasks.reference import Reference
 from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.parameters import default_parameters
+from autopilot.refusal import RefusedError
 from contracts.airframe import PAPER
 from contracts.frames import quat_from_euler
 from contracts.modes import FlightMode
@@ -398,9 +395,9 @@ def test_attitude_setpoints_count_as_the_stream():
     offboard(v, LINK0)
     v.attitude_setpoint(LINK0 + 0.5, (1.0, 0.0, 0.0, 0.0), None)
     v.check_links(LINK0 + 1.5 - EPS)
-    assert v.mode == FlightMode.OFFBOARD and v.attitude_target is not None
+    assert v.mode == FlightMode.OFFBOARD and v.state.attitude_target is not None
     v.check_links(LINK0 + 1.5 + EPS)
-    assert v.mode == FlightMode.HOLD and v.attitude_target is None
+    assert v.mode == FlightMode.HOLD and v.state.attitude_target is None
 
 
 def test_setpoint_loss_on_the_ground_disarms_then_leaves_offboard():
@@ -726,7 +723,7 @@ def test_bad_position_setpoints_are_refused_and_change_nothing(bad, reason):
         v.position_setpoint(LINK0 + 0.5, bad)
     assert not refused.value.temporary
     np.testing.assert_array_equal(_snapshot(v.setpoint), before)  # NaN equals NaN here
-    assert not v.setpoints_streaming(LINK0 + 1.0 + EPS)  # the stream was not refreshed
+    assert not v.streaming(Stream.SETPOINTS, LINK0 + 1.0 + EPS)  # the stream was not refreshed
     assert said(v) == []
 
 
@@ -772,23 +769,23 @@ def test_bad_attitude_setpoints_are_refused_and_change_nothing(quaternion, thrus
     v = flying()
     offboard(v, LINK0)
     v.attitude_setpoint(LINK0, (1.0, 0.0, 0.0, 0.0), 0.3)
-    target = v.attitude_target
+    target = v.state.attitude_target
     with pytest.raises(RefusedError, match=reason):
         v.attitude_setpoint(LINK0 + 0.5, quaternion, thrust)
-    assert v.attitude_target is target and target.thrust_fraction == 0.3
-    assert not v.setpoints_streaming(LINK0 + 1.0 + EPS)
+    assert v.state.attitude_target is target and target.thrust_fraction == 0.3
+    assert not v.streaming(Stream.SETPOINTS, LINK0 + 1.0 + EPS)
 
 
 def test_attitude_thrust_is_read_as_the_flavour_reads_it():
     px4 = flying()
     offboard(px4, LINK0)
     px4.attitude_setpoint(LINK0, tuple(quat_from_euler(0.2, 0.0, 0.0)), 0.25)
-    assert px4.attitude_target.thrust_fraction == 0.25
-    assert px4.attitude_target.euler_rad[0] == pytest.approx(0.2)
+    assert px4.state.attitude_target.thrust_fraction == 0.25
+    assert px4.state.attitude_target.euler_rad[0] == pytest.approx(0.2)
     copter = flying(flavour="ardupilot", MPC_TKO_SPEED=2.0)
     copter.attitude_setpoint(LINK0, (1.0, 0.0, 0.0, 0.0), 1.0)
-    assert copter.attitude_target.climb_rate_mps == 2.0  # (1 - 0.5) * 2 * MPC_TKO_SPEED
-    assert math.isnan(copter.attitude_target.thrust_fraction)
+    assert copter.state.attitude_target.climb_rate_mps == 2.0  # (1 - 0.5) * 2 * MPC_TKO_SPEED
+    assert math.isnan(copter.state.attitude_target.thrust_fraction)
 
 
 # -- flights: the real controller and the plant, in sim time ------------------------------

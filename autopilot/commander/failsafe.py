@@ -1,11 +1,30 @@
-"""Failsafes timed on the link clock: the ground station's heartbeat, the offboard
-setpoint stream and manual control (PX4's COM_DL_LOSS_T / NAV_DLL_ACT, COM_OF_LOSS_T /
-COM_OBL_ACT and COM_RC_LOSS_T / NAV_RCL_ACT).
-Pure: the vehicle calls it with the link clock and carries out the action it names."""
+"""Failsafes: what the loss of a link or a fence breach does (PX4's parameters).
+
+* timed on the link clock: the ground station's heartbeat (COM_DL_LOSS_T / NAV_DLL_ACT),
+  and the input stream a mode flies on: offboard setpoints (COM_OF_LOSS_T / COM_OBL_ACT)
+  or manual control (COM_RC_LOSS_T / NAV_RCL_ACT);
+* the geofence (GF_ACTION), on sim time.
+Pure: the commander calls it with the link clock and carries out the action it names.
+"""
 
 from __future__ import annotations
 
+import enum
+
 from contracts.modes import FlightMode
+
+
+class Stream(enum.Enum):
+    """An input stream a mode flies on: entering it needs the stream, losing it is a
+    failsafe."""
+
+    SETPOINTS = "setpoint stream"  # SET_POSITION_TARGET_* / SET_ATTITUDE_TARGET
+    MANUAL = "manual control input"  # MANUAL_CONTROL
+
+
+# GF_ACTION -> the mode a breach puts the vehicle in (None: a warning only).
+GEOFENCE_ACTIONS = {0: None, 1: None, 2: FlightMode.HOLD, 3: FlightMode.RTL,
+                    5: FlightMode.LAND}
 
 # NAV_DLL_ACT: what ground-station loss does (PX4's numbers).
 GCS_LOSS_ACTIONS: dict[int, FlightMode | None] = {0: None, 1: FlightMode.HOLD,
@@ -20,6 +39,13 @@ MANUAL_LOSS_ACTIONS: dict[int, FlightMode] = {1: FlightMode.HOLD, 2: FlightMode.
 def offboard_loss_action(com_obl_act: float) -> FlightMode:
     """COM_OBL_ACT: 0 lands, otherwise hold."""
     return FlightMode.LAND if com_obl_act == 0 else FlightMode.HOLD
+
+
+def stream_loss(stream: Stream, p: dict[str, float]) -> tuple[str, FlightMode]:
+    """What the failsafe says and does when ``stream`` stops in flight."""
+    if stream is Stream.SETPOINTS:
+        return "offboard setpoints lost", offboard_loss_action(p["COM_OBL_ACT"])
+    return "manual control lost", MANUAL_LOSS_ACTIONS[int(p["NAV_RCL_ACT"])]
 
 
 class LinkWatch:
@@ -54,3 +80,8 @@ class LinkWatch:
 
     def manual_streaming(self, link_t_s: float, timeout_s: float) -> bool:
         return self.manual_heard_s is not None and link_t_s - self.manual_heard_s <= timeout_s
+
+    def streaming(self, stream: Stream, link_t_s: float, p: dict[str, float]) -> bool:
+        if stream is Stream.SETPOINTS:
+            return self.setpoints_streaming(link_t_s, p["COM_OF_LOSS_T"])
+        return self.manual_streaming(link_t_s, p["COM_RC_LOSS_T"])

@@ -271,9 +271,19 @@ class SlidingModeCascade:
         self.theta_g = np.array([*model.g, 1.0 / airframe.mass_kg, 1.0 / airframe.mass_kg,
                                  1.0 / airframe.mass_kg])
         self._theta_g_initial = self.theta_g.copy()
+        self._initial_euler_rad = initial_euler_rad
         self._filter_state = np.zeros((2, 2))
         self._filter_state[:, 0] = initial_euler_rad
         self.apply_parameters(self.parameters)
+        self._last_commands = np.zeros(4)
+
+    def reset(self) -> None:
+        """The adaptive weights, command filter and last command as made (a new flight)."""
+        self.telemetry[...] = 0.0
+        self._theta_f = tuple(t.copy() for t in self._theta_f_initial)
+        self.theta_g = self._theta_g_initial.copy()
+        self._filter_state = np.zeros((2, 2))
+        self._filter_state[:, 0] = self._initial_euler_rad
         self._last_commands = np.zeros(4)
 
     def apply_parameters(self, parameters: dict[str, float]) -> None:

@@ -148,11 +148,20 @@ def pid_step(
 class PidCascade:
     """PX4-style cascaded PID with its integrator state."""
 
+    theta_g = None  # no adaptive weights
+    theta_f = None
+
     def __init__(self, airframe: Airframe, period_s: float = 0.01,
                  parameters: dict[str, float] | None = None) -> None:
         self.airframe = airframe
         self.period_s = period_s
         self.apply_parameters(parameters or {})
+        self._integrators = np.zeros(6)
+        self._previous = np.zeros(5)
+        self.telemetry = np.full((6, 10), np.nan)
+
+    def reset(self) -> None:
+        """Integrators and derivative memory cleared (a new flight)."""
         self._integrators = np.zeros(6)
         self._previous = np.zeros(5)
         self.telemetry = np.full((6, 10), np.nan)

@@ -13,6 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from autopilot.flight_tasks.task import BaseTask, Shaped, TaskOutput
+from contracts.modes import FlightMode
 from contracts.vectors import (
     REF_ACC,
     REF_EULER,
@@ -111,3 +113,22 @@ class Reference:
                 ref[REF_EULER_RATE], ref[REF_EULER_RATE + 1] = -a * c, a * c
                 ref[REF_EULER_ACC], ref[REF_EULER_ACC + 1] = a * s, -a * s
         return ref
+
+
+class ReferenceTask(BaseTask):
+    """The paper's reference (REFERENCE mode), in sim time from when it began; not shaped
+    (the paper's controller is tuned on it as it is)."""
+
+    start_s = 0.0
+
+    def activate(self, previous: FlightMode, armed: bool) -> None:
+        self.begin()
+
+    def begin(self) -> None:
+        self.start_s = self.state.sim_t_s
+
+    def update(self) -> TaskOutput:
+        s, reference = self.state, self.env.reference
+        s.shaped = Shaped.NONE
+        return TaskOutput(reference.at(s.sim_t_s - self.start_s), reference.position_mode,
+                          math.nan)

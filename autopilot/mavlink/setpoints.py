@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from autopilot.flight_tasks.manual import sticks_from_manual_control
+from autopilot.flight_tasks.sticks import sticks_from_manual_control
 from autopilot.mavlink.offboard import global_setpoint, local_setpoint
 from autopilot.refusal import RefusedError
 from contracts.mavlink import mavlink

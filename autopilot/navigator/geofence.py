@@ -1,6 +1,7 @@
 """The geofence (pure): the uploaded fence (inclusion / exclusion polygons and circles) and
 PX4's distance limits (GF_MAX_HOR_DIST, GF_MAX_VER_DIST), and whether a position breaks
-them. What the vehicle does about a breach (GF_ACTION) is in autopilot/commander/commander.py.
+them. What the vehicle does about a breach (GF_ACTION) is a failsafe
+(autopilot/commander/failsafe.py).
 """
 
 from __future__ import annotations
@@ -79,3 +80,22 @@ def breach(position_ned_m: np.ndarray, zones: tuple[Zone, ...], max_horizontal_m
     if any(z.contains(north, east) for z in zones if not z.inclusion):
         return "inside an exclusion zone"
     return None
+
+
+class GeofenceWatch:
+    """Tells a breach once, when the vehicle crosses out of its fence (as PX4 does)."""
+
+    def __init__(self) -> None:
+        self.breach: str | None = None  # why the vehicle is outside its fence
+        self._fence_of: tuple | None = None  # the fence list the zones were built from
+        self._zones: tuple = ()
+
+    def crossed_out(self, fence: tuple, position_ned_m: np.ndarray, max_hor_m: float,
+                    max_ver_m: float) -> str | None:
+        """The reason when this sample is the first outside, else None."""
+        if fence is not self._fence_of:
+            self._fence_of, self._zones = fence, zones_from_items(fence)
+        reason = breach(position_ned_m, self._zones, max_hor_m, max_ver_m)
+        first = reason is not None and self.breach is None
+        self.breach = reason
+        return reason if first else None

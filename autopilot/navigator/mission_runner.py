@@ -1,4 +1,4 @@
-"""The navigator: what the vehicle flies in AUTO.MISSION and AUTO.RTL (pure: no I/O).
+"""The mission runner: what the vehicle flies in AUTO.MISSION (pure: no I/O).
 
 As PX4's navigator, it does not fly anything itself: each control period it hands the
 vehicle a *goal*, a position setpoint with a speed and a vertical manner (take-off
@@ -16,12 +16,14 @@ the next waypoint (PX4's MPC_YAW_MODE 0) unless the item names one.
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import numpy as np
 
+from autopilot.flight_tasks.goal import LAND_DOWN_M, Goal, Vertical
 from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.navigator.mission_store import DO_COMMANDS, PAYLOAD_COMMANDS, MissionItem
 from contracts.mavlink import mavlink, ned_from_global
@@ -34,8 +36,6 @@ M = mavlink
 AT_WAYPOINT_M = 0.05
 STRAIGHT_ON_RAD = math.radians(10.0)  # legs this close to straight do not slow down
 FACE_TARGET_M = 2.0  # legs shorter than this keep the heading (no spinning on the spot)
-RETURN_HOME_M = 0.05  # RTL descends once its reference is this close above home
-LAND_DOWN_M = 0.5  # landing descends towards this far below the ground: it touches down
 # Items flown to a position and left (after a hold) for the next.
 WAYPOINT_COMMANDS = (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME,
                      M.MAV_CMD_NAV_LOITER_UNLIM)
@@ -45,13 +45,30 @@ YAW_COMMANDS = (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_UNLIM, M.MAV_CMD_NA
 MAX_DO_ITEMS_PER_STEP = 64  # a DO_JUMP loop without a position in it cannot stall a step
 
 
-class Goal(NamedTuple):
-    """What to fly this period: a setpoint, a horizontal speed (NaN: the vehicle's
-    limit) and how to move vertically ("" as usual, "takeoff", "land")."""
+class Phase(enum.Enum):
+    """Where the runner is in the current item."""
 
-    setpoint: Setpoint
-    speed_mps: float = math.nan
-    vertical: str = ""
+    START = "start"  # begin the current item at the next step
+    CLIMB = "climb"  # on the ground at the start: straight up to the first altitude
+    TAKEOFF = "takeoff"  # a NAV_TAKEOFF item
+    FLY = "fly"  # to a positioned item
+    WAIT = "wait"  # a NAV_DELAY
+    LAND = "land"  # descending on a NAV_LAND item
+    DONE = "done"  # finished, or handed over to a return
+
+
+class EventKind(enum.Enum):
+    REACHED = "reached"  # an item reached (MISSION_ITEM_REACHED)
+    RETURN = "return"  # the mission asks for a return to launch
+    FINISHED = "finished"  # the mission ended (the text says how)
+
+
+class Event(NamedTuple):
+    """What the runner reports to the navigator."""
+
+    kind: EventKind
+    seq: int = -1
+    text: str = ""
 
 
 def item_position_ned(item: MissionItem, here_ned_m: np.ndarray) -> np.ndarray:
@@ -95,10 +112,9 @@ class MissionRunner:
     parameters: dict[str, float]
     seq: int = 0
     speed_mps: float = math.nan  # DO_CHANGE_SPEED; NaN: MPC_XY_CRUISE
-    # ("reached", seq), ("rtl",), ("finished", text): for the vehicle to act on
-    events: list[tuple] = field(default_factory=list)
+    events: list[Event] = field(default_factory=list)  # for the navigator to act on
     finished: bool = False
-    _phase: str = "start"  # start, takeoff, fly, wait, land, done
+    _phase: Phase = Phase.START
     _target: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _leg_start: np.ndarray = field(default_factory=lambda: np.zeros(3))
     _yaw_rad: float = 0.0
@@ -115,12 +131,12 @@ class MissionRunner:
         self.seq, self.finished = seq, False
         self._yaw_rad = yaw_rad
         self._leg_start = np.array(position_ned_m, dtype=float)
-        self._phase = "start"
+        self._phase = Phase.START
         if landed and self._nav_command(seq) != M.MAV_CMD_NAV_TAKEOFF:
             first = self._first_position(seq, position_ned_m)
             altitude = max(take_off_alt_m, -first[2]) if first is not None else take_off_alt_m
             self._target = np.array([position_ned_m[0], position_ned_m[1], -altitude])
-            self._phase = "climb"
+            self._phase = Phase.CLIMB
         else:
             self._begin_item(position_ned_m, 0.0)
 
@@ -167,17 +183,17 @@ class MissionRunner:
             self._finish("mission stopped: DO_JUMP loop without a position")
             return
         self._reached_s = self._hold_from_s = None
-        self._leg_start = self._target.copy() if self._phase not in ("start", "climb") \
+        self._leg_start = self._target.copy() if self._phase not in (Phase.START, Phase.CLIMB) \
             else np.array(here, dtype=float)
         if command == M.MAV_CMD_NAV_RETURN_TO_LAUNCH:  # the mission ends in a return
-            self.events.append(("rtl",))
+            self.events.append(Event(EventKind.RETURN))
             self.finished = True
-            self._phase = "done"
+            self._phase = Phase.DONE
             return
         if command == M.MAV_CMD_NAV_DELAY:  # wait where the last item left the vehicle
-            if self._phase == "start":
+            if self._phase is Phase.START:
                 self._target = np.array(here, dtype=float)
-            self._phase = "wait"
+            self._phase = Phase.WAIT
             self._wait_until_s = t_s + float(item.params[0])
             return
         target = item_position_ned(item, self._leg_start)
@@ -188,13 +204,13 @@ class MissionRunner:
         face = heading_to(self._leg_start, target)
         self._yaw_rad = math.radians(yaw) if math.isfinite(yaw) else (
             face if math.isfinite(face) else self._yaw_rad)
-        self._phase = "takeoff" if command == M.MAV_CMD_NAV_TAKEOFF else "fly"
+        self._phase = Phase.TAKEOFF if command == M.MAV_CMD_NAV_TAKEOFF else Phase.FLY
 
     def _finish(self, text: str) -> None:
         if not self.finished:
-            self.events.append(("finished", text))
+            self.events.append(Event(EventKind.FINISHED, text=text))
         self.finished = True
-        self._phase = "done"
+        self._phase = Phase.DONE
 
     def _acceptance(self, item: MissionItem) -> tuple[float, float]:
         """(horizontal, vertical) acceptance [m]."""
@@ -224,21 +240,21 @@ class MissionRunner:
     def step(self, t_s: float, position_ned_m: np.ndarray, reference_ned_m: np.ndarray
              ) -> Goal:
         """This period's goal, from the vehicle's position and the shaped reference's."""
-        if self._phase == "climb":
-            goal = Goal(Setpoint.hold(self._target, self._yaw_rad), math.nan, "takeoff")
+        if self._phase is Phase.CLIMB:
+            goal = Goal(Setpoint.hold(self._target, self._yaw_rad), math.nan, Vertical.TAKEOFF)
             if abs(position_ned_m[2] - self._target[2]) <= self.parameters["NAV_MC_ALT_RAD"]:
                 self._begin_item(position_ned_m, t_s)
             return goal
-        if self._phase == "start":
+        if self._phase is Phase.START:
             self._begin_item(position_ned_m, t_s)
-        if self._phase == "done":
+        if self._phase is Phase.DONE:
             return Goal(Setpoint.hold(self._target, self._yaw_rad))
-        if self._phase == "land":
+        if self._phase is Phase.LAND:
             return Goal(Setpoint.hold((*self._target[0:2], LAND_DOWN_M), self._yaw_rad),
-                        math.nan, "land")
-        if self._phase == "wait":
+                        math.nan, Vertical.LAND)
+        if self._phase is Phase.WAIT:
             if t_s >= self._wait_until_s:
-                self.events.append(("reached", self.seq))
+                self.events.append(Event(EventKind.REACHED, self.seq))
                 self._next(position_ned_m, t_s)
             return Goal(Setpoint.hold(self._target, self._yaw_rad), self._speed())
         item = self.items[self.seq]
@@ -248,13 +264,13 @@ class MissionRunner:
                 abs(error[2]) <= vertical:
             self._reached_s = t_s
             if item.command != M.MAV_CMD_NAV_LAND:
-                self.events.append(("reached", self.seq))
+                self.events.append(Event(EventKind.REACHED, self.seq))
         if self._reached_s is not None:
             away = float(np.linalg.norm(reference_ned_m - self._target))
             if item.command == M.MAV_CMD_NAV_LAND:
                 if away <= AT_WAYPOINT_M:
-                    self._phase = "land"
-                    self.events.append(("reached", self.seq))
+                    self._phase = Phase.LAND
+                    self.events.append(Event(EventKind.REACHED, self.seq))
             elif self._hold_s(item) > 0.0:
                 if self._hold_from_s is None and away <= AT_WAYPOINT_M:
                     self._hold_from_s = t_s
@@ -264,7 +280,7 @@ class MissionRunner:
             elif away <= AT_WAYPOINT_M or (away <= radius and self._straight_on()):
                 self._next(position_ned_m, t_s)
         return Goal(Setpoint.hold(self._target, self._yaw_rad), self._speed(),
-                    "takeoff" if self._phase == "takeoff" else "")
+                    Vertical.TAKEOFF if self._phase is Phase.TAKEOFF else Vertical.CRUISE)
 
     def _next(self, here: np.ndarray, t_s: float) -> None:
         self.seq += 1
@@ -276,51 +292,4 @@ class MissionRunner:
 
     @property
     def landing(self) -> bool:
-        return self._phase == "land"
-
-
-@dataclass
-class ReturnToLaunch:
-    """PX4's AUTO.RTL: climb to RTL_RETURN_ALT (or stay higher), fly home at that
-    altitude facing it, descend to RTL_DESCEND_ALT, land and (the vehicle) disarm. Home
-    is the local origin."""
-
-    parameters: dict[str, float]
-    phase: str = "climb"  # climb, return, descend, land
-    _altitude_m: float = 0.0
-    _yaw_rad: float = 0.0
-    _xy: np.ndarray = field(default_factory=lambda: np.zeros(2))
-
-    def start(self, position_ned_m: np.ndarray, yaw_rad: float) -> None:
-        self._altitude_m = max(-float(position_ned_m[2]), self.parameters["RTL_RETURN_ALT"])
-        self._xy = np.array(position_ned_m[0:2], dtype=float)
-        face = heading_to(position_ned_m, np.zeros(3))
-        self._yaw_rad = face if math.isfinite(face) else yaw_rad
-        self.phase = "climb"
-
-    def step(self, position_ned_m: np.ndarray, reference_ned_m: np.ndarray) -> Goal:
-        p = self.parameters
-        if self.phase == "climb":
-            if abs(-position_ned_m[2] - self._altitude_m) <= p["NAV_MC_ALT_RAD"]:
-                self.phase = "return"
-            else:
-                return Goal(Setpoint.hold((*self._xy, -self._altitude_m), self._yaw_rad))
-        if self.phase == "return":
-            if float(np.hypot(*reference_ned_m[0:2])) <= RETURN_HOME_M and float(
-                    np.hypot(*position_ned_m[0:2])) <= p["NAV_ACC_RAD"]:
-                self.phase = "descend"
-            else:
-                return Goal(Setpoint.hold((0.0, 0.0, -self._altitude_m), self._yaw_rad),
-                            p["MPC_XY_CRUISE"])
-        descend_to = min(self._altitude_m, p["RTL_DESCEND_ALT"])
-        if self.phase == "descend":
-            if -position_ned_m[2] - descend_to <= p["NAV_MC_ALT_RAD"]:
-                self.phase = "land"
-            else:
-                return Goal(Setpoint.hold((0.0, 0.0, -descend_to), self._yaw_rad))
-        return Goal(Setpoint.hold((0.0, 0.0, LAND_DOWN_M), self._yaw_rad), math.nan, "land")
-
-    @property
-    def landing(self) -> bool:
-        return self.phase == "land"
-
+        return self._phase is Phase.LAND

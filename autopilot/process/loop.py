@@ -28,7 +28,7 @@ import numpy as np
 
 from autopilot.commander.commander import Commander
 from autopilot.estimation.estimator import Estimator, GpsFix
-from autopilot.flight_tasks import shaping
+from autopilot.flight_tasks import shaper
 from autopilot.mavlink.server import MavlinkServer
 from autopilot.refusal import RefusedError
 from contracts.airframe import max_thrust_n
@@ -527,13 +527,13 @@ class Autopilot:
         """Load the compiled control law and setpoint shaper before the loop: a first
         call takes ~0.1 s from numba's cache (seconds to compile on a fresh install),
         which would otherwise be a deadline miss, or a simulator-link loss in real time."""
-        scratch = self.vehicle._make_controller(self.vehicle.parameters)
+        scratch = self.vehicle.make_controller(self.vehicle.parameters)
         hover = np.zeros(MEASUREMENT_SIZE)
         hover[MEAS_Z] = -1.0
         scratch.step(hover, np.zeros(REF_SIZE), True, np.zeros(2))
         scratch.step(hover, np.zeros(REF_SIZE), True, np.zeros(2), math.nan, True)
         scratch.step(hover, np.zeros(REF_SIZE), False, np.zeros(2), 10.0, True)
-        shaping.warm_up(self.vehicle.limits, self.period_us / 1e6)
+        shaper.warm_up(self.vehicle.state.limits, self.period_us / 1e6)
         wrap_pi(1.0)
         euler_from_quat(np.array([1.0, 0.0, 0.0, 0.0]))
         max_thrust_n(scratch.airframe)

@@ -21,9 +21,9 @@ from autopilot.control.factory import (
     load_models,  # noqa: E402
     make_controller,  # noqa: E402
 )
+from autopilot.flight_tasks.shaper import SetpointShaper  # noqa: E402
 from autopilot.flight_tasks.shaping import (  # noqa: E402
     Setpoint,
-    SetpointShaper,
     limits_from_parameters,  # noqa: E402
 )
 from autopilot.identification.identify import identify_dataset  # noqa: E402

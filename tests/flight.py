@@ -61,7 +61,7 @@ class Flight:
             self.vehicle.check_links(t)
             measurement = self.plant.true_measurement()
             commands = self.vehicle.step(t, measurement)
-            self.rows.append(np.concatenate(([t], measurement, self.vehicle.last_ref)))
+            self.rows.append(np.concatenate(([t], measurement, self.vehicle.flight.last_ref)))
             self.plant.set_motor_commands(commands)
             self.plant.advance(self.period_s)
             self.steps += 1

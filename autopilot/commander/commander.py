@@ -24,33 +24,28 @@ from collections.abc import Callable
 import numpy as np
 
 from autopilot.commander.failsafe import (
-    GCS_LOSS_ACTIONS,
-    GEOFENCE_ACTIONS,
-    LinkWatch,
+    Failsafes,
     Stream,
-    stream_loss,
 )
 from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LandDetector
 from autopilot.commander.modes import MODES, ModeRow
 from autopilot.control.controller import Controller
+from autopilot.flight_tasks.manager import FlightControl
 from autopilot.flight_tasks.reference import Reference
 from autopilot.flight_tasks.setpoints import checked_attitude_target, checked_position_setpoint
 from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.flight_tasks.sticks import Sticks
-from autopilot.flight_tasks.task import FlightTask, Shaped, TaskEnv, TaskOutput, TaskState
-from autopilot.navigator.geofence import GeofenceWatch
-from autopilot.navigator.mission_store import FENCE, MissionStore
+from autopilot.flight_tasks.task import FlightTask, Shaped, TaskEnv, TaskState
+from autopilot.navigator.mission_store import MissionStore
 from autopilot.navigator.navigator import Navigator
 from autopilot.parameters import validate_parameters
 from autopilot.refusal import RefusedError
 from contracts.airframe import max_thrust_n
 from contracts.modes import FlightMode
 from contracts.perturbation_book import PerturbationBook
-from contracts.perturbations import Perturbation, kick_at
+from contracts.perturbations import Perturbation
 from contracts.telemetry import AUTOPILOT
-from contracts.vectors import MEAS_VZ, MEAS_Z, MEASUREMENT, REF_POS, REF_SIZE
-
-TAKEOFF_REACHED_M = 0.1
+from contracts.vectors import MEAS_VZ, MEAS_Z, REF_POS, REF_SIZE
 
 
 class Commander:
@@ -75,13 +70,12 @@ class Commander:
         self.state = TaskState(period_s, params, thrust_n,
                                af.mass_kg * af.gravity_mps2 / thrust_n, self.land_detector)
         self.reference = reference
-        # Reference kicks (sim time), from the command line and from Zenoh requests.
-        self.perturbations = PerturbationBook(AUTOPILOT, schedule)
         self.flavour = flavour
         self.armed = False
-        self.mode = self._idle_mode()
-        self.links = LinkWatch()
-        self.geofence = GeofenceWatch()
+        self.mode = self.idle_mode = FlightMode.GUIDED if flavour == "ardupilot" \
+            else FlightMode.HOLD
+        self.failsafes = Failsafes(self)
+        self.links = self.failsafes.links
         self.failsafe: str | None = None
         self.messages: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) for STATUSTEXT
         self.sim_link_ok = False
@@ -91,21 +85,13 @@ class Commander:
         self.navigator = Navigator(self.say)
         env = TaskEnv(self.state, self.navigator, reference, self.switch_to, self.say)
         self.tasks: dict[FlightMode, FlightTask] = {m: row.task(env) for m, row in MODES.items()}
-        self.last_ref = np.zeros(REF_SIZE)
-        self.last_kick = np.zeros(2)
-        self.last_commands = np.zeros(4)
-
-    def _idle_mode(self) -> FlightMode:
-        return FlightMode.GUIDED if self.flavour == "ardupilot" else FlightMode.HOLD
+        # Reference kicks (sim time), from the command line and from Zenoh requests.
+        self.flight = FlightControl(self.state, self.tasks, self.controller,
+                                    PerturbationBook(AUTOPILOT, schedule))
 
     # -- what the parts hold, as tools and logs read it -----------------------------------
-    @property
-    def row(self) -> ModeRow:
-        return MODES[self.mode]
-
-    @property
-    def task(self) -> FlightTask:
-        return self.tasks[self.mode]
+    row: ModeRow = property(lambda self: MODES[self.mode])
+    task: FlightTask = property(lambda self: self.tasks[self.mode])
 
     parameters = property(lambda self: self.state.parameters)
     measurement = property(lambda self: self.state.measurement)
@@ -117,6 +103,8 @@ class Commander:
     gcs_lost = property(lambda self: self.links.gcs_lost)
     mission: MissionStore = property(lambda self: self.navigator.store)
     reached = property(lambda self: self.navigator.reached)
+    perturbations = property(lambda self: self.flight.perturbations)
+    last_commands = property(lambda self: self.flight.last_commands)
 
     @property
     def reference_start_s(self) -> float:
@@ -169,7 +157,7 @@ class Commander:
         self.armed = True
         self.failsafe = None  # a new flight: what went wrong before is over
         self.state.shaped = Shaped.NONE
-        self.last_ref = np.zeros(REF_SIZE)
+        self.flight.last_ref = np.zeros(REF_SIZE)
         self.task.on_arm()
         self.land_detector.set(self.landed, self.sim_t_s)
         self.say("armed")
@@ -189,15 +177,16 @@ class Commander:
             return
         if not self.landed and not force:
             raise RefusedError("disarming denied: in the air (force with param2 21196)")
-        self._disarm("disarmed")
+        self.end_flight("disarmed")
 
-    def _disarm(self, text: str) -> None:
+    def end_flight(self, text: str) -> None:
+        """Disarm now, saying ``text`` (on the ground, or a failsafe's last resort)."""
         self.armed = False
         self.state.shaped = Shaped.NONE
         self.state.takeoff_altitude_m = None
         self.navigator.flight_ended()
         if self.row.ends_with_flight:
-            self.mode = self._idle_mode()
+            self.mode = self.idle_mode
         self.say(text)
 
     # -- modes -----------------------------------------------------------------------------
@@ -278,49 +267,12 @@ class Commander:
 
     def check_links(self, link_t_s: float) -> None:
         """Failsafes timed on the link clock: ground station and the mode's input stream."""
-        p = self.parameters
-        if self.links.gcs_lost_now(link_t_s, p["COM_DL_LOSS_T"]):
-            self._failsafe("ground station lost", GCS_LOSS_ACTIONS[int(p["NAV_DLL_ACT"])])
-        stream = self.row.stream
-        if stream is not None and not self.streaming(stream, link_t_s):
-            if self.armed:
-                self._failsafe(*stream_loss(stream, p))
-            else:
-                self.mode = FlightMode.HOLD
+        self.failsafes.check_links(link_t_s)
 
     def sim_link_lost(self) -> None:
-        if not self.sim_link_ok:
-            return
-        self.sim_link_ok = False
-        self._failsafe("simulator link lost", FlightMode.LAND)
-
-    def _failsafe(self, what: str, action: FlightMode | None) -> None:
-        self.failsafe = what
-        if not self.armed or action is None:
-            self.say(f"{what}", 4)
-            return
-        if self.landed:
-            self._disarm(f"{what}: disarmed on the ground")
-            return
-        self.say(f"{what}: {action.value}", 4)
-        if self.mode != action:
-            self.switch_to(action)
-
-    def _check_geofence(self) -> None:
-        """GF_ACTION on crossing out of the fence (once per breach), as PX4: a STATUSTEXT,
-        and hold or land."""
-        p = self.parameters
-        reason = self.geofence.crossed_out(
-            self.mission.lists[FENCE], self.measurement[MEASUREMENT.position_ned_m],
-            p["GF_MAX_HOR_DIST"], p["GF_MAX_VER_DIST"])
-        if reason is None:
-            return
-        action = GEOFENCE_ACTIONS[int(p["GF_ACTION"])]
-        if action is None:
-            if p["GF_ACTION"] == 1:  # a warning, not a failsafe
-                self.say(f"geofence: {reason}", 4)
-            return
-        self._failsafe(f"geofence: {reason}", action)
+        if self.sim_link_ok:
+            self.sim_link_ok = False
+            self.failsafes.trigger("simulator link lost", FlightMode.LAND)
 
     # -- the control step --------------------------------------------------------------------
     def sample(self, sim_t_s: float, measurement: np.ndarray) -> None:
@@ -328,7 +280,7 @@ class Commander:
         if self.measurement is not None and sim_t_s < self.sim_t_s:
             self.say("simulator restarted", 5)
             if self.armed and -measurement[MEAS_Z] < LANDED_ALTITUDE_M:
-                self._disarm("simulator restarted: disarmed on the ground")
+                self.end_flight("simulator restarted: disarmed on the ground")
         if not self.sim_link_ok:
             self.say("simulator link up", 6)
         self.sim_link_ok = True
@@ -336,13 +288,13 @@ class Commander:
         self.state.measurement = measurement
         self._detect_landing()
         if self.armed and not self.landed and self.row.geofence:
-            self._check_geofence()
+            self.failsafes.check_geofence()
 
     def _detect_landing(self) -> None:
         m, s = self.measurement, self.state
         # Armed and asked to be up: taking off, or a reference above the ground.
         lifting_off = self.armed and (s.takeoff_altitude_m is not None or (
-            not self.landing and self.last_ref[REF_POS + 2] < -LANDED_ALTITUDE_M))
+            not self.landing and self.flight.last_ref[REF_POS + 2] < -LANDED_ALTITUDE_M))
         change = self.land_detector.update(s.sim_t_s, -m[MEAS_Z], m[MEAS_VZ], lifting_off)
         if change == "landed" and self.armed:
             self.say("landed", 6)
@@ -350,40 +302,13 @@ class Commander:
                 and self.land_detector.landed_since_s is not None
                 and self.land_detector.landed_for_s(s.sim_t_s)
                 >= self.parameters["COM_DISARM_LAND"]):
-            self._disarm("landed: disarmed")
+            self.end_flight("landed: disarmed")
 
     def control(self) -> np.ndarray:
         """Motor commands for this control period (zeros when disarmed or without state)."""
         if not self.armed or self.measurement is None or not self.sim_link_ok:
-            self.state.shaped = Shaped.NONE
-            self.last_commands = np.zeros(4)
-            return self.last_commands
-        out = self._reference()
-        entries = self.perturbations.entries
-        kick = np.array(kick_at(entries, self.sim_t_s)) if entries else np.zeros(2)
-        self.last_ref, self.last_kick = out.reference, kick
-        # Flights from tools limit the total tilt (PX4's MPC_TILTMAX_AIR); the paper's
-        # reference keeps the per-axis clip it is tuned with.
-        self.last_commands = self.controller.step(
-            self.measurement, out.reference, out.position_mode, kick, out.thrust_n,
-            self.row.tilt_limited)
-        return self.last_commands
-
-    def _reference(self) -> TaskOutput:
-        """The mode's task's reference (the next mode's, if the task handed over)."""
-        out = self.task.update()
-        if out is None:
-            out = self.task.update()
-        s = self.state
-        if s.takeoff_altitude_m is not None and s.shaped is Shaped.TRANSLATION and \
-                abs(s.measurement[MEAS_Z] + s.takeoff_altitude_m) < TAKEOFF_REACHED_M:
-            self.say("take-off complete")
-            s.takeoff_altitude_m = None
-            if self.mode == FlightMode.TAKEOFF:
-                target = s.setpoint  # hold the take-off altitude, not where it is
-                self.switch_to(FlightMode.HOLD)
-                s.setpoint = target
-        return out
+            return self.flight.idle()
+        return self.flight.step(lambda: self.mode, self.row.tilt_limited)
 
     def step(self, sim_t_s: float, measurement: np.ndarray) -> np.ndarray:
         """One control period: take the sample, then compute the motor commands."""
@@ -408,19 +333,8 @@ class Commander:
             raise RefusedError("go-to values must be finite or NaN")
         if math.isfinite(speed_mps) and not 0 < speed_mps <= self.parameters["MPC_XY_VEL_MAX"]:
             speed_mps = math.nan  # -1 (the default speed) or beyond the limit
-        held = self.setpoint.position_ned_m
-        # What the tool leaves out stays as it is: the held position in HOLD, else the
-        # point where the vehicle can stop.
-        here = held if self.mode == FlightMode.HOLD and np.all(np.isfinite(held)) \
-            else self.state.stopping_point()
-        target = np.where(np.isfinite(target_ned_m), target_ned_m, here)
-        if np.any(np.abs(target) > 1000.0):
-            raise RefusedError("go-to position is more than 1 km from home")
-        if self.mode != FlightMode.HOLD:
-            self.switch_to(FlightMode.HOLD)
-        yaw = yaw_rad if math.isfinite(yaw_rad) else self.setpoint.yaw_rad
-        self.tasks[FlightMode.HOLD].go_to(target, yaw, speed_mps)
-        self.say(f"going to {target[0]:.1f} N {target[1]:.1f} E {-target[2]:.1f} m up")
+        self.tasks[FlightMode.HOLD].reposition(target_ned_m, yaw_rad, speed_mps,
+                                               self.mode is FlightMode.HOLD)
 
     def change_speed(self, speed_mps: float) -> None:
         """MAV_CMD_DO_CHANGE_SPEED in flight: the mission's speed and a go-to's (-1: no

@@ -10,8 +10,15 @@ Pure: the commander calls it with the link clock and carries out the action it n
 from __future__ import annotations
 
 import enum
+from typing import TYPE_CHECKING
 
+from autopilot.navigator.geofence import GeofenceWatch
+from autopilot.navigator.mission_store import FENCE
 from contracts.modes import FlightMode
+from contracts.vectors import MEASUREMENT
+
+if TYPE_CHECKING:
+    from autopilot.commander.commander import Commander
 
 
 class Stream(enum.Enum):
@@ -85,3 +92,55 @@ class LinkWatch:
         if stream is Stream.SETPOINTS:
             return self.setpoints_streaming(link_t_s, p["COM_OF_LOSS_T"])
         return self.manual_streaming(link_t_s, p["COM_RC_LOSS_T"])
+
+
+class Failsafes:
+    """Watches the links, the input streams and the fence of ``vehicle``, and carries out
+    what their loss or breach calls for (as PX4's commander: say it, then hold, return,
+    land, or disarm when already on the ground)."""
+
+    def __init__(self, vehicle: Commander) -> None:
+        self.vehicle = vehicle
+        self.links = LinkWatch()
+        self.geofence = GeofenceWatch()
+
+    def check_links(self, link_t_s: float) -> None:
+        v = self.vehicle
+        p = v.parameters
+        if self.links.gcs_lost_now(link_t_s, p["COM_DL_LOSS_T"]):
+            self.trigger("ground station lost", GCS_LOSS_ACTIONS[int(p["NAV_DLL_ACT"])])
+        stream = v.row.stream
+        if stream is not None and not self.links.streaming(stream, link_t_s, p):
+            if v.armed:
+                self.trigger(*stream_loss(stream, p))
+            else:
+                v.mode = FlightMode.HOLD
+
+    def check_geofence(self) -> None:
+        """GF_ACTION on crossing out of the fence (once per breach): a STATUSTEXT, and
+        hold, return or land."""
+        v = self.vehicle
+        p = v.parameters
+        reason = self.geofence.crossed_out(
+            v.mission.lists[FENCE], v.measurement[MEASUREMENT.position_ned_m],
+            p["GF_MAX_HOR_DIST"], p["GF_MAX_VER_DIST"])
+        if reason is None:
+            return
+        action = GEOFENCE_ACTIONS[int(p["GF_ACTION"])]
+        if action is not None:
+            self.trigger(f"geofence: {reason}", action)
+        elif p["GF_ACTION"] == 1:  # a warning, not a failsafe
+            v.say(f"geofence: {reason}", 4)
+
+    def trigger(self, what: str, action: FlightMode | None) -> None:
+        v = self.vehicle
+        v.failsafe = what
+        if not v.armed or action is None:
+            v.say(f"{what}", 4)
+            return
+        if v.landed:
+            v.end_flight(f"{what}: disarmed on the ground")
+            return
+        v.say(f"{what}: {action.value}", 4)
+        if v.mode != action:
+            v.switch_to(action)

@@ -9,6 +9,7 @@ import numpy as np
 
 from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.flight_tasks.task import BaseTask, TaskOutput
+from autopilot.refusal import RefusedError
 from contracts.modes import FlightMode
 
 
@@ -19,9 +20,24 @@ class HoldTask(BaseTask):
         self.speed_mps = math.nan
         self.state.hold_here()
 
-    def go_to(self, target_ned_m: np.ndarray, yaw_rad: float, speed_mps: float) -> None:
-        self.state.setpoint = Setpoint.hold(target_ned_m, yaw_rad)
+    def reposition(self, target_ned_m: np.ndarray, yaw_rad: float, speed_mps: float,
+                   holding: bool) -> None:
+        """Go to ``target_ned_m`` (NaN: keep that coordinate; checked by the commander)
+        and hold there, entering HOLD unless ``holding`` already."""
+        s = self.state
+        held = s.setpoint.position_ned_m
+        # What the tool leaves out stays as it is: the held position in HOLD, else the
+        # point where the vehicle can stop.
+        here = held if holding and np.all(np.isfinite(held)) else s.stopping_point()
+        target = np.where(np.isfinite(target_ned_m), target_ned_m, here)
+        if np.any(np.abs(target) > 1000.0):
+            raise RefusedError("go-to position is more than 1 km from home")
+        if not holding:
+            self.env.switch_to(FlightMode.HOLD)
+        yaw = yaw_rad if math.isfinite(yaw_rad) else s.setpoint.yaw_rad
+        s.setpoint = Setpoint.hold(target, yaw)
         self.speed_mps = speed_mps
+        self.env.say(f"going to {target[0]:.1f} N {target[1]:.1f} E {-target[2]:.1f} m up")
 
     def update(self) -> TaskOutput:
         return self.state.translate(self.speed_mps)

@@ -342,8 +342,8 @@ class Autopilot:
         record["mode"] = MODE_INDEX[v.mode]
         record["flags"] = (FLAG_ARMED if v.armed else 0) | (FLAG_FAILSAFE if v.failsafe else 0)
         record["reference_time_s"] = time_us / 1e6 - v.reference_start_s
-        record["measurement"], record["reference"] = v.measurement, v.last_ref
-        record["kick_rad"], record["motor_commands"] = v.last_kick, v.last_commands
+        record["measurement"], record["reference"] = v.measurement, v.flight.last_ref
+        record["kick_rad"], record["motor_commands"] = v.flight.last_kick, v.last_commands
         self._channel_internals[...] = c.telemetry.T
         theta_g = getattr(c, "theta_g", None)
         record["theta_g"] = np.nan if theta_g is None else theta_g

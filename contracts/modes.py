@@ -22,6 +22,7 @@ class FlightMode(enum.Enum):
     POSCTL = "posctl"  # manual: sticks command velocities, centred sticks hold position
     ALTCTL = "altctl"  # manual: sticks command tilt and climb rate, altitude held
     STABILIZED = "stabilized"  # manual: sticks command tilt and collective thrust
+    ORBIT = "orbit"  # circle a centre (MAV_CMD_DO_ORBIT)
 
 
 MANUAL_MODES = (FlightMode.POSCTL, FlightMode.ALTCTL, FlightMode.STABILIZED)
@@ -39,6 +40,7 @@ PX4_SUB_AUTO_LOITER = 3
 PX4_SUB_AUTO_MISSION = 4
 PX4_SUB_AUTO_RTL = 5
 PX4_SUB_AUTO_LAND = 6
+PX4_SUB_POSCTL_ORBIT = 1
 
 PX4_MODES: dict[FlightMode, tuple[int, int]] = {
     FlightMode.HOLD: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER),
@@ -50,6 +52,7 @@ PX4_MODES: dict[FlightMode, tuple[int, int]] = {
     FlightMode.POSCTL: (PX4_MAIN_POSCTL, 0),
     FlightMode.ALTCTL: (PX4_MAIN_ALTCTL, 0),
     FlightMode.STABILIZED: (PX4_MAIN_STABILIZED, 0),
+    FlightMode.ORBIT: (PX4_MAIN_POSCTL, PX4_SUB_POSCTL_ORBIT),
     # PX4 has no such mode: the paper's reference shows as AUTO.READY.
     FlightMode.REFERENCE: (PX4_MAIN_AUTO, PX4_SUB_AUTO_READY),
 }
@@ -66,6 +69,7 @@ COPTER_MODES: dict[FlightMode, int] = {
     FlightMode.RTL: 6,
     FlightMode.LAND: 9,
     FlightMode.POSCTL: 16,  # POSHOLD
+    FlightMode.ORBIT: 7,  # CIRCLE
     FlightMode.REFERENCE: 25,  # SYSTEMID: ArduPilot's own excitation mode
 }
 
@@ -79,8 +83,11 @@ def px4_custom_mode(mode: FlightMode) -> int:
 
 def mode_from_px4(custom_mode: int) -> FlightMode | None:
     main, sub = (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF
+    for mode, (m, s) in PX4_MODES.items():  # an exact match first (POSCTL's ORBIT)
+        if (m, s) == (main, sub):
+            return mode
     for mode, (m, s) in PX4_MODES.items():
-        if m == main and (s == sub or main in PX4_MAIN_ONLY):
+        if m == main and s == 0 and main in PX4_MAIN_ONLY:
             return mode
     return None
 

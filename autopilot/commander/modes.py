@@ -22,6 +22,7 @@ from autopilot.flight_tasks.land import LandTask
 from autopilot.flight_tasks.manual import AttitudeControlTask, PositionControlTask
 from autopilot.flight_tasks.mission import MissionTask
 from autopilot.flight_tasks.offboard import OffboardTask
+from autopilot.flight_tasks.orbit import OrbitTask
 from autopilot.flight_tasks.reference import ReferenceTask
 from autopilot.flight_tasks.rtl import ReturnTask
 from autopilot.flight_tasks.takeoff import TakeoffTask
@@ -93,6 +94,7 @@ MODES: dict[FlightMode, ModeRow] = {
     FlightMode.MISSION: ModeRow(MissionTask, armable=True, entry=_needs_mission,
                                 ends_with_flight=True),
     FlightMode.RTL: ModeRow(ReturnTask, entry=_needs_air("return"), ends_with_flight=True),
+    FlightMode.ORBIT: ModeRow(OrbitTask, entry=_needs_air("orbit"), ends_with_flight=True),
     FlightMode.POSCTL: ModeRow(PositionControlTask, armable=True, stream=Stream.MANUAL),
     FlightMode.ALTCTL: ModeRow(partial(AttitudeControlTask, thrust_stick=False),
                                armable=True, stream=Stream.MANUAL),

@@ -47,6 +47,7 @@ class CommandProtocol:
             mavlink.MAV_CMD_MISSION_START: self._mission_start,
             mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: self._return,
             mavlink.MAV_CMD_DO_REPOSITION: self._reposition,
+            mavlink.MAV_CMD_DO_ORBIT: self._orbit,
             mavlink.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
         }
         self.frame = mavlink.MAV_FRAME_GLOBAL  # the command's frame (COMMAND_LONG: AMSL)
@@ -178,6 +179,33 @@ class CommandProtocol:
         # until 2025 and now says radians too); NaN keeps the heading.
         yaw = p[3]
         self.server.vehicle.reposition(target, yaw, p[0] if math.isfinite(p[0]) else -1.0)
+
+    def _orbit(self, link, p, now):
+        """DO_ORBIT (MAVSDK's do_orbit): param1 radius [m] (negative: counter-clockwise),
+        param2 speed [m/s], param3 yaw behaviour, centre latitude, longitude, altitude
+        (NaN: where the vehicle is)."""
+        if self.frame not in GLOBAL_FRAMES:
+            raise RefusedError(f"orbit frame {self.frame} is not supported")
+        lat, lon = p[4], p[5]
+        if math.isfinite(lat) != math.isfinite(lon):
+            raise RefusedError("orbit gives latitude without longitude or the reverse")
+        if math.isfinite(lat) and (abs(lat) > 90.0 or abs(lon) > 180.0):
+            raise RefusedError(f"orbit latitude/longitude {lat:g}, {lon:g} is not on Earth")
+        if any(math.isinf(v) for v in p[4:7]) or not math.isfinite(p[2]) and \
+                not math.isnan(p[2]):
+            raise RefusedError("orbit values must be finite or NaN")
+        vehicle = self.server.vehicle
+        task = vehicle.tasks[FlightMode.ORBIT]
+        task.request(ned_from_global(self.frame, lat, lon, p[6]), p[0], p[1],
+                     0 if math.isnan(p[2]) else int(p[2]))
+        if vehicle.mode is FlightMode.ORBIT:
+            task.apply()
+            return
+        try:
+            vehicle.set_mode(FlightMode.ORBIT, now)
+        except RefusedError:
+            task.cancel()
+            raise
 
     def _request_message(self, link, p, now):
         msg_id = int(p[0]) if math.isfinite(p[0]) else -1

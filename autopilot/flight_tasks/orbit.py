@@ -4,8 +4,8 @@ facing as the command asks.
 Each period the point on the circle moves on by speed / radius; it is a position
 setpoint with its own velocity and centripetal acceleration as feed-forward, shaped like
 every other setpoint, so the vehicle first flies to the circle within the vehicle's
-limits and then follows it. The speed is kept within what MPC_ACC_HOR can turn at the
-radius (v^2 / r), as PX4 does.
+limits and then follows it. The speed is kept within what half of MPC_ACC_HOR can turn at
+the radius (v^2 / r <= CENTRIPETAL_SHARE * MPC_ACC_HOR).
 """
 
 from __future__ import annotations
@@ -24,6 +24,9 @@ from contracts.modes import FlightMode
 DEFAULT_RADIUS_M = 5.0
 MIN_RADIUS_M, MAX_RADIUS_M = 1.0, 1000.0
 DEFAULT_SPEED_MPS = 1.0
+# The circle's centripetal acceleration takes at most this share of MPC_ACC_HOR: the rest
+# lets the shaper correct (at the whole limit the vehicle surges round the circle).
+CENTRIPETAL_SHARE = 0.5
 
 
 class OrbitYaw(enum.IntEnum):
@@ -103,7 +106,7 @@ class OrbitTask(BaseTask):
         s = self.state
         r = abs(self.radius_m)
         speed = min(self.speed_mps, s.limits.xy_vel_max_mps,
-                    math.sqrt(s.limits.acc_hor_mps2 * r))
+                    math.sqrt(CENTRIPETAL_SHARE * s.limits.acc_hor_mps2 * r))
         turn = math.copysign(speed / r, self.radius_m)  # clockwise from above: +angle
         self._angle_rad = wrap_pi(self._angle_rad + turn * s.period_s)
         c, n = math.cos(self._angle_rad), math.sin(self._angle_rad)

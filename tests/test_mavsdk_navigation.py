@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from mavsdk import log_subscribe
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
-from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.action import ActionAsync, OrbitYawBehavior
 from mavsdk.asyncio.plugins.manual_control import ManualControlAsync
 from mavsdk.asyncio.plugins.mission import MissionAsync, MissionPlan
 from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
@@ -175,3 +175,44 @@ def test_mavsdk_goes_to_a_location_and_flies_position_control_with_sticks(tmp_pa
     east = got["stick_velocity"][1]
     assert abs(east - 5.0) < 0.5 and abs(got["stick_velocity"][0]) < 0.1  # MPC_VEL_MANUAL
     assert got["hold_drift"] < 0.05  # target: 0.3 m
+
+
+async def _orbit_session(port: int) -> dict:
+    out: dict = {"track": []}
+    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+    async with mavsdk:
+        system, telem = await _connect(mavsdk, port)
+        action = ActionAsync(system)
+        watch = Watch()
+        follower = asyncio.ensure_future(watch.follow(telem))
+        await action.set_takeoff_altitude(3.0)
+        await action.arm()
+        await action.takeoff()
+        await until(lambda: watch.ned[2] < -2.9, 30.0, "take-off")
+        lat, lon, _ = geodetic_from_ned(6.0, 0.0, 0.0)
+        await action.do_orbit(4.0, 1.5, OrbitYawBehavior.HOLD_FRONT_TO_CIRCLE_CENTER, lat, lon,
+                              HOME_ALT_AMSL_M + 3.0)
+        await asyncio.sleep(15.0)  # onto the circle
+        end = time.monotonic() + 10.0
+        while time.monotonic() < end:
+            out["track"].append(np.concatenate((watch.ned, watch.velocity)))
+            await asyncio.sleep(0.1)
+        follower.cancel()
+    return out
+
+
+def test_mavsdk_do_orbit_circles_the_centre_it_names(tmp_path):
+    procs = start_processes(tmp_path)
+    try:
+        got = asyncio.run(asyncio.wait_for(_orbit_session(procs.gcs_port), 120))
+    finally:
+        procs.stop()
+    track = np.array(got["track"])
+    radius = np.hypot(track[:, 0] - 6.0, track[:, 1])
+    speed = np.hypot(track[:, 3], track[:, 4])
+    assert np.abs(radius - 4.0).max() < 0.05  # telemetry at 10 Hz, in real time
+    assert np.abs(speed - 1.5).max() < 0.05
+    assert np.abs(track[:, 2] + 3.0).max() < 0.05
+    # Clockwise seen from above (positive radius): the bearing from the centre grows.
+    bearing = np.unwrap(np.arctan2(track[:, 1], track[:, 0] - 6.0))
+    assert bearing[-1] - bearing[0] == pytest.approx(1.5 / 4.0 * 9.9, rel=0.1)

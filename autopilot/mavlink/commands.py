@@ -183,7 +183,8 @@ class CommandProtocol:
     def _orbit(self, link, p, now):
         """DO_ORBIT (MAVSDK's do_orbit): param1 radius [m] (negative: counter-clockwise),
         param2 speed [m/s], param3 yaw behaviour, centre latitude, longitude, altitude
-        (NaN: where the vehicle is)."""
+        (NaN: where the vehicle is). The altitude is AMSL whatever the frame, as PX4 reads
+        it (MAVSDK sends an AMSL altitude in a relative-altitude frame)."""
         if self.frame not in GLOBAL_FRAMES:
             raise RefusedError(f"orbit frame {self.frame} is not supported")
         lat, lon = p[4], p[5]
@@ -196,7 +197,7 @@ class CommandProtocol:
             raise RefusedError("orbit values must be finite or NaN")
         vehicle = self.server.vehicle
         task = vehicle.tasks[FlightMode.ORBIT]
-        task.request(ned_from_global(self.frame, lat, lon, p[6]), p[0], p[1],
+        task.request(ned_from_global(mavlink.MAV_FRAME_GLOBAL, lat, lon, p[6]), p[0], p[1],
                      0 if math.isnan(p[2]) else int(p[2]))
         if vehicle.mode is FlightMode.ORBIT:
             task.apply()

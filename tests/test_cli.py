@@ -17,6 +17,7 @@ def ivfm(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
                           text=True, timeout=300, cwd=cwd)
 
 
+@pytest.mark.process
 def test_run_writes_metrics_and_figures(tmp_path: Path) -> None:
     out = tmp_path / "run"
     result = ivfm("run", "attitude-sine", "--inprocess", "--controller", "ivfc",
@@ -35,6 +36,7 @@ def test_run_writes_metrics_and_figures(tmp_path: Path) -> None:
     assert "phi: rmse" in result.stdout
 
 
+@pytest.mark.process
 @pytest.mark.parametrize(
     ("args", "message"),
     [
@@ -77,6 +79,7 @@ def _write_bad_models(tmp_path: Path) -> dict[str, Path]:
     return paths
 
 
+@pytest.mark.process
 def test_malformed_model_files_are_refused(tmp_path: Path) -> None:
     for name, path in _write_bad_models(tmp_path).items():
         out = tmp_path / f"out-{name}"
@@ -139,6 +142,7 @@ def test_identification_reproduces_our_table_2_in_process() -> None:
         assert ch.t1fm.g == pytest.approx(b, rel=0.01), name
 
 
+@pytest.mark.process
 def test_identify_prints_table_2_and_writes_a_loadable_model(tmp_path: Path) -> None:
     model = tmp_path / "model.json"
     data = tmp_path / "data.csv"
@@ -166,6 +170,7 @@ def test_identify_prints_table_2_and_writes_a_loadable_model(tmp_path: Path) -> 
     load_models(again)
 
 
+@pytest.mark.process
 def test_identify_refuses_a_malformed_data_file(tmp_path: Path) -> None:
     data = tmp_path / "bad.csv"
     header = ("time_s,phi_rad,theta_rad,psi_rad,phi_rate_rad_s,theta_rate_rad_s,psi_rate_rad_s,"

@@ -72,6 +72,7 @@ def test_the_attitude_test_on_the_estimator_in_one_process(shipped_models):
     assert axes["phi"]["rmse"] <= 0.03 and axes["theta"]["rmse"] <= 0.03
 
 
+@pytest.mark.process
 def test_a_gps_outage_in_hover_through_the_processes(shipped_models, tmp_path):
     """gps-outage (no fix from 10 to 15 s) in lockstep: the same flight as in one process;
     the vehicle stays within 2 m; the autopilot says when the GPS goes and comes back; the
@@ -113,6 +114,7 @@ def test_a_gps_outage_in_hover_through_the_processes(shipped_models, tmp_path):
     assert all(bool(f & 2) == bool(f & 4) for f in flags)  # converged whenever GPS is in
 
 
+@pytest.mark.process
 def test_arming_waits_for_the_estimator_to_converge(tmp_path):
     """A ground tool arms as soon as the simulator's samples flow: denied, temporarily,
     saying the estimator is not ready; accepted once it has converged; then ESTIMATOR_STATUS

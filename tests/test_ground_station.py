@@ -163,6 +163,7 @@ def test_bad_scenario_files_are_refused_with_the_field(tmp_path, text, error):
 
 # -- through the processes ----------------------------------------------------------------
 
+@pytest.mark.process
 def test_report_recomputes_metrics_from_the_log_alone(tmp_path):
     run_dir = tmp_path / "run"
     assert main(["run", "attitude-jr-15", "--out", str(run_dir)]) == 0
@@ -180,6 +181,7 @@ def test_report_recomputes_metrics_from_the_log_alone(tmp_path):
     assert main(["report", str(tmp_path)]) == 2  # not a run folder: a clear error
 
 
+@pytest.mark.process
 def test_random_perturbations_are_deterministic_in_lockstep(tmp_path):
     """Sensor noise, link loss and delay, a gust and a weak motor: the same run twice gives
     the same log; without them the flight differs."""
@@ -232,6 +234,7 @@ start_s = 6.0
         np.std(np.diff(control_records(tmp_path / "c", 1)["measurement"][300:, 9]))
 
 
+@pytest.mark.process
 def test_ground_perturb_command_against_live_vehicle_processes(tmp_path):
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     session = open_session(ZenohOptions(listen=[endpoint]))  # the meeting point
@@ -329,6 +332,7 @@ def _check_model_file_structure(path: Path, run_dir: Path) -> None:
             assert ch[kind]["rmse_ident"] > 0.0 and ch[kind]["rmse_valid"] > 0.0, name
 
 
+@pytest.mark.process
 def test_identify_from_a_logged_excitation_flight_closes_the_loop(tmp_path):
     run_dir = tmp_path / "excitation"
     assert main(["run", "excitation", "--out", str(run_dir), "--no-figures"]) == 0

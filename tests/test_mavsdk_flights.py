@@ -32,6 +32,8 @@ from contracts.frames import wrap_pi
 from tests.harness import start_processes
 from tests.mavsdk_helpers import until
 
+pytestmark = pytest.mark.process
+
 log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import asyncio
 
+import pytest
 from mavsdk import log_subscribe
 from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.geofence import (
@@ -20,6 +21,8 @@ from mavsdk.asyncio.plugins.mission import MissionAsync, MissionPlan
 
 from tests.harness import start_processes
 from tests.mavsdk_helpers import mission_item
+
+pytestmark = pytest.mark.process
 
 log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
 

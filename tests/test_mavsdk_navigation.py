@@ -22,6 +22,8 @@ from contracts.frames import HOME_ALT_AMSL_M, geodetic_from_ned
 from tests.harness import start_processes
 from tests.mavsdk_helpers import mission_item, until
 
+pytestmark = pytest.mark.process
+
 log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
 
 

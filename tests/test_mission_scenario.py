@@ -23,6 +23,7 @@ def six_waypoint_runs(tmp_path_factory):
     return scenario, fly(scenario, settings, out / "a")[0], fly(scenario, settings, out / "b")[0]
 
 
+@pytest.mark.process
 def test_six_waypoints_at_5_mps_in_lockstep(six_waypoint_runs):
     scenario, record, _ = six_waypoint_runs
     metrics = compute_metrics(record, scenario, "paper")
@@ -39,6 +40,7 @@ def test_six_waypoints_at_5_mps_in_lockstep(six_waypoint_runs):
     assert speed.max() == pytest.approx(5.0, abs=0.15)  # MPC_XY_CRUISE
 
 
+@pytest.mark.process
 def test_a_mission_repeats_bit_for_bit_in_lockstep(six_waypoint_runs):
     _, a, b = six_waypoint_runs
     np.testing.assert_array_equal(a.measurement, b.measurement)

@@ -78,6 +78,7 @@ def test_a_plan_the_vehicle_would_refuse_is_refused_before_upload(tmp_path, chan
         read_plan(path)
 
 
+@pytest.mark.process
 def test_ivfm_plan_uploads_a_plan_that_the_vehicle_then_holds(tmp_path, capsys):
     path = tmp_path / "mine.plan"
     path.write_text(json.dumps(plan_data()))

@@ -15,6 +15,8 @@ from ground.processes import RunSettings, fly
 from ground.run_files import control_records, perturbation_events
 from ground.scenarios import scenario_by_name
 
+pytestmark = pytest.mark.process
+
 IVFC = RunSettings("ivfc", "paper", "paper")
 
 

@@ -12,9 +12,12 @@ import sys
 import time
 
 import numpy as np
+import pytest
 
 from tests.harness import GroundTool, free_port, mavutil
 from tests.px4_protocol_sim import Px4ProtocolSim
+
+pytestmark = pytest.mark.process
 
 M = mavutil.mavlink
 

@@ -99,6 +99,7 @@ def test_split_frames_keeps_partial_frames_for_later():
     assert [i for i, _ in frames] == [-1, 113, 107, 115, 331] and rest == data[:20]
 
 
+@pytest.mark.process
 def test_simulator_survives_garbage_and_bad_commands(tmp_path):
     """A fake autopilot: garbage bytes, then NaN motor commands, then good ones."""
     port = free_port(socket.SOCK_STREAM)
@@ -151,6 +152,7 @@ def _connect(port: int) -> socket.socket:
             time.sleep(0.1)
 
 
+@pytest.mark.process
 def test_autopilot_refuses_bad_simulator_data_and_keeps_serving(tmp_path):
     """A fake simulator sends NaN odometry: refused, logged, no motor output, no crash."""
     server = socket.create_server(("127.0.0.1", 0))

@@ -94,6 +94,7 @@ def _fly_logged(logger: LoggerProcess, s: zenoh.Session, vehicle: Vehicle,
     return _wait_heard(logger, s, keys, final=True)
 
 
+@pytest.mark.process
 def test_log_holds_every_record_and_decodes_with_ros2_cdr(tmp_path, session):
     s, endpoint = session
     logger = LoggerProcess(tmp_path / "log", endpoint, tmp_path / "logger.log")
@@ -137,6 +138,7 @@ def test_log_holds_every_record_and_decodes_with_ros2_cdr(tmp_path, session):
     assert decoded[vehicle_key(1, "autopilot", "control")][2].theta_f_phi  # non-empty
 
 
+@pytest.mark.process
 def test_logger_killed_mid_run_is_salvaged_up_to_the_last_second(tmp_path, session):
     s, endpoint = session
     log_dir = tmp_path / "log"
@@ -179,6 +181,7 @@ def test_logger_killed_mid_run_is_salvaged_up_to_the_last_second(tmp_path, sessi
     assert timing["steps"] == 800
 
 
+@pytest.mark.process
 def test_vehicles_fly_without_a_logger(tmp_path):
     """A Zenoh outage (nobody listening at all) never stalls lockstep."""
     vehicle = Vehicle(tmp_path, _endpoint(), duration_s=5.0)
@@ -189,6 +192,7 @@ def test_vehicles_fly_without_a_logger(tmp_path):
     assert "stopped after 500 control steps" in vehicle.logs[1].read_text()
 
 
+@pytest.mark.process
 def test_bad_requests_and_payloads_are_refused_and_change_nothing(tmp_path, session):
     s, endpoint = session
     logger = LoggerProcess(tmp_path / "log", endpoint, tmp_path / "logger.log")
@@ -261,6 +265,7 @@ def test_bad_requests_and_payloads_are_refused_and_change_nothing(tmp_path, sess
     assert sim_log.count("perturbation sitl-") == 2  # its start and its end, nothing else
 
 
+@pytest.mark.process
 def test_three_vehicles_into_one_logger_separated_by_vehicle(tmp_path, session):
     s, endpoint = session
     logger = LoggerProcess(tmp_path / "log", endpoint, tmp_path / "logger.log")
@@ -293,6 +298,7 @@ def test_three_vehicles_into_one_logger_separated_by_vehicle(tmp_path, session):
         == {"1", "2", "3"}
 
 
+@pytest.mark.process
 def test_vehicle_and_logger_meet_only_through_the_router(tmp_path):
     router_endpoint = _endpoint()
     router_log = open(tmp_path / "router.log", "w")  # noqa: SIM115
@@ -324,6 +330,7 @@ def test_vehicle_and_logger_meet_only_through_the_router(tmp_path):
     assert "router: listening on " + router_endpoint in (tmp_path / "router.log").read_text()
 
 
+@pytest.mark.process
 def test_tlog_export_reads_in_pymavlink(tmp_path):
     run_dir = tmp_path / "run"
     from ground.cli import main
@@ -346,6 +353,7 @@ def test_tlog_export_reads_in_pymavlink(tmp_path):
     assert kinds["HIL_ACTUATOR_CONTROLS"] == 2000
 
 
+@pytest.mark.process
 def test_a_logger_on_a_taken_port_says_so(tmp_path):
     with socket.create_server(("127.0.0.1", 0)) as taken:
         endpoint = f"tcp/127.0.0.1:{taken.getsockname()[1]}"

@@ -16,6 +16,8 @@ import pytest
 from contracts.airframe import PAPER, max_thrust_n
 from tests.harness import GroundTool, mavutil, px4_mode, start_processes
 
+pytestmark = pytest.mark.process
+
 M = mavutil.mavlink
 ACCEPTED, DENIED = M.MAV_RESULT_ACCEPTED, M.MAV_RESULT_DENIED
 TEMP_REJECTED, UNSUPPORTED = M.MAV_RESULT_TEMPORARILY_REJECTED, M.MAV_RESULT_UNSUPPORTED

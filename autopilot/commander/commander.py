@@ -211,6 +211,10 @@ class Commander:
         self.reference_start_s = self.sim_t_s
         self.land_detector.landed = False
 
+    def new_controller(self) -> object:
+        """A controller as arming makes one (the process warms one up before its loop)."""
+        return self._make_controller(self.parameters)
+
     def disarm(self, force: bool = False) -> None:
         if not self.armed:
             return

@@ -19,7 +19,6 @@ import collections
 import math
 import queue
 import selectors
-import signal
 import socket
 import sys
 import time
@@ -38,6 +37,7 @@ from contracts.mavlink import (
     new_mavlink,
     sample_messages,
 )
+from contracts.paced_loop import Deadlines, PacedProcess
 from contracts.perturbation_book import PerturbationBook
 from contracts.perturbations import (
     NO_SENSOR_EFFECTS,
@@ -47,7 +47,7 @@ from contracts.perturbations import (
     plant_perturbations_at,
     sensor_effects_at,
 )
-from contracts.realtime import Histogram, set_realtime_priority
+from contracts.realtime import Histogram
 from contracts.telemetry import SITL, STATE, json_record
 from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
 from sitl.plant import Plant, VehicleState
@@ -107,10 +107,14 @@ class LinkStats:
     latency: Histogram = field(default_factory=Histogram)  # sample -> its answer [s]
 
 
-class Simulator:
+class Simulator(PacedProcess):
+    """The plant and its sensors, one sample period at a time, paced by the autopilot's
+    answers (lockstep) or by the wall clock (real time)."""
+
     def __init__(self, config: SimulatorConfig, log=None) -> None:
+        super().__init__(config.lockstep, config.rt_priority, log or (
+            lambda text: print(f"sitl: {text}", file=sys.stderr, flush=True)))
         self.config = config
-        self.log = log or (lambda text: print(f"sitl: {text}", file=sys.stderr, flush=True))
         alt = config.start_altitude_m
         model = (airframe_from_spec(config.airframe)
                  if isinstance(config.airframe, AirframeSpec) else config.airframe)
@@ -133,7 +137,7 @@ class Simulator:
         self._commands = np.zeros(4)
         self._previous_velocity = self._state.velocity_ned_mps
         self._acceleration = np.zeros(3)
-        self._stop = False
+        self._server: socket.socket | None = None
         self.started = not config.hold
         self.node = TelemetryNode(config.zenoh, config.vehicle_id, SITL, self.log)
         self._state_pub = self.node.publisher("state")
@@ -145,9 +149,6 @@ class Simulator:
     @property
     def time_us(self) -> int:
         return self.step_index * self.period_us
-
-    def stop(self, *_args) -> None:
-        self._stop = True
 
     # -- the plant side ------------------------------------------------------------------
     def next_sample(self) -> bytes | None:
@@ -252,30 +253,25 @@ class Simulator:
         return msg.time_usec
 
     # -- the link ------------------------------------------------------------------------
-    def run(self) -> int:
-        signal.signal(signal.SIGTERM, self.stop)
-        server = socket.create_server((self.config.host, self.config.port), reuse_port=False)
-        server.settimeout(0.2)
-        self.log(f"listening on tcp {self.config.host}:{server.getsockname()[1]} "
+    def start_up(self) -> None:
+        self._server = socket.create_server((self.config.host, self.config.port),
+                                            reuse_port=False)
+        self._server.settimeout(0.2)
+        self.log(f"listening on tcp {self.config.host}:{self._server.getsockname()[1]} "
                  f"({'lockstep' if self.config.lockstep else 'real time'}, "
                  f"{self.config.rate_hz:g} Hz, {self.config.fidelity} plant)")
-        try:
-            if self.config.lockstep:
-                self._run_lockstep(server)
-            else:
-                self._run_realtime(server)
-        except KeyboardInterrupt:
-            pass
-        finally:
-            server.close()
-            self._service_requests()
-            self.node.status(self.time_us, final=True, **self._status_fields(),
-                             latency=self._latency_summary())
-            self.node.close()
+
+    def shut_down(self) -> None:
+        self._server.close()
+        self._service_requests()
+        self.node.status(self.time_us, final=True, **self._status_fields(),
+                         latency=self._latency_summary())
+        self.node.close()
+
+    def report(self) -> None:
         self.log(f"stopped at t={self.time_us / 1e6:.3f} s: {self.stats.samples_sent} samples "
                  f"sent, {self.stats.commands_received} commands, "
                  f"{self.stats.bad_messages} refused")
-        return 0
 
     def _latency_summary(self) -> dict:
         h = self.stats.latency
@@ -297,9 +293,9 @@ class Simulator:
     def _finished(self) -> bool:
         return self._stop or self.time_us / 1e6 >= self.config.duration_s
 
-    def _accept(self, server: socket.socket) -> socket.socket | None:
+    def _accept(self) -> socket.socket | None:
         try:
-            conn, peer = server.accept()
+            conn, peer = self._server.accept()
         except (TimeoutError, BlockingIOError):
             return None
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
@@ -329,9 +325,9 @@ class Simulator:
         conn.close()
         self.log(f"autopilot disconnected at t={self.time_us / 1e6:.3f} s")
 
-    def _run_lockstep(self, server: socket.socket) -> None:
+    def run_lockstep(self) -> None:
         while not self._finished():
-            conn = self._accept(server)
+            conn = self._accept()
             if conn is None:
                 self._idle()
                 continue
@@ -366,77 +362,92 @@ class Simulator:
             if self.config.exit_on_disconnect:
                 return
 
-    def _run_realtime(self, server: socket.socket) -> None:
-        self.log(set_realtime_priority(self.config.rt_priority))
-        server.setblocking(False)
-        conn: socket.socket | None = None
-        sel = selectors.DefaultSelector()
+    def run_realtime(self) -> None:
+        self._server.setblocking(False)
+        link = _RealtimeLink()
         # Sim time starts with the first autopilot, so a scenario's schedule and the
         # autopilot's reference share an origin; afterwards the world goes on without it.
-        while conn is None and not self._finished():
-            conn = self._accept(server)
-            if conn is None:
+        while link.conn is None and not self._finished():
+            link.conn = self._accept()
+            if link.conn is None:
                 self._idle()
                 time.sleep(0.01)
-        if conn is None:
+        if link.conn is None:
             return
         self._wait_for_start()
-        conn.setblocking(False)
-        sel.register(conn, selectors.EVENT_READ)
-        start = time.perf_counter()
-        last_command_time = -math.inf
-        timed_out = True
+        link.attach(link.conn)
+        pace = Deadlines(self.period_s,
+                         time.perf_counter() + (self.step_index + 1) * self.period_s)
         while not self._finished():
-            if conn is None:
-                conn = self._accept(server)
+            if link.conn is None:
+                conn = self._accept()
                 if conn is not None:
-                    conn.setblocking(False)
-                    sel.register(conn, selectors.EVENT_READ)
+                    link.attach(conn)
             sample = self.next_sample()
-            if conn is not None and sample is not None:
+            if link.conn is not None and sample is not None:
                 try:
-                    conn.sendall(sample)
+                    link.conn.sendall(sample)
                     self.stats.samples_sent += 1
                 except OSError:
                     pass
-            deadline = start + (self.step_index + 1) * self.period_s
-            got_command = False
-            while conn is not None:
-                remaining = deadline - time.perf_counter()
-                if remaining <= 0 or not sel.select(remaining):
-                    break
-                msgs = self._read(conn)
-                if msgs is None:
-                    sel.unregister(conn)
-                    self._lost(conn)
-                    conn = None
-                    if self.config.exit_on_disconnect:
-                        return
-                    break
-                for msg in msgs:
-                    if msg.get_type() == "HIL_ACTUATOR_CONTROLS":
-                        answered = self.apply_actuators(msg)
-                        if answered is not None:
-                            got_command = True
-                            last_command_time = self.time_us / 1e6
-                            self.stats.latency.add(max(0, self.time_us - answered) / 1e6)
-                            if timed_out:
-                                self.log(f"actuator commands flowing at t="
-                                         f"{self.time_us / 1e6:.3f} s")
-                                timed_out = False
-            if conn is None:
-                time.sleep(max(0.0, deadline - time.perf_counter()))
-            if not got_command:
+            link.got_command = False
+            if link.conn is not None:
+                pace.serve(lambda remaining_s: self._take_commands(link, remaining_s))
+                if link.conn is None and self.config.exit_on_disconnect:
+                    return
+            if link.conn is None:
+                pace.sleep()
+            if not link.got_command:
                 self.stats.periods_without_command += 1
-            if (not timed_out and self.time_us / 1e6 - last_command_time
+            if (not link.timed_out and self.time_us / 1e6 - link.last_command_s
                     > self.config.actuator_timeout_s):
-                timed_out = True
+                link.timed_out = True
                 self.plant.set_motor_commands(np.zeros(4))
                 self._commands = np.zeros(4)
                 self.log(f"no actuator commands for {self.config.actuator_timeout_s:g} s at "
                          f"t={self.time_us / 1e6:.3f} s: motors stopped")
             self.advance()
-            if time.perf_counter() - deadline > 1.0:  # far behind (suspended?): re-anchor
-                start = time.perf_counter() - self.step_index * self.period_s
-        if conn is not None:
-            conn.close()
+            passed_s = pace.next_s
+            pace.advance()
+            pace.catch_up(passed_s, 1.0)  # far behind (suspended?): re-anchor
+        if link.conn is not None:
+            link.conn.close()
+
+    def _take_commands(self, link: _RealtimeLink, remaining_s: float) -> bool:
+        """Real time, within a period: apply the actuator messages that arrive in the
+        ``remaining_s`` left; False when none came in time or the autopilot went away."""
+        if not link.sel.select(remaining_s):
+            return False
+        msgs = self._read(link.conn)
+        if msgs is None:
+            link.sel.unregister(link.conn)
+            self._lost(link.conn)
+            link.conn = None
+            return False
+        for msg in msgs:
+            if msg.get_type() == "HIL_ACTUATOR_CONTROLS":
+                answered = self.apply_actuators(msg)
+                if answered is not None:
+                    link.got_command = True
+                    link.last_command_s = self.time_us / 1e6
+                    self.stats.latency.add(max(0, self.time_us - answered) / 1e6)
+                    if link.timed_out:
+                        self.log(f"actuator commands flowing at t={self.time_us / 1e6:.3f} s")
+                        link.timed_out = False
+        return True
+
+
+class _RealtimeLink:
+    """Real time: the autopilot's connection (None while away) and what its commands did."""
+
+    def __init__(self) -> None:
+        self.conn: socket.socket | None = None
+        self.sel = selectors.DefaultSelector()
+        self.got_command = False  # in the period under way
+        self.last_command_s = -math.inf  # sim time
+        self.timed_out = True  # no commands (yet, or for longer than the ESC timeout)
+
+    def attach(self, conn: socket.socket) -> None:
+        conn.setblocking(False)
+        self.sel.register(conn, selectors.EVENT_READ)
+        self.conn = conn

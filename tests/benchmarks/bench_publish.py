@@ -52,7 +52,7 @@ def step_times(ap: Autopilot, publish_only: bool = False) -> np.ndarray:
         t_us = k * 10_000
         start = time.perf_counter()
         if publish_only:
-            ap._publish_step(t_us, 1e-5, start)
+            ap.telemetry.publish_step(t_us, 1e-5, start)
         else:
             ap._control(t_us, hover)
         times[k] = time.perf_counter() - start
@@ -74,9 +74,9 @@ def main() -> None:
             off = autopilot(ZenohOptions(enabled=False))
             on = autopilot(ZenohOptions(listen=["tcp/127.0.0.1:0"], connect=[endpoint]))
             deadline = time.monotonic() + 20
-            while not on._control_pub.matched and time.monotonic() < deadline:
+            while not on.telemetry.control_pub.matched and time.monotonic() < deadline:
                 time.sleep(0.05)
-            print(f"logger subscribed: {on._control_pub.matched}")
+            print(f"logger subscribed: {on.telemetry.control_pub.matched}")
             rounds = {"off": [], "on": [], "publish": []}
             for _ in range(3):  # interleaved, so machine noise hits both alike
                 rounds["off"].append(step_times(off))
@@ -85,7 +85,7 @@ def main() -> None:
             off_us, on_us = np.concatenate(rounds["off"]), np.concatenate(rounds["on"])
             show("control step, Zenoh off", off_us)
             show("control step, Zenoh on (logger receiving)", on_us)
-            show("the publishing alone (_publish_step)", np.concatenate(rounds["publish"]))
+            show("the publishing alone (publish_step)", np.concatenate(rounds["publish"]))
             added = [statistics.mean(b) - statistics.mean(a)
                      for a, b in zip(rounds["off"], rounds["on"], strict=True)]
             print(f"publishing adds {statistics.mean(added):.1f} us per control step "

@@ -1,0 +1,73 @@
+"""What the controller flies on: the simulator's truth as sent, or the onboard estimator
+fed the simulated sensors (``--state-source estimator``).
+
+The process owns the estimator (not the simulator link, which only decodes): IMU
+readings step it, GPS fixes go into it, and its status reaches the vehicle: arming waits
+until it has converged, and losing and regaining GPS is announced.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from autopilot.commander.commander import Commander
+from autopilot.estimation.estimator import Estimator
+from autopilot.process.sim_link import GpsReading, ImuReading, LinkReading
+
+
+class Navigation:
+    """The measurement of each sample from the link, and the estimator's news for the
+    vehicle; ``estimator`` is None when flying on the simulator's truth."""
+
+    def __init__(self, vehicle: Commander, estimator: Estimator | None) -> None:
+        self.vehicle = vehicle
+        self.estimator = estimator
+        self._gps_ok: bool | None = None
+
+    @classmethod
+    def for_source(cls, vehicle: Commander, source: str) -> Navigation:
+        """On the estimator when ``source`` says so, its GPS delay the vehicle's
+        EKF2_GPS_DELAY."""
+        estimator = (Estimator(gps_delay_s=vehicle.parameters["EKF2_GPS_DELAY"] / 1e3)
+                     if source == "estimator" else None)
+        return cls(vehicle, estimator)
+
+    def measurements(self, readings: list[LinkReading]
+                     ) -> list[tuple[int, np.ndarray | None]]:
+        """(time_us, measurement) of each sample in ``readings``, in order: the truth as
+        sent, or on the estimator each IMU reading steps it and the sample's measurement
+        is the estimate (None until it has aligned); a fix goes into it and is no sample.
+        All readings are taken before any sample is flown, as they came in together."""
+        est = self.estimator
+        samples = []
+        for reading in readings:
+            if isinstance(reading, GpsReading):
+                est.gps(reading.time_us, reading.fix)
+            elif isinstance(reading, ImuReading):
+                est.imu(reading.time_us, reading.gyro, reading.accel, reading.baro_alt_m,
+                        reading.mag)
+                samples.append((reading.time_us, est.measurement() if est.aligned else None))
+            else:
+                samples.append(reading)
+        return samples
+
+    def aligning(self, time_us: int) -> None:
+        """A sample without a measurement: arming waits for the estimator to align."""
+        self.vehicle.navigation_problem = f"estimator {self.estimator.status(time_us).reason}"
+
+    def update(self, time_us: int) -> None:
+        """Before a sample is flown: arming waits for the estimator; GPS loss and return
+        are announced (on the simulator's truth there is nothing to tell)."""
+        est = self.estimator
+        if est is None:
+            return
+        v = self.vehicle
+        est.gps_delay_us = round(v.parameters["EKF2_GPS_DELAY"] * 1e3)
+        status = est.status(time_us)
+        v.navigation_problem = None if status.converged else f"estimator {status.reason}"
+        if status.gps_ok != self._gps_ok:
+            if self._gps_ok is not None:
+                v.say("GPS regained" if status.gps_ok else "GPS lost: dead reckoning",
+                      6 if status.gps_ok else 4)
+            self._gps_ok = status.gps_ok
+        v.estimator_status = status

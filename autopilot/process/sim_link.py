@@ -1,0 +1,164 @@
+"""The autopilot's link to the simulator: a TCP client speaking PX4's simulator protocol.
+
+It connects (and reconnects while the simulator is away), sends the simulator a
+heartbeat, and turns the state messages it reads into typed samples: the simulator's
+truth (HIL_STATE_QUATERNION or ODOMETRY) as a measurement, HIL_SENSOR as an IMU reading
+and HIL_GPS as a fix. What the samples are used for is not its business: the process
+feeds the sensor samples to its estimator (``navigation.py``).
+"""
+
+from __future__ import annotations
+
+import math
+import socket
+from typing import NamedTuple
+
+import numpy as np
+
+from autopilot.estimation.estimator import GpsFix
+from contracts.mavlink import (
+    AUTOPILOT_COMPID,
+    AUTOPILOT_SYSID,
+    STATE_SOURCES,
+    LinkDataError,
+    fix_from_hil_gps,
+    imu_from_hil_sensor,
+    mavlink,
+    measurement_from_hil_state,
+    measurement_from_odometry,
+    new_mavlink,
+    split_frames,
+)
+
+SIM_HEARTBEAT_S = 1.0  # to the simulator, from the connection on (jMAVSim waits for one)
+RECONNECT_S = 0.5
+
+
+class TruthReading(NamedTuple):
+    """The simulator's truth: the measurement the controller flies on."""
+
+    time_us: int
+    measurement: np.ndarray
+
+
+class ImuReading(NamedTuple):
+    """HIL_SENSOR: gyro and specific force FRD, baro altitude above home [m] (NaN: not
+    fresh), magnetometer FRD [gauss] (None: not fresh)."""
+
+    time_us: int
+    gyro: np.ndarray
+    accel: np.ndarray
+    baro_alt_m: float
+    mag: np.ndarray | None
+
+
+class GpsReading(NamedTuple):
+    """HIL_GPS: a fix, at the time it was received."""
+
+    time_us: int
+    fix: GpsFix
+
+
+LinkReading = TruthReading | ImuReading | GpsReading
+
+
+class SimLink:
+    """TCP client of the simulator; reconnects while the simulator is away."""
+
+    def __init__(self, host: str, port: int, source: str,
+                 sysid: int = AUTOPILOT_SYSID) -> None:
+        self.address = (host, port)
+        self.sock: socket.socket | None = None
+        self.source_types = STATE_SOURCES[source]
+        self.source_ids = frozenset(getattr(mavlink, f"MAVLINK_MSG_ID_{t}")
+                                    for t in self.source_types) | {-1}
+        self._pending = b""
+        self.odometry_seen = False  # auto: once ODOMETRY arrives, HIL_STATE is not used
+        self.next_heartbeat_s = math.inf
+        self.sysid = sysid
+        self.mav = new_mavlink(sysid, AUTOPILOT_COMPID)
+        self.next_attempt_s = 0.0
+        self.bad_messages = 0
+        self.last_bad: str | None = None
+
+    def connect(self, now: float) -> bool:
+        """Try to connect (at most every RECONNECT_S); True when a connection is new."""
+        if self.sock is not None or now < self.next_attempt_s:
+            return False
+        self.next_attempt_s = now + RECONNECT_S
+        try:
+            sock = socket.create_connection(self.address, timeout=0.2)
+        except OSError:
+            return False
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.setblocking(False)
+        self.sock = sock
+        self.mav = new_mavlink(self.sysid, AUTOPILOT_COMPID)
+        self._pending = b""
+        self.odometry_seen = False
+        self.next_heartbeat_s = now  # at once: some simulators wait for it
+        return True
+
+    def heartbeat_due(self, now: float) -> bool:
+        """Send the simulator a HEARTBEAT on connecting and every SIM_HEARTBEAT_S."""
+        if self.sock is None or now < self.next_heartbeat_s:
+            return False
+        self.next_heartbeat_s = max(self.next_heartbeat_s + SIM_HEARTBEAT_S, now)
+        msg = mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4, 0, 0,
+            mavlink.MAV_STATE_ACTIVE, 3)
+        return self.send(msg.pack(self.mav))
+
+    @staticmethod
+    def decode(msg: mavlink.MAVLink_message) -> LinkReading:
+        """The sample of a state message (raises LinkDataError on bad data)."""
+        kind = msg.get_type()
+        if kind == "ODOMETRY":
+            return TruthReading(msg.time_usec, measurement_from_odometry(msg))
+        if kind == "HIL_STATE_QUATERNION":
+            return TruthReading(msg.time_usec, measurement_from_hil_state(msg))
+        if kind == "HIL_GPS":
+            position, velocity, fix_type, satellites = fix_from_hil_gps(msg)
+            return GpsReading(msg.time_usec, GpsFix(position, velocity, fix_type, satellites))
+        gyro, accel, baro_alt, mag = imu_from_hil_sensor(msg)
+        return ImuReading(msg.time_usec, gyro, accel, baro_alt, mag)
+
+    def close(self) -> None:
+        if self.sock is not None:
+            self.sock.close()
+            self.sock = None
+
+    def read(self) -> list[LinkReading] | None:
+        """The samples now available, in the order sent (a refused message is counted in
+        ``bad_messages`` and left out); None when the link closed."""
+        try:
+            data = self.sock.recv(262144)
+        except (BlockingIOError, InterruptedError):
+            return []
+        except OSError:
+            return None
+        if not data:
+            return None
+        frames, self._pending = split_frames(self._pending + data)
+        wanted = b"".join(f for msgid, f in frames if msgid in self.source_ids)
+        msgs = [m for m in (self.mav.parse_buffer(wanted) if wanted else None) or []
+                if m.get_type() in self.source_types]
+        if not self.odometry_seen and any(m.get_type() == "ODOMETRY" for m in msgs):
+            self.odometry_seen = True
+        samples = []
+        for msg in msgs:
+            if self.odometry_seen and msg.get_type() != "ODOMETRY":
+                continue  # the same sample, from the message the controller prefers
+            try:
+                samples.append(self.decode(msg))
+            except LinkDataError as exc:
+                self.bad_messages += 1
+                self.last_bad = str(exc)
+        return samples
+
+    def send(self, data: bytes) -> bool:
+        try:
+            self.sock.sendall(data)
+            return True
+        except OSError:
+            return False

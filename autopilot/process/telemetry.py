@@ -1,0 +1,161 @@
+"""The autopilot's telemetry over Zenoh (record layouts: ``contracts/telemetry.py``).
+
+Each control step: the control record (the controller's internals), the timing record,
+the estimate record (on the estimator), perturbation events as they happen, and the
+MAVLink mirror: the motor command, a few telemetry streams on sim time, and the
+announcements and acknowledgements sent to ground tools; once a second, the status.
+The control loop says when; this class knows what goes into each record.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from autopilot.commander.commander import Commander
+from autopilot.estimation.estimator import Estimator, EstimatorStatus
+from autopilot.mavlink.server import MavlinkServer
+from contracts.mavlink import AUTOPILOT_COMPID, mavlink, new_mavlink
+from contracts.modes import FlightMode
+from contracts.realtime import LoopTiming
+from contracts.telemetry import (
+    CONTROL,
+    ESTIMATE,
+    ESTIMATE_ALIGNED,
+    ESTIMATE_CONVERGED,
+    ESTIMATE_GPS_OK,
+    FLAG_ARMED,
+    FLAG_FAILSAFE,
+    TIMING,
+    json_record,
+)
+from contracts.vectors import CHANNEL_INTERNALS
+from contracts.zenoh_link import TelemetryNode
+
+MODE_INDEX = {mode: i for i, mode in enumerate(FlightMode)}
+# The MAVLink mirror's sim-time streams (message, period in microseconds of sim time).
+MIRROR_STREAMS_US = ((mavlink.MAVLINK_MSG_ID_HEARTBEAT, 1_000_000),
+                     (mavlink.MAVLINK_MSG_ID_ATTITUDE, 100_000),
+                     (mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED, 100_000),
+                     (mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT, 100_000))
+MIRRORED_TOOL_MESSAGES = frozenset({"STATUSTEXT", "COMMAND_ACK"})
+ESTIMATE_STATUS_FIELDS = ("tilt_sigma_rad", "yaw_sigma_rad", "horizontal_sigma_m",
+                          "vertical_sigma_m", "velocity_sigma_mps", "gps_test_ratio",
+                          "baro_test_ratio", "mag_test_ratio")
+
+
+class TelemetryPublisher:
+    """Builds and publishes the autopilot's records on ``node``. Records are buffers
+    made once and refilled each step: publishing must not cost a deadline."""
+
+    def __init__(self, node: TelemetryNode, sysid: int, vehicle: Commander,
+                 ground: MavlinkServer, timing: LoopTiming, estimator: Estimator | None,
+                 lockstep: bool, log: Callable[[str], None]) -> None:
+        self.node = node
+        self.sysid = sysid
+        self.vehicle = vehicle
+        self.ground = ground
+        self.timing = timing
+        self.estimator = estimator
+        self.lockstep = lockstep
+        self.log = log
+        self.control_pub = node.publisher("control")
+        self.timing_pub = node.publisher("timing")
+        self.estimate_pub = node.publisher("estimate") if estimator is not None else None
+        self._estimate_record = ESTIMATE.buffer()
+        self.event_pub = node.publisher("perturbation")
+        self._control_record = CONTROL.buffer()
+        self._timing_record = TIMING.buffer()
+        self._channel_internals = self._control_record.block(
+            tuple(f"ch_{name}" for name in CHANNEL_INTERNALS))
+        self._mirror_mav = new_mavlink(sysid, AUTOPILOT_COMPID)
+        self._mirror_due_us = [0] * len(MIRROR_STREAMS_US)
+        self._previous_control_wall: float | None = None
+        if node.enabled:
+            ground.on_sent = self.mirror_tool_message
+            # Declared now: a first declaration inside the loop would cost a deadline.
+            for name in ("HIL_ACTUATOR_CONTROLS", *MIRRORED_TOOL_MESSAGES,
+                         *(mavlink.mavlink_map[i].msgname for i, _ in MIRROR_STREAMS_US)):
+                node.mirror_publisher(sysid, AUTOPILOT_COMPID, name)
+
+    @property
+    def enabled(self) -> bool:
+        return self.node.enabled
+
+    def publish_step(self, time_us: int, compute_s: float, start_wall_s: float) -> None:
+        """The control record, the timing record, the estimate, perturbation events and
+        the mirror streams of the step at ``time_us``."""
+        v = self.vehicle
+        c = v.controller
+        record = self._control_record
+        record["seq"], record["sim_time_us"] = self.control_pub.count, time_us
+        record["mode"] = MODE_INDEX[v.mode]
+        record["flags"] = (FLAG_ARMED if v.armed else 0) | (FLAG_FAILSAFE if v.failsafe else 0)
+        record["reference_time_s"] = time_us / 1e6 - v.reference_start_s
+        record["measurement"], record["reference"] = v.measurement, v.flight.last_ref
+        record["kick_rad"], record["motor_commands"] = v.flight.last_kick, v.last_commands
+        self._channel_internals[...] = c.telemetry.T
+        theta_g, theta_f = c.theta_g, c.theta_f  # None: no adaptive weights (PID)
+        record["theta_g"] = np.nan if theta_g is None else theta_g
+        self.control_pub.put(record.encode(
+            tuple(theta_f[:3]) if theta_f is not None else ((), (), ())))
+        previous, self._previous_control_wall = self._previous_control_wall, start_wall_s
+        record = self._timing_record
+        record["seq"], record["sim_time_us"] = self.timing_pub.count, time_us
+        record["deadline_misses"] = self.timing.misses
+        record["compute_s"] = compute_s
+        record["period_s"] = math.nan if previous is None else start_wall_s - previous
+        self.timing_pub.put(record.encode())
+        if self.estimate_pub is not None and v.estimator_status is not None:
+            self._publish_estimate(time_us, v.estimator_status)
+        if v.perturbations.entries:
+            for event, e in v.perturbations.changes(time_us / 1e6):
+                self.event_pub.put(json_record(self.event_pub.count, time_us, event=event,
+                                               **e.to_request()))
+                self.log(f"t={time_us / 1e6:.3f} s perturbation {e.id} ({e.kind}) {event}")
+        for i, (msg_id, every_us) in enumerate(MIRROR_STREAMS_US):
+            if time_us >= self._mirror_due_us[i]:
+                self._mirror_due_us[i] = time_us - time_us % every_us + every_us
+                msg = self.ground.telemetry(msg_id, boot_ms=(time_us // 1000) & 0xFFFFFFFF)
+                self.node.mirror(self.sysid, AUTOPILOT_COMPID, msg.get_type(),
+                                 msg.pack(self._mirror_mav), time_us)
+
+    def _publish_estimate(self, time_us: int, status: EstimatorStatus) -> None:
+        x = self.estimator.x
+        record = self._estimate_record
+        record["seq"], record["sim_time_us"] = self.estimate_pub.count, time_us
+        record["flags"] = ((ESTIMATE_ALIGNED if status.aligned else 0)
+                           | (ESTIMATE_CONVERGED if status.converged else 0)
+                           | (ESTIMATE_GPS_OK if status.gps_ok else 0))
+        record["position_ned_m"], record["velocity_ned_mps"] = x[0:3], x[3:6]
+        record["quaternion"], record["gyro_bias_rad_s"] = x[6:10], x[10:13]
+        record["accel_bias_mps2"], record["baro_offset_m"] = x[13:16], x[16]
+        for name in ESTIMATE_STATUS_FIELDS:
+            record[name] = getattr(status, name)
+        self.estimate_pub.put(record.encode())
+
+    def mirror_actuators(self, frame: bytes, time_us: int) -> None:
+        """The motor command as sent to the simulator."""
+        self.node.mirror(self.sysid, AUTOPILOT_COMPID, "HIL_ACTUATOR_CONTROLS", frame,
+                         time_us)
+
+    def mirror_tool_message(self, link: object, msg: mavlink.MAVLink_message,
+                            frame: bytes) -> None:
+        """Announcements and acknowledgements to ground tools go into the log too."""
+        kind = msg.get_type()
+        if kind in MIRRORED_TOOL_MESSAGES and (kind == "COMMAND_ACK" or
+                                               link is self.ground.links[0]):
+            self.node.mirror(self.sysid, AUTOPILOT_COMPID, kind, frame,
+                             round(self.vehicle.sim_t_s * 1e6))
+
+    def status(self, steps: int, final: bool = False) -> None:
+        """The status record, when due (once a second) or ``final``."""
+        if not self.node.status_due(final):
+            return  # asked every 5 ms, published once a second: gather nothing till then
+        # The timing summary only goes into the final status (it reads whole histograms).
+        summary = self.timing.summary() if final and not self.lockstep else {}
+        self.node.status(round(self.vehicle.sim_t_s * 1e6), final=final, steps=steps,
+                         armed=self.vehicle.armed, mode=self.vehicle.mode.value,
+                         timing=summary, links=self.ground.link_status())

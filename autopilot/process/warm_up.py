@@ -1,0 +1,65 @@
+"""Loading the compiled code before the control loop starts.
+
+A first call of a numba function takes ~0.1 s from numba's cache (seconds to compile on
+a fresh install): inside the loop that would be a deadline miss, or in real time a
+simulator-link loss. So each compiled path a step takes runs once on scratch objects
+first: the control law, the setpoint shaper, the conversions, a first decoded sample,
+and on the estimator its filter steps.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from autopilot.commander.commander import Commander
+from autopilot.estimation.estimator import Estimator
+from autopilot.flight_tasks import shaper
+from autopilot.process.navigation import Navigation
+from autopilot.process.sim_link import SimLink
+from contracts.airframe import max_thrust_n
+from contracts.frames import (
+    GRAVITY_MPS2,
+    HOME_ALT_AMSL_M,
+    HOME_LAT_DEG,
+    HOME_LON_DEG,
+    euler_from_quat,
+    wrap_pi,
+)
+from contracts.mavlink import (
+    HIL_SENSOR_ALL_FIELDS,
+    GpsSample,
+    SensorSample,
+    TruthSample,
+    sample_messages,
+)
+from contracts.vectors import MEAS_Z, MEASUREMENT_SIZE, REF_SIZE
+
+
+def load_compiled_code(vehicle: Commander, period_s: float, link: SimLink) -> None:
+    """Run each compiled path once, on a scratch controller, estimator and samples (the
+    vehicle and ``link`` are not changed: ``link`` only says which messages are read)."""
+    scratch = vehicle.make_controller(vehicle.parameters)
+    hover = np.zeros(MEASUREMENT_SIZE)
+    hover[MEAS_Z] = -1.0
+    scratch.step(hover, np.zeros(REF_SIZE), True, np.zeros(2))
+    scratch.step(hover, np.zeros(REF_SIZE), True, np.zeros(2), math.nan, True)
+    scratch.step(hover, np.zeros(REF_SIZE), False, np.zeros(2), 10.0, True)
+    shaper.warm_up(vehicle.state.limits, period_s)
+    wrap_pi(1.0)
+    euler_from_quat(np.array([1.0, 0.0, 0.0, 0.0]))
+    max_thrust_n(scratch.airframe)
+    # A first decoded sample costs milliseconds; the estimator's compiled steps load on a
+    # scratch estimator.
+    scratch_navigation = Navigation(vehicle, Estimator())
+    for k in range(3):
+        truth = TruthSample(k * 10_000, (0.0, 0.0, -1.0), (0.0, 0.0, 0.0),
+                            (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, -GRAVITY_MPS2))
+        sensor = SensorSample(k * 10_000, (0.0, 0.0, -GRAVITY_MPS2), (0.0, 0.0, 0.0),
+                              (0.2, 0.0, 0.4), 950.0, 500.0, 20.0, HIL_SENSOR_ALL_FIELDS)
+        fix = GpsSample(k * 10_000, HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_AMSL_M + 1.0,
+                        (0.0, 0.0, 0.0), 0.8, 1.2, 3, 12)
+        for msg in sample_messages(truth, sensor, fix):
+            if msg.get_type() in link.source_types:
+                scratch_navigation.measurements([link.decode(msg)])

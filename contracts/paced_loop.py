@@ -1,0 +1,142 @@
+"""The paced loop both vehicle processes run: lockstep or real time, and in real time a
+fixed-period schedule of wall-clock deadlines.
+
+What the two loops share, and only that:
+
+* ``PacedProcess``: the shell of a process's run: SIGTERM stops it, the configured
+  loop (lockstep or real time, the real-time one under SCHED_FIFO) runs until stopped or
+  interrupted, and shutting down happens whatever ended it.
+* ``Deadlines``: the deadline in force, serving I/O while waiting for it, and what to
+  do when a period overran. The autopilot must start its step *on* the deadline: it
+  polls while far from it, sleeps, then spins the last stretch (``wait``), and drops the
+  periods it lost (``skip_missed``). The simulator only has to stay in step with the wall
+  clock: it reads what arrives until the deadline (``serve``), and catches up after a late
+  period instead of dropping it, since each period is a period of sim time
+  (``catch_up``).
+
+The lockstep loops share nothing beyond the shell: the autopilot answers samples as they
+come, the simulator sends one and waits for its answer.
+"""
+
+from __future__ import annotations
+
+import math
+import signal
+import time
+from collections.abc import Callable
+
+from contracts.realtime import set_realtime_priority
+
+SPIN_S = 0.0005  # the last stretch before a precise deadline is busy-waited
+POLL_MIN_S = 0.0015  # below this, sleep (ns resolution) instead of epoll (ms resolution)
+
+
+class Deadlines:
+    """Deadlines every ``period_s`` on ``time.perf_counter``, from ``first_s`` on."""
+
+    def __init__(self, period_s: float, first_s: float) -> None:
+        self.period_s = period_s
+        self.next_s = first_s
+
+    def remaining_s(self) -> float:
+        return self.next_s - time.perf_counter()
+
+    def until_spin_s(self) -> float:
+        """Time left for other work before ``wait`` must start spinning."""
+        return self.next_s - SPIN_S - time.perf_counter()
+
+    def wait(self, poll: Callable[[float], None]) -> bool:
+        """One turn of a precise wait. Far from the deadline: ``poll(timeout_s)`` once for
+        I/O and return False (the caller does its housekeeping and calls again); near it:
+        sleep, spin to the deadline and return True."""
+        remaining = self.next_s - time.perf_counter()
+        if remaining > POLL_MIN_S:
+            # epoll counts whole milliseconds and rounds up: ask for whole ones, early.
+            poll(math.floor((remaining - SPIN_S) * 1000.0) / 1000.0)
+            return False
+        if remaining > SPIN_S:
+            time.sleep(remaining - SPIN_S)  # nanosecond sleep; I/O waits in the buffers
+        while time.perf_counter() < self.next_s:
+            pass
+        return True
+
+    def serve(self, poll: Callable[[float], bool]) -> None:
+        """A coarse wait: ``poll(remaining_s)`` until it reports that nothing came (False)
+        or the deadline has passed. epoll may end it up to a millisecond late."""
+        while True:
+            remaining = self.next_s - time.perf_counter()
+            if remaining <= 0 or not poll(remaining):
+                return
+
+    def sleep(self) -> None:
+        """Nothing to serve: sleep to the deadline."""
+        time.sleep(max(0.0, self.next_s - time.perf_counter()))
+
+    def advance(self) -> None:
+        self.next_s += self.period_s
+
+    def skip_missed(self) -> tuple[int, float]:
+        """After the period's work: if the deadline in force has already passed, drop the
+        periods lost and re-anchor on the same grid. Returns (periods dropped, how late
+        [s]); (0, 0.0) when on time."""
+        late = time.perf_counter() - self.next_s
+        if late <= 0:
+            return 0, 0.0
+        skipped = int(late // self.period_s) + 1
+        self.next_s += skipped * self.period_s
+        return skipped, late
+
+    def catch_up(self, passed_s: float, limit_s: float) -> None:
+        """After ``advance``: a deadline ``passed_s`` that is more than ``limit_s`` behind
+        (suspended?) re-anchors the schedule a period from now; less is caught up by
+        running the next periods without waiting."""
+        now = time.perf_counter()
+        if now - passed_s > limit_s:
+            self.next_s = now + self.period_s
+
+
+class PacedProcess:
+    """The run of a vehicle process: the configured loop until stopped. Subclasses give
+    ``run_lockstep`` and ``run_realtime``, and may give ``start_up`` (before the loop),
+    ``shut_down`` (always, after it) and ``report`` (after shutting down)."""
+
+    def __init__(self, lockstep: bool, rt_priority: int,
+                 log: Callable[[str], None]) -> None:
+        self.lockstep = lockstep
+        self.rt_priority = rt_priority
+        self.log = log
+        self._stop = False
+
+    def stop(self, *_args: object) -> None:
+        self._stop = True
+
+    def run(self) -> int:
+        signal.signal(signal.SIGTERM, self.stop)
+        self.start_up()
+        try:
+            if self.lockstep:
+                self.run_lockstep()
+            else:
+                self.log(set_realtime_priority(self.rt_priority))
+                self.run_realtime()
+        except KeyboardInterrupt:
+            pass
+        finally:
+            self.shut_down()
+        self.report()
+        return 0
+
+    def start_up(self) -> None:
+        pass
+
+    def run_lockstep(self) -> None:
+        raise NotImplementedError
+
+    def run_realtime(self) -> None:
+        raise NotImplementedError
+
+    def shut_down(self) -> None:
+        pass
+
+    def report(self) -> None:
+        pass

@@ -22,6 +22,7 @@ import selectors
 import socket
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -111,7 +112,8 @@ class Simulator(PacedProcess):
     """The plant and its sensors, one sample period at a time, paced by the autopilot's
     answers (lockstep) or by the wall clock (real time)."""
 
-    def __init__(self, config: SimulatorConfig, log=None) -> None:
+    def __init__(self, config: SimulatorConfig,
+                 log: Callable[[str], None] | None = None) -> None:
         super().__init__(config.lockstep, config.rt_priority, log or (
             lambda text: print(f"sitl: {text}", file=sys.stderr, flush=True)))
         self.config = config

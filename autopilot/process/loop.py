@@ -24,6 +24,7 @@ import queue
 import selectors
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -87,7 +88,7 @@ class Autopilot(PacedProcess):
 
     def __init__(self, config: AutopilotConfig, vehicle: Commander, ground: MavlinkServer,
                  arm_in_reference: bool = False, start_mission: bool = False,
-                 log=None) -> None:
+                 log: Callable[[str], None] | None = None) -> None:
         super().__init__(config.lockstep, config.rt_priority, log or (
             lambda text: print(f"autopilot: {text}", file=sys.stderr, flush=True)))
         self.config = config

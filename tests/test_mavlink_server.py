@@ -913,3 +913,51 @@ def test_change_speed_command_sets_the_go_to_speed(station):
     assert station.client.result(M.MAV_CMD_DO_CHANGE_SPEED, 1, math.nan, -1) == (
         DENIED, ["speed nan m/s is outside (0, 30]"])
     assert station.vehicle.tasks[FlightMode.HOLD].speed_mps == 2.5
+
+
+ORBIT = M.MAV_CMD_DO_ORBIT
+
+
+def test_orbit_command_circles_the_centre_it_names_and_changes_it_while_orbiting(station):
+    station.flying()
+    lat, lon = north_east(6.0, 0.0)
+    # MAVSDK's do_orbit: an AMSL altitude, even in a relative-altitude frame (as PX4 reads).
+    assert station.client.result(ORBIT, 4.0, 1.5, 0, math.nan, lat, lon,
+                                 HOME_ALT_AMSL_M + 3.0, kind="int", frame=REL_INT) == (
+        ACCEPTED, [])
+    v = station.vehicle
+    task = v.tasks[FlightMode.ORBIT]
+    assert v.mode == FlightMode.ORBIT
+    assert np.allclose(task.centre_ned_m, (6.0, 0.0, -3.0), atol=0.01)
+    assert (task.radius_m, task.speed_mps) == (4.0, 1.5)
+    assert station.client.result(ORBIT, -2.0, math.nan, 3, math.nan, math.nan, math.nan,
+                                 math.nan, kind="int", frame=REL_INT) == (ACCEPTED, [])
+    assert v.mode == FlightMode.ORBIT and (task.radius_m, task.speed_mps) == (-2.0, 1.5)
+    assert np.allclose(task.centre_ned_m, (6.0, 0.0, -3.0), atol=0.01)  # NaN: kept
+
+
+@pytest.mark.parametrize("params, frame, said", [
+    ((5.0, 1.0, 0, 0, *north_east(5, 5), 500.0), M.MAV_FRAME_LOCAL_NED,
+     "orbit frame 1 is not supported"),
+    ((0.2, 1.0, 0, 0, *north_east(5, 5), 500.0), REL_INT,
+     "orbit radius 0.2 m is outside [1, 1000] m"),
+    ((5.0, math.inf, 0, 0, *north_east(5, 5), 500.0), REL_INT,
+     "orbit values must be finite or NaN"),
+    ((5.0, 1.0, 9, 0, *north_east(5, 5), 500.0), REL_INT,
+     "orbit yaw behaviour 9 is unknown"),
+    ((5.0, 1.0, 0, 0, 95.0, 8.0, 500.0), REL_INT,
+     "orbit latitude/longitude 95, 8 is not on Earth"),
+])
+def test_bad_orbits_are_refused_and_change_nothing(station, params, frame, said):
+    station.flying()
+    before = station.vehicle.mode
+    assert station.client.result(ORBIT, *params, kind="int", frame=frame) == (DENIED, [said])
+    assert station.vehicle.mode == before
+
+
+def test_orbit_on_the_ground_is_rejected_for_now_and_forgotten(station):
+    station.state_up()
+    assert station.client.result(ORBIT, 5.0, 1.0, 0, 0, *north_east(5, 5), 500.0,
+                                 kind="int", frame=REL_INT) == (
+        TEMPORARILY_REJECTED, ["orbit denied: not in the air"])
+    assert station.vehicle.tasks[FlightMode.ORBIT].pending is None

@@ -66,6 +66,11 @@ def install() -> None:
     os.posix_spawn, os.system."""
     if _ORIGINALS:
         return
+    # Libraries that start a process once, when first imported (numpy.testing runs lscpu
+    # to probe the CPU; scipy imports it): imported here, before the guard, so that the
+    # first test to import them lazily is not refused for it.
+    import numpy.testing  # noqa: F401
+
     _ORIGINALS.append((subprocess.Popen, "__init__", subprocess.Popen.__init__))
     subprocess.Popen.__init__ = _guarded_popen_init(subprocess.Popen.__init__)
     for name in ("fork", "forkpty", "posix_spawn", "posix_spawnp", "system"):

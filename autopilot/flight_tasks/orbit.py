@@ -48,7 +48,7 @@ class OrbitTask(BaseTask):
         self.yaw_behaviour = OrbitYaw.FRONT_TO_CENTRE
         self._angle_rad = 0.0
         self._held_yaw_rad = 0.0
-        self._pending: tuple | None = None
+        self.pending: tuple | None = None  # a request waiting for the mode to start
 
     def request(self, centre_ned_m: np.ndarray, radius_m: float, speed_mps: float,
                 yaw: int) -> None:
@@ -66,19 +66,19 @@ class OrbitTask(BaseTask):
             raise RefusedError(f"orbit yaw behaviour {yaw} is unknown")
         if np.any(np.abs(np.nan_to_num(centre_ned_m)) > 1000.0):
             raise RefusedError("orbit centre is more than 1 km from home")
-        self._pending = (np.array(centre_ned_m, dtype=float), radius_m, speed_mps,
+        self.pending = (np.array(centre_ned_m, dtype=float), radius_m, speed_mps,
                          OrbitYaw(yaw))
 
     def cancel(self) -> None:
         """The request was refused (not in the air): forget it."""
-        self._pending = None
+        self.pending = None
 
     def activate(self, previous: FlightMode, armed: bool) -> None:
         """A request's centre left out is where the vehicle is (MAVLink's rule); without a
         request (a plain mode change) the vehicle orbits where it is, on a circle of the
         default radius whose centre lies north of it."""
         self.centre_ned_m = self.state.stopping_point()
-        if self._pending is None:
+        if self.pending is None:
             self.centre_ned_m[0] += DEFAULT_RADIUS_M
         self.radius_m, self.speed_mps = DEFAULT_RADIUS_M, DEFAULT_SPEED_MPS
         self.yaw_behaviour = OrbitYaw.FRONT_TO_CENTRE
@@ -87,12 +87,11 @@ class OrbitTask(BaseTask):
     def apply(self) -> None:
         """Take the pending request (what it leaves out stays as it is)."""
         s = self.state
-        if self._pending is not None:
-            centre, radius, speed, yaw = self._pending
-            self._pending = None
+        if self.pending is not None:
+            centre, radius, speed, yaw = self.pending
+            self.pending = None
+            # Left out: the centre as it is (entering, where the vehicle is).
             self.centre_ned_m = np.where(np.isfinite(centre), centre, self.centre_ned_m)
-            if not math.isfinite(centre[2]):
-                self.centre_ned_m[2] = s.stopping_point()[2]
             self.radius_m = radius if math.isfinite(radius) else self.radius_m
             self.speed_mps = abs(speed) if math.isfinite(speed) else self.speed_mps
             self.yaw_behaviour = yaw

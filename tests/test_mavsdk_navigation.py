@@ -65,6 +65,22 @@ class Watch:
                              *([progress()] if mission is not None else []))
 
 
+def _fly(tmp_path, session, timeout_s: float) -> dict:
+    """Start the processes, run the MAVSDK ``session`` against them, stop them."""
+    procs = start_processes(tmp_path)
+    try:
+        return asyncio.run(asyncio.wait_for(session(procs.gcs_port), timeout_s))
+    finally:
+        procs.stop()
+
+
+async def _take_off(action: ActionAsync, watch: Watch, altitude_m: float = 3.0) -> None:
+    await action.set_takeoff_altitude(altitude_m)
+    await action.arm()
+    await action.takeoff()
+    await until(lambda: watch.ned[2] < -(altitude_m - 0.1), 30.0, "take-off")
+
+
 async def _connect(mavsdk: Mavsdk, port: int):
     await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
     system = await mavsdk.first_autopilot(timeout_s=30.0)
@@ -108,11 +124,7 @@ async def _mission_session(port: int) -> dict:
 
 
 def test_mavsdk_flies_pauses_resumes_and_finishes_a_mission_then_returns(tmp_path):
-    procs = start_processes(tmp_path)
-    try:
-        got = asyncio.run(asyncio.wait_for(_mission_session(procs.gcs_port), 240))
-    finally:
-        procs.stop()
+    got = _fly(tmp_path, _mission_session, 240)
     assert got["paused_mode"] == FlightMode.HOLD and got["paused_speed"] < 0.1
     assert abs(got["paused_at"][0] - 12.0) < 0.1  # stopped on the leg 12 m north
     # Progress: each item in turn, as MISSION_CURRENT and MISSION_ITEM_REACHED said it.
@@ -131,10 +143,7 @@ async def _goto_and_sticks_session(port: int) -> dict:
         action, manual = ActionAsync(system), ManualControlAsync(system)
         watch = Watch()
         follower = asyncio.ensure_future(watch.follow(telem))
-        await action.set_takeoff_altitude(3.0)
-        await action.arm()
-        await action.takeoff()
-        await until(lambda: watch.ned[2] < -2.9, 30.0, "take-off")
+        await _take_off(action, watch)
         lat, lon, _ = geodetic_from_ned(15.0, -5.0, 0.0)
         await action.goto_location(lat, lon, HOME_ALT_AMSL_M + 4.0, 90.0)
         await until(lambda: np.linalg.norm(watch.ned - (15.0, -5.0, -4.0)) < 0.5
@@ -165,11 +174,7 @@ async def _goto_and_sticks_session(port: int) -> dict:
 
 
 def test_mavsdk_goes_to_a_location_and_flies_position_control_with_sticks(tmp_path):
-    procs = start_processes(tmp_path)
-    try:
-        got = asyncio.run(asyncio.wait_for(_goto_and_sticks_session(procs.gcs_port), 150))
-    finally:
-        procs.stop()
+    got = _fly(tmp_path, _goto_and_sticks_session, 150)
     assert got["goto_mode"] == FlightMode.HOLD
     assert np.linalg.norm(got["goto"] - (15.0, -5.0, -4.0)) < 0.05  # target: 0.5 m
     assert got["goto_yaw_deg"] == pytest.approx(90.0, abs=0.5)
@@ -187,10 +192,7 @@ async def _orbit_session(port: int) -> dict:
         action = ActionAsync(system)
         watch = Watch()
         follower = asyncio.ensure_future(watch.follow(telem))
-        await action.set_takeoff_altitude(3.0)
-        await action.arm()
-        await action.takeoff()
-        await until(lambda: watch.ned[2] < -2.9, 30.0, "take-off")
+        await _take_off(action, watch)
         lat, lon, _ = geodetic_from_ned(6.0, 0.0, 0.0)
         await action.do_orbit(4.0, 1.5, OrbitYawBehavior.HOLD_FRONT_TO_CIRCLE_CENTER, lat, lon,
                               HOME_ALT_AMSL_M + 3.0)
@@ -204,11 +206,7 @@ async def _orbit_session(port: int) -> dict:
 
 
 def test_mavsdk_do_orbit_circles_the_centre_it_names(tmp_path):
-    procs = start_processes(tmp_path)
-    try:
-        got = asyncio.run(asyncio.wait_for(_orbit_session(procs.gcs_port), 120))
-    finally:
-        procs.stop()
+    got = _fly(tmp_path, _orbit_session, 120)
     track = np.array(got["track"])
     radius = np.hypot(track[:, 0] - 6.0, track[:, 1])
     speed = np.hypot(track[:, 3], track[:, 4])

@@ -62,7 +62,7 @@ class OrbitTask(BaseTask):
                                f"[{MIN_RADIUS_M:g}, {MAX_RADIUS_M:g}] m")
         if math.isfinite(speed_mps) and not 0.0 < abs(speed_mps) <= 20.0:
             raise RefusedError(f"orbit speed {speed_mps:g} m/s is outside (0, 20]")
-        if yaw not in OrbitYaw.__members__.values():
+        if yaw not in set(OrbitYaw):
             raise RefusedError(f"orbit yaw behaviour {yaw} is unknown")
         if np.any(np.abs(np.nan_to_num(centre_ned_m)) > 1000.0):
             raise RefusedError("orbit centre is more than 1 km from home")

@@ -192,8 +192,7 @@ class CommandProtocol:
             raise RefusedError("orbit gives latitude without longitude or the reverse")
         if math.isfinite(lat) and (abs(lat) > 90.0 or abs(lon) > 180.0):
             raise RefusedError(f"orbit latitude/longitude {lat:g}, {lon:g} is not on Earth")
-        if any(math.isinf(v) for v in p[4:7]) or not math.isfinite(p[2]) and \
-                not math.isnan(p[2]):
+        if any(math.isinf(v) for v in (p[2], *p[4:7])):
             raise RefusedError("orbit values must be finite or NaN")
         vehicle = self.server.vehicle
         task = vehicle.tasks[FlightMode.ORBIT]

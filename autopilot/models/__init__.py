@@ -1,1 +1,3 @@
-"""Fuzzy models shipped with the autopilot (made by `ivfm identify --out`)."""
+"""The fuzzy models the controller flies: their evaluation (ts_model), file format
+(model_file), regressors and membership functions, and the shipped ones (one JSON file per
+airframe, made by `ivfm identify --out`)."""

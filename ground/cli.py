@@ -57,6 +57,31 @@ def _build_parser() -> argparse.ArgumentParser:
     add_common(run)
     run.set_defaults(airframe=None)
 
+    check = sub.add_parser(
+        "check", help="fly scenario files and judge them by their [expect] tables",
+        description="Fly each scenario through the processes and check its expectations "
+                    "(docs/checks.md). Exit status 0 when all hold, 1 when any fails, 2 on "
+                    "bad input.")
+    check.add_argument("paths", nargs="*", metavar="PATH",
+                       help="scenario files, folders of them, or shipped names (default: "
+                            "every shipped scenario)")
+    check.add_argument("--out", type=Path, default=None,
+                       help="folder for the run folders and check.json (default: a new "
+                            "folder under runs/)")
+    check.add_argument("--junit", type=Path, metavar="FILE", help="write JUnit XML here")
+    check.add_argument("--summary", type=Path, metavar="FILE",
+                       help="append a Markdown summary here (default: $GITHUB_STEP_SUMMARY "
+                            "when set)")
+    check.add_argument("--baseline", type=Path, metavar="DIR",
+                       help="an earlier check's folder (or its check.json): fail on drift")
+    check.add_argument("--tolerance", type=float, default=0.05,
+                       help="relative change a baseline allows (default 0.05)")
+    check.add_argument("-j", "--jobs", type=int, default=1, help="scenarios at a time")
+    check.add_argument("--realtime", action="store_true",
+                       help="pace to the wall clock (default: lockstep)")
+    check.add_argument("--keep", action="store_true",
+                       help="keep the run folders of passed scenarios too")
+
     rep = sub.add_parser("report", help="metrics.json and figures of a run folder, from its log")
     rep.add_argument("run_dir", type=Path, help="a folder written by ivfm run")
     rep.add_argument("--no-figures", action="store_true")
@@ -158,6 +183,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         handler = {
             "report": commands.report_command,
+            "check": commands.check_command,
             "ground log": commands.ground_log_command,
             "ground perturb": commands.ground_perturb_command,
             "ground router": commands.ground_router_command,

@@ -6,15 +6,14 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from autopilot.control.factory import load_models, model_airframe_metadata
 from autopilot.models.ts_model import FuzzyModelSet
 from autopilot.parameters import PARAMETERS, validate_parameters
 from contracts.airframe import airframe_by_name
-from ground.run_files import write_json
 from ground.scenarios import scenario_by_name, shipped_scenarios
-from sitl.sensors import read_profile
 
 
 class UsageError(Exception):
@@ -22,77 +21,78 @@ class UsageError(Exception):
 
 
 def run_command(args: argparse.Namespace) -> int:
-    import shutil
-
-    from ground.figures import plot_run
-    from ground.inprocess import run_inprocess
-    from ground.metrics import compute_metrics
-    from ground.processes import RunSettings, run_processes
-    from ground.report import report
-    from ground.run_files import RUN_FILE, SCENARIO_FILE
+    from ground.flights import Overrides, fly_inprocess, fly_processes, plan_flight
 
     scenario = scenario_by_name(args.scenario)
-    controller = args.controller or scenario.controller
-    plant = args.plant or scenario.plant
-    airframe_name = args.airframe or scenario.airframe
-    airframe = airframe_by_name(airframe_name)
-    sensors = args.sensors or scenario.sensors
-    state_source = args.state_source or scenario.state_source
-    given = {**scenario.parameters, **dict(args.param)}
-    if state_source == "estimator" and "EKF2_GPS_DELAY" not in given:
-        # The vehicle's estimator is set up for its GPS receiver, as a user would set it.
-        given["EKF2_GPS_DELAY"] = 1000.0 * read_profile(sensors).gps_latency_s
-    parameters = validate_parameters(given)
-    model_path = args.model or scenario.model_path
-    models = (load_models(model_path, airframe_name, args.any_airframe_model)
-              if controller in ("ivfc", "t1fc") else None)
-    how = ("in process" if args.inprocess else
-           "logger + simulator + autopilot, real time" if args.realtime else
-           "logger + simulator + autopilot, lockstep")
-    flying_on = ("its estimator" if state_source == "estimator" else "the simulator's truth")
-    print(f"ivfm: {scenario.name} with {controller} on the {plant} plant, {sensors} sensors, "
-          f"flying on {flying_on} ({scenario.duration_s:g} s sim, {how})", file=sys.stderr)
+    plan = plan_flight(scenario, Overrides(
+        controller=args.controller, plant=args.plant, airframe=args.airframe,
+        sensors=args.sensors, state_source=args.state_source, parameters=dict(args.param),
+        model_path=args.model, any_airframe_model=args.any_airframe_model,
+        rate_hz=args.rate_hz, realtime=args.realtime, seed=args.seed))
+    how = "in process" if args.inprocess else plan.how
+    flying_on = ("its estimator" if plan.state_source == "estimator" else
+                 "the simulator's truth")
+    print(f"ivfm: {scenario.name} with {plan.controller} on the {plan.plant} plant, "
+          f"{plan.sensors} sensors, flying on {flying_on} ({scenario.duration_s:g} s sim, "
+          f"{how})", file=sys.stderr)
     if args.inprocess:
-        record = run_inprocess(scenario, controller, plant, airframe, models,
-                               period_s=1.0 / args.rate_hz, parameters=parameters,
-                               sensors=sensors, state_source=state_source, seed=args.seed)
-        metrics = compute_metrics(record, scenario, airframe_name)
-        metrics["mode"] = "inprocess"
-        metrics["sensors"], metrics["state_source"] = sensors, state_source
-        metrics["seed"] = args.seed
-        metrics["parameters"] = parameters
-        write_json(args.out / "metrics.json", metrics)
-        if not args.no_figures:
-            plot_run(record, scenario, args.out)
+        metrics = fly_inprocess(plan, args.out, figures=not args.no_figures)
     else:
-        settings = RunSettings(controller, plant, airframe_name, model_path,
-                               {k: v for k, v in parameters.items() if k in given},
-                               realtime=args.realtime, rate_hz=args.rate_hz,
-                               state_source=state_source, sensors=sensors, seed=args.seed,
-                               any_airframe_model=args.any_airframe_model)
-        accounting = run_processes(scenario, settings, args.out)
-        timing = accounting.pop("timing")
-        shutil.copyfile(scenario.source, args.out / SCENARIO_FILE)
-        if scenario.plan is not None:  # beside the copy, where its [mission] names it
-            beside = args.out / scenario.plan.relative_to(scenario.source.parent)
-            beside.parent.mkdir(parents=True, exist_ok=True)
-            shutil.copyfile(scenario.plan, beside)
-        write_json(args.out / RUN_FILE, {
-            "scenario": scenario.name, "controller": controller, "plant": plant,
-            "airframe": airframe_name, "rate_hz": args.rate_hz, "vehicle": settings.vehicle,
-            "mode": "realtime" if args.realtime else "lockstep",
-            "state_source": state_source, "sensors": sensors, "seed": args.seed,
-            "parameters": parameters,
-            "model": str(model_path) if model_path else None,
-            "telemetry": accounting, "timing": timing})
-        metrics, record = report(args.out, figures=not args.no_figures)
-        lost = sum(accounting["lost"].values())
-        print(f"telemetry: {sum(accounting['published'].values())} records published, "
-              f"{sum(accounting['logged'].values())} logged, {lost} lost; log in {args.out}",
+        metrics = fly_processes(plan, args.out, figures=not args.no_figures)
+        telemetry = metrics["telemetry"]
+        lost = sum(telemetry["lost"].values())
+        print(f"telemetry: {sum(telemetry['published'].values())} records published, "
+              f"{sum(telemetry['logged'].values())} logged, {lost} lost; log in {args.out}",
               file=sys.stderr)
     print(format_metrics(metrics))
     print(f"wrote {args.out / 'metrics.json'}" + ("" if args.no_figures else " and figures"))
-    return 1 if record.diverged else 0
+    return 1 if metrics["diverged"] else 0
+
+
+def check_command(args: argparse.Namespace) -> int:
+    import os
+
+    from ground.check import (
+        CheckOptions,
+        Progress,
+        collect,
+        junit_xml,
+        markdown_summary,
+        read_baseline,
+        results_table,
+        run_check,
+    )
+
+    if args.jobs < 1:
+        raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
+    if not (0.0 <= args.tolerance < 10.0):
+        raise UsageError(f"--tolerance must be in [0, 10), got {args.tolerance!r}")
+    scenarios = collect(args.paths)
+    baseline = read_baseline(args.baseline) if args.baseline is not None else None
+    out = args.out or Path("runs") / time.strftime("check-%Y%m%d-%H%M%S")
+    summary = args.summary or (Path(os.environ["GITHUB_STEP_SUMMARY"])
+                               if os.environ.get("GITHUB_STEP_SUMMARY") else None)
+    mode = "real time" if args.realtime else "lockstep"
+    print(f"ivfm check: {len(scenarios)} scenario(s), {mode}, {args.jobs} at a time; run "
+          f"folders in {out}", file=sys.stderr)
+    start = time.perf_counter()
+    results = run_check(scenarios, CheckOptions(out, realtime=args.realtime, jobs=args.jobs,
+                                                baseline=baseline, tolerance=args.tolerance),
+                        Progress(len(scenarios)))
+    wall_s = time.perf_counter() - start
+    print(results_table(results))
+    failed = [r for r in results if not r.passed]
+    print(f"{len(results) - len(failed)} of {len(results)} passed in {wall_s:.1f} s"
+          + (f"; failed run folders kept in {out}" if failed else ""))
+    if args.junit is not None:
+        args.junit.parent.mkdir(parents=True, exist_ok=True)
+        args.junit.write_text(junit_xml(results))
+        print(f"wrote {args.junit}")
+    if summary is not None:
+        with open(summary, "a") as f:
+            f.write(markdown_summary(results, wall_s))
+        print(f"appended the summary to {summary}")
+    return 1 if failed else 0
 
 
 def report_command(args: argparse.Namespace) -> int:

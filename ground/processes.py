@@ -164,9 +164,11 @@ def clear_run_folder(out_dir: Path) -> None:
         shutil.rmtree(figures)
 
 
-def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path) -> dict[str, Any]:
+def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
+                  quiet: bool = False) -> dict[str, Any]:
     """Fly ``scenario`` through the processes; returns the telemetry accounting (records
-    published and logged per key) and the autopilot's timing summary."""
+    published and logged per key) and the autopilot's timing summary. ``quiet``: no
+    progress on stderr."""
     clear_run_folder(out_dir)
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     sim_port = free_tcp_port()
@@ -188,11 +190,12 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path) -> d
         client = PerturbationClient(session=session, timeout_s=10.0)
         for entry in scenario.perturbations:
             answer = client.send(v, entry.to_request())
-            print(f"  perturbation {answer.get('id')}: {entry.kind} "
+            if not quiet:
+                print(f"  perturbation {answer.get('id')}: {entry.kind} "
                   f"[{entry.start_s:g}, {entry.end_s:g}) s acknowledged by the "
-                  f"{entry.target}", file=sys.stderr, flush=True)
+                      f"{entry.target}", file=sys.stderr, flush=True)
         client.start(v)
-        _follow(session, procs, v, scenario.duration_s, timeout_s, logs)
+        _follow(session, procs, v, scenario.duration_s, timeout_s, logs, quiet)
         final = logger.wait_until(session, status_keys, final=True, timeout_s=30.0)
     except PerturbationError as exc:
         raise ProcessRunError(f"{exc}\n{_tail(logs[SITL])}") from None
@@ -229,11 +232,14 @@ def telemetry_accounting(logger_status: dict[str, Any]) -> dict[str, Any]:
 
 
 def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen], vehicle: int,
-            duration_s: float, timeout_s: float, logs: dict[str, Path]) -> None:
+            duration_s: float, timeout_s: float, logs: dict[str, Path],
+            quiet: bool = False) -> None:
     """Wait for the vehicle processes, echoing progress from the simulator's status."""
     shown = [0.0]
 
     def on_status(sample: zenoh.Sample) -> None:
+        if quiet:
+            return
         try:
             t = json.loads(sample.payload.to_bytes())["sim_time_us"] / 1e6
         except (ValueError, KeyError, TypeError):

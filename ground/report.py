@@ -11,6 +11,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from contracts.vectors import MEAS_Z
+from ground.events import run_events
 from ground.figures import plot_run
 from ground.metrics import compute_metrics
 from ground.run_files import (
@@ -46,6 +48,9 @@ def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunReco
     metrics["perturbations_applied"] = [
         {k: e[k] for k in ("process", "sim_time_us", "event", "id", "kind")}
         for e in perturbation_events(run_dir, run["vehicle"])]
+    metrics["events"] = [e.to_json() for e in run_events(
+        run_dir, run["vehicle"], record.sim_time_us, record.mode_index, record.flags,
+        -record.true_state[:, MEAS_Z])]
     for extra in ("telemetry", "timing"):
         if run.get(extra):
             metrics[extra] = run[extra]

@@ -48,6 +48,11 @@ class RunRecord:
     # The true state at each step when the controller flew on an estimate (else None:
     # the measurement is the truth).
     truth: np.ndarray | None = None
+    # Read from a log only (None in process): each step's sim time, mode index
+    # (FlightMode order) and flags (contracts.telemetry FLAG_*), for the run's events.
+    sim_time_us: np.ndarray | None = None
+    mode_index: np.ndarray | None = None
+    flags: np.ndarray | None = None
 
     @property
     def true_state(self) -> np.ndarray:
@@ -164,7 +169,8 @@ def record_from_log(log: Path, vehicle: int, scenario: Scenario, controller: str
         kick=r["kick_rad"], motor_commands=r["motor_commands"], channel_telemetry=internals,
         theta_g=r["theta_g"], theta_f=[r["theta_f_phi"], r["theta_f_theta"], r["theta_f_psi"]],
         wall_time_s=wall or math.nan, diverged=diverged,
-        truth=truth_at(log, vehicle, r["sim_time_us"]) if with_truth else None)
+        truth=truth_at(log, vehicle, r["sim_time_us"]) if with_truth else None,
+        sim_time_us=r["sim_time_us"], mode_index=r["mode"], flags=r["flags"])
 
 
 def perturbation_events(log: Path, vehicle: int) -> list[dict[str, Any]]:

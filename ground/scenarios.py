@@ -22,11 +22,12 @@ from contracts.perturbations import (
     parse_schedule,
     plant_perturbations_at,
 )
+from ground.expectations import Expectations, parse_expectations
 
 SCENARIO_DIR = Path(__file__).parent / "scenario_files"
 AXES = ("x", "y", "z", "phi", "theta", "psi")
 _TOP = {"name", "description", "duration_s", "axes", "transient_s", "reference", "plant",
-        "controller", "perturbation", "mission"}
+        "controller", "perturbation", "mission", "expect"}
 
 
 @dataclass(frozen=True)
@@ -47,6 +48,7 @@ class Scenario:
     model_path: Path | None = None
     source: Path | None = None
     plan: Path | None = None  # a QGroundControl .plan flown in AUTO.MISSION from the ground
+    expect: Expectations = field(default_factory=Expectations)  # what must hold (checks)
 
     @property
     def mission_items(self) -> tuple:
@@ -153,13 +155,19 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     if bad:
         raise ValueError(f"controller: unknown field(s) {', '.join(bad)}")
     perturbations = parse_schedule(data.get("perturbation", []))
+    expect = parse_expectations(data.get("expect"), tuple(axes), duration)
+    if expect.sections & {"estimation"} and state_source != "estimator":
+        raise ValueError("expect.estimation: the scenario does not fly on the estimator "
+                         "(controller.state_source = \"estimator\")")
+    if expect.sections & {"path"} and plan is None:
+        raise ValueError("expect.path: the scenario flies no [mission]")
     return Scenario(name=name, description=_text(data, "description", ""),
                     reference=reference, axes=tuple(axes), transient_s=transient,
                     duration_s=duration, perturbations=perturbations, controller=controller,
                     plant=fidelity, airframe=airframe, sensors=sensors,
                     state_source=state_source,
                     parameters={k: float(v) for k, v in params.items()},
-                    model_path=model_path, source=path, plan=plan)
+                    model_path=model_path, source=path, plan=plan, expect=expect)
 
 
 def _plan(mission: dict[str, Any], path: Path) -> Path | None:

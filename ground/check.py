@@ -1,0 +1,350 @@
+"""``ivfm check``: fly scenario files and judge them by their expectations.
+
+Each scenario flies through the processes (lockstep unless ``--realtime``) into its own
+run folder; its ``[expect]`` table gives one verdict per expectation. Results go to a
+table on the terminal, and if asked to a JUnit XML file (one testsuite per scenario, one
+testcase per expectation) and a Markdown summary (GitHub's job summary). A baseline (an
+earlier check's ``check.json``) catches drift of the metrics. Run folders of failed
+scenarios are kept, so ``ivfm report`` can open them again. docs/checks.md is the guide.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import sys
+import threading
+import time
+import xml.etree.ElementTree as ET
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ground.expectations import Outcome, evaluate
+from ground.flights import Overrides, fly_processes, plan_flight
+from ground.scenarios import Scenario, load_scenario, scenario_by_name, shipped_names
+
+RESULTS_FILE = "check.json"
+DEFAULT_TOLERANCE = 0.05
+# The metrics a baseline compares (wall-clock figures drift with the machine: not these).
+BASELINE_SECTIONS = ("axes", "estimation", "path", "control")
+BASELINE_SKIPPED = frozenset({"mse", "chattering_total_variation", "arrival_s", "items",
+                              "all_reached"})
+ABSOLUTE_FLOOR = 1e-9  # changes smaller than this are rounding, whatever the ratio
+
+
+@dataclass
+class ScenarioResult:
+    """One scenario's check: its verdicts, or the error that stopped its flight."""
+
+    scenario: Scenario
+    run_dir: Path
+    outcomes: list[Outcome] = field(default_factory=list)
+    wall_time_s: float = 0.0
+    metrics: dict[str, Any] | None = None
+    error: str | None = None
+
+    @property
+    def passed(self) -> bool:
+        return self.error is None and all(o.passed for o in self.outcomes)
+
+    @property
+    def failures(self) -> list[Outcome]:
+        return [o for o in self.outcomes if not o.passed]
+
+    @property
+    def label(self) -> str:
+        return "PASS" if self.passed else "ERROR" if self.error else "FAIL"
+
+
+def collect(paths: Iterable[str]) -> list[Scenario]:
+    """The scenario files named (shipped names, files or folders of ``*.toml``, folders
+    searched recursively), each parsed and checked; ValueError on anything wrong."""
+    paths = list(paths) or shipped_names()
+    scenarios: list[Scenario] = []
+    for given in paths:
+        path = Path(given)
+        if path.is_dir():
+            files = sorted(path.rglob("*.toml"))
+            found = [load_scenario(f) for f in files if _is_scenario_file(f)]
+            if not found:
+                raise ValueError(f"{path} holds no scenario file")
+            scenarios += found
+        elif path.exists():
+            scenarios.append(load_scenario(path))
+        else:
+            scenarios.append(scenario_by_name(given))
+    names = [s.name for s in scenarios]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ValueError(f"scenario name(s) given twice: {', '.join(twice)} (the name is the "
+                         f"run folder's; rename one with name = ...)")
+    return scenarios
+
+
+def _is_scenario_file(path: Path) -> bool:
+    """A scenario, not an airframe, sensor profile or project file beside one."""
+    import tomllib
+
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, tomllib.TOMLDecodeError):
+        return True  # load_scenario says what is wrong with it
+    return "reference" in data or "mission" in data
+
+
+def read_baseline(path: Path) -> dict[str, dict[str, Any]]:
+    """An earlier check's metrics by scenario (its folder or its check.json)."""
+    file = path / RESULTS_FILE if path.is_dir() else path
+    try:
+        data = json.loads(file.read_text())
+        return {name: entry["metrics"] for name, entry in data["scenarios"].items()
+                if entry.get("metrics") is not None}
+    except OSError as exc:
+        raise ValueError(f"--baseline: cannot read {file}: {exc.strerror}") from None
+    except (ValueError, KeyError, TypeError, AttributeError):
+        raise ValueError(f"--baseline: {file} is not a {RESULTS_FILE} written by ivfm "
+                         f"check") from None
+
+
+def baseline_numbers(metrics: dict[str, Any]) -> dict[str, float]:
+    """The metrics a baseline compares, flattened to dotted names."""
+    out: dict[str, float] = {}
+
+    def walk(prefix: str, value: Any) -> None:
+        if isinstance(value, dict):
+            for key, inner in value.items():
+                if key not in BASELINE_SKIPPED:
+                    walk(f"{prefix}.{key}" if prefix else key, inner)
+        elif isinstance(value, (int, float)) and not isinstance(value, bool) and \
+                math.isfinite(value):
+            out[prefix] = float(value)
+
+    for section in BASELINE_SECTIONS:
+        if section in metrics:
+            walk(section, metrics[section])
+    return out
+
+
+def compare_baseline(metrics: dict[str, Any], baseline: dict[str, Any] | None,
+                     tolerance: float) -> Outcome:
+    """One verdict: every compared metric within ``tolerance`` (relative) of the
+    baseline's. A lockstep run repeats bit for bit, so any change is the code's."""
+    name = f"baseline: metrics within {100 * tolerance:g} % of the baseline"
+    if baseline is None:
+        return Outcome(name, False, None, tolerance, "the baseline has no run of this "
+                       "scenario")
+    now, then = baseline_numbers(metrics), baseline_numbers(baseline)
+    drifted = []
+    for key in sorted(set(now) | set(then)):
+        if key not in now or key not in then:
+            drifted.append(f"{key}: {'new' if key in now else 'gone'}")
+            continue
+        change = abs(now[key] - then[key])
+        if change > ABSOLUTE_FLOOR and change > tolerance * abs(then[key]):
+            ratio = (now[key] - then[key]) / abs(then[key]) if then[key] else math.inf
+            drifted.append(f"{key}: {now[key]:.6g} against {then[key]:.6g} "
+                           f"({100 * ratio:+.1f} %)")
+    worst = max((abs(now[k] - then[k]) / abs(then[k]) for k in now
+                 if k in then and then[k] and abs(now[k] - then[k]) > ABSOLUTE_FLOOR),
+                default=0.0)
+    return Outcome(name, not drifted, worst, tolerance,
+                   "every metric within tolerance" if not drifted else
+                   f"{len(drifted)} metric(s) moved beyond {100 * tolerance:g} %: "
+                   + "; ".join(drifted[:8]) + (" ..." if len(drifted) > 8 else ""))
+
+
+@dataclass(frozen=True)
+class CheckOptions:
+    out_dir: Path
+    realtime: bool = False
+    jobs: int = 1
+    baseline: dict[str, dict[str, Any]] | None = None
+    tolerance: float = DEFAULT_TOLERANCE
+    keep_passed: bool = False
+
+
+def check_one(scenario: Scenario, options: CheckOptions) -> ScenarioResult:
+    """Fly one scenario and judge it; a failed flight is a result, not an exception."""
+    from ground.processes import ProcessRunError
+
+    run_dir = options.out_dir / scenario.name
+    result = ScenarioResult(scenario, run_dir)
+    start = time.perf_counter()
+    try:
+        plan = plan_flight(scenario, Overrides(realtime=options.realtime))
+        result.metrics = fly_processes(plan, run_dir, figures=False, quiet=True)
+    except (ProcessRunError, ValueError, OSError) as exc:
+        result.error = str(exc)
+    result.wall_time_s = time.perf_counter() - start
+    if result.metrics is not None:
+        result.outcomes = evaluate(scenario.expect, result.metrics)
+        if options.baseline is not None:
+            result.outcomes.append(compare_baseline(
+                result.metrics, options.baseline.get(scenario.name), options.tolerance))
+    if result.passed and not options.keep_passed:
+        shutil.rmtree(run_dir, ignore_errors=True)
+    return result
+
+
+def run_check(scenarios: list[Scenario], options: CheckOptions,
+              progress: Callable[[ScenarioResult, int, list[str]], None] | None = None
+              ) -> list[ScenarioResult]:
+    """Check every scenario, ``options.jobs`` at a time; results in the given order.
+    ``progress`` hears each result as it comes, with the count done and what still flies."""
+    options.out_dir.mkdir(parents=True, exist_ok=True)
+    flying: list[str] = []
+    lock = threading.Lock()
+    done: dict[str, ScenarioResult] = {}
+
+    def job(scenario: Scenario) -> ScenarioResult:
+        with lock:
+            flying.append(scenario.name)
+        try:
+            return check_one(scenario, options)
+        finally:
+            with lock:
+                flying.remove(scenario.name)
+
+    with ThreadPoolExecutor(max_workers=max(1, options.jobs)) as pool:
+        futures = [pool.submit(job, s) for s in scenarios]
+        for future in as_completed(futures):
+            result = future.result()
+            done[result.scenario.name] = result
+            if progress is not None:
+                with lock:
+                    progress(result, len(done), list(flying))
+    results = [done[s.name] for s in scenarios]
+    write_results(results, options.out_dir / RESULTS_FILE)
+    return results
+
+
+def write_results(results: list[ScenarioResult], path: Path) -> None:
+    """check.json: each scenario's verdicts and metrics (an input to --baseline)."""
+    from ground.run_files import write_json
+
+    write_json(path, {"scenarios": {r.scenario.name: {
+        "passed": r.passed, "error": r.error, "run_dir": str(r.run_dir) if not r.passed else None,
+        "wall_time_s": r.wall_time_s, "source": str(r.scenario.source),
+        "outcomes": [{"name": o.name, "passed": o.passed, "message": o.message,
+                      "measured": _json_value(o.measured), "limit": _json_value(o.limit)}
+                     for o in r.outcomes],
+        "metrics": r.metrics} for r in results}})
+
+
+def _json_value(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+# -- reports --------------------------------------------------------------------------------
+
+def junit_xml(results: list[ScenarioResult]) -> str:
+    """JUnit XML: a testsuite per scenario, a testcase per expectation; a failure's
+    message says the measured value against the limit."""
+    root = ET.Element("testsuites", name="ivfm check")
+    total = failures = errors = 0
+    for r in results:
+        suite = ET.SubElement(root, "testsuite", name=r.scenario.name,
+                              file=str(r.scenario.source), time=f"{r.wall_time_s:.3f}")
+        props = ET.SubElement(suite, "properties")
+        ET.SubElement(props, "property", name="run_dir", value=str(r.run_dir))
+        if r.metrics is not None and r.metrics.get("loop_real_time_factor"):
+            ET.SubElement(props, "property", name="loop_real_time_factor",
+                          value=f"{r.metrics['loop_real_time_factor']:.1f}")
+        classname = f"ivfm.check.{r.scenario.name}"
+        cases = 0
+        suite_failures = suite_errors = 0
+        if r.error is not None:
+            case = ET.SubElement(suite, "testcase", classname=classname, name="flight")
+            ET.SubElement(case, "error", message=r.error.splitlines()[0][:500],
+                          type="FlightError").text = r.error
+            cases, suite_errors = 1, 1
+        for o in r.outcomes:
+            case = ET.SubElement(suite, "testcase", classname=classname, name=o.name)
+            cases += 1
+            if not o.passed:
+                suite_failures += 1
+                ET.SubElement(case, "failure", message=o.message, type="ExpectationFailed"
+                              ).text = (f"{o.message}\nrun folder kept: {r.run_dir} "
+                                        f"(ivfm report {r.run_dir})")
+        suite.set("tests", str(cases))
+        suite.set("failures", str(suite_failures))
+        suite.set("errors", str(suite_errors))
+        total, failures, errors = total + cases, failures + suite_failures, errors + suite_errors
+    root.set("tests", str(total))
+    root.set("failures", str(failures))
+    root.set("errors", str(errors))
+    root.set("time", f"{sum(r.wall_time_s for r in results):.3f}")
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
+
+
+def markdown_summary(results: list[ScenarioResult], wall_time_s: float) -> str:
+    """A summary in GitHub's job summary Markdown ($GITHUB_STEP_SUMMARY)."""
+    passed = sum(r.passed for r in results)
+    lines = [f"## ivfm check: {passed} of {len(results)} scenarios passed "
+             f"({wall_time_s:.1f} s)", "",
+             "| scenario | result | expectations held | flight wall time | failures |",
+             "|---|---|---|---|---|"]
+    for r in results:
+        held = sum(o.passed for o in r.outcomes)
+        why = "; ".join(_cell(o.message) for o in r.failures) if r.outcomes else ""
+        if r.error:
+            why = _cell(r.error.splitlines()[0])
+        mark = {"PASS": "✅ pass", "FAIL": "❌ fail", "ERROR": "💥 error"}[r.label]
+        lines.append(f"| {r.scenario.name} | {mark} | {held} of {len(r.outcomes)} | "
+                     f"{r.wall_time_s:.1f} s | {why} |")
+    kept = [r for r in results if not r.passed]
+    if kept:
+        lines += ["", "Run folders of the failures (open with `ivfm report RUN_DIR`):", ""]
+        lines += [f"* `{r.run_dir}`" for r in kept]
+    return "\n".join(lines) + "\n"
+
+
+def _cell(text: str) -> str:
+    return text.replace("|", "\\|").replace("\n", " ")
+
+
+def results_table(results: list[ScenarioResult]) -> str:
+    """The terminal's table: one row per scenario, then each failure on its own line."""
+    width = max([8, *(len(r.scenario.name) for r in results)])
+    lines = [f"{'scenario':<{width}}  result  held     wall"]
+    for r in results:
+        held = f"{sum(o.passed for o in r.outcomes)}/{len(r.outcomes)}"
+        lines.append(f"{r.scenario.name:<{width}}  {r.label:<6}  {held:<7}  "
+                     f"{r.wall_time_s:5.1f} s")
+        for o in r.failures:
+            lines.append(f"{'':<{width}}    x {o.name}: {o.message}")
+        if r.error:
+            lines.append(f"{'':<{width}}    x the flight failed: "
+                         f"{r.error.splitlines()[0]}")
+    return "\n".join(lines)
+
+
+class Progress:
+    """A live line on a terminal; one line per finished scenario elsewhere (CI logs)."""
+
+    def __init__(self, total: int, stream: Any = sys.stderr) -> None:
+        self.total = total
+        self.stream = stream
+        self.live = hasattr(stream, "isatty") and stream.isatty()
+        self.start = time.perf_counter()
+
+    def __call__(self, result: ScenarioResult, done: int, flying: list[str]) -> None:
+        elapsed = time.perf_counter() - self.start
+        line = (f"[{done}/{self.total}] {result.scenario.name}: {result.label} "
+                f"({sum(o.passed for o in result.outcomes)}/{len(result.outcomes)} held, "
+                f"{result.wall_time_s:.1f} s)")
+        if self.live:
+            flying_now = f"; flying {', '.join(flying)}" if flying else ""
+            self.stream.write(f"\r\033[K{line}{flying_now} [{elapsed:.0f} s]")
+            if done == self.total:
+                self.stream.write("\n")
+        else:
+            self.stream.write(line + "\n")
+        self.stream.flush()

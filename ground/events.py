@@ -27,8 +27,8 @@ LANDED_ALTITUDE_M = 0.3
 
 @dataclass(frozen=True)
 class Event:
-    """One event: ``kind`` (ground.expectations.EVENT_KINDS), its sim time and what it says (the mode
-    entered or in force, the text said)."""
+    """One event: ``kind`` (ground.expectations.EVENT_KINDS), its sim time and what it
+    says (the mode entered or in force, the text said)."""
 
     kind: str
     t_s: float

@@ -49,6 +49,9 @@ _EVENT_KEYS = {"kind", "mode", "text", "at_s", "within_s", "after_s", "before_s"
 _TOP = {"no_failsafe", "axes", "event", *SECTION_METRICS}
 
 
+COMPLETED = "run completed without diverging"
+
+
 @dataclass(frozen=True)
 class Limit:
     """``section.metric`` (or ``axes.<axis>.<metric>``) must be at most / at least
@@ -60,6 +63,8 @@ class Limit:
 
     @property
     def name(self) -> str:
+        if self.path == ("path", "all_reached"):
+            return "path: every item reached"
         return ".".join(self.path) + f" {'<=' if self.bound == 'max' else '>='} {self.value:g}"
 
 
@@ -104,8 +109,11 @@ class Expectations:
         """Events are read from the processes' log: an in-process run has none."""
         return bool(self.events) or self.no_failsafe
 
-    def __len__(self) -> int:
-        return len(self.limits) + len(self.events) + int(self.no_failsafe) + 1
+    def names(self) -> list[str]:
+        """The outcomes' names, in ``evaluate``'s order (known before anything flies)."""
+        return [COMPLETED, *(limit.name for limit in self.limits),
+                *(["no failsafe"] if self.no_failsafe else []),
+                *(e.name for e in self.events)]
 
 
 @dataclass(frozen=True)
@@ -238,7 +246,7 @@ def _table(data: dict[str, Any], key: str, where: str) -> dict[str, Any]:
 def evaluate(expectations: Expectations, metrics: dict[str, Any]) -> list[Outcome]:
     """One outcome per expectation, and first one for the run itself (not diverged)."""
     diverged = bool(metrics.get("diverged"))
-    outcomes = [Outcome("run completed without diverging", not diverged, diverged, False,
+    outcomes = [Outcome(COMPLETED, not diverged, diverged, False,
                         "the run diverged or lost control records" if diverged else
                         "the run completed")]
     for limit in expectations.limits:
@@ -278,7 +286,7 @@ def _limit_outcome(limit: Limit, metrics: dict[str, Any]) -> Outcome:
         arrivals = _lookup(metrics, ("path", "arrival_s")) or []
         missed = [i for i, a in zip(_lookup(metrics, ("path", "items")) or [], arrivals,
                                     strict=False) if a is None]
-        return Outcome("path: every item reached", reached, measured, True,
+        return Outcome(limit.name, reached, measured, True,
                        "every item reached" if reached else
                        f"mission items not reached: {missed or 'no path metrics'}")
     if isinstance(measured, bool) or not isinstance(measured, (int, float)) or \

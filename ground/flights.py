@@ -100,7 +100,8 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
     accounting = run_processes(scenario, settings, out_dir, quiet=quiet)
     timing = accounting.pop("timing")
     shutil.copyfile(scenario.source, out_dir / SCENARIO_FILE)
-    if scenario.plan is not None:  # beside the copy, where its [mission] names it
+    if scenario.plan is not None and scenario.plan.is_relative_to(scenario.source.parent):
+        # beside the copy, where its [mission] names it (an absolute name needs no copy)
         beside = out_dir / scenario.plan.relative_to(scenario.source.parent)
         beside.parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(scenario.plan, beside)

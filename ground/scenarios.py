@@ -235,3 +235,25 @@ def scenario_by_name(name: str) -> Scenario:
         return load_scenario(Path(name))
     known = ", ".join(shipped_names())
     raise ValueError(f"unknown scenario {name!r}; known scenarios: {known} (or a .toml file)")
+
+
+def scenario_from_dict(data: dict[str, Any], file: Path, base_dir: Path) -> Scenario:
+    """A scenario given as a dict (the scenario file's tables), written to ``file`` as TOML
+    and read back with every check; the files it names are relative to ``base_dir``."""
+    import copy
+
+    import tomli_w
+
+    data = copy.deepcopy(data)
+    for table, key in (("mission", "plan"), ("controller", "model"), ("plant", "sensors")):
+        value = data.get(table, {}).get(key) if isinstance(data.get(table), dict) else None
+        if isinstance(value, str) and (table != "plant" or value.endswith(".toml")
+                                       or "/" in value):
+            data[table][key] = str((Path(base_dir) / value).resolve())
+    file = Path(file)
+    file.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        file.write_text(tomli_w.dumps(data))
+    except TypeError as exc:
+        raise ValueError(f"scenario {data.get('name', '?')}: not a TOML table: {exc}") from None
+    return load_scenario(file)

@@ -7,6 +7,8 @@ import pytest
 from autopilot.control.factory import load_models
 from autopilot.models.ts_model import FuzzyModelSet
 
+pytest_plugins = ["pytester"]  # for the tests of the ivfm pytest plugin (test_check.py)
+
 
 @pytest.fixture(scope="session")
 def shipped_models() -> FuzzyModelSet:

@@ -1,0 +1,75 @@
+"""Benchmark of the regression path: ``ivfm run`` through the processes and ``ivfm check``
+of the paper's seven scenarios, beside the in-process path measured in the same run (the
+machine's speed moves up to 3x between days: compare the ratios).
+
+    python tests/benchmarks/bench_check.py             # best of 3 single runs, one check
+    python tests/benchmarks/bench_check.py --runs 5 --jobs 2
+
+Prints figures; asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+PAPER = ("attitude-sine", "attitude-hold", "position-sine", "attitude-jr-10",
+         "attitude-jr-15", "attitude-jr-20", "position-kick")
+
+
+def ivfm(*args: str) -> float:
+    """Wall time of one ivfm command [s]."""
+    start = time.perf_counter()
+    subprocess.run([sys.executable, "-m", "ground.cli", *args], check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return time.perf_counter() - start
+
+
+def loop_wall_s(metrics: dict) -> float:
+    """The loop's wall time: from the run's loop figure, else the log's first to last
+    control record."""
+    return metrics.get("loop_wall_time_s") or metrics["wall_time_s"]
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument("--jobs", type=int, default=1, help="ivfm check -j")
+    args = parser.parse_args()
+    tmp = Path(tempfile.mkdtemp(prefix="bench-check-"))
+    ivfm("run", "position-kick", "--out", str(tmp / "warm"), "--no-figures")  # caches warm
+
+    rows = []
+    for k in range(args.runs):
+        whole = ivfm("run", "position-kick", "--out", str(tmp / f"pk{k}"), "--no-figures")
+        m = json.loads((tmp / f"pk{k}" / "metrics.json").read_text())
+        ivfm("run", "position-kick", "--inprocess", "--out", str(tmp / f"in{k}"),
+             "--no-figures")
+        inproc = json.loads((tmp / f"in{k}" / "metrics.json").read_text())
+        rows.append((whole, loop_wall_s(m), m["sim_time_s"] / loop_wall_s(m),
+                     inproc["real_time_factor"]))
+    best = min(rows)
+    print("ivfm run position-kick (logger + simulator + autopilot, lockstep), best of "
+          f"{args.runs}:")
+    print(f"  whole command {best[0]:.2f} s; loop {best[1]:.2f} s ({best[2]:.1f}x real time); "
+          f"start-up and teardown {best[0] - best[1]:.2f} s")
+    print(f"  in-process path in the same run: {best[3]:.1f}x real time; loop at "
+          f"{100 * best[2] / best[3]:.0f} % of it")
+
+    out = tmp / "check"
+    wall = ivfm("check", *PAPER, "--out", str(out), "--junit", str(tmp / "junit.xml"),
+                "--keep", "-j", str(args.jobs))
+    results = json.loads((out / "check.json").read_text())["scenarios"]
+    loops = sum(loop_wall_s(r["metrics"]) for r in results.values())
+    print(f"ivfm check of the paper's seven scenarios (-j {args.jobs}, JUnit written): "
+          f"{wall:.2f} s wall; sum of their loop times {loops:.2f} s; ratio "
+          f"{wall / loops:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -186,4 +186,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from contracts.warm import WARM_FLAG, serve
+
+    sys.exit(serve(main) if sys.argv[1:] == [WARM_FLAG] else main())

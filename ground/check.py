@@ -21,11 +21,14 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ground.expectations import Outcome, evaluate
 from ground.flights import Overrides, fly_processes, plan_flight
 from ground.scenarios import Scenario, load_scenario, scenario_by_name, shipped_names
+
+if TYPE_CHECKING:
+    from ground.processes import WarmProcesses
 
 RESULTS_FILE = "check.json"
 DEFAULT_TOLERANCE = 0.05
@@ -165,10 +168,13 @@ class CheckOptions:
     baseline: dict[str, dict[str, Any]] | None = None
     tolerance: float = DEFAULT_TOLERANCE
     keep_passed: bool = False
+    warm: bool = True  # each job's processes kept warm between its scenarios
 
 
-def check_one(scenario: Scenario, options: CheckOptions) -> ScenarioResult:
-    """Fly one scenario and judge it; a failed flight is a result, not an exception."""
+def check_one(scenario: Scenario, options: CheckOptions,
+              warm: WarmProcesses | None = None) -> ScenarioResult:
+    """Fly one scenario (as runs of ``warm`` processes, if given) and judge it; a failed
+    flight is a result, not an exception."""
     from ground.processes import ProcessRunError
 
     run_dir = options.out_dir / scenario.name
@@ -176,7 +182,7 @@ def check_one(scenario: Scenario, options: CheckOptions) -> ScenarioResult:
     start = time.perf_counter()
     try:
         plan = plan_flight(scenario, Overrides(realtime=options.realtime))
-        result.metrics = fly_processes(plan, run_dir, figures=False, quiet=True)
+        result.metrics = fly_processes(plan, run_dir, figures=False, quiet=True, warm=warm)
     except (ProcessRunError, ValueError, OSError) as exc:
         result.error = str(exc)
     result.wall_time_s = time.perf_counter() - start
@@ -196,27 +202,42 @@ def run_check(scenarios: list[Scenario], options: CheckOptions,
     """Check every scenario, ``options.jobs`` at a time; results in the given order.
     ``progress`` hears each result as it comes, with the count done and what still flies."""
     options.out_dir.mkdir(parents=True, exist_ok=True)
+    from ground.processes import WarmProcesses
+
     flying: list[str] = []
     lock = threading.Lock()
     done: dict[str, ScenarioResult] = {}
+    per_thread = threading.local()
+    pools: list[WarmProcesses] = []
 
     def job(scenario: Scenario) -> ScenarioResult:
+        warm = None
+        if options.warm:
+            warm = getattr(per_thread, "warm", None)
+            if warm is None:
+                warm = per_thread.warm = WarmProcesses()
+                with lock:
+                    pools.append(warm)
         with lock:
             flying.append(scenario.name)
         try:
-            return check_one(scenario, options)
+            return check_one(scenario, options, warm)
         finally:
             with lock:
                 flying.remove(scenario.name)
 
-    with ThreadPoolExecutor(max_workers=max(1, options.jobs)) as pool:
-        futures = [pool.submit(job, s) for s in scenarios]
-        for future in as_completed(futures):
-            result = future.result()
-            done[result.scenario.name] = result
-            if progress is not None:
-                with lock:
-                    progress(result, len(done), list(flying))
+    try:
+        with ThreadPoolExecutor(max_workers=max(1, options.jobs)) as pool:
+            futures = [pool.submit(job, s) for s in scenarios]
+            for future in as_completed(futures):
+                result = future.result()
+                done[result.scenario.name] = result
+                if progress is not None:
+                    with lock:
+                        progress(result, len(done), list(flying))
+    finally:
+        for warm in pools:
+            warm.close()
     results = [done[s.name] for s in scenarios]
     write_results(results, options.out_dir / RESULTS_FILE)
     return results

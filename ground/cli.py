@@ -79,6 +79,8 @@ def _build_parser() -> argparse.ArgumentParser:
     check.add_argument("-j", "--jobs", type=int, default=1, help="scenarios at a time")
     check.add_argument("--realtime", action="store_true",
                        help="pace to the wall clock (default: lockstep)")
+    check.add_argument("--cold", action="store_true",
+                       help="new processes for every scenario (default: kept warm)")
     check.add_argument("--keep", action="store_true",
                        help="keep the run folders of passed scenarios too")
 
@@ -204,4 +206,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from contracts.warm import WARM_FLAG, serve
+
+    sys.exit(serve(main) if sys.argv[1:] == [WARM_FLAG] else main())

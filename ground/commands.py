@@ -77,7 +77,8 @@ def check_command(args: argparse.Namespace) -> int:
           f"folders in {out}", file=sys.stderr)
     start = time.perf_counter()
     results = run_check(scenarios, CheckOptions(out, realtime=args.realtime, jobs=args.jobs,
-                                                baseline=baseline, tolerance=args.tolerance),
+                                                baseline=baseline, tolerance=args.tolerance,
+                                                warm=not args.cold),
                         Progress(len(scenarios)))
     wall_s = time.perf_counter() - start
     print(results_table(results))

@@ -9,9 +9,12 @@ from __future__ import annotations
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from ground.scenarios import Scenario
+
+if TYPE_CHECKING:
+    from ground.processes import WarmProcesses
 
 
 @dataclass(frozen=True)
@@ -84,9 +87,10 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
 
 
 def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
-                  quiet: bool = False) -> dict[str, Any]:
+                  quiet: bool = False, warm: WarmProcesses | None = None) -> dict[str, Any]:
     """Fly through the processes into ``out_dir`` (run.json, scenario copy, log, process
-    logs); returns metrics.json's content. ``quiet``: no progress on stderr."""
+    logs); returns metrics.json's content. ``quiet``: no progress on stderr; ``warm``:
+    runs of these warm processes (ground/processes.py) instead of new processes."""
     from ground.processes import RunSettings, run_processes
     from ground.report import report
     from ground.run_files import RUN_FILE, SCENARIO_FILE, write_json
@@ -97,7 +101,7 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
                            realtime=plan.realtime, rate_hz=plan.rate_hz,
                            state_source=plan.state_source, sensors=plan.sensors,
                            seed=plan.seed, any_airframe_model=plan.any_airframe_model)
-    accounting = run_processes(scenario, settings, out_dir, quiet=quiet)
+    accounting = run_processes(scenario, settings, out_dir, quiet=quiet, warm=warm)
     timing = accounting.pop("timing")
     shutil.copyfile(scenario.source, out_dir / SCENARIO_FILE)
     if scenario.plan is not None and scenario.plan.is_relative_to(scenario.source.parent):

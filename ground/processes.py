@@ -13,6 +13,7 @@ everything else from the log.
 from __future__ import annotations
 
 import json
+import select
 import shutil
 import signal
 import socket
@@ -26,6 +27,7 @@ from typing import Any
 import zenoh
 
 from contracts.telemetry import AUTOPILOT, SITL, logger_key, vehicle_key
+from contracts.warm import WARM_FLAG
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.perturb import PerturbationClient, PerturbationError
 from ground.scenarios import Scenario
@@ -104,19 +106,109 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
     return sim, autopilot
 
 
+class WarmProcess:
+    """A warm process (contracts/warm.py) that runs one command after another; its
+    current run is used as a ``subprocess.Popen`` is (poll, wait, send_signal, kill)."""
+
+    def __init__(self, module: str) -> None:
+        self.module = module
+        self.proc = subprocess.Popen([sys.executable, "-m", module, WARM_FLAG],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                     stderr=subprocess.DEVNULL, text=True, bufsize=1)
+        self.returncode: int | None = None
+
+    @property
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def start(self, argv: list[str], log_path: Path) -> WarmProcess:
+        """Begin a run of ``argv`` with its output in ``log_path``."""
+        self.returncode = None
+        assert self.proc.stdin is not None
+        self.proc.stdin.write(json.dumps({"argv": argv, "log": str(log_path)}) + "\n")
+        self.proc.stdin.flush()
+        return self
+
+    def poll(self, timeout_s: float = 0.0) -> int | None:
+        """The run's exit status once it has ended (waiting up to ``timeout_s``)."""
+        if self.returncode is None:
+            assert self.proc.stdout is not None
+            if select.select([self.proc.stdout], [], [], timeout_s)[0]:
+                line = self.proc.stdout.readline()
+                self.returncode = int(json.loads(line)["rc"]) if line else \
+                    (self.proc.wait() or -1)
+            elif not self.alive:
+                self.returncode = self.proc.returncode
+        return self.returncode
+
+    def wait(self, timeout: float | None = None) -> int:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while self.poll(0.5 if deadline is None else max(0.0, deadline - time.monotonic())) \
+                is None:
+            if deadline is not None and time.monotonic() >= deadline:
+                raise subprocess.TimeoutExpired(self.module, timeout or 0.0)
+        return self.returncode  # type: ignore[return-value]
+
+    def send_signal(self, sig: int) -> None:
+        self.proc.send_signal(sig)
+
+    def kill(self) -> None:
+        """Ends the warm process itself (a run that would not stop): it is started anew."""
+        self.proc.kill()
+        self.proc.wait()
+        if self.returncode is None:
+            self.returncode = self.proc.returncode
+
+    def close(self) -> None:
+        if self.alive:
+            assert self.proc.stdin is not None
+            self.proc.stdin.close()
+            try:
+                self.proc.wait(timeout=10.0)
+            except subprocess.TimeoutExpired:
+                self.kill()
+
+
+class WarmProcesses:
+    """The three processes of a run (logger, simulator, autopilot), kept warm between
+    runs; one that died is started again for the next run."""
+
+    MODULES = {"logger": "ground.cli", SITL: "sitl", AUTOPILOT: "autopilot"}
+
+    def __init__(self) -> None:
+        self._procs: dict[str, WarmProcess] = {}
+
+    def get(self, name: str) -> WarmProcess:
+        proc = self._procs.get(name)
+        if proc is None or not proc.alive:
+            proc = self._procs[name] = WarmProcess(self.MODULES[name])
+        return proc
+
+    def close(self) -> None:
+        for proc in self._procs.values():
+            proc.close()
+        self._procs.clear()
+
+
 class LoggerProcess:
-    """``ivfm ground log`` as a child process, and questions to it over Zenoh."""
+    """``ivfm ground log`` as a child process (or a run of a warm one), and questions to it
+    over Zenoh."""
 
     def __init__(self, out_dir: Path, endpoint: str, log_path: Path,
-                 name: str = LOGGER_NAME, extra: list[str] | None = None) -> None:
+                 name: str = LOGGER_NAME, extra: list[str] | None = None,
+                 warm: WarmProcesses | None = None) -> None:
         self.name = name
         self.log_path = log_path
-        self._out = open(log_path, "w")  # noqa: SIM115 (closed in stop)
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "ground.cli", "ground", "log", "--out", str(out_dir),
-             "--name", name, "--prefix", LOG_PREFIX, "--zenoh-listen", endpoint,
-             *(extra or [])],
-            stdout=self._out, stderr=subprocess.STDOUT)
+        argv = ["ground", "log", "--out", str(out_dir), "--name", name, "--prefix", LOG_PREFIX,
+                "--zenoh-listen", endpoint, *(extra or [])]
+        self._out = None
+        self.proc: subprocess.Popen | WarmProcess
+        if warm is not None:
+            self.proc = warm.get("logger").start(argv, log_path)
+        else:
+            self._out = open(log_path, "w")  # noqa: SIM115 (closed in stop)
+            self.proc = subprocess.Popen([sys.executable, "-m", "ground.cli", *argv],
+                                         stdout=self._out, stderr=subprocess.STDOUT)
 
     def status(self, session: zenoh.Session) -> dict[str, Any] | None:
         for reply in session.get(logger_key(self.name, "status"), timeout=2.0):
@@ -150,7 +242,8 @@ class LoggerProcess:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
-        self._out.close()
+        if self._out is not None:
+            self._out.close()
         return self.proc.returncode
 
 
@@ -165,23 +258,26 @@ def clear_run_folder(out_dir: Path) -> None:
 
 
 def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
-                  quiet: bool = False) -> dict[str, Any]:
+                  quiet: bool = False, warm: WarmProcesses | None = None) -> dict[str, Any]:
     """Fly ``scenario`` through the processes; returns the telemetry accounting (records
     published and logged per key) and the autopilot's timing summary. ``quiet``: no
-    progress on stderr."""
+    progress on stderr; ``warm``: runs of warm processes instead of new ones."""
     clear_run_folder(out_dir)
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     sim_port = free_tcp_port()
     v = settings.vehicle
     logs = {name: out_dir / f"{name}.log" for name in ("logger", SITL, AUTOPILOT)}
-    logger = LoggerProcess(out_dir, endpoint, logs["logger"])
-    procs: dict[str, subprocess.Popen] = {}
+    logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm)
+    procs: dict[str, subprocess.Popen | WarmProcess] = {}
     outs = []
     session = open_session(ZenohOptions(connect=[endpoint], listen=["tcp/127.0.0.1:0"]))
     timeout_s = 120.0 + scenario.duration_s * (1.5 if settings.realtime else 1.0)
     try:
         sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint)
         for name, cmd in ((SITL, sim_cmd), (AUTOPILOT, ap_cmd)):
+            if warm is not None:  # cmd: python -m MODULE ARGS...
+                procs[name] = warm.get(name).start(cmd[3:], logs[name])
+                continue
             out = open(logs[name], "w")  # noqa: SIM115 (closed below)
             outs.append(out)
             procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT)
@@ -231,7 +327,8 @@ def telemetry_accounting(logger_status: dict[str, Any]) -> dict[str, Any]:
             "lost": lost, "refused_by_logger": logger_status["rejected"], "timing": timing}
 
 
-def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen], vehicle: int,
+def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen | WarmProcess],
+            vehicle: int,
             duration_s: float, timeout_s: float, logs: dict[str, Path],
             quiet: bool = False) -> None:
     """Wait for the vehicle processes, echoing progress from the simulator's status."""

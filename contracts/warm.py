@@ -1,0 +1,96 @@
+"""Warm processes: one process runs its command again and again (``ivfm check``).
+
+A process started with ``--warm`` as its only argument (``python -m sitl --warm``,
+``python -m autopilot --warm``, ``python -m ground.cli --warm``) imports everything once,
+then reads run requests from its standard input, one JSON line each:
+
+    {"argv": ["--port", "4561", ...], "log": "/path/to/run/sitl.log"}
+
+and for each one runs its ``main(argv)`` exactly as a fresh process would, its output
+going to ``log``, then answers one JSON line on its standard output: ``{"rc": 0}``. A
+run builds every object anew from its arguments: what carries over is what a fresh
+process would load again (imports, compiled code, parsed model files), which is what a
+run's start-up costs. Signals work as for a fresh process (SIGINT or SIGTERM end the
+run, not the warm process). End of input ends the process; so does its parent's death.
+A bad request is answered ``{"rc": 2, "error": "..."}`` and changes nothing.
+"""
+
+from __future__ import annotations
+
+import gc
+import json
+import os
+import signal
+import sys
+import traceback
+from collections.abc import Callable, Sequence
+from typing import Any
+
+WARM_FLAG = "--warm"
+
+
+def parse_request(line: str) -> tuple[list[str], str]:
+    """(argv, log path) of one request line; ValueError says what is wrong."""
+    try:
+        request: Any = json.loads(line)
+    except ValueError as exc:
+        raise ValueError(f"a run request is one JSON object per line: {exc}") from None
+    if not isinstance(request, dict) or set(request) != {"argv", "log"}:
+        raise ValueError("a run request has exactly the fields argv and log")
+    argv, log = request["argv"], request["log"]
+    if not isinstance(argv, list) or not all(isinstance(a, str) for a in argv):
+        raise ValueError("argv must be a list of strings")
+    if not isinstance(log, str) or not log:
+        raise ValueError("log must be a file path")
+    return argv, log
+
+
+def serve(main: Callable[[Sequence[str]], int]) -> int:
+    """Run ``main`` once per request line on standard input (module docstring)."""
+    answers = os.fdopen(os.dup(1), "w", buffering=1)
+    quiet = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(quiet, 1)  # between runs nothing may write into the answers
+    for line in sys.stdin:
+        if not line.strip():
+            continue
+        try:
+            argv, log = parse_request(line)
+            out = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        except (ValueError, OSError) as exc:
+            answers.write(json.dumps({"rc": 2, "error": str(exc)}) + "\n")
+            continue
+        rc = _run_once(main, argv, out)
+        os.close(out)
+        answers.write(json.dumps({"rc": rc}) + "\n")
+    return 0
+
+
+def _run_once(main: Callable[[Sequence[str]], int], argv: list[str], out: int) -> int:
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved_err = os.dup(2)
+    os.dup2(out, 1)
+    os.dup2(out, 2)
+    try:
+        rc = main(argv)
+    except SystemExit as exc:  # argparse and friends exit as in a fresh process
+        rc = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+    except KeyboardInterrupt:
+        rc = 130
+    except Exception:  # a crash of this run, reported in its log as a fresh one would be
+        traceback.print_exc()
+        rc = 1
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        quiet = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(quiet, 1)
+        os.close(quiet)
+        os.dup2(saved_err, 2)
+        os.close(saved_err)
+        # What the run set up for itself goes with it.
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        gc.unfreeze()
+        gc.collect()
+    return int(rc)

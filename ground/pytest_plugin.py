@@ -7,8 +7,9 @@
 
 docs/checks.md has a worked example. Options: ``--ivfm-out DIR`` keeps the run folders
 there (default: pytest's temporary folder), ``--ivfm-realtime`` paces to the wall clock.
-Nothing heavy is imported until a scenario flies: every pytest session of the
-environment loads this module.
+Flights of a session share one set of warm processes (docs/checks.md). Nothing heavy is
+imported until a scenario flies: every pytest session of the environment loads this
+module.
 """
 
 from __future__ import annotations
@@ -71,14 +72,33 @@ def _runs_root(config: pytest.Config) -> Path:
     return factory.mktemp("ivfm-runs")
 
 
-def fly(scenario: Scenario, run_dir: Path, realtime: bool = False,
+_WARM = pytest.StashKey[Any]()
+
+
+def _warm_processes(config: pytest.Config) -> Any:
+    """One set of warm processes for the session's flights (ground/processes.py)."""
+    if _WARM not in config.stash:
+        from ground.processes import WarmProcesses
+
+        config.stash[_WARM] = WarmProcesses()
+    return config.stash[_WARM]
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if _WARM in config.stash:
+        config.stash[_WARM].close()
+
+
+def fly(scenario: Scenario, run_dir: Path, config: pytest.Config,
         **overrides: Any) -> Flight:
-    """Fly ``scenario`` through the processes into ``run_dir`` and judge it."""
+    """Fly ``scenario`` through the session's warm processes into ``run_dir``; judge it."""
     from ground.expectations import evaluate
     from ground.flights import Overrides, fly_processes, plan_flight
 
-    plan = plan_flight(scenario, Overrides(realtime=realtime, **overrides))
-    metrics = fly_processes(plan, run_dir, figures=False, quiet=True)
+    plan = plan_flight(scenario, Overrides(realtime=config.getoption("ivfm_realtime"),
+                                           **overrides))
+    metrics = fly_processes(plan, run_dir, figures=False, quiet=True,
+                            warm=_warm_processes(config))
     return Flight(scenario, run_dir, metrics, evaluate(scenario.expect, metrics))
 
 
@@ -104,8 +124,8 @@ def ivfm_flight(request: pytest.FixtureRequest,
         else:
             parsed = scenario_by_name(str(scenario))
         folder = re.sub(r"[^\w.-]", "_", request.node.name)
-        return fly(parsed, Path(root) / f"{folder}-{count[0]}-{parsed.name}",
-                   realtime=config.getoption("ivfm_realtime"), **overrides)
+        return fly(parsed, Path(root) / f"{folder}-{count[0]}-{parsed.name}", config,
+                   **overrides)
 
     return run
 
@@ -142,8 +162,7 @@ class ScenarioFile(pytest.File):
         if self._flight is None and self._error is None:
             run_dir = _runs_root(self.config) / self.scenario.name
             try:
-                self._flight = fly(self.scenario, run_dir,
-                                   realtime=self.config.getoption("ivfm_realtime"))
+                self._flight = fly(self.scenario, run_dir, self.config)
             except Exception as exc:  # every item of the file reports it
                 self._error = exc
         if self._error is not None:

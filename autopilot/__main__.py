@@ -7,15 +7,20 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from contracts.mavlink import (
+from contracts import AUTOPILOT, timeline
+
+if __name__ == "__main__":
+    timeline.mark(AUTOPILOT, "main")  # before the heavy imports below
+
+from contracts.mavlink import (  # noqa: E402
     API_LOCAL_PORT,
     API_UDP_PORT,
     GCS_LOCAL_PORT,
     GCS_UDP_PORT,
     SIM_TCP_PORT,
 )
-from contracts.modes import FLAVOURS
-from contracts.zenoh_link import (
+from contracts.modes import FLAVOURS  # noqa: E402
+from contracts.zenoh_link import (  # noqa: E402
     VEHICLE_CONNECT,
     VEHICLE_LISTEN,
     add_zenoh_arguments,
@@ -121,6 +126,7 @@ def run(args: argparse.Namespace) -> int:
     from contracts.perturbations import load_schedule
     from contracts.telemetry import check_vehicle_id
 
+    timeline.mark(AUTOPILOT, "imports done")
     config = AutopilotConfig(sim_host=args.sim[0], sim_port=args.sim[1], lockstep=args.lockstep,
                              rate_hz=args.rate_hz, state_source=args.state_source,
                              duration_s=args.duration, sysid=check_vehicle_id(args.sysid),
@@ -188,4 +194,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 if __name__ == "__main__":
     from contracts.warm import WARM_FLAG, serve
 
-    sys.exit(serve(main) if sys.argv[1:] == [WARM_FLAG] else main())
+    code = serve(main) if sys.argv[1:] == [WARM_FLAG] else main()
+    timeline.mark(AUTOPILOT, "exit")
+    sys.exit(code)

@@ -25,6 +25,7 @@ import signal
 import time
 from collections.abc import Callable
 
+from contracts import timeline
 from contracts.realtime import set_realtime_priority
 
 SPIN_S = 0.0005  # the last stretch before a precise deadline is busy-waited
@@ -98,7 +99,10 @@ class Deadlines:
 class PacedProcess:
     """The run of a vehicle process: the configured loop until stopped. Subclasses give
     ``run_lockstep`` and ``run_realtime``, and may give ``start_up`` (before the loop),
-    ``shut_down`` (always, after it) and ``report`` (after shutting down)."""
+    ``shut_down`` (always, after it) and ``report`` (after shutting down). ``process``
+    names it in the run's timeline."""
+
+    process = "process"
 
     def __init__(self, lockstep: bool, rt_priority: int,
                  log: Callable[[str], None]) -> None:
@@ -113,6 +117,7 @@ class PacedProcess:
     def run(self) -> int:
         signal.signal(signal.SIGTERM, self.stop)
         self.start_up()
+        timeline.mark(self.process, "loop start")
         try:
             if self.lockstep:
                 self.run_lockstep()
@@ -122,7 +127,9 @@ class PacedProcess:
         except KeyboardInterrupt:
             pass
         finally:
+            timeline.mark(self.process, "loop end")
             self.shut_down()
+            timeline.mark(self.process, "shut down")
         self.report()
         return 0
 

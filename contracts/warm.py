@@ -6,6 +6,8 @@ then reads run requests from its standard input, one JSON line each:
 
     {"argv": ["--port", "4561", ...], "log": "/path/to/run/sitl.log"}
 
+(and optionally ``"timeline": FILE``, where the run's timeline marks go)
+
 and for each one runs its ``main(argv)`` exactly as a fresh process would, its output
 going to ``log``, then answers one JSON line on its standard output: ``{"rc": 0}``. A
 run builds every object anew from its arguments: what carries over is what a fresh
@@ -26,23 +28,30 @@ import traceback
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from contracts import timeline
+
 WARM_FLAG = "--warm"
 
 
-def parse_request(line: str) -> tuple[list[str], str]:
-    """(argv, log path) of one request line; ValueError says what is wrong."""
+def parse_request(line: str) -> tuple[list[str], str, str | None]:
+    """(argv, log path, timeline path or None) of one request line; ValueError says what
+    is wrong."""
     try:
         request: Any = json.loads(line)
     except ValueError as exc:
         raise ValueError(f"a run request is one JSON object per line: {exc}") from None
-    if not isinstance(request, dict) or set(request) != {"argv", "log"}:
-        raise ValueError("a run request has exactly the fields argv and log")
+    if not isinstance(request, dict) or not {"argv", "log"} <= set(request) or \
+            not set(request) <= {"argv", "log", "timeline"}:
+        raise ValueError("a run request has the fields argv and log (and timeline)")
     argv, log = request["argv"], request["log"]
     if not isinstance(argv, list) or not all(isinstance(a, str) for a in argv):
         raise ValueError("argv must be a list of strings")
     if not isinstance(log, str) or not log:
         raise ValueError("log must be a file path")
-    return argv, log
+    marks = request.get("timeline")
+    if marks is not None and (not isinstance(marks, str) or not marks):
+        raise ValueError("timeline must be a file path")
+    return argv, log, marks
 
 
 def serve(main: Callable[[Sequence[str]], int]) -> int:
@@ -54,11 +63,15 @@ def serve(main: Callable[[Sequence[str]], int]) -> int:
         if not line.strip():
             continue
         try:
-            argv, log = parse_request(line)
+            argv, log, marks = parse_request(line)
             out = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
         except (ValueError, OSError) as exc:
             answers.write(json.dumps({"rc": 2, "error": str(exc)}) + "\n")
             continue
+        if marks:  # the run's timeline marks (contracts/timeline.py) go there
+            os.environ[timeline.ENV] = marks
+        else:
+            os.environ.pop(timeline.ENV, None)
         rc = _run_once(main, argv, out)
         os.close(out)
         answers.write(json.dumps({"rc": rc}) + "\n")

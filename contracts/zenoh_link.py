@@ -25,6 +25,7 @@ from typing import Any
 
 import zenoh
 
+from contracts import timeline
 from contracts.telemetry import (
     DEFAULT_GROUND_ENDPOINT,
     MIRROR_ATTACHMENT,
@@ -196,6 +197,7 @@ class TelemetryNode:
         self.process = process
         self.log = log or (lambda text: print(f"{process}: {text}", file=sys.stderr))
         self.session = open_session(options) if options.enabled else None
+        timeline.mark(process, "zenoh session open")
         self.token = None
         if self.session is not None:
             self.token = self.session.liveliness().declare_token(vehicle_key(vehicle, process))
@@ -282,3 +284,4 @@ class TelemetryNode:
         except zenoh.ZError as exc:
             self.log(f"zenoh session close: {exc}")
         self.session = None
+        timeline.mark(self.process, "zenoh session closed")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -21,8 +22,10 @@ class UsageError(Exception):
 
 
 def run_command(args: argparse.Namespace) -> int:
+    from contracts.timeline import process_start_s
     from ground.flights import Overrides, fly_inprocess, fly_processes, plan_flight
 
+    started_s = process_start_s()
     scenario = scenario_by_name(args.scenario)
     plan = plan_flight(scenario, Overrides(
         controller=args.controller, plant=args.plant, airframe=args.airframe,
@@ -38,7 +41,8 @@ def run_command(args: argparse.Namespace) -> int:
     if args.inprocess:
         metrics = fly_inprocess(plan, args.out, figures=not args.no_figures)
     else:
-        metrics = fly_processes(plan, args.out, figures=not args.no_figures)
+        metrics = fly_processes(plan, args.out, figures=not args.no_figures,
+                                started_s=started_s)
         telemetry = metrics["telemetry"]
         lost = sum(telemetry["lost"].values())
         print(f"telemetry: {sum(telemetry['published'].values())} records published, "
@@ -110,6 +114,9 @@ def format_metrics(metrics: dict[str, Any]) -> str:
              f"{metrics['sim_time_s']:.1f} s sim in {metrics['wall_time_s']:.2f} s wall "
              f"({metrics['real_time_factor']:.0f}x real time)"
              + (" | DIVERGED" if metrics["diverged"] else "")]
+    if "loop_real_time_factor" in metrics:
+        lines.append(f"  loop {metrics['loop_real_time_factor']:.1f}x real time after warm-up; "
+                     f"whole command {metrics.get('command_wall_time_s', math.nan):.2f} s wall")
     lines.append(f"  errors after {metrics['transient_s']:g} s:")
     for axis, m in metrics["axes"].items():
         lines.append(f"    {axis:>5}: rmse {m['rmse']:.5f}  mse {m['mse']:.3e}  "

@@ -87,10 +87,13 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
 
 
 def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
-                  quiet: bool = False, warm: WarmProcesses | None = None) -> dict[str, Any]:
+                  quiet: bool = False, warm: WarmProcesses | None = None,
+                  started_s: float | None = None) -> dict[str, Any]:
     """Fly through the processes into ``out_dir`` (run.json, scenario copy, log, process
     logs); returns metrics.json's content. ``quiet``: no progress on stderr; ``warm``:
-    runs of these warm processes (ground/processes.py) instead of new processes."""
+    runs of these warm processes (ground/processes.py) instead of new processes;
+    ``started_s``: when the command started (time.monotonic), for the run's timeline."""
+    from ground import run_timeline
     from ground.processes import RunSettings, run_processes
     from ground.report import report
     from ground.run_files import RUN_FILE, SCENARIO_FILE, write_json
@@ -101,7 +104,8 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
                            realtime=plan.realtime, rate_hz=plan.rate_hz,
                            state_source=plan.state_source, sensors=plan.sensors,
                            seed=plan.seed, any_airframe_model=plan.any_airframe_model)
-    accounting = run_processes(scenario, settings, out_dir, quiet=quiet, warm=warm)
+    accounting = run_processes(scenario, settings, out_dir, quiet=quiet, warm=warm,
+                               started_s=started_s)
     timing = accounting.pop("timing")
     shutil.copyfile(scenario.source, out_dir / SCENARIO_FILE)
     if scenario.plan is not None and scenario.plan.is_relative_to(scenario.source.parent):
@@ -118,7 +122,7 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
         "model": str(plan.model_path) if plan.model_path else None,
         "telemetry": accounting, "timing": timing})
     metrics, _record = report(out_dir, figures=figures)
-    return metrics
+    return run_timeline.finish(out_dir, metrics)
 
 
 def fly_inprocess(plan: FlightPlan, out_dir: Path, figures: bool = True) -> dict[str, Any]:

@@ -38,6 +38,7 @@ from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
+from contracts import timeline
 from contracts.telemetry import (
     JSON_RECORD_SCHEMA,
     MIRROR_ATTACHMENT,
@@ -51,6 +52,7 @@ from contracts.zenoh_link import ZenohOptions, open_session
 from ground.run_files import iter_messages
 
 ACTIVE_SUFFIX = ".mcap.active"
+PROCESS = "logger"  # in the run's timeline
 SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
@@ -216,6 +218,7 @@ class Logger:
         self._warned: dict[str, float] = {}
 
     def stop(self, *_args: Any) -> None:
+        timeline.mark(PROCESS, "stop asked")
         self._stop.set()
 
     # -- files ---------------------------------------------------------------------------
@@ -279,6 +282,10 @@ class Logger:
             record = decode_json_record(payload)
             parsed = parse_key(key)
             if parsed is not None and parsed[2] == "status":
+                if key not in self.counters.heard:
+                    timeline.mark(PROCESS, f"heard {parsed[1]}")
+                if record.get("final"):
+                    timeline.mark(PROCESS, f"final status of {parsed[1]}")
                 self.counters.heard[key] = record
             return record["seq"], record["sim_time_us"]
         if schema == "mavlink":
@@ -314,6 +321,7 @@ class Logger:
             signal.signal(signal.SIGTERM, self.stop)
             signal.signal(signal.SIGINT, self.stop)
         session = open_session(self.config.zenoh, exit_on_listen_failure=True)
+        timeline.mark(PROCESS, "zenoh session open")
         self._start_files()
         subscribers = [session.declare_subscriber(k, self._on_sample) for k in SUBSCRIBED]
         queryable = session.declare_queryable(logger_key(self.config.name, "status"),
@@ -322,6 +330,7 @@ class Logger:
         self.log(f"listening on {', '.join(self.config.zenoh.listen) or 'no endpoint'}"
                  f"{'; connecting to ' + ', '.join(self.config.zenoh.connect) if self.config.zenoh.connect else ''}"  # noqa: E501
                  f" ({self.config.zenoh.mode}); logging to {self.config.out_dir}")
+        timeline.mark(PROCESS, "ready")
         if ready is not None:
             ready()
         next_flush = time.monotonic() + self.config.flush_period_s
@@ -343,7 +352,9 @@ class Logger:
             self._drain()
             self._answer_queries()
             session.close()
+            timeline.mark(PROCESS, "zenoh session closed")
             done = self._file.finish()
+            timeline.mark(PROCESS, "file closed")
             self.counters.files.append(str(done))
             self.log(f"finished {done.name}: {self.counters.records} records, "
                      f"{self.counters.rejected} refused")

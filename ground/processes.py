@@ -13,6 +13,7 @@ everything else from the log.
 from __future__ import annotations
 
 import json
+import os
 import select
 import shutil
 import signal
@@ -26,9 +27,11 @@ from typing import Any
 
 import zenoh
 
+from contracts import timeline
 from contracts.telemetry import AUTOPILOT, SITL, logger_key, vehicle_key
 from contracts.warm import WARM_FLAG
 from contracts.zenoh_link import ZenohOptions, open_session
+from ground import run_timeline
 from ground.perturb import PerturbationClient, PerturbationError
 from ground.scenarios import Scenario
 
@@ -121,11 +124,16 @@ class WarmProcess:
     def alive(self) -> bool:
         return self.proc.poll() is None
 
-    def start(self, argv: list[str], log_path: Path) -> WarmProcess:
-        """Begin a run of ``argv`` with its output in ``log_path``."""
+    def start(self, argv: list[str], log_path: Path,
+              timeline_path: str | None = None) -> WarmProcess:
+        """Begin a run of ``argv`` with its output in ``log_path`` (and its timeline marks
+        in ``timeline_path``)."""
         self.returncode = None
         assert self.proc.stdin is not None
-        self.proc.stdin.write(json.dumps({"argv": argv, "log": str(log_path)}) + "\n")
+        request = {"argv": argv, "log": str(log_path)}
+        if timeline_path:
+            request["timeline"] = timeline_path
+        self.proc.stdin.write(json.dumps(request) + "\n")
         self.proc.stdin.flush()
         return self
 
@@ -196,7 +204,7 @@ class LoggerProcess:
 
     def __init__(self, out_dir: Path, endpoint: str, log_path: Path,
                  name: str = LOGGER_NAME, extra: list[str] | None = None,
-                 warm: WarmProcesses | None = None) -> None:
+                 warm: WarmProcesses | None = None, env: dict[str, str] | None = None) -> None:
         self.name = name
         self.log_path = log_path
         argv = ["ground", "log", "--out", str(out_dir), "--name", name, "--prefix", LOG_PREFIX,
@@ -204,11 +212,11 @@ class LoggerProcess:
         self._out = None
         self.proc: subprocess.Popen | WarmProcess
         if warm is not None:
-            self.proc = warm.get("logger").start(argv, log_path)
+            self.proc = warm.get("logger").start(argv, log_path, (env or {}).get(timeline.ENV))
         else:
             self._out = open(log_path, "w")  # noqa: SIM115 (closed in stop)
             self.proc = subprocess.Popen([sys.executable, "-m", "ground.cli", *argv],
-                                         stdout=self._out, stderr=subprocess.STDOUT)
+                                         stdout=self._out, stderr=subprocess.STDOUT, env=env)
 
     def status(self, session: zenoh.Session) -> dict[str, Any] | None:
         for reply in session.get(logger_key(self.name, "status"), timeout=2.0):
@@ -250,39 +258,51 @@ class LoggerProcess:
 def clear_run_folder(out_dir: Path) -> None:
     """A run folder holds one run: remove the telemetry of a previous one."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    for old in [*out_dir.glob(f"{LOG_PREFIX}-*.mcap"), *out_dir.glob(f"{LOG_PREFIX}-*.active")]:
-        old.unlink()
+    for old in [*out_dir.glob(f"{LOG_PREFIX}-*.mcap"), *out_dir.glob(f"{LOG_PREFIX}-*.active"),
+                run_timeline.raw_path(out_dir), out_dir / run_timeline.TIMELINE_FILE]:
+        old.unlink(missing_ok=True)
     figures = out_dir / "figures"
     if figures.is_dir():
         shutil.rmtree(figures)
 
 
 def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
-                  quiet: bool = False, warm: WarmProcesses | None = None) -> dict[str, Any]:
+                  quiet: bool = False, warm: WarmProcesses | None = None,
+                  started_s: float | None = None) -> dict[str, Any]:
     """Fly ``scenario`` through the processes; returns the telemetry accounting (records
     published and logged per key) and the autopilot's timing summary. ``quiet``: no
-    progress on stderr; ``warm``: runs of warm processes instead of new ones."""
+    progress on stderr; ``warm``: runs of warm processes instead of new ones. Every
+    process marks its phases into the run folder's ``timeline.json``, from ``started_s``
+    (when the command started, on time.monotonic; default: now)."""
     clear_run_folder(out_dir)
+    run_timeline.mark(out_dir, "command start", started_s)
+    run_timeline.mark(out_dir, "run start")
+    env = {**os.environ, timeline.ENV: str(run_timeline.raw_path(out_dir))}
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     sim_port = free_tcp_port()
     v = settings.vehicle
     logs = {name: out_dir / f"{name}.log" for name in ("logger", SITL, AUTOPILOT)}
-    logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm)
+    logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm, env=env)
+    run_timeline.mark(out_dir, "logger started")
     procs: dict[str, subprocess.Popen | WarmProcess] = {}
     outs = []
     session = open_session(ZenohOptions(connect=[endpoint], listen=["tcp/127.0.0.1:0"]))
+    run_timeline.mark(out_dir, "zenoh session open")
     timeout_s = 120.0 + scenario.duration_s * (1.5 if settings.realtime else 1.0)
     try:
         sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint)
         for name, cmd in ((SITL, sim_cmd), (AUTOPILOT, ap_cmd)):
             if warm is not None:  # cmd: python -m MODULE ARGS...
-                procs[name] = warm.get(name).start(cmd[3:], logs[name])
+                procs[name] = warm.get(name).start(cmd[3:], logs[name], env[timeline.ENV])
+                run_timeline.mark(out_dir, f"{name} started")
                 continue
             out = open(logs[name], "w")  # noqa: SIM115 (closed below)
             outs.append(out)
-            procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT)
+            procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, env=env)
+            run_timeline.mark(out_dir, f"{name} started")
         status_keys = [vehicle_key(v, p, "status") for p in (SITL, AUTOPILOT)]
         logger.wait_until(session, status_keys, final=False, timeout_s=60.0)
+        run_timeline.mark(out_dir, "logger heard both")
         client = PerturbationClient(session=session, timeout_s=10.0)
         for entry in scenario.perturbations:
             answer = client.send(v, entry.to_request())
@@ -290,9 +310,13 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
                 print(f"  perturbation {answer.get('id')}: {entry.kind} "
                   f"[{entry.start_s:g}, {entry.end_s:g}) s acknowledged by the "
                       f"{entry.target}", file=sys.stderr, flush=True)
+        run_timeline.mark(out_dir, "schedule delivered")
         client.start(v)
+        run_timeline.mark(out_dir, "simulator released")
         _follow(session, procs, v, scenario.duration_s, timeout_s, logs, quiet)
+        run_timeline.mark(out_dir, "processes exited")
         final = logger.wait_until(session, status_keys, final=True, timeout_s=30.0)
+        run_timeline.mark(out_dir, "logger heard the final status")
     except PerturbationError as exc:
         raise ProcessRunError(f"{exc}\n{_tail(logs[SITL])}") from None
     finally:
@@ -303,14 +327,20 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
         for out in outs:
             out.close()
         session.close()
+        run_timeline.mark(out_dir, "zenoh session closed")
         logger_rc = logger.stop()
+        run_timeline.mark(out_dir, "logger stopped")
     if procs[AUTOPILOT].returncode != 0:
         raise ProcessRunError(f"the autopilot failed (exit {procs['autopilot'].returncode}):\n"
                               f"{_tail(logs['autopilot'])}\nsimulator log:\n"
                               f"{_tail(logs[SITL])}")
     if logger_rc != 0:
         raise ProcessRunError(f"the logger failed (exit {logger_rc}):\n{_tail(logs['logger'])}")
-    return telemetry_accounting(final)
+    accounting = telemetry_accounting(final)
+    run_timeline.mark(out_dir, "run end")
+    steps = round(scenario.duration_s * settings.rate_hz)
+    run_timeline.write(out_dir, sim_loop_s=(steps - 1) / settings.rate_hz)
+    return accounting
 
 
 def telemetry_accounting(logger_status: dict[str, Any]) -> dict[str, Any]:

@@ -24,6 +24,7 @@ from ground.run_files import (
     record_from_log,
     write_json,
 )
+from ground.run_timeline import figures as timeline_figures
 from ground.scenarios import load_scenario
 
 
@@ -54,6 +55,7 @@ def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunReco
     for extra in ("telemetry", "timing"):
         if run.get(extra):
             metrics[extra] = run[extra]
+    metrics.update(timeline_figures(run_dir))  # the loop's speed, the command's wall time
     write_json(run_dir / METRICS_FILE, metrics)
     if figures:
         plot_run(record, scenario, run_dir)

@@ -7,18 +7,23 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from contracts.airframe import airframe_argument
-from contracts.airframe_file import read_airframe
-from contracts.mavlink import SIM_TCP_PORT
-from contracts.perturbations import load_schedule
-from contracts.zenoh_link import (
+from contracts import SITL, timeline
+
+if __name__ == "__main__":
+    timeline.mark(SITL, "main")  # before the heavy imports below
+
+from contracts.airframe import airframe_argument  # noqa: E402
+from contracts.airframe_file import read_airframe  # noqa: E402
+from contracts.mavlink import SIM_TCP_PORT  # noqa: E402
+from contracts.perturbations import load_schedule  # noqa: E402
+from contracts.zenoh_link import (  # noqa: E402
     VEHICLE_CONNECT,
     VEHICLE_LISTEN,
     add_zenoh_arguments,
     zenoh_options_from_args,
 )
-from sitl.dynamics import FIDELITIES
-from sitl.sensors import profile_argument, read_profile
+from sitl.dynamics import FIDELITIES  # noqa: E402
+from sitl.sensors import profile_argument, read_profile  # noqa: E402
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
@@ -59,6 +64,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 def run(args: argparse.Namespace) -> int:
     from sitl.server import Simulator, SimulatorConfig
 
+    timeline.mark(SITL, "imports done")
     config = SimulatorConfig(
         airframe=read_airframe(args.airframe), fidelity=args.plant, host=args.host,
         port=args.port, lockstep=args.lockstep, rate_hz=args.rate_hz,
@@ -82,4 +88,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 if __name__ == "__main__":
     from contracts.warm import WARM_FLAG, serve
 
-    sys.exit(serve(main) if sys.argv[1:] == [WARM_FLAG] else main())
+    code = serve(main) if sys.argv[1:] == [WARM_FLAG] else main()
+    timeline.mark(SITL, "exit")
+    sys.exit(code)

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from contracts import timeline
 from contracts.airframe import Airframe, airframe_from_spec, hover_rotor_speeds
 from contracts.airframe_file import AirframeSpec
 from contracts.mavlink import (
@@ -111,6 +112,8 @@ class LinkStats:
 class Simulator(PacedProcess):
     """The plant and its sensors, one sample period at a time, paced by the autopilot's
     answers (lockstep) or by the wall clock (real time)."""
+
+    process = SITL
 
     def __init__(self, config: SimulatorConfig,
                  log: Callable[[str], None] | None = None) -> None:
@@ -226,6 +229,7 @@ class Simulator(PacedProcess):
     def _answer_request(self, request: Request) -> None:
         if request.topic == "start":
             if not self.started:
+                timeline.mark(SITL, "released")
                 self.log(f"start requested at t={self.time_us / 1e6:.3f} s")
             self.started = True
             request.reply(True, sim_time_us=self.time_us)
@@ -262,6 +266,7 @@ class Simulator(PacedProcess):
         self.log(f"listening on tcp {self.config.host}:{self._server.getsockname()[1]} "
                  f"({'lockstep' if self.config.lockstep else 'real time'}, "
                  f"{self.config.rate_hz:g} Hz, {self.config.fidelity} plant)")
+        timeline.mark(SITL, "listening")
 
     def shut_down(self) -> None:
         self._server.close()
@@ -301,6 +306,7 @@ class Simulator(PacedProcess):
         except (TimeoutError, BlockingIOError):
             return None
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        timeline.mark(SITL, "autopilot connected")
         self.log(f"autopilot connected from {peer[0]}:{peer[1]} at t={self.time_us / 1e6:.3f} s")
         # A fresh parser per connection: a half message from the last one must not linger.
         self.mav = new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID)
@@ -346,6 +352,8 @@ class Simulator(PacedProcess):
                 except OSError:
                     break
                 self.stats.samples_sent += 1
+                if self.stats.samples_sent == 1:
+                    timeline.mark(SITL, "first sample sent")
                 answered = False
                 while not answered and not self._stop:
                     msgs = self._read(conn)

@@ -346,8 +346,9 @@ def test_a_scenario_from_a_dict_reads_back_with_its_files(tmp_path):
 
 @pytest.mark.parametrize(("line", "message"), [
     ("{", "one JSON object per line"),
-    ("[]", "exactly the fields argv and log"),
-    ('{"argv": [], "log": "x", "more": 1}', "exactly the fields argv and log"),
+    ("[]", "the fields argv and log"),
+    ('{"argv": [], "log": "x", "more": 1}', "the fields argv and log"),
+    ('{"argv": [], "log": "x", "timeline": 3}', "timeline must be a file path"),
     ('{"argv": [1], "log": "x"}', "argv must be a list of strings"),
     ('{"argv": [], "log": ""}', "log must be a file path"),
 ])
@@ -358,4 +359,4 @@ def test_warm_run_requests_are_checked(line, message):
         parse_request(line)
     assert message in str(err.value)
     assert parse_request('{"argv": ["--port", "1"], "log": "/tmp/l"}') == \
-        (["--port", "1"], "/tmp/l")
+        (["--port", "1"], "/tmp/l", None)

@@ -36,6 +36,7 @@ from autopilot.process.sim_link import SimLink
 from autopilot.process.telemetry import TelemetryPublisher
 from autopilot.process.warm_up import load_compiled_code
 from autopilot.refusal import RefusedError
+from contracts import timeline
 from contracts.mavlink import (
     AUTOPILOT_SYSID,
     SIM_TCP_PORT,
@@ -85,6 +86,8 @@ class Autopilot(PacedProcess):
     """The control loop: samples from the simulator link become control steps at the
     control rate, each answered with a motor command; between steps, the ground links
     and Zenoh requests get a bounded share of time."""
+
+    process = AUTOPILOT
 
     def __init__(self, config: AutopilotConfig, vehicle: Commander, ground: MavlinkServer,
                  arm_in_reference: bool = False, start_mission: bool = False,
@@ -145,6 +148,8 @@ class Autopilot(PacedProcess):
         commands = self.vehicle.control()
         self._step_start = start
         self.steps += 1
+        if self.steps == 1:
+            timeline.mark(AUTOPILOT, "first control step")
         if self.max_steps < math.inf and self.steps >= self._progress_at * self.max_steps:
             self.log(f"{100 * self._progress_at:.0f} % ({time_us / 1e6:.1f} s sim)")
             self._progress_at += 0.1
@@ -192,6 +197,7 @@ class Autopilot(PacedProcess):
 
     def _connect(self, now: float) -> None:
         if self.sim.connect(now):
+            timeline.mark(AUTOPILOT, "connected to the simulator")
             self.log(f"connected to the simulator at {self.sim.address[0]}:"
                      f"{self.sim.address[1]}")
             self.sel.register(self.sim.sock, selectors.EVENT_READ, "sim")
@@ -230,6 +236,7 @@ class Autopilot(PacedProcess):
                 commands = self.vehicle.last_commands
             self._answer(time_us, commands, stepped)
             if self.steps >= self.max_steps:
+                timeline.mark(AUTOPILOT, "last control step")
                 self._stop = True
                 return
 
@@ -269,6 +276,7 @@ class Autopilot(PacedProcess):
         """Load the compiled code and make a first round of ground work before the loop
         (either would cost a deadline inside it), then freeze what exists."""
         load_compiled_code(self.vehicle, self.period_us / 1e6, self.sim)
+        timeline.mark(AUTOPILOT, "compiled code loaded")
         self._ground_work(LOCKSTEP_GROUND_BUDGET_S)
         # What exists now lives for the whole run: out of the collector's sight, so its
         # passes in the loop look at the few objects a step makes, not at all of them.
@@ -336,6 +344,7 @@ class Autopilot(PacedProcess):
                     self.timing.record_period(start - previous_start)
                 previous_start = start
                 if self.steps >= self.max_steps:
+                    timeline.mark(AUTOPILOT, "last control step")
                     break
             else:
                 previous_start = None

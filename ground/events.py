@@ -3,7 +3,7 @@ landing and the texts the vehicle said to ground tools (STATUSTEXT).
 
 Every event carries its sim time; expectations (``ground/expectations.py``) look for
 events in time windows. The control records give mode and flags at each step; the
-MAVLink mirror gives the STATUSTEXT frames with the sim time they were sent at.
+MAVLink mirror gives the STATUSTEXT frames with the sim time of the step that said them.
 """
 
 from __future__ import annotations

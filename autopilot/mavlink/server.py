@@ -318,6 +318,14 @@ class MavlinkServer:
                 int((now - self.boot_s) * 1e9), msg.ts1), address)
 
     # -- telemetry -----------------------------------------------------------------------
+    def announce(self) -> None:
+        """Send what the vehicle said (STATUSTEXT). The loop calls it after each control
+        step, so a text goes out, and into the log, at the sim time it was said."""
+        while self.vehicle.messages:
+            severity, text = self.vehicle.messages.pop(0)
+            self.broadcast(lambda s=severity, t=text: mavlink.MAVLink_statustext_message(
+                s, t.encode()))
+
     def service(self) -> None:
         """Send what is due and queued; check the link failsafes."""
         now = self.clock()
@@ -329,10 +337,7 @@ class MavlinkServer:
             for link in self.links:
                 link.next_due_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now
                 link.next_due_s[mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE] = now
-        while self.vehicle.messages:
-            severity, text = self.vehicle.messages.pop(0)
-            self.broadcast(lambda s=severity, t=text: mavlink.MAVLink_statustext_message(
-                s, t.encode()))
+        self.announce()
         while self.vehicle.reached:
             seq = self.vehicle.reached.pop(0)
             self.broadcast(lambda q=seq: mavlink.MAVLink_mission_item_reached_message(q))

@@ -163,6 +163,8 @@ class Autopilot(PacedProcess):
             self._sim_lost()
             return
         self._command_sent = time.perf_counter()
+        if stepped and self.vehicle.messages:
+            self.ground.announce()  # at the sim time of the step that said it
         if not self.telemetry.enabled:
             return
         if stepped:

@@ -229,12 +229,13 @@ def _autopilot_on_a_socket(rate_hz: float = 100.0, source: str = "auto"):
     """The autopilot process's simulator side on one end of a socket pair."""
     from autopilot.commander.commander import Commander
     from autopilot.control.factory import make_controller
+    from autopilot.mavlink.server import MavlinkServer
     from autopilot.process.loop import Autopilot, AutopilotConfig
 
     vehicle = Commander(lambda p: make_controller("smc", PAPER, 1 / rate_hz, None, p),
                       1 / rate_hz)
     autopilot = Autopilot(AutopilotConfig(rate_hz=rate_hz, state_source=source), vehicle,
-                          None, log=lambda text: None)
+                          MavlinkServer(vehicle, []), log=lambda text: None)
     ours, theirs = socket.socketpair()
     ours.setblocking(False)
     autopilot.sim.sock = ours

@@ -13,6 +13,7 @@ its own rotor geometry table, its own geodetic conversion.
 
 from __future__ import annotations
 
+import collections
 import math
 import socket
 import threading
@@ -124,6 +125,7 @@ class Px4ProtocolSim(threading.Thread):
         self.samples = 0
         self.answers = 0
         self.other_messages: set[str] = set()
+        self._pending: collections.deque = collections.deque()
         self.stop_event = threading.Event()
         self.error: str | None = None
 
@@ -147,11 +149,15 @@ class Px4ProtocolSim(threading.Thread):
             self.server.close()
 
     def _messages(self, conn: socket.socket):
+        """Messages in arrival order; those parsed but not yet taken wait in ``_pending``
+        (a HEARTBEAT read in the same chunk as an answer is not lost with the generator)."""
         while True:
+            while self._pending:
+                yield self._pending.popleft()
             data = conn.recv(4096)
             if not data:
                 raise OSError("the flight stack closed the connection")
-            yield from self.mav.parse_buffer(data) or []
+            self._pending.extend(self.mav.parse_buffer(data) or [])
 
     def _wait_for_heartbeat(self, conn: socket.socket) -> None:
         for msg in self._messages(conn):

@@ -115,6 +115,15 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     return p
 
 
+def preload() -> None:
+    """What a run imports, loaded by a warm process before its first run."""
+    import autopilot.commander.commander  # noqa: F401
+    import autopilot.control.factory  # noqa: F401
+    import autopilot.flight_tasks.reference  # noqa: F401
+    import autopilot.mavlink.server  # noqa: F401
+    import autopilot.process.loop  # noqa: F401
+
+
 def run(args: argparse.Namespace) -> int:
     from autopilot.commander.commander import Commander
     from autopilot.control.factory import load_models, make_controller
@@ -192,8 +201,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from contracts.warm import WARM_FLAG, serve
+    from contracts.warm import WARM_FLAG, exit_process, serve
 
-    code = serve(main) if sys.argv[1:] == [WARM_FLAG] else main()
+    code = serve(main, preload) if sys.argv[1:] == [WARM_FLAG] else main()
     timeline.mark(AUTOPILOT, "exit")
-    sys.exit(code)
+    exit_process(code)

@@ -45,6 +45,10 @@ class ZenohOptions:
     listen: list[str] = field(default_factory=list)
     connect: list[str] = field(default_factory=list)
     enabled: bool = True
+    # False: open returns at once and connects in the background, retrying every 20 ms
+    # at first (a ground station's querying session, whose peers may not be up yet);
+    # True: open waits (up to 0.5 s) for the endpoints, so the first records have a route.
+    wait_on_open: bool = True
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -107,7 +111,10 @@ def session_config(options: ZenohOptions, exit_on_listen_failure: bool = False) 
     config.insert_json5("connect/exit_on_failure", "false")
     # Reconnect quickly when the other side comes (back): ground stations start late.
     config.insert_json5("connect/retry", json.dumps(
-        {"period_init_ms": 200, "period_max_ms": 1000, "period_increase_factor": 1.5}))
+        {"period_init_ms": 200 if options.wait_on_open else 20, "period_max_ms": 1000,
+         "period_increase_factor": 1.5}))
+    if not options.wait_on_open:
+        config.insert_json5("scouting/delay", "0")
     config.insert_json5("scouting/multicast/enabled", "false")
     # A put into a full transmit queue waits up to wait_before_drop before dropping; at
     # Zenoh's default (1 ms, 2 batches) a subscriber that stalls for a moment would make

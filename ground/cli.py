@@ -205,7 +205,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
 
 
-if __name__ == "__main__":
-    from contracts.warm import WARM_FLAG, serve
+def _preload_logger() -> None:
+    """What the logger of a run imports, loaded by a warm process before its first run."""
+    import ground.commands  # noqa: F401
+    import ground.logger  # noqa: F401
 
-    sys.exit(serve(main) if sys.argv[1:] == [WARM_FLAG] else main())
+
+if __name__ == "__main__":  # the logger of a run (python -m ground.cli ground log ...)
+    from contracts.warm import WARM_FLAG, exit_process, serve
+
+    exit_process(serve(main, _preload_logger) if sys.argv[1:] == [WARM_FLAG] else main())

@@ -41,8 +41,16 @@ def run_command(args: argparse.Namespace) -> int:
     if args.inprocess:
         metrics = fly_inprocess(plan, args.out, figures=not args.no_figures)
     else:
-        metrics = fly_processes(plan, args.out, figures=not args.no_figures,
-                                started_s=started_s)
+        from ground.processes import WarmProcesses
+
+        # Started as soon as the input is checked: each loads its imports and compiled
+        # code while the others load theirs and the run folder is prepared.
+        warm = WarmProcesses(start=True)
+        try:
+            metrics = fly_processes(plan, args.out, figures=not args.no_figures, warm=warm,
+                                    started_s=started_s)
+        finally:
+            warm.close()
         telemetry = metrics["telemetry"]
         lost = sum(telemetry["lost"].values())
         print(f"telemetry: {sum(telemetry['published'].values())} records published, "

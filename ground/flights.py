@@ -95,7 +95,6 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
     ``started_s``: when the command started (time.monotonic), for the run's timeline."""
     from ground import run_timeline
     from ground.processes import RunSettings, run_processes
-    from ground.report import report
     from ground.run_files import RUN_FILE, SCENARIO_FILE, write_json
 
     scenario = plan.scenario
@@ -121,6 +120,8 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
         "parameters": plan.parameters,
         "model": str(plan.model_path) if plan.model_path else None,
         "telemetry": accounting, "timing": timing})
+    from ground.report import report  # imported during the flight (run_processes)
+
     metrics, _record = report(out_dir, figures=figures)
     return run_timeline.finish(out_dir, metrics)
 

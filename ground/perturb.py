@@ -105,4 +105,4 @@ class PerturbationClient:
             if time.monotonic() >= deadline:
                 raise PerturbationError(f"no answer from vehicle {vehicle}'s {process} on "
                                         f"{key} within {self.timeout_s:g} s")
-            time.sleep(0.1)
+            time.sleep(0.02)

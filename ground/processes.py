@@ -12,6 +12,7 @@ everything else from the log.
 
 from __future__ import annotations
 
+import importlib
 import json
 import os
 import select
@@ -20,6 +21,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -183,8 +185,12 @@ class WarmProcesses:
 
     MODULES = {"logger": "ground.cli", SITL: "sitl", AUTOPILOT: "autopilot"}
 
-    def __init__(self) -> None:
+    def __init__(self, start: bool = False) -> None:
+        """``start``: start all three now, so they load while the caller prepares a run."""
         self._procs: dict[str, WarmProcess] = {}
+        if start:
+            for name in self.MODULES:
+                self.get(name)
 
     def get(self, name: str) -> WarmProcess:
         proc = self._procs.get(name)
@@ -238,7 +244,7 @@ class LoggerProcess:
                     key in status["heard"] and (status["heard"][key].get("final") or not final)
                     for key in heard):
                 return status
-            time.sleep(0.05)
+            time.sleep(0.01)
         raise ProcessRunError(f"the logger did not hear {', '.join(heard)} within "
                               f"{timeout_s:g} s (last status: {status})\n{_tail(self.log_path)}")
 
@@ -282,15 +288,16 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
     sim_port = free_tcp_port()
     v = settings.vehicle
     logs = {name: out_dir / f"{name}.log" for name in ("logger", SITL, AUTOPILOT)}
+    sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint)
+    # All three start at once: the logger listens before the vehicles, whose imports and
+    # compiled code take longer, open their sessions; ours connects when it can.
     logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm, env=env)
     run_timeline.mark(out_dir, "logger started")
     procs: dict[str, subprocess.Popen | WarmProcess] = {}
     outs = []
-    session = open_session(ZenohOptions(connect=[endpoint], listen=["tcp/127.0.0.1:0"]))
-    run_timeline.mark(out_dir, "zenoh session open")
+    session = None
     timeout_s = 120.0 + scenario.duration_s * (1.5 if settings.realtime else 1.0)
     try:
-        sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint)
         for name, cmd in ((SITL, sim_cmd), (AUTOPILOT, ap_cmd)):
             if warm is not None:  # cmd: python -m MODULE ARGS...
                 procs[name] = warm.get(name).start(cmd[3:], logs[name], env[timeline.ENV])
@@ -300,6 +307,9 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
             outs.append(out)
             procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, env=env)
             run_timeline.mark(out_dir, f"{name} started")
+        session = open_session(ZenohOptions(connect=[endpoint], listen=["tcp/127.0.0.1:0"],
+                                            wait_on_open=False))
+        run_timeline.mark(out_dir, "zenoh session open")
         status_keys = [vehicle_key(v, p, "status") for p in (SITL, AUTOPILOT)]
         logger.wait_until(session, status_keys, final=False, timeout_s=60.0)
         run_timeline.mark(out_dir, "logger heard both")
@@ -313,6 +323,9 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
         run_timeline.mark(out_dir, "schedule delivered")
         client.start(v)
         run_timeline.mark(out_dir, "simulator released")
+        # The report's imports (matplotlib, the metrics) load while the vehicle flies.
+        threading.Thread(target=importlib.import_module, args=("ground.report",),
+                         daemon=True).start()
         _follow(session, procs, v, scenario.duration_s, timeout_s, logs, quiet)
         run_timeline.mark(out_dir, "processes exited")
         final = logger.wait_until(session, status_keys, final=True, timeout_s=30.0)
@@ -326,8 +339,9 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
                 proc.wait()
         for out in outs:
             out.close()
-        session.close()
-        run_timeline.mark(out_dir, "zenoh session closed")
+        if session is not None:
+            session.close()
+            run_timeline.mark(out_dir, "zenoh session closed")
         logger_rc = logger.stop()
         run_timeline.mark(out_dir, "logger stopped")
     if procs[AUTOPILOT].returncode != 0:
@@ -385,7 +399,7 @@ def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen | WarmProc
                                       f"log:\n{_tail(logs['autopilot'])}")
             if procs[AUTOPILOT].poll() not in (None, 0):
                 return
-            time.sleep(0.05)
+            time.sleep(0.01)
     finally:
         sub.undeclare()
 

@@ -76,6 +76,14 @@ def run(args: argparse.Namespace) -> int:
     return Simulator(config).run()
 
 
+def preload() -> None:
+    """What a run imports and the plant's compiled code, loaded by a warm process before
+    its first run."""
+    from sitl.server import preload_compiled_code
+
+    preload_compiled_code()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
@@ -86,8 +94,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    from contracts.warm import WARM_FLAG, serve
+    from contracts.warm import WARM_FLAG, exit_process, serve
 
-    code = serve(main) if sys.argv[1:] == [WARM_FLAG] else main()
+    code = serve(main, preload) if sys.argv[1:] == [WARM_FLAG] else main()
     timeline.mark(SITL, "exit")
-    sys.exit(code)
+    exit_process(code)

@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 import struct
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -92,11 +93,11 @@ class RecordSchema:
     sequences: tuple[str, ...] = ()
     comment: str = ""
 
-    @property
+    @cached_property  # built once: a log's report decodes thousands of records
     def dtype(self) -> np.dtype:
         return np.dtype([(n, "<" + t, (c,)) if c else (n, "<" + t) for n, t, c in self.fields])
 
-    @property
+    @cached_property
     def fixed_size(self) -> int:
         return len(CDR_HEADER) + self.dtype.itemsize
 

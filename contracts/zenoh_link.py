@@ -115,6 +115,10 @@ def session_config(options: ZenohOptions, exit_on_listen_failure: bool = False) 
          "period_increase_factor": 1.5}))
     if not options.wait_on_open:
         config.insert_json5("scouting/delay", "0")
+    # Open returns once the configured endpoints are reached, without waiting up to
+    # scouting/delay (0.5 s) for peers heard of through gossip: those links follow in the
+    # background, and records to the logger (a configured endpoint) have their route.
+    config.insert_json5("open/return_conditions/connect_scouted", "false")
     config.insert_json5("scouting/multicast/enabled", "false")
     # A put into a full transmit queue waits up to wait_before_drop before dropping; at
     # Zenoh's default (1 ms, 2 batches) a subscriber that stalls for a moment would make

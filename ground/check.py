@@ -215,7 +215,7 @@ def run_check(scenarios: list[Scenario], options: CheckOptions,
         if options.warm:
             warm = getattr(per_thread, "warm", None)
             if warm is None:
-                warm = per_thread.warm = WarmProcesses()
+                warm = per_thread.warm = WarmProcesses(start=True)
                 with lock:
                     pools.append(warm)
         with lock:

@@ -8,32 +8,30 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 
-def _build_parser() -> argparse.ArgumentParser:
+def _add_common(p: argparse.ArgumentParser) -> None:
     from autopilot.__main__ import param_argument
-    from autopilot.control.factory import CONTROLLERS
     from contracts.airframe import airframe_argument
+
+    p.add_argument("--airframe", default="paper", type=airframe_argument,
+                   help="shipped airframe name or airframe .toml file")
+    p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")
+    p.add_argument("--any-airframe-model", action="store_true",
+                   help="fly a model identified on another airframe")
+    p.add_argument("--param", type=param_argument, action="append", default=[],
+                   metavar="NAME=VALUE", help="controller parameter override (repeatable)")
+
+
+def _run_parser(run: argparse.ArgumentParser) -> None:
+    from autopilot.control.factory import CONTROLLERS
     from contracts.mavlink import STATE_SOURCES
-    from ground.scenarios import PAPER_SCENARIOS, shipped_names
+    from ground.scenarios import shipped_names
     from sitl.dynamics import FIDELITIES
     from sitl.sensors import profile_argument
 
-    parser = argparse.ArgumentParser(prog="ivfm", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-
-    def add_common(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--airframe", default="paper", type=airframe_argument,
-                   help="shipped airframe name or airframe .toml file")
-        p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")
-        p.add_argument("--any-airframe-model", action="store_true",
-                       help="fly a model identified on another airframe")
-        p.add_argument("--param", type=param_argument, action="append", default=[],
-                       metavar="NAME=VALUE", help="controller parameter override (repeatable)")
-
-    run = sub.add_parser("run", help="run one scenario and write metrics.json and figures")
     run.add_argument("scenario", help=f"one of: {', '.join(shipped_names())}; or a scenario .toml")
     pace = run.add_mutually_exclusive_group()
     pace.add_argument("--inprocess", action="store_true",
@@ -54,14 +52,11 @@ def _build_parser() -> argparse.ArgumentParser:
     run.add_argument("--plant", choices=list(FIDELITIES), help="(default: the scenario's)")
     run.add_argument("--out", type=Path, required=True, help="output directory (run folder)")
     run.add_argument("--no-figures", action="store_true")
-    add_common(run)
+    _add_common(run)
     run.set_defaults(airframe=None)
 
-    check = sub.add_parser(
-        "check", help="fly scenario files and judge them by their [expect] tables",
-        description="Fly each scenario through the processes and check its expectations "
-                    "(docs/checks.md). Exit status 0 when all hold, 1 when any fails, 2 on "
-                    "bad input.")
+
+def _check_parser(check: argparse.ArgumentParser) -> None:
     check.add_argument("paths", nargs="*", metavar="PATH",
                        help="scenario files, folders of them, or shipped names (default: "
                             "every shipped scenario)")
@@ -84,18 +79,27 @@ def _build_parser() -> argparse.ArgumentParser:
     check.add_argument("--keep", action="store_true",
                        help="keep the run folders of passed scenarios too")
 
-    rep = sub.add_parser("report", help="metrics.json and figures of a run folder, from its log")
+
+def _report_parser(rep: argparse.ArgumentParser) -> None:
     rep.add_argument("run_dir", type=Path, help="a folder written by ivfm run")
     rep.add_argument("--no-figures", action="store_true")
 
-    compare = sub.add_parser("compare", help="every controller on every scenario, tables+figures")
+
+def _compare_parser(compare: argparse.ArgumentParser) -> None:
+    from autopilot.control.factory import CONTROLLERS
+    from ground.scenarios import PAPER_SCENARIOS
+    from sitl.dynamics import FIDELITIES
+
     compare.add_argument("--out", type=Path, required=True)
     compare.add_argument("--scenarios", nargs="+", default=list(PAPER_SCENARIOS))
     compare.add_argument("--controllers", nargs="+", default=list(CONTROLLERS))
     compare.add_argument("--plants", nargs="+", default=list(FIDELITIES))
-    add_common(compare)
+    _add_common(compare)
 
-    ident = sub.add_parser("identify", help="build the IVFM and T1FM from input-output data")
+
+def _identify_parser(ident: argparse.ArgumentParser) -> None:
+    from contracts.airframe import airframe_argument
+
     ident.add_argument("--data", type=Path, help="dataset CSV (default: fly the excitation)")
     ident.add_argument("--log", type=Path, metavar="MCAP_OR_RUN_DIR",
                        help="identify from a logged flight (see docs/scenarios.md)")
@@ -106,25 +110,66 @@ def _build_parser() -> argparse.ArgumentParser:
     ident.add_argument("--samples", type=int, default=4000)
     ident.add_argument("--clusters", type=int, default=None)
     ident.add_argument("--airframe", default="paper", type=airframe_argument,
-                   help="shipped airframe name or airframe .toml file")
+                       help="shipped airframe name or airframe .toml file")
 
-    from autopilot.__main__ import build_parser as autopilot_parser
-    from sitl.__main__ import build_parser as sitl_parser
 
-    sitl_parser(sub.add_parser("sitl", help="the simulator process (PX4 simulator protocol)"))
-    autopilot_parser(sub.add_parser("autopilot", help="the autopilot process (MAVLink vehicle)"))
-    _ground_parsers(sub.add_parser("ground", help="ground station: logger, perturbations, "
-                                                  "router, .tlog export"))
-    plan = sub.add_parser("plan", help="upload a QGroundControl .plan file to a vehicle "
-                                       "(docs/missions.md)")
+def _sitl_parser(p: argparse.ArgumentParser) -> None:
+    from sitl.__main__ import build_parser
+
+    build_parser(p)
+
+
+def _autopilot_parser(p: argparse.ArgumentParser) -> None:
+    from autopilot.__main__ import build_parser
+
+    build_parser(p)
+
+
+def _plan_parser(plan: argparse.ArgumentParser) -> None:
     plan.add_argument("file", type=Path, help="the .plan file")
     plan.add_argument("--connect", default="udpin:0.0.0.0:14550",
                       help="where the vehicle's ground link arrives (default: "
                            "udpin:0.0.0.0:14550, where QGroundControl listens)")
     plan.add_argument("--timeout", type=float, default=30.0,
                       help="seconds to wait for the vehicle's heartbeat")
-    sub.add_parser("scenarios", help="list the scenarios")
-    sub.add_parser("params", help="list the controller parameters with defaults")
+
+
+def _no_arguments(_p: argparse.ArgumentParser) -> None:
+    pass
+
+
+# (command, help, description, what adds its arguments): in the order ``ivfm --help`` lists.
+_COMMANDS: tuple[tuple[str, str, str | None, Callable[[argparse.ArgumentParser], None]], ...] = (
+    ("run", "run one scenario and write metrics.json and figures", None, _run_parser),
+    ("check", "fly scenario files and judge them by their [expect] tables",
+     "Fly each scenario through the processes and check its expectations (docs/checks.md). "
+     "Exit status 0 when all hold, 1 when any fails, 2 on bad input.", _check_parser),
+    ("report", "metrics.json and figures of a run folder, from its log", None, _report_parser),
+    ("compare", "every controller on every scenario, tables+figures", None, _compare_parser),
+    ("identify", "build the IVFM and T1FM from input-output data", None, _identify_parser),
+    ("sitl", "the simulator process (PX4 simulator protocol)", None, _sitl_parser),
+    ("autopilot", "the autopilot process (MAVLink vehicle)", None, _autopilot_parser),
+    ("ground", "ground station: logger, perturbations, router, .tlog export", None,
+     lambda p: _ground_parsers(p)),
+    ("plan", "upload a QGroundControl .plan file to a vehicle (docs/missions.md)", None,
+     _plan_parser),
+    ("scenarios", "list the scenarios", None, _no_arguments),
+    ("params", "list the controller parameters with defaults", None, _no_arguments),
+)
+
+
+def _build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
+    """The ``ivfm`` parser. Only the command named in ``argv`` gets its arguments (each
+    command's imports load with them: ``ivfm ground log`` starts without the vehicle's
+    compiled code); without a known command, every one does."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    named = args[0] if args and args[0] in {c[0] for c in _COMMANDS} else None
+    parser = argparse.ArgumentParser(prog="ivfm", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name, help_text, description, add_arguments in _COMMANDS:
+        p = sub.add_parser(name, help=help_text, description=description)
+        if named is None or named == name:
+            add_arguments(p)
     return parser
 
 
@@ -176,7 +221,7 @@ def _ground_parsers(ground: argparse.ArgumentParser) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = _build_parser()
+    parser = _build_parser(argv)
     args = parser.parse_args(argv)
     from ground import commands
 
@@ -203,6 +248,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (commands.UsageError, ValueError, OSError) as exc:
         print(f"ivfm: error: {exc}", file=sys.stderr)
         return 2
+
+
+def console_main() -> None:
+    """The ``ivfm`` command: ``main``, then an exit without the interpreter's teardown
+    (numba's, Zenoh's and matplotlib's finalizers add 0.2-0.3 s to every command; every
+    file is closed by then)."""
+    from contracts.warm import exit_process
+
+    exit_process(main())
 
 
 def _preload_logger() -> None:

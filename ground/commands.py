@@ -8,13 +8,12 @@ import math
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from autopilot.control.factory import load_models, model_airframe_metadata
-from autopilot.models.ts_model import FuzzyModelSet
-from autopilot.parameters import PARAMETERS, validate_parameters
-from contracts.airframe import airframe_by_name
-from ground.scenarios import scenario_by_name, shipped_scenarios
+# The vehicle's modules (numba-compiled code among them) are imported by the commands
+# that need them: ``ivfm ground log``, the logger of every run, starts without them.
+if TYPE_CHECKING:
+    from autopilot.models.ts_model import FuzzyModelSet
 
 
 class UsageError(Exception):
@@ -24,6 +23,7 @@ class UsageError(Exception):
 def run_command(args: argparse.Namespace) -> int:
     from contracts.timeline import process_start_s
     from ground.flights import Overrides, fly_inprocess, fly_processes, plan_flight
+    from ground.scenarios import scenario_by_name
 
     started_s = process_start_s()
     scenario = scenario_by_name(args.scenario)
@@ -90,7 +90,7 @@ def check_command(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     results = run_check(scenarios, CheckOptions(out, realtime=args.realtime, jobs=args.jobs,
                                                 baseline=baseline, tolerance=args.tolerance,
-                                                warm=not args.cold),
+                                                keep_passed=args.keep, warm=not args.cold),
                         Progress(len(scenarios)))
     wall_s = time.perf_counter() - start
     print(results_table(results))
@@ -150,7 +150,11 @@ def format_metrics(metrics: dict[str, Any]) -> str:
 
 
 def compare_command(args: argparse.Namespace) -> int:
+    from autopilot.control.factory import load_models
+    from autopilot.parameters import validate_parameters
+    from contracts.airframe import airframe_by_name
     from ground.compare import run_comparison
+    from ground.scenarios import scenario_by_name
 
     for name in args.scenarios:
         scenario_by_name(name)
@@ -162,9 +166,11 @@ def compare_command(args: argparse.Namespace) -> int:
 
 
 def identify_command(args: argparse.Namespace) -> int:
+    from autopilot.control.factory import model_airframe_metadata
     from autopilot.identification.dataset import read_dataset, write_dataset
     from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
     from autopilot.models.model_file import save_model
+    from contracts.airframe import airframe_by_name
     from ground.excitation import excitation_dataset
     from ground.paper_tables import TABLE_2_VALIDATION_RMSE
 
@@ -218,6 +224,8 @@ def format_table_2(models: FuzzyModelSet, paper: dict[str, tuple[float, float]])
 
 
 def scenarios_command(args: argparse.Namespace) -> int:
+    from ground.scenarios import shipped_scenarios
+
     for s in shipped_scenarios().values():
         kicks = f", {len(s.perturbations)} perturbations" if s.perturbations else ""
         print(f"{s.name:<16} {s.description} (judged on {', '.join(s.axes)} after "
@@ -226,6 +234,8 @@ def scenarios_command(args: argparse.Namespace) -> int:
 
 
 def params_command(args: argparse.Namespace) -> int:
+    from autopilot.parameters import PARAMETERS
+
     for p in PARAMETERS:
         print(f"{p.name:<16} {p.default:>10g}  [{p.minimum:g}, {p.maximum:g}] {p.unit:<8}"
               f" {p.description}")

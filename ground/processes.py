@@ -230,6 +230,19 @@ class LoggerProcess:
                 return json.loads(reply.ok.payload.to_bytes())
         return None
 
+    def wait_listening(self, session: zenoh.Session, timeout_s: float) -> None:
+        """Until ``session`` (connecting to the logger's endpoint and nothing else) has
+        reached the logger."""
+        deadline = time.monotonic() + timeout_s
+        while not list(session.info.peers_zid()):
+            if self.proc.poll() is not None:
+                raise ProcessRunError(f"the logger exited ({self.proc.returncode}):\n"
+                                      f"{_tail(self.log_path)}")
+            if time.monotonic() > deadline:
+                raise ProcessRunError(f"the logger did not listen within {timeout_s:g} s\n"
+                                      f"{_tail(self.log_path)}")
+            time.sleep(0.002)
+
     def wait_until(self, session: zenoh.Session, heard: list[str], final: bool,
                    timeout_s: float) -> dict[str, Any]:
         """Until the logger holds a status record (the final one, if asked) from each key."""
@@ -289,8 +302,6 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
     v = settings.vehicle
     logs = {name: out_dir / f"{name}.log" for name in ("logger", SITL, AUTOPILOT)}
     sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint)
-    # All three start at once: the logger listens before the vehicles, whose imports and
-    # compiled code take longer, open their sessions; ours connects when it can.
     logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm, env=env)
     run_timeline.mark(out_dir, "logger started")
     procs: dict[str, subprocess.Popen | WarmProcess] = {}
@@ -298,6 +309,13 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
     session = None
     timeout_s = 120.0 + scenario.duration_s * (1.5 if settings.realtime else 1.0)
     try:
+        # The vehicles start once the logger listens: a vehicle's session opened before
+        # would wait half a second for it (warm processes: a few milliseconds).
+        session = open_session(ZenohOptions(connect=[endpoint], listen=["tcp/127.0.0.1:0"],
+                                            wait_on_open=False))
+        run_timeline.mark(out_dir, "zenoh session open")
+        logger.wait_listening(session, timeout_s=60.0)
+        run_timeline.mark(out_dir, "logger listening")
         for name, cmd in ((SITL, sim_cmd), (AUTOPILOT, ap_cmd)):
             if warm is not None:  # cmd: python -m MODULE ARGS...
                 procs[name] = warm.get(name).start(cmd[3:], logs[name], env[timeline.ENV])
@@ -307,9 +325,6 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
             outs.append(out)
             procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, env=env)
             run_timeline.mark(out_dir, f"{name} started")
-        session = open_session(ZenohOptions(connect=[endpoint], listen=["tcp/127.0.0.1:0"],
-                                            wait_on_open=False))
-        run_timeline.mark(out_dir, "zenoh session open")
         status_keys = [vehicle_key(v, p, "status") for p in (SITL, AUTOPILOT)]
         logger.wait_until(session, status_keys, final=False, timeout_s=60.0)
         run_timeline.mark(out_dir, "logger heard both")

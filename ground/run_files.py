@@ -11,7 +11,7 @@ import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from mcap.exceptions import McapError
@@ -19,7 +19,9 @@ from mcap.reader import make_reader
 
 from contracts.telemetry import AUTOPILOT, CONTROL, SITL, STATE, vehicle_key
 from contracts.vectors import CHANNEL_INTERNALS, MEASUREMENT
-from ground.scenarios import Scenario
+
+if TYPE_CHECKING:  # the logger reads logs without the scenario (and vehicle) modules
+    from ground.scenarios import Scenario
 
 RUN_FILE = "run.json"  # how ``ivfm run`` flew the run
 SCENARIO_FILE = "scenario.toml"  # the scenario it flew

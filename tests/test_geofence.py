@@ -102,3 +102,13 @@ def test_an_uploaded_exclusion_zone_lands_the_vehicle():
     assert any(t == "geofence: inside an exclusion zone: land" for _s, t in v.messages)
     flight.run(10.0)
     assert not v.armed and flight.log[-1, 3] > -0.05  # landed and disarmed
+
+
+def test_an_empty_circle_is_no_zone():
+    """MAVSDK's geofence plugin sends a circle of radius 0 at 0, 0 when a caller has none."""
+    empty = MissionItem(5, M.MAV_FRAME_GLOBAL_INT, M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, 0, 1,
+                        (0.0, 0.0, 0.0, 0.0), 0, 0, 0.0, FENCE)
+    zones = zones_from_items((*square_with_a_hole(), empty))
+    assert len(zones) == 2  # the square and the hole
+    assert breach(np.array([15.0, -15.0, -2.0]), zones, 0.0, 0.0) is None
+    assert zones_from_items((empty,)) == ()

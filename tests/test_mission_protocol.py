@@ -10,6 +10,7 @@ import math
 import pytest
 
 from autopilot.mavlink.mission_protocol import RETRY_S, TIMEOUT_S
+from autopilot.navigator.geofence import zones_from_items
 from autopilot.navigator.mission_store import MISSION
 from tests.test_mavlink_server import T0, M, Station
 
@@ -233,8 +234,18 @@ def test_fence_and_rally_lists_are_kept_apart_from_the_mission(station):
     bad = [item(0, M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, M.MAV_FRAME_GLOBAL_INT,
                 params=(0.0, 0.0, 0.0, 0.0), mission_type=M.MAV_MISSION_TYPE_FENCE)]
     assert upload(station, bad, M.MAV_MISSION_TYPE_FENCE)[0].type == \
-        M.MAV_MISSION_INVALID_PARAM1  # a circle of radius 0
+        M.MAV_MISSION_INVALID_PARAM1  # a circle of radius 0 near home
     assert len(lists[M.MAV_MISSION_TYPE_FENCE]) == 5
+    # MAVSDK's empty circle (radius 0 at 0, 0) beside a real fence: accepted, stored as
+    # sent, no zone.
+    empty = M.MAVLink_mission_item_int_message(
+        1, 1, 5, M.MAV_FRAME_GLOBAL_INT, M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, 0, 1,
+        0.0, 0.0, 0.0, 0.0, 0, 0, 0.0, M.MAV_MISSION_TYPE_FENCE)
+    assert upload(station, [*fence, empty], M.MAV_MISSION_TYPE_FENCE)[0].type == \
+        M.MAV_MISSION_ACCEPTED
+    assert len(lists[M.MAV_MISSION_TYPE_FENCE]) == 6
+    assert len(zones_from_items(lists[M.MAV_MISSION_TYPE_FENCE])) == 2
+    assert upload(station, fence, M.MAV_MISSION_TYPE_FENCE)[0].type == M.MAV_MISSION_ACCEPTED
     c = station.client
     c.send(M.MAVLink_mission_clear_all_message(1, 1, M.MAV_MISSION_TYPE_FENCE))
     assert of(c.sync(), "MISSION_ACK")[0].type == M.MAV_MISSION_ACCEPTED

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from autopilot.navigator.mission_store import MissionItem
+from autopilot.navigator.mission_store import MissionItem, is_empty_circle
 from contracts.frames import ned_from_geodetic
 from contracts.mavlink import mavlink
 
@@ -59,7 +59,8 @@ def zones_from_items(items: tuple[MissionItem, ...]) -> tuple[Zone, ...]:
             zones.append(Zone(inclusion, vertices=vertices))
             i += max(count, 1)
         else:
-            zones.append(Zone(inclusion, centre=(north, east), radius_m=item.params[0]))
+            if not is_empty_circle(item):
+                zones.append(Zone(inclusion, centre=(north, east), radius_m=item.params[0]))
             i += 1
     return tuple(zones)
 

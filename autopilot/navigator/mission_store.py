@@ -126,8 +126,18 @@ def check_item(item: MissionItem, count: int) -> None:
             raise ItemError(M.MAV_MISSION_INVALID_PARAM1,
                             f"item {item.seq}: a polygon has at least 3 vertices, not {p1}")
     elif command in (M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION,
-                     M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION) and (math.isnan(p1) or p1 <= 0):
+                     M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION) and (math.isnan(p1) or p1 <= 0) \
+            and not is_empty_circle(item):
         raise ItemError(M.MAV_MISSION_INVALID_PARAM1, f"item {item.seq}: circle radius {p1} m")
+
+
+def is_empty_circle(item: MissionItem) -> bool:
+    """A fence circle of radius 0 at latitude 0, longitude 0: what MAVSDK's geofence
+    plugin uploads for a caller with no circle. Accepted and ignored, as PX4 does (a
+    radius of 0 anywhere else is refused: a mistake, not a placeholder)."""
+    return (item.command in (M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION,
+                             M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION)
+            and item.params[0] == 0.0 and item.x == 0 and item.y == 0)
 
 
 def _check_position(item: MissionItem) -> None:

@@ -304,6 +304,56 @@ def commands_from_actuator(msg: mavlink.MAVLink_hil_actuator_controls_message) -
     return np.clip(commands, 0.0, 1.0)
 
 
+STATUSTEXT_CHUNK_BYTES = 50
+
+
+def statustext_messages(severity: int, text: str, chunk_id: int
+                        ) -> list[mavlink.MAVLink_statustext_message]:
+    """STATUSTEXT for ``text``: one message (id 0) when it fits in 50 bytes, else chunks of
+    50 bytes with ``chunk_id`` (1-65535) and chunk_seq 0, 1, ...; the last chunk holds a
+    NUL (an empty one when the text fills the chunks), so QGroundControl and MAVSDK
+    reassemble it and no refusal loses its reason."""
+    data = text.encode()
+    if len(data) <= STATUSTEXT_CHUNK_BYTES:
+        return [mavlink.MAVLink_statustext_message(severity, data, 0, 0)]
+    if not 1 <= chunk_id <= 65535:
+        raise ValueError(f"STATUSTEXT chunk id must be in 1-65535, got {chunk_id}")
+    chunks = [data[i:i + STATUSTEXT_CHUNK_BYTES]
+              for i in range(0, len(data), STATUSTEXT_CHUNK_BYTES)]
+    if len(chunks[-1]) == STATUSTEXT_CHUNK_BYTES:
+        chunks.append(b"")  # pymavlink pads with NULs: an empty chunk ends the text
+    return [mavlink.MAVLink_statustext_message(severity, chunk, chunk_id, seq)
+            for seq, chunk in enumerate(chunks[:256])]
+
+
+class StatustextAssembler:
+    """Whole texts from STATUSTEXT messages, chunked or not (the receiving side of
+    ``statustext_messages``): ``add`` returns a text when it is complete."""
+
+    def __init__(self, max_pending: int = 16) -> None:
+        self.max_pending = max_pending
+        self._pending: dict[tuple[int, int], list[bytes]] = {}
+
+    def add(self, msg: mavlink.MAVLink_statustext_message) -> str | None:
+        text = msg.text if isinstance(msg.text, str) else msg.text.decode(errors="replace")
+        if not msg.id:
+            return text
+        key = (msg.get_srcSystem(), msg.id)
+        parts = self._pending.setdefault(key, [])
+        if msg.chunk_seq != len(parts):  # a chunk lost or out of order: start again
+            parts.clear()
+            if msg.chunk_seq != 0:
+                del self._pending[key]
+                return None
+        parts.append(text)
+        if len(text.encode()) < STATUSTEXT_CHUNK_BYTES:  # it held a NUL: the last chunk
+            del self._pending[key]
+            return "".join(parts)
+        if len(self._pending) > self.max_pending:  # bounded: the oldest is dropped
+            del self._pending[next(iter(self._pending))]
+        return None
+
+
 def frame_size(buffer: bytes, i: int) -> int:
     """Length of the MAVLink frame starting at ``buffer[i]`` from its header (signature
     included); 0 if its header is incomplete, -1 if no frame starts there."""

@@ -65,11 +65,12 @@ def step_events(sim_time_s: np.ndarray, mode_index: np.ndarray, flags: np.ndarra
 
 def statustext_events(log: Path, sysid: int) -> list[Event]:
     """The vehicle's STATUSTEXT announcements, at the sim time each was sent."""
-    from contracts.mavlink import AUTOPILOT_COMPID
+    from contracts.mavlink import AUTOPILOT_COMPID, StatustextAssembler
 
     key = mavlink_key(sysid, AUTOPILOT_COMPID, "STATUSTEXT")
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
+    texts = StatustextAssembler()  # a long text came in chunks: one event, when whole
     events = []
     for topic, message, data in iter_messages(log, key):
         if topic != key:
@@ -79,9 +80,8 @@ def statustext_events(log: Path, sysid: int) -> list[Event]:
         except mavlink.MAVError:
             continue
         for msg in msgs:
-            if msg.get_type() == "STATUSTEXT":
-                events.append(Event("statustext", message.publish_time / 1e9,
-                                    text=str(msg.text)))
+            if msg.get_type() == "STATUSTEXT" and (text := texts.add(msg)) is not None:
+                events.append(Event("statustext", message.publish_time / 1e9, text=text))
     return events
 
 

@@ -23,6 +23,7 @@ from autopilot.control.factory import make_controller
 from autopilot.parameters import PARAMETERS, default_parameters
 from contracts.airframe import PAPER
 from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, geodetic_from_ned
+from contracts.mavlink import StatustextAssembler
 from contracts.modes import FlightMode, px4_custom_mode
 from tests.flight import mission_item
 
@@ -41,11 +42,6 @@ DEFAULTS = default_parameters()
 GROUND = np.zeros(12)
 INT32_MAX = 2**31 - 1  # COMMAND_INT's "unused" x and y
 STATUSTEXT_CHARS = 50
-
-
-def cut(text: str) -> str:
-    """What a single STATUSTEXT carries of a longer text: its first 50 characters."""
-    return text[:STATUSTEXT_CHARS]
 
 
 def air(altitude_m: float = 2.5) -> np.ndarray:
@@ -220,7 +216,10 @@ def two_links():
 
 
 def texts(msgs: list) -> list[str]:
-    return [m.text for m in msgs if m.get_type() == "STATUSTEXT"]
+    """The whole texts, chunks reassembled as QGroundControl and MAVSDK do."""
+    assembler = StatustextAssembler()
+    return [t for m in msgs if m.get_type() == "STATUSTEXT"
+            and (t := assembler.add(m)) is not None]
 
 
 def of_type(msgs: list, kind: str) -> list:
@@ -275,9 +274,9 @@ def test_arming_in_offboard_without_setpoints_is_temporarily_rejected(station):
 
 def test_disarming_in_the_air_is_denied_unless_forced_with_21196(station):
     station.flying()
-    # The hint loses its number: one STATUSTEXT carries 50 characters.
+    # The whole hint, in two STATUSTEXT chunks.
     assert station.client.result(ARM, 0) == (
-        DENIED, ["disarming denied: in the air (force with param2 21"])
+        DENIED, ["disarming denied: in the air (force with param2 21196)"])
     assert station.client.result(ARM, 0, FORCE - 1)[0] == DENIED
     assert station.vehicle.armed
     assert station.client.result(ARM, 0, FORCE, kind="int") == (ACCEPTED, [])
@@ -645,7 +644,8 @@ def test_a_refused_param_set_keeps_the_old_value_and_says_why(station, name, val
     msgs = station.client.sync()
     (said,) = texts(msgs)
     assert said.startswith(why)
-    assert len(said) == STATUSTEXT_CHARS  # the end of the reason (the range) is cut
+    # the whole reason, range and value included, in two chunks
+    assert len(said) > STATUSTEXT_CHARS and said.endswith(f"got {value!r}")
     (echo,) = of_type(msgs, "PARAM_VALUE")
     assert (echo.param_id, echo.param_value) == (name, pytest.approx(old))
     assert station.vehicle.parameters[name] == old
@@ -743,13 +743,13 @@ def test_refused_setpoints_are_said_at_most_once_a_second(station):
             0, 1, 1, M.MAV_FRAME_LOCAL_NED, 0b110111111000, 0.0, 0.0, math.nan, 0, 0, 0, 0,
             0, 0, 0, 0))
         got.append(texts(s.client.sync()))
-    said = [cut("setpoint refused: setpoint position holds NaN or infinity")]
+    said = ["setpoint refused: setpoint position holds NaN or infinity"]
     assert got == [said, [], [], said, [], said]
     s.client.send(M.MAVLink_set_attitude_target_message(
         0, 1, 1, 0, [1.0, 0.0, 0.0, 0.0], 0.1, 0.0, 0.0, 0.5))
     s.at(T0 + 5.0)
-    assert texts(s.client.sync()) == [cut("setpoint refused: body-rate setpoints are not "
-                                          "supported")]
+    assert texts(s.client.sync()) == ["setpoint refused: body-rate setpoints are not "
+                                          "supported"]
     assert s.vehicle.links.setpoint_heard_s is None
 
 
@@ -880,7 +880,7 @@ def test_manual_control_is_taken_and_bad_sticks_are_refused(station):
     assert station.vehicle.mode == FlightMode.POSCTL
     station.client.send(M.MAVLink_manual_control_message(1, 0, 0, 1500, 0, 0))
     assert texts(station.client.sync()) == [
-        cut("setpoint refused: manual control z 1500 is outside [0, 1000]")]
+        "setpoint refused: manual control z 1500 is outside [0, 1000]"]
     assert station.vehicle.state.sticks.forward == 1.0  # unchanged
 
 
@@ -961,3 +961,13 @@ def test_orbit_on_the_ground_is_rejected_for_now_and_forgotten(station):
                                  kind="int", frame=REL_INT) == (
         TEMPORARILY_REJECTED, ["orbit denied: not in the air"])
     assert station.vehicle.tasks[FlightMode.ORBIT].pending is None
+
+
+def test_long_texts_get_chunk_ids_that_never_are_zero(station):
+    station.client.sync()  # the client is a peer of the link
+    station.server._text_id = 65534
+    for _ in range(3):
+        station.server.send_text(None, 4, "v" * 60)
+    msgs = [m for m in station.client.sync() if m.get_type() == "STATUSTEXT"]
+    assert [m.id for m in msgs] == [65535, 65535, 1, 1, 2, 2]
+    assert texts(msgs) == ["v" * 60] * 3

@@ -100,8 +100,7 @@ class CommandProtocol:
             command, result, 0, 0, msg.get_srcSystem(), msg.get_srcComponent()), address)
         if text:
             severity = 6 if result == mavlink.MAV_RESULT_ACCEPTED else 4
-            self.server.send(link, mavlink.MAVLink_statustext_message(
-                severity, text.encode()[:50]), address)
+            self.server.send_text(link, severity, text, address)
 
     # -- the commands --------------------------------------------------------------------
     def _arm(self, link, p, now):

@@ -99,7 +99,7 @@ class MissionProtocol:
                          address)
 
     def _say(self, link, address, text: str) -> None:
-        self.server.send(link, M.MAVLink_statustext_message(4, text.encode()[:50]), address)
+        self.server.send_text(link, 4, text, address)
 
     def _busy(self, link, address, msg) -> bool:
         """Another tool's transfer is under way: this one is denied."""

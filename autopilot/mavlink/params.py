@@ -35,8 +35,7 @@ class ParameterProtocol:
             mavlink.MAV_PARAM_TYPE_REAL32, PARAM_COUNT, PARAM_INDEX[name])
 
     def _say(self, link: GroundLink, address, text: str) -> None:
-        self.server.send(link, mavlink.MAVLink_statustext_message(4, text.encode()[:50]),
-                         address)
+        self.server.send_text(link, 4, text, address)
 
     def on_param_request_list(self, link: GroundLink, address, msg, now: float) -> None:
         for spec in PARAMETERS:

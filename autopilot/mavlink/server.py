@@ -28,9 +28,11 @@ from autopilot.mavlink.telemetry import DEFAULT_STREAMS, telemetry_message
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
+    STATUSTEXT_CHUNK_BYTES,
     datagram_frames,
     mavlink,
     new_mavlink,
+    statustext_messages,
 )
 
 # Bounded ground work: a link reads what its budget allows and leaves
@@ -186,6 +188,7 @@ class MavlinkServer:
         self.clock = clock
         self.boot_s = clock()
         self._shown: tuple | None = None  # (armed, mode) last announced
+        self._text_id = 0  # of the last chunked STATUSTEXT (1-65535)
         self.commands = CommandProtocol(self)
         self.parameters = ParameterProtocol(self)
         self.setpoints = SetpointProtocol(self)
@@ -301,6 +304,18 @@ class MavlinkServer:
         for link in self.links:
             self.send(link, msg_factory())
 
+    def send_text(self, link: GroundLink | None, severity: int, text: str,
+                  address=None) -> None:
+        """A STATUSTEXT to one link (``address`` on it), or to every link (``link`` None);
+        a text longer than 50 bytes goes in chunks (contracts/mavlink.py)."""
+        chunk_id = 0
+        if len(text.encode()) > STATUSTEXT_CHUNK_BYTES:
+            self._text_id = self._text_id % 65535 + 1
+            chunk_id = self._text_id
+        for msg in statustext_messages(severity, text, chunk_id):
+            for target in self.links if link is None else [link]:
+                self.send(target, msg, address)
+
     # -- small protocols -----------------------------------------------------------------
     def _on_heartbeat(self, link, address, msg, now) -> None:
         if msg.type == mavlink.MAV_TYPE_GCS or msg.get_srcComponent() == \
@@ -323,8 +338,7 @@ class MavlinkServer:
         step, so a text goes out, and into the log, at the sim time it was said."""
         while self.vehicle.messages:
             severity, text = self.vehicle.messages.pop(0)
-            self.broadcast(lambda s=severity, t=text: mavlink.MAVLink_statustext_message(
-                s, t.encode()))
+            self.send_text(None, severity, text)
 
     def service(self) -> None:
         """Send what is due and queued; check the link failsafes."""
@@ -369,10 +383,9 @@ class MavlinkServer:
         if new_lost and now - link.warned_s >= DROP_WARNING_S:
             link.warned_s = now
             c = link.counters
-            self.broadcast(lambda: mavlink.MAVLink_statustext_message(
-                mavlink.MAV_SEVERITY_WARNING,
-                f"{link.name}: {100 * link.drop_rate:.0f}% of datagrams lost "
-                f"({c.kernel_drops} dropped, {c.rejected} bad)".encode()[:50]))
+            self.send_text(None, mavlink.MAV_SEVERITY_WARNING,
+                           f"{link.name}: {100 * link.drop_rate:.0f}% of datagrams lost "
+                           f"({c.kernel_drops} dropped, {c.rejected} bad)")
 
     def link_status(self) -> dict[str, dict]:
         """Per link: counters, drop rate and peers (for status records and logs)."""

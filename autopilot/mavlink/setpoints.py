@@ -13,7 +13,6 @@ import numpy as np
 from autopilot.flight_tasks.sticks import sticks_from_manual_control
 from autopilot.mavlink.offboard import global_setpoint, local_setpoint
 from autopilot.refusal import RefusedError
-from contracts.mavlink import mavlink
 from contracts.vectors import MEASUREMENT
 
 if TYPE_CHECKING:
@@ -81,5 +80,4 @@ class SetpointProtocol:
     def _refuse(self, link: GroundLink, address, text: str, now: float) -> None:
         if now - self._last_refusal_s >= REFUSAL_EVERY_S:
             self._last_refusal_s = now
-            self.server.send(link, mavlink.MAVLink_statustext_message(
-                4, f"setpoint refused: {text}".encode()[:50]), address)
+            self.server.send_text(link, 4, f"setpoint refused: {text}", address)

@@ -17,6 +17,8 @@ os.environ["MAVLINK20"] = "1"  # before pymavlink picks its dialect: MAVLink 2, 
 from pymavlink import mavutil  # noqa: E402
 
 mavutil.set_dialect("common")
+from contracts.mavlink import StatustextAssembler  # noqa: E402
+
 GCS_SYSID = 255
 
 
@@ -87,7 +89,9 @@ class GroundTool:
                                                source_system=GCS_SYSID, source_component=190)
         if signing_key is not None:
             self.conn.setup_signing(signing_key, sign_outgoing=True)
-        self.texts: list[str] = []
+        self.texts: list[str] = []  # whole texts
+        self.completed_text: str | None = None  # the one the last message completed
+        self._assembler = StatustextAssembler()
         self.last_heartbeat_s = 0.0
         self.heartbeats = True
 
@@ -103,8 +107,12 @@ class GroundTool:
             self.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS,
                                     mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
         msg = self.conn.recv_match(blocking=True, timeout=timeout_s)
+        self.completed_text = None
         if msg is not None and msg.get_type() == "STATUSTEXT":
-            self.texts.append(msg.text)
+            text = self._assembler.add(msg)  # chunks reassembled, as QGC and MAVSDK do
+            if text is not None:
+                self.texts.append(text)
+                self.completed_text = text
         return msg
 
     def wait(self, predicate: Callable, timeout_s: float = 10.0, what: str = "",
@@ -130,9 +138,9 @@ class GroundTool:
         for text in self.texts:
             if fragment in text:
                 return text
-        msg = self.wait(lambda m: m.get_type() == "STATUSTEXT" and fragment in m.text,
-                        timeout_s, f"STATUSTEXT '{fragment}'", also)
-        return msg.text
+        self.wait(lambda m: self.completed_text is not None and fragment in self.completed_text,
+                  timeout_s, f"STATUSTEXT '{fragment}'", also)
+        return self.completed_text
 
     def command(self, command: int, *params: float, timeout_s: float = 5.0):
         """COMMAND_LONG to the vehicle; returns its COMMAND_ACK."""

@@ -99,6 +99,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_YAWRAUTO_MAX", 45.0, 5.0, 360.0, "deg/s", "largest yaw rate"),
     ParamSpec("MPC_YAWRAUTO_ACC", 60.0, 5.0, 1000.0, "deg/s^2", "largest yaw acceleration"),
     ParamSpec("COM_SIM_LOSS_T", 0.5, 0.05, 60.0, "s", "simulator link loss timeout (-> land)"),
+    ParamSpec("SYS_FAILURE_EN", 0.0, 0.0, 1.0, "", "failure injection from ground tools "
+              "(MAV_CMD_INJECT_FAILURE): 0 off, 1 on", choices=(0.0, 1.0)),
     # The geofence (docs/missions.md): PX4's names; a limit of 0 is off.
     ParamSpec("GF_ACTION", 2.0, 0.0, 5.0, "", "on a fence breach: 0 none, 1 warn, 2 hold, "
               "3 return, 5 land", choices=(0.0, 1.0, 2.0, 3.0, 5.0)),

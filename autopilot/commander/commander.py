@@ -27,6 +27,7 @@ from autopilot.commander.failsafe import (
     Failsafes,
     Stream,
 )
+from autopilot.commander.failures import InjectedFailures
 from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LandDetector
 from autopilot.commander.modes import MODES, ModeRow
 from autopilot.control.controller import Controller
@@ -78,6 +79,7 @@ class Commander:
         self.links = self.failsafes.links
         self.failsafe: str | None = None
         self.messages: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) for STATUSTEXT
+        self.failures = InjectedFailures()  # from ground tools (MAV_CMD_INJECT_FAILURE)
         self.sim_link_ok = False
         # Why the state is not good enough to arm on (the estimator's reason), None if it is.
         self.navigation_problem: str | None = None
@@ -126,8 +128,16 @@ class Commander:
         return self.navigator.state(self.mission_active)
 
     def say(self, text: str, severity: int = 6) -> None:
-        """Queue a STATUSTEXT (severity: 3 error, 4 warning, 5 notice, 6 info)."""
-        self.messages.append((severity, text[:50]))
+        """Queue a STATUSTEXT (severity: 3 error, 4 warning, 5 notice, 6 info); a long text
+        goes in chunks, up to 200 characters."""
+        self.messages.append((severity, text[:200]))
+
+    def inject_failure(self, unit: float, kind: float, instance: float) -> None:
+        """MAV_CMD_INJECT_FAILURE (autopilot/commander/failures.py): refused unless
+        SYS_FAILURE_EN is 1; announced when done."""
+        text = self.failures.inject(self.parameters["SYS_FAILURE_EN"] == 1.0, unit, kind,
+                                    instance)
+        self.say(text, 4)
 
     def set_parameter(self, name: str, value: float) -> None:
         """Change one parameter; it takes effect at the next control step."""

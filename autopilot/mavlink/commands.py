@@ -8,6 +8,7 @@ import math
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+from autopilot.commander.failures import UnsupportedError
 from autopilot.mavlink.telemetry import (
     DEFAULT_STREAMS,
     PRODUCIBLE,
@@ -49,6 +50,7 @@ class CommandProtocol:
             mavlink.MAV_CMD_DO_REPOSITION: self._reposition,
             mavlink.MAV_CMD_DO_ORBIT: self._orbit,
             mavlink.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
+            mavlink.MAV_CMD_INJECT_FAILURE: self._inject_failure,
         }
         self.frame = mavlink.MAV_FRAME_GLOBAL  # the command's frame (COMMAND_LONG: AMSL)
 
@@ -85,6 +87,9 @@ class CommandProtocol:
             return
         try:
             replies = handler(link, params, now)
+        except UnsupportedError as exc:
+            self.ack(link, address, msg, command, mavlink.MAV_RESULT_UNSUPPORTED, str(exc))
+            return
         except RefusedError as exc:
             result = (mavlink.MAV_RESULT_TEMPORARILY_REJECTED if exc.temporary
                       else mavlink.MAV_RESULT_DENIED)
@@ -103,6 +108,9 @@ class CommandProtocol:
             self.server.send_text(link, severity, text, address)
 
     # -- the commands --------------------------------------------------------------------
+    def _inject_failure(self, link, p, now):
+        self.server.vehicle.inject_failure(p[0], p[1], p[2])
+
     def _arm(self, link, p, now):
         vehicle = self.server.vehicle
         if p[0] == 1.0:

@@ -157,6 +157,7 @@ class Autopilot(PacedProcess):
 
     def _answer(self, time_us: int, commands: np.ndarray, stepped: bool) -> None:
         """The motor command goes out first; telemetry of the step after it."""
+        commands = self.vehicle.failures.motor_outputs(commands)  # injected motor failures
         msg = actuator_message(time_us, commands, self.vehicle.armed, self.config.lockstep)
         frame = msg.pack(self.sim.mav)
         if not self.sim.send(frame):

@@ -42,7 +42,8 @@ class Navigation:
         samples = []
         for reading in readings:
             if isinstance(reading, GpsReading):
-                est.gps(reading.time_us, reading.fix)
+                if not self.vehicle.failures.gps_off:  # an injected failure drops the fixes
+                    est.gps(reading.time_us, reading.fix)
             elif isinstance(reading, ImuReading):
                 est.imu(reading.time_us, reading.gyro, reading.accel, reading.baro_alt_m,
                         reading.mag)

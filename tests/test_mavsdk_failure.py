@@ -1,0 +1,94 @@
+"""MAVSDK's failure plugin against the real processes, as against PX4: refused while
+SYS_FAILURE_EN is 0, unsupported failures refused, and a motor switched off in flight
+brings the quad down (a crash, as on PX4), with the injection announced; a reason
+longer than one STATUSTEXT arrives whole (MAVSDK reassembles the chunks)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+
+import pytest
+from mavsdk import log_subscribe
+from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+from mavsdk.asyncio.plugins.action import ActionAsync
+from mavsdk.asyncio.plugins.failure import (
+    FailureAsync,
+    FailureError,
+    FailureResult,
+    FailureType,
+    FailureUnit,
+)
+from mavsdk.asyncio.plugins.param import ParamAsync
+from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
+
+from tests.harness import start_processes
+from tests.test_mavsdk import _near, _until
+
+pytestmark = pytest.mark.process
+
+log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
+
+
+async def _fly(port: int) -> dict:
+    seen: dict = {"texts": []}
+    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+    async with mavsdk:
+        await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
+        system = await mavsdk.first_autopilot(timeout_s=30.0)
+        assert system is not None, "no autopilot heard"
+        action, telem = ActionAsync(system), TelemetryAsync(system)
+        failure, param = FailureAsync(system), ParamAsync(system)
+
+        async def collect():
+            async for status in telem.subscribe_status_text():
+                seen["texts"].append(status.text)
+        texts = asyncio.ensure_future(collect())
+
+        async def healthy():
+            h = await telem.health()
+            return h.is_local_position_ok and h.is_armable
+        await _until(healthy, 20, "health")
+        try:
+            await failure.inject(FailureUnit.SENSOR_GPS, FailureType.OFF, 0)
+        except FailureError as exc:
+            seen["disabled"] = exc.result
+        await param.set_param_float("SYS_FAILURE_EN", 1.0)
+        try:
+            await failure.inject(FailureUnit.SENSOR_BARO, FailureType.STUCK, 0)
+        except FailureError as exc:
+            seen["unsupported"] = exc.result
+
+        async def down_m():
+            return (await telem.position_velocity_ned()).position.down_m
+
+        await action.set_takeoff_altitude(2.0)
+        await action.arm()
+        await action.takeoff()
+        await _until(lambda: _near(down_m, -2.0, 0.15), 20, "take-off altitude")
+        await failure.inject(FailureUnit.SYSTEM_MOTOR, FailureType.OFF, 1)
+
+        async def fallen():
+            return await down_m() > -0.2
+        await _until(fallen, 10, "the vehicle on the ground")
+        seen["fell"] = True
+        await asyncio.sleep(0.5)
+        texts.cancel()
+        with contextlib.suppress(asyncio.CancelledError):
+            await texts
+    return seen
+
+
+def test_mavsdk_injects_failures_as_into_px4(tmp_path):
+    procs = start_processes(tmp_path)
+    try:
+        seen = asyncio.run(_fly(procs.gcs_port))
+    finally:
+        procs.stop()
+    assert seen.get("disabled") == FailureResult.DENIED
+    assert seen.get("unsupported") == FailureResult.UNSUPPORTED
+    assert seen.get("fell")
+    assert "failure injection disabled: set SYS_FAILURE_EN to 1" in seen["texts"]
+    # 65 characters: sent in two STATUSTEXT chunks, shown whole by MAVSDK
+    assert "failure barometer stuck is not supported (GPS and motor: ok, off)" in seen["texts"]
+    assert "failure injected: motor 1 off" in seen["texts"]

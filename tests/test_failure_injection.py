@@ -64,6 +64,8 @@ def test_one_motor_off_holds_its_output_at_zero(enabled):
 
 @pytest.mark.parametrize("unit, kind, instance, reason", [
     (BARO, STUCK, 0, "failure barometer stuck is not supported"),
+    (BARO, OFF, 2, "one barometer"),
+    (M.FAILURE_UNIT_SENSOR_GYRO, OFF, 0, "failure gyro off is not supported"),
     (GPS, STUCK, 0, "failure GPS stuck is not supported"),
     (MOTOR, OFF, 5, "motor instance 5"),
     (GPS, OFF, 2, "one GPS"),
@@ -105,3 +107,36 @@ def test_gps_off_drops_the_fixes_before_the_estimator():
     vehicle.inject_failure(GPS, OFF, 0)
     navigation.measurements([GpsReading(20_000, fix)])
     assert navigation.estimator._pending_fix is None  # dropped
+
+
+@pytest.mark.parametrize("unit, flag, name", [(BARO, "baro_off", "barometer"),
+                                             (M.FAILURE_UNIT_SENSOR_MAG, "mag_off",
+                                              "magnetometer")])
+def test_a_sensor_off_then_ok(enabled, unit, flag, name):
+    assert enabled.client.result(INJECT, unit, OFF, 0)[0] == ACCEPTED
+    assert getattr(enabled.vehicle.failures, flag)
+    assert _said(enabled) == [f"failure injected: {name} off"]
+    assert enabled.client.result(INJECT, unit, OK, 1)[0] == ACCEPTED
+    assert not enabled.vehicle.failures.any
+
+
+def test_baro_and_mag_off_reach_the_estimator_as_no_reading():
+    from autopilot.commander.commander import Commander
+    from autopilot.control.factory import make_controller
+    from autopilot.estimation.estimator import Estimator
+    from autopilot.process.navigation import Navigation
+    from autopilot.process.sim_link import ImuReading
+    from contracts.airframe import PAPER
+
+    vehicle = Commander(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01,
+                        {"SYS_FAILURE_EN": 1.0})
+    navigation = Navigation(vehicle, Estimator())
+    vehicle.inject_failure(BARO, OFF, 0)
+    vehicle.inject_failure(M.FAILURE_UNIT_SENSOR_MAG, OFF, 0)
+    reading = ImuReading(10_000, np.zeros(3), np.array([0.0, 0.0, -9.81]), 488.0,
+                         np.array([0.2, 0.0, 0.4]))
+    navigation.measurements([reading])
+    assert navigation.estimator._align_baro is None and navigation.estimator._align_mag is None
+    vehicle.inject_failure(BARO, OK, 0)
+    navigation.measurements([reading._replace(time_us=20_000)])
+    assert navigation.estimator._align_baro == 488.0 and navigation.estimator._align_mag is None

@@ -89,6 +89,7 @@ def test_mavsdk_injects_failures_as_into_px4(tmp_path):
     assert seen.get("unsupported") == FailureResult.UNSUPPORTED
     assert seen.get("fell")
     assert "failure injection disabled: set SYS_FAILURE_EN to 1" in seen["texts"]
-    # 65 characters: sent in two STATUSTEXT chunks, shown whole by MAVSDK
-    assert "failure barometer stuck is not supported (GPS and motor: ok, off)" in seen["texts"]
+    # 87 characters: sent in two STATUSTEXT chunks, shown whole by MAVSDK
+    assert "failure barometer stuck is not supported (GPS, barometer, magnetometer, " \
+        "motor: ok, off)" in seen["texts"]
     assert "failure injected: motor 1 off" in seen["texts"]

@@ -3,9 +3,9 @@ SYS_FAILURE_EN is 1, and inside the flight stack. A failed sensor's data is drop
 comes in; a failed motor's output is held at zero. Pure logic: the process applies it
 to the readings and the motor commands (docs/mavlink.md).
 
-Supported so far: GPS OFF and OK, and MOTOR OFF and OK (instance 0: every motor; 1-4:
-that one). Every other unit or type is refused with MAV_RESULT_UNSUPPORTED and the
-reason.
+Supported so far: OFF and OK of the GPS, the barometer, the magnetometer and the motors
+(instance 0: every motor; 1-4: that one). Every other unit or type is refused with
+MAV_RESULT_UNSUPPORTED and the reason.
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ UNITS = {0: "gyro", 1: "accelerometer", 2: "magnetometer", 3: "barometer", 4: "G
          105: "MAVLink signal"}
 TYPES = {0: "ok", 1: "off", 2: "stuck", 3: "garbage", 4: "wrong", 5: "slow", 6: "delayed",
          7: "intermittent"}
-GPS, MOTOR = 4, 101
+MAG, BARO, GPS, MOTOR = 2, 3, 4, 101
+SENSORS = {GPS: "gps_off", BARO: "baro_off", MAG: "mag_off"}  # one of each on this vehicle
 OK, OFF = 0, 1
 MOTORS = 4
 
@@ -37,11 +38,13 @@ class InjectedFailures:
     """What is failed now."""
 
     gps_off: bool = False
+    baro_off: bool = False
+    mag_off: bool = False
     motors_off: frozenset[int] = frozenset()  # 0-based
 
     @property
     def any(self) -> bool:
-        return self.gps_off or bool(self.motors_off)
+        return self.gps_off or self.baro_off or self.mag_off or bool(self.motors_off)
 
     def inject(self, enabled: bool, unit: float, kind: float, instance: float) -> str:
         """Apply one request (the command's param1-3); the text to announce. Raises
@@ -55,14 +58,14 @@ class InjectedFailures:
         unit_i, kind_i, instance_i = int(unit), int(kind), int(instance)
         unit_name = UNITS.get(unit_i, f"unit {unit_i}")
         kind_name = TYPES.get(kind_i, f"type {kind_i}")
-        if unit_i not in (GPS, MOTOR) or kind_i not in (OK, OFF):
+        if unit_i not in (*SENSORS, MOTOR) or kind_i not in (OK, OFF):
             raise UnsupportedError(f"failure {unit_name} {kind_name} is not supported "
-                                   "(GPS and motor: ok, off)")
-        if unit_i == GPS:
+                                   "(GPS, barometer, magnetometer, motor: ok, off)")
+        if unit_i in SENSORS:
             if instance_i not in (0, 1):
-                raise UnsupportedError(f"there is one GPS, not instance {instance_i}")
-            self.gps_off = kind_i == OFF
-            return f"failure injected: GPS {kind_name}"
+                raise UnsupportedError(f"there is one {unit_name}, not instance {instance_i}")
+            setattr(self, SENSORS[unit_i], kind_i == OFF)
+            return f"failure injected: {unit_name} {kind_name}"
         if not 0 <= instance_i <= MOTORS:
             raise UnsupportedError(f"motor instance {instance_i} (0 all, 1-{MOTORS})")
         chosen = frozenset(range(MOTORS)) if instance_i == 0 else frozenset({instance_i - 1})

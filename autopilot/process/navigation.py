@@ -8,6 +8,8 @@ until it has converged, and losing and regaining GPS is announced.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from autopilot.commander.commander import Commander
@@ -45,8 +47,10 @@ class Navigation:
                 if not self.vehicle.failures.gps_off:  # an injected failure drops the fixes
                     est.gps(reading.time_us, reading.fix)
             elif isinstance(reading, ImuReading):
-                est.imu(reading.time_us, reading.gyro, reading.accel, reading.baro_alt_m,
-                        reading.mag)
+                failed = self.vehicle.failures  # injected failures drop a sensor's data
+                est.imu(reading.time_us, reading.gyro, reading.accel,
+                        math.nan if failed.baro_off else reading.baro_alt_m,
+                        None if failed.mag_off else reading.mag)
                 samples.append((reading.time_us, est.measurement() if est.aligned else None))
             else:
                 samples.append(reading)

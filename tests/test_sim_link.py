@@ -263,7 +263,7 @@ def _answers(theirs: socket.socket) -> list[int]:
             if m.get_type() == "HIL_ACTUATOR_CONTROLS"]
 
 
-@pytest.mark.parametrize("sim_rate_hz", [100, 250, 400])
+@pytest.mark.parametrize("sim_rate_hz", [100, 250, 400, 1000])
 def test_lockstep_answers_every_sample_and_controls_at_its_own_rate(sim_rate_hz):
     autopilot, theirs = _autopilot_on_a_socket(100.0)
     origin_us = 5_000_000_123  # any origin

@@ -332,7 +332,7 @@ class StatustextAssembler:
 
     def __init__(self, max_pending: int = 16) -> None:
         self.max_pending = max_pending
-        self._pending: dict[tuple[int, int], list[bytes]] = {}
+        self._pending: dict[tuple[int, int], list[str]] = {}
 
     def add(self, msg: mavlink.MAVLink_statustext_message) -> str | None:
         text = msg.text if isinstance(msg.text, str) else msg.text.decode(errors="replace")

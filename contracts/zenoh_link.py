@@ -47,7 +47,8 @@ class ZenohOptions:
     enabled: bool = True
     # False: open returns at once and connects in the background, retrying every 20 ms
     # at first (a ground station's querying session, whose peers may not be up yet);
-    # True: open waits (up to 0.5 s) for the endpoints, so the first records have a route.
+    # True: open waits (up to OPEN_WAIT_MS) for the endpoints, so the first records have a
+    # route.
     wait_on_open: bool = True
 
     def __post_init__(self) -> None:
@@ -98,6 +99,7 @@ VEHICLE_LISTEN = ["tcp/127.0.0.1:0"]
 VEHICLE_CONNECT = [DEFAULT_GROUND_ENDPOINT]
 
 
+OPEN_WAIT_MS = 100
 TX_QUEUE_BATCHES = 16  # of up to 64 KiB: about 3 s of one vehicle's telemetry
 WAIT_BEFORE_DROP_US = 20
 
@@ -113,12 +115,11 @@ def session_config(options: ZenohOptions, exit_on_listen_failure: bool = False) 
     config.insert_json5("connect/retry", json.dumps(
         {"period_init_ms": 200 if options.wait_on_open else 20, "period_max_ms": 1000,
          "period_increase_factor": 1.5}))
-    if not options.wait_on_open:
-        config.insert_json5("scouting/delay", "0")
-    # Open returns once the configured endpoints are reached, without waiting up to
-    # scouting/delay (0.5 s) for peers heard of through gossip: those links follow in the
-    # background, and records to the logger (a configured endpoint) have their route.
-    config.insert_json5("open/return_conditions/connect_scouted", "false")
+    # How long open waits for its endpoints and the peers gossip tells it of. Zenoh's
+    # 0.5 s made every other warm run wait for a peer of the run before (gone); a
+    # loopback connect takes about 3 ms. Open must still wait: one that returns before
+    # the link is up loses its first records (measured: every first put lost).
+    config.insert_json5("scouting/delay", str(OPEN_WAIT_MS if options.wait_on_open else 0))
     config.insert_json5("scouting/multicast/enabled", "false")
     # A put into a full transmit queue waits up to wait_before_drop before dropping; at
     # Zenoh's default (1 ms, 2 batches) a subscriber that stalls for a moment would make

@@ -12,6 +12,7 @@ from contracts import AUTOPILOT, timeline
 if __name__ == "__main__":
     timeline.mark(AUTOPILOT, "main")  # before the heavy imports below
 
+from contracts.frames import home_argument  # noqa: E402
 from contracts.mavlink import (  # noqa: E402
     API_LOCAL_PORT,
     API_UDP_PORT,
@@ -111,6 +112,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                    help="stop after this much sim time of control")
     p.add_argument("--sysid", type=int, default=1, metavar="ID",
                    help="MAVLink system id, also the vehicle id in telemetry keys (1-255)")
+    p.add_argument("--home", type=home_argument, metavar="LAT,LON,ALT",
+                   help="where on Earth the local frame is: degrees, degrees, metres AMSL "
+                        "(default: the simulator's first position, as PX4 takes it)")
     add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT)
     return p
 
@@ -140,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
                              rate_hz=args.rate_hz, state_source=args.state_source,
                              duration_s=args.duration, sysid=check_vehicle_id(args.sysid),
                              rt_priority=args.rt_priority,
-                             zenoh=zenoh_options_from_args(args))
+                             zenoh=zenoh_options_from_args(args), home=args.home)
     airframe = airframe_by_name(args.airframe)
     parameters = validate_parameters(dict(args.param))
     models = (load_models(args.model, args.airframe, args.any_airframe_model)

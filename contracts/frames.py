@@ -8,7 +8,9 @@ their inner loops; they also work from plain Python.
 
 from __future__ import annotations
 
+import functools
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -164,27 +166,116 @@ def altitude_m(z_ned_m):  # float or array
     return -z_ned_m
 
 
-# Home of the local NED frame, reported to ground tools as the vehicle's home (PX4's
-# default SITL home, Zurich). Positions map to latitude/longitude with a local flat-earth
-# (equirectangular) projection, exact enough for the few kilometres a SITL flies.
-HOME_LAT_DEG = 47.397742
-HOME_LON_DEG = 8.545594
-HOME_ALT_AMSL_M = 488.0
 EARTH_RADIUS_M = 6_378_137.0
-# The Earth's field at home (the world magnetic model at Zurich, 2026): what the simulated
-# magnetometer measures and what the autopilot's estimator takes as north, as PX4 looks up
-# the declination for its position.
-HOME_MAG_DECLINATION_RAD = math.radians(3.2)
-HOME_MAG_INCLINATION_RAD = math.radians(63.6)
-HOME_MAG_STRENGTH_GAUSS = 0.479
+# The world magnetic model is evaluated at this date (decimal year), not today's: a run's
+# field must not depend on the day it is flown.
+MAG_MODEL_YEAR = 2026.5
+MAG_MODEL_FILE = "wmm/WMM_2025.COF"  # pygeomag's World Magnetic Model 2025 (2025-2030)
+HOME_MAX_ABS_LAT_DEG = 89.0  # north and east lose their meaning at the poles
+HOME_ALT_RANGE_M = (-500.0, 9000.0)  # the standard atmosphere of ``pressure_hpa`` holds
 
 
-def home_mag_field_ned_gauss() -> tuple[float, float, float]:
-    """The field at home in NED [gauss] from its declination and inclination."""
-    horizontal = HOME_MAG_STRENGTH_GAUSS * math.cos(HOME_MAG_INCLINATION_RAD)
-    return (horizontal * math.cos(HOME_MAG_DECLINATION_RAD),
-            horizontal * math.sin(HOME_MAG_DECLINATION_RAD),
-            HOME_MAG_STRENGTH_GAUSS * math.sin(HOME_MAG_INCLINATION_RAD))
+class Home(NamedTuple):
+    """The origin of the local NED frame on Earth, reported to ground tools as the
+    vehicle's home.
+
+    Positions map to latitude and longitude by the azimuthal equidistant projection on a
+    sphere, as PX4's map projection does: distances and bearings from home are exact at
+    any latitude, and longitudes wrap across the antimeridian.
+    """
+
+    lat_deg: float
+    lon_deg: float
+    alt_amsl_m: float
+
+    @classmethod
+    def checked(cls, lat_deg: float, lon_deg: float, alt_amsl_m: float) -> Home:
+        """A home, or ValueError naming what is out of range (NaN included)."""
+        if not abs(lat_deg) <= HOME_MAX_ABS_LAT_DEG:
+            raise ValueError(f"home latitude {lat_deg!r} deg is outside "
+                             f"[-{HOME_MAX_ABS_LAT_DEG:g}, {HOME_MAX_ABS_LAT_DEG:g}]")
+        if not abs(lon_deg) <= 180.0:
+            raise ValueError(f"home longitude {lon_deg!r} deg is outside [-180, 180]")
+        low, high = HOME_ALT_RANGE_M
+        if not low <= alt_amsl_m <= high:
+            raise ValueError(f"home altitude {alt_amsl_m!r} m AMSL is outside "
+                             f"[{low:g}, {high:g}]")
+        return cls(float(lat_deg), float(lon_deg), float(alt_amsl_m))
+
+    @classmethod
+    def parse(cls, text: str) -> Home:
+        """``LAT,LON,ALT`` (degrees, degrees, metres AMSL), as ``--home`` takes it."""
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            values = []
+        if len(values) != 3:
+            raise ValueError(f"home {text!r} is not LAT,LON,ALT (three numbers)")
+        return cls.checked(*values)
+
+    def geodetic_from_ned(self, north_m: float, east_m: float, down_m: float
+                          ) -> tuple[float, float, float]:
+        """(latitude deg, longitude deg in [-180, 180), altitude AMSL m) of a local NED
+        position."""
+        lat0 = math.radians(self.lat_deg)
+        x, y = north_m / EARTH_RADIUS_M, east_m / EARTH_RADIUS_M
+        c = math.hypot(x, y)
+        if c == 0.0:
+            return self.lat_deg, self.lon_deg, self.alt_amsl_m - down_m
+        sin_c, cos_c = math.sin(c), math.cos(c)
+        lat = math.asin(cos_c * math.sin(lat0) + x * sin_c * math.cos(lat0) / c)
+        dlon = math.atan2(y * sin_c, c * math.cos(lat0) * cos_c - x * math.sin(lat0) * sin_c)
+        lon = (self.lon_deg + math.degrees(dlon) + 180.0) % 360.0 - 180.0
+        return math.degrees(lat), lon, self.alt_amsl_m - down_m
+
+    def ned_from_geodetic(self, lat_deg: float, lon_deg: float, alt_amsl_m: float
+                          ) -> tuple[float, float, float]:
+        """Inverse of :meth:`geodetic_from_ned`."""
+        lat0, lat = math.radians(self.lat_deg), math.radians(lat_deg)
+        dlon = math.radians(lon_deg - self.lon_deg)
+        cos_arc = (math.sin(lat0) * math.sin(lat)
+                   + math.cos(lat0) * math.cos(lat) * math.cos(dlon))
+        c = math.acos(min(1.0, max(-1.0, cos_arc)))
+        k = 1.0 if c < 1e-12 else c / math.sin(c)
+        north = k * (math.cos(lat0) * math.sin(lat)
+                     - math.sin(lat0) * math.cos(lat) * math.cos(dlon)) * EARTH_RADIUS_M
+        east = k * math.cos(lat) * math.sin(dlon) * EARTH_RADIUS_M
+        return north, east, self.alt_amsl_m - alt_amsl_m
+
+    def mag_field_ned_gauss(self) -> tuple[float, float, float]:
+        """The Earth's field at home in NED [gauss] from the world magnetic model: what
+        the simulated magnetometer measures and what the estimator takes as north (PX4
+        looks its declination up in a table of the same model)."""
+        return _mag_field_ned_gauss(self.lat_deg, self.lon_deg, self.alt_amsl_m)
+
+    def mag_declination_rad(self) -> float:
+        north, east, _ = self.mag_field_ned_gauss()
+        return math.atan2(east, north)
+
+
+def home_argument(text: str) -> Home:
+    """argparse type of ``--home LAT,LON,ALT``: a clear message for a bad one."""
+    import argparse
+
+    try:
+        return Home.parse(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+@functools.lru_cache(maxsize=64)
+def _mag_field_ned_gauss(lat_deg: float, lon_deg: float, alt_amsl_m: float
+                         ) -> tuple[float, float, float]:
+    from pygeomag import GeoMag
+
+    field = GeoMag(coefficients_file=MAG_MODEL_FILE).calculate(
+        glat=lat_deg, glon=lon_deg, alt=alt_amsl_m / 1000.0, time=MAG_MODEL_YEAR)
+    nt_to_gauss = 1e-5
+    return field.x * nt_to_gauss, field.y * nt_to_gauss, field.z * nt_to_gauss
+
+
+# PX4's default SITL home (Zurich): where a run is when nothing else is said.
+DEFAULT_HOME = Home(47.397742, 8.545594, 488.0)
 
 
 SEA_LEVEL_PRESSURE_HPA = 1013.25
@@ -198,20 +289,3 @@ def pressure_hpa(alt_amsl_m: float) -> float:
 def altitude_from_pressure_m(pressure_hpa_: float) -> float:
     """Altitude AMSL [m] of a pressure in the standard atmosphere (pressure_hpa inverted)."""
     return (1.0 - (pressure_hpa_ / SEA_LEVEL_PRESSURE_HPA) ** (1.0 / 5.25588)) / 2.25577e-5
-
-
-def geodetic_from_ned(north_m: float, east_m: float, down_m: float) -> tuple[float, float, float]:
-    """(latitude deg, longitude deg, altitude AMSL m) of a local NED position."""
-    lat = HOME_LAT_DEG + math.degrees(north_m / EARTH_RADIUS_M)
-    lon = HOME_LON_DEG + math.degrees(
-        east_m / (EARTH_RADIUS_M * math.cos(math.radians(HOME_LAT_DEG))))
-    return lat, lon, HOME_ALT_AMSL_M - down_m
-
-
-def ned_from_geodetic(lat_deg: float, lon_deg: float, alt_amsl_m: float) -> tuple[float, float,
-                                                                                   float]:
-    """Inverse of :func:`geodetic_from_ned`."""
-    north = math.radians(lat_deg - HOME_LAT_DEG) * EARTH_RADIUS_M
-    east = math.radians(lon_deg - HOME_LON_DEG) * EARTH_RADIUS_M * math.cos(
-        math.radians(HOME_LAT_DEG))
-    return north, east, HOME_ALT_AMSL_M - alt_amsl_m

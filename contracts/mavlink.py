@@ -16,15 +16,11 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from contracts.frames import (
     GRAVITY_MPS2,
-    HOME_ALT_AMSL_M,
-    HOME_LAT_DEG,
-    HOME_LON_DEG,
+    Home,
     altitude_from_pressure_m,
     body_to_world,
     euler_from_quat,
     euler_rates_from_body_rates,
-    geodetic_from_ned,
-    ned_from_geodetic,
 )
 from contracts.vectors import MEASUREMENT
 
@@ -39,12 +35,13 @@ GLOBAL_FRAMES: dict[int, bool] = {
 }
 
 
-def ned_from_global(frame: int, lat_deg: float, lon_deg: float, alt_m: float) -> np.ndarray:
-    """Local NED around home of a position in one of GLOBAL_FRAMES; a NaN coordinate (one
-    a tool left out) stays NaN."""
-    given = (lat_deg, lon_deg, alt_m + HOME_ALT_AMSL_M if GLOBAL_FRAMES[frame] else alt_m)
-    ned = ned_from_geodetic(*(v if math.isfinite(v) else h for v, h in zip(
-        given, (HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_AMSL_M), strict=True)))
+def ned_from_global(home: Home, frame: int, lat_deg: float, lon_deg: float,
+                    alt_m: float) -> np.ndarray:
+    """Local NED around ``home`` of a position in one of GLOBAL_FRAMES; a NaN coordinate
+    (one a tool left out) stays NaN."""
+    given = (lat_deg, lon_deg, alt_m + home.alt_amsl_m if GLOBAL_FRAMES[frame] else alt_m)
+    ned = home.ned_from_geodetic(*(v if math.isfinite(v) else h for v, h in zip(
+        given, home, strict=True)))
     return np.where(np.isfinite(given), ned, np.nan)
 
 SIM_TCP_PORT = 4560
@@ -132,14 +129,14 @@ def _int_clamped(value: float, low: int, high: int) -> int:
     return int(min(high, max(low, round(value))))
 
 
-def truth_messages(t: TruthSample) -> list[mavlink.MAVLink_message]:
-    """HIL_STATE_QUATERNION and ODOMETRY of the true state (units and integer scalings as
-    PX4's simulator_mavlink reads them)."""
+def truth_messages(t: TruthSample, home: Home) -> list[mavlink.MAVLink_message]:
+    """HIL_STATE_QUATERNION (its position around ``home``) and ODOMETRY of the true state
+    (units and integer scalings as PX4's simulator_mavlink reads them)."""
     w, x, y, z = t.quaternion
     n, e, d = t.position_ned_m
     vn, ve, vd = t.velocity_ned_mps
     p, q, r = t.body_rate_frd_rad_s
-    lat, lon, alt = geodetic_from_ned(n, e, d)
+    lat, lon, alt = home.geodetic_from_ned(n, e, d)
     lat_e7 = _int_clamped(lat * 1e7, -2**31, 2**31 - 1)
     lon_e7 = _int_clamped(lon * 1e7, -2**31, 2**31 - 1)
     alt_mm = _int_clamped(alt * 1000, -2**31, 2**31 - 1)
@@ -177,12 +174,12 @@ def gps_message(g: GpsSample) -> mavlink.MAVLink_hil_gps_message:
         _int_clamped(course_cdeg, 0, 35999), g.satellites)
 
 
-def sample_messages(truth: TruthSample, sensor: SensorSample,
-                    gps: GpsSample | None = None) -> list[mavlink.MAVLink_message]:
+def sample_messages(truth: TruthSample, sensor: SensorSample, gps: GpsSample | None,
+                    home: Home) -> list[mavlink.MAVLink_message]:
     """One sample's messages: HIL_GPS when a fix is out (first, so a receiver has it with
     the sample's IMU), HIL_SENSOR, then the truth."""
     return ([gps_message(gps)] if gps is not None else []) + [sensor_message(sensor)] + \
-        truth_messages(truth)
+        truth_messages(truth, home)
 
 
 class LinkDataError(ValueError):
@@ -236,11 +233,13 @@ def measurement_from_odometry(msg: mavlink.MAVLink_odometry_message) -> np.ndarr
                         (msg.rollspeed, msg.pitchspeed, msg.yawspeed))
 
 
-def measurement_from_hil_state(msg: mavlink.MAVLink_hil_state_quaternion_message) -> np.ndarray:
+def measurement_from_hil_state(msg: mavlink.MAVLink_hil_state_quaternion_message,
+                               home: Home) -> np.ndarray:
     """Controller measurement from HIL_STATE_QUATERNION alone (1e-7 deg, mm, cm/s)."""
     values = [*msg.attitude_quaternion, msg.rollspeed, msg.pitchspeed, msg.yawspeed]
     _finite(values, "HIL_STATE_QUATERNION")
-    position = ned_from_geodetic(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)
+    _on_earth(msg, "HIL_STATE_QUATERNION")
+    position = home.ned_from_geodetic(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)
     velocity = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
     return _measurement(position, velocity, msg.attitude_quaternion,
                         (msg.rollspeed, msg.pitchspeed, msg.yawspeed))
@@ -248,7 +247,7 @@ def measurement_from_hil_state(msg: mavlink.MAVLink_hil_state_quaternion_message
 
 def imu_from_hil_sensor(msg: mavlink.MAVLink_hil_sensor_message
                         ) -> tuple[np.ndarray, np.ndarray, float, np.ndarray | None]:
-    """(gyro FRD, specific force FRD, baro altitude above home [m] or NaN, magnetometer FRD
+    """(gyro FRD, specific force FRD, baro altitude AMSL [m] or NaN, magnetometer FRD
     [gauss] or None) of HIL_SENSOR, the baro and magnetometer only when fields_updated says
     they are fresh. The altitude is the standard atmosphere's for abs_pressure, as a
     flight controller computes it."""
@@ -264,7 +263,7 @@ def imu_from_hil_sensor(msg: mavlink.MAVLink_hil_sensor_message
         if not (math.isfinite(msg.abs_pressure) and 100.0 < msg.abs_pressure < 1200.0):
             raise LinkDataError(f"HIL_SENSOR abs_pressure {msg.abs_pressure!r} hPa is not a "
                                 "pressure in the air")
-        baro_alt = altitude_from_pressure_m(msg.abs_pressure) - HOME_ALT_AMSL_M
+        baro_alt = altitude_from_pressure_m(msg.abs_pressure)
     mag = None
     if updated & HIL_SENSOR_MAG:
         mag = np.array((msg.xmag, msg.ymag, msg.zmag))
@@ -272,12 +271,29 @@ def imu_from_hil_sensor(msg: mavlink.MAVLink_hil_sensor_message
     return gyro, accel, baro_alt, mag
 
 
-def fix_from_hil_gps(msg: mavlink.MAVLink_hil_gps_message
+def _on_earth(msg, what: str) -> None:
+    if not (-90e7 <= msg.lat <= 90e7 and -180e7 <= msg.lon <= 180e7):
+        raise LinkDataError(f"{what} position {msg.lat}, {msg.lon} (1e-7 deg) is not on Earth")
+
+
+def home_from_message(msg: mavlink.MAVLink_message) -> Home | None:
+    """The home a simulator's first HIL_STATE_QUATERNION or HIL_GPS (with a 3D fix) gives,
+    as PX4 takes its reference from the first position it receives; None from others."""
+    kind = msg.get_type()
+    if kind == "HIL_GPS" and msg.fix_type < 3 or kind not in ("HIL_GPS",
+                                                               "HIL_STATE_QUATERNION"):
+        return None
+    try:
+        return Home.checked(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)
+    except ValueError as exc:
+        raise LinkDataError(f"{kind} cannot be home: {exc}") from None
+
+
+def fix_from_hil_gps(msg: mavlink.MAVLink_hil_gps_message, home: Home
                      ) -> tuple[np.ndarray, np.ndarray, int, int]:
     """(position NED [m] from home, velocity NED [m/s], fix type, satellites) of HIL_GPS."""
-    if not (-90e7 <= msg.lat <= 90e7 and -180e7 <= msg.lon <= 180e7):
-        raise LinkDataError(f"HIL_GPS position {msg.lat}, {msg.lon} (1e-7 deg) is not on Earth")
-    position = np.array(ned_from_geodetic(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3))
+    _on_earth(msg, "HIL_GPS")
+    position = np.array(home.ned_from_geodetic(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3))
     velocity = np.array((msg.vn, msg.ve, msg.vd)) * 0.01
     return position, velocity, int(msg.fix_type), int(msg.satellites_visible)
 

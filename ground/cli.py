@@ -27,6 +27,7 @@ def _add_common(p: argparse.ArgumentParser) -> None:
 
 def _run_parser(run: argparse.ArgumentParser) -> None:
     from autopilot.control.factory import CONTROLLERS
+    from contracts.frames import home_argument
     from contracts.mavlink import STATE_SOURCES
     from ground.scenarios import shipped_names
     from sitl.dynamics import FIDELITIES
@@ -48,6 +49,9 @@ def _run_parser(run: argparse.ArgumentParser) -> None:
                           ".toml file (default: the scenario's, else ideal)")
     run.add_argument("--seed", type=int, default=0,
                      help="seed of the simulator's sensors and link loss (default 0)")
+    run.add_argument("--home", type=home_argument, metavar="LAT,LON,ALT",
+                     help="where on Earth the flight is: degrees, degrees, metres AMSL "
+                          "(default: the scenario's, else PX4's SITL home in Zurich)")
     run.add_argument("--controller", choices=CONTROLLERS, help="(default: the scenario's)")
     run.add_argument("--plant", choices=list(FIDELITIES), help="(default: the scenario's)")
     run.add_argument("--out", type=Path, required=True, help="output directory (run folder)")

@@ -31,7 +31,8 @@ def run_command(args: argparse.Namespace) -> int:
         controller=args.controller, plant=args.plant, airframe=args.airframe,
         sensors=args.sensors, state_source=args.state_source, parameters=dict(args.param),
         model_path=args.model, any_airframe_model=args.any_airframe_model,
-        rate_hz=args.rate_hz, realtime=args.realtime, seed=args.seed))
+        rate_hz=args.rate_hz, realtime=args.realtime, seed=args.seed,
+        home=args.home))
     how = "in process" if args.inprocess else plan.how
     flying_on = ("its estimator" if plan.state_source == "estimator" else
                  "the simulator's truth")

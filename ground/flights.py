@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from contracts.frames import Home
 from ground.scenarios import Scenario
 
 if TYPE_CHECKING:
@@ -32,6 +33,7 @@ class Overrides:
     rate_hz: float = 100.0
     realtime: bool = False
     seed: int = 0
+    home: Home | None = None
 
 
 @dataclass(frozen=True)
@@ -51,6 +53,7 @@ class FlightPlan:
     rate_hz: float
     realtime: bool
     seed: int
+    home: Home
 
     @property
     def how(self) -> str:
@@ -83,7 +86,8 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
         raise ValueError(f"--rate-hz must be in (0, 10000], got {o.rate_hz!r}")
     return FlightPlan(scenario, controller, o.plant or scenario.plant, airframe, sensors,
                       state_source, validate_parameters(given), frozenset(given), model_path,
-                      o.any_airframe_model, o.rate_hz, o.realtime, o.seed)
+                      o.any_airframe_model, o.rate_hz, o.realtime, o.seed,
+                      o.home or scenario.home)
 
 
 def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
@@ -102,7 +106,8 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
                            {k: v for k, v in plan.parameters.items() if k in plan.given},
                            realtime=plan.realtime, rate_hz=plan.rate_hz,
                            state_source=plan.state_source, sensors=plan.sensors,
-                           seed=plan.seed, any_airframe_model=plan.any_airframe_model)
+                           seed=plan.seed, any_airframe_model=plan.any_airframe_model,
+                           home=plan.home)
     accounting = run_processes(scenario, settings, out_dir, quiet=quiet, warm=warm,
                                started_s=started_s)
     timing = accounting.pop("timing")
@@ -117,7 +122,7 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
         "airframe": plan.airframe, "rate_hz": plan.rate_hz, "vehicle": settings.vehicle,
         "mode": "realtime" if plan.realtime else "lockstep",
         "state_source": plan.state_source, "sensors": plan.sensors, "seed": plan.seed,
-        "parameters": plan.parameters,
+        "home": list(plan.home), "parameters": plan.parameters,
         "model": str(plan.model_path) if plan.model_path else None,
         "telemetry": accounting, "timing": timing})
     from ground.report import report  # imported during the flight (run_processes)
@@ -141,7 +146,7 @@ def fly_inprocess(plan: FlightPlan, out_dir: Path, figures: bool = True) -> dict
     record = run_inprocess(scenario, plan.controller, plan.plant,
                            airframe_by_name(plan.airframe), models, period_s=1.0 / plan.rate_hz,
                            parameters=plan.parameters, sensors=plan.sensors,
-                           state_source=plan.state_source, seed=plan.seed)
+                           state_source=plan.state_source, seed=plan.seed, home=plan.home)
     metrics = compute_metrics(record, scenario, plan.airframe)
     metrics["mode"] = "inprocess"
     metrics["sensors"], metrics["state_source"] = plan.sensors, plan.state_source

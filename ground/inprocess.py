@@ -16,6 +16,7 @@ from autopilot.estimation.estimator import Estimator, GpsFix
 from autopilot.models.ts_model import FuzzyModelSet
 from autopilot.parameters import validate_parameters
 from contracts.airframe import Airframe, hover_rotor_speeds
+from contracts.frames import DEFAULT_HOME, Home
 from contracts.mavlink import (
     fix_from_hil_gps,
     gps_message,
@@ -48,6 +49,7 @@ def run_inprocess(
     sensors: str = "ideal",
     state_source: str = "auto",
     seed: int = 0,
+    home: Home = DEFAULT_HOME,
 ) -> RunRecord:
     """The scenario flown in one process. ``state_source`` "estimator" flies on the onboard
     estimator fed by the ``sensors`` profile's readings (one sample per control period,
@@ -73,9 +75,9 @@ def run_inprocess(
     ctrl = make_controller(controller, airframe, period_s, models, parameters)
     onboard = None
     if state_source == "estimator":
-        suite = SensorSuite(read_profile(sensors), 1.0 / period_s, seed=seed)
+        suite = SensorSuite(read_profile(sensors), 1.0 / period_s, seed=seed, home=home)
         onboard = Estimator(gps_delay_s=validate_parameters(parameters or {})[
-            "EKF2_GPS_DELAY"] / 1e3)
+            "EKF2_GPS_DELAY"] / 1e3, home=home)
         previous_velocity = plant.state().velocity_ned_mps
         acceleration = np.zeros(3)
         truth_log = np.zeros((n, MEASUREMENT_SIZE))
@@ -101,7 +103,7 @@ def run_inprocess(
         meas = plant.true_measurement()
         if onboard is not None:
             truth_log[k] = meas
-            meas = _estimate(onboard, suite, k * period_us, plant, acceleration,
+            meas = _estimate(onboard, suite, home, k * period_us, plant, acceleration,
                              sensor_effects_at(scenario.perturbations, t))
         ref = scenario.reference.at(t)
         kick = np.array(scenario.kick_at(t))
@@ -132,7 +134,7 @@ def run_inprocess(
     )
 
 
-def _estimate(onboard: Estimator, suite: SensorSuite, time_us: int, plant: Plant,
+def _estimate(onboard: Estimator, suite: SensorSuite, home: Home, time_us: int, plant: Plant,
               acceleration: np.ndarray, effects: SensorEffects) -> np.ndarray:
     """The sensors read the plant; the estimator takes them as the autopilot's link does:
     the messages packed and parsed (float32 fields, integer scalings), so a lockstep run
@@ -140,9 +142,11 @@ def _estimate(onboard: Estimator, suite: SensorSuite, time_us: int, plant: Plant
     readings, fix = suite.sample(time_us, plant.state(), acceleration, effects)
     if fix is not None:
         position, velocity, fix_type, satellites = fix_from_hil_gps(_over_the_link(
-            gps_message(fix)))
+            gps_message(fix)), home)
         onboard.gps(time_us, GpsFix(position, velocity, fix_type, satellites))
-    onboard.imu(time_us, *imu_from_hil_sensor(_over_the_link(sensor_message(readings))))
+    gyro, accel, baro_alt_amsl_m, mag = imu_from_hil_sensor(_over_the_link(
+        sensor_message(readings)))
+    onboard.imu(time_us, gyro, accel, baro_alt_amsl_m - home.alt_amsl_m, mag)
     return onboard.measurement()
 
 

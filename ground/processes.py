@@ -30,6 +30,7 @@ from typing import Any
 import zenoh
 
 from contracts import timeline
+from contracts.frames import DEFAULT_HOME, Home
 from contracts.telemetry import AUTOPILOT, SITL, logger_key, vehicle_key
 from contracts.warm import WARM_FLAG
 from contracts.zenoh_link import ZenohOptions, open_session
@@ -74,13 +75,15 @@ class RunSettings:
     seed: int = 0  # the simulator's sensors and link loss
     vehicle: int = 1
     any_airframe_model: bool = False  # fly a model identified on another airframe
+    home: Home = DEFAULT_HOME  # given to both: the run's frames agree from the first sample
 
 
 def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
                      endpoint: str) -> tuple[list, list]:
     """The simulator's and the autopilot's command lines for one vehicle of a run."""
     pace = ["--realtime"] if settings.realtime else ["--lockstep"]
-    zenoh_args = ["--zenoh-connect", endpoint]
+    zenoh_args = ["--zenoh-connect", endpoint,
+                  "--home", ",".join(repr(v) for v in settings.home)]
     ref = scenario.reference
     sim = [sys.executable, "-m", "sitl", "--port", str(sim_port), *pace,
            "--rate-hz", str(settings.rate_hz), "--plant", settings.plant,

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from autopilot.flight_tasks.reference import Reference
+from contracts.frames import DEFAULT_HOME, Home
 from contracts.perturbations import (
     Perturbation,
     Perturbations,
@@ -49,6 +50,7 @@ class Scenario:
     source: Path | None = None
     plan: Path | None = None  # a QGroundControl .plan flown in AUTO.MISSION from the ground
     expect: Expectations = field(default_factory=Expectations)  # what must hold (checks)
+    home: Home = DEFAULT_HOME  # where on Earth the local frame is ([plant] home)
 
     @property
     def mission_items(self) -> tuple:
@@ -116,12 +118,13 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
         raise ValueError("reference needs a kind")
     reference = Reference(**{k: v if k == "kind" else float(v) for k, v in ref.items()})
     plant = _table(data, "plant")
-    bad = sorted(set(plant) - {"fidelity", "airframe", "sensors"})
+    bad = sorted(set(plant) - {"fidelity", "airframe", "sensors", "home"})
     if bad:
         raise ValueError(f"plant: unknown field(s) {', '.join(bad)}")
     fidelity = plant.get("fidelity", "paper")
     airframe = plant.get("airframe", "paper")
     sensors = plant.get("sensors", "ideal")
+    home = _home(plant.get("home"))
     if not isinstance(sensors, str):
         raise ValueError("plant.sensors must be a profile name or a .toml path")
     if sensors.endswith(".toml") or "/" in sensors:
@@ -167,7 +170,21 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
                     plant=fidelity, airframe=airframe, sensors=sensors,
                     state_source=state_source,
                     parameters={k: float(v) for k, v in params.items()},
-                    model_path=model_path, source=path, plan=plan, expect=expect)
+                    model_path=model_path, source=path, plan=plan, expect=expect, home=home)
+
+
+def _home(value: Any) -> Home:
+    """[plant] home = [latitude deg, longitude deg, altitude m AMSL]."""
+    if value is None:
+        return DEFAULT_HOME
+    if not (isinstance(value, list) and len(value) == 3 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
+        raise ValueError(f"plant.home must be [latitude, longitude, altitude AMSL], got "
+                         f"{value!r}")
+    try:
+        return Home.checked(*(float(v) for v in value))
+    except ValueError as exc:
+        raise ValueError(f"plant.home: {exc}") from None
 
 
 def _plan(mission: dict[str, Any], path: Path) -> Path | None:

@@ -14,6 +14,7 @@ if __name__ == "__main__":
 
 from contracts.airframe import airframe_argument  # noqa: E402
 from contracts.airframe_file import read_airframe  # noqa: E402
+from contracts.frames import DEFAULT_HOME, home_argument  # noqa: E402
 from contracts.mavlink import SIM_TCP_PORT  # noqa: E402
 from contracts.perturbations import load_schedule  # noqa: E402
 from contracts.zenoh_link import (  # noqa: E402
@@ -57,6 +58,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         "(docs/sensors.md)")
     p.add_argument("--rt-priority", type=int, default=40, metavar="N",
                    help="real time: SCHED_FIFO priority (1-99; 0: normal scheduling)")
+    p.add_argument("--home", type=home_argument, default=DEFAULT_HOME, metavar="LAT,LON,ALT",
+                   help="where on Earth the vehicle starts: degrees, degrees, metres AMSL "
+                        "(default: PX4's SITL home, 47.397742,8.545594,488)")
     add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT)
     return p
 
@@ -72,7 +76,8 @@ def run(args: argparse.Namespace) -> int:
         schedule=load_schedule(args.schedule) if args.schedule else (),
         exit_on_disconnect=args.exit_on_disconnect, duration_s=args.duration,
         vehicle_id=args.vehicle, zenoh=zenoh_options_from_args(args), hold=args.hold,
-        seed=args.seed, rt_priority=args.rt_priority, sensors=read_profile(args.sensors))
+        seed=args.seed, rt_priority=args.rt_priority, sensors=read_profile(args.sensors),
+        home=args.home)
     return Simulator(config).run()
 
 

@@ -17,10 +17,10 @@ import numpy as np
 from numba import njit
 
 from contracts.frames import (
+    DEFAULT_HOME,
     GRAVITY_MPS2,
     SEA_LEVEL_PRESSURE_HPA,
-    geodetic_from_ned,
-    home_mag_field_ned_gauss,
+    Home,
     pressure_hpa,
     quat_from_euler,
     rotation_from_quat,
@@ -53,14 +53,14 @@ def truth_sample(time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
         _tuple(state.body_rate_rad_s if body_rate is None else body_rate), _tuple(specific))
 
 
-def ideal_readings(time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray
-                   ) -> tuple[TruthSample, SensorSample, GpsSample]:
+def ideal_readings(time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
+                   home: Home = DEFAULT_HOME) -> tuple[TruthSample, SensorSample, GpsSample]:
     """One sample's truth, and perfect readings of every sensor (all fresh, a fix now)."""
     truth = truth_sample(time_us, state, accel_ned_mps2)
     rot = rotation_from_quat(np.asarray(state.quaternion, dtype=float))
-    lat, lon, alt = geodetic_from_ned(*(float(v) for v in state.position_ned_m))
+    lat, lon, alt = home.geodetic_from_ned(*(float(v) for v in state.position_ned_m))
     sensor = SensorSample(time_us, truth.specific_force_frd_mps2, truth.body_rate_frd_rad_s,
-                          _tuple(rot.T @ np.array(home_mag_field_ned_gauss())),
+                          _tuple(rot.T @ np.array(home.mag_field_ned_gauss())),
                           pressure_hpa(alt), alt, TEMPERATURE_C,
                           HIL_SENSOR_IMU | HIL_SENSOR_MAG | HIL_SENSOR_BARO)
     fix = GpsSample(time_us, lat, lon, alt, truth.velocity_ned_mps, 0.8, 1.2, 3, 14)
@@ -212,8 +212,10 @@ class SensorSuite:
     Seeded: the same seed and the same true states give the same readings, bit for bit.
     """
 
-    def __init__(self, profile: SensorProfile, sample_rate_hz: float, seed: int = 0) -> None:
+    def __init__(self, profile: SensorProfile, sample_rate_hz: float, seed: int = 0,
+                 home: Home = DEFAULT_HOME) -> None:
         self.profile = profile
+        self.home = home
         self.dt = 1.0 / sample_rate_hz
         self.rng = np.random.default_rng([seed, 0x5E2502])
         p = profile
@@ -225,7 +227,7 @@ class SensorSuite:
                                                      p.gps_vertical_m)
         self._mag, self._baro, self._gps = (_Every(p.mag_rate_hz), _Every(p.baro_rate_hz),
                                             _Every(p.gps_rate_hz))
-        self._field_ned = np.array(home_mag_field_ned_gauss())
+        self._field_ned = np.array(home.mag_field_ned_gauss())
         root_dt = math.sqrt(self.dt)
         # The standard deviation, over one sample, of each of the numbers drawn each sample.
         self._scales = np.array(
@@ -264,8 +266,8 @@ class SensorSuite:
             self._last_mag = tuple(readings[6:9])
             fields_updated |= HIL_SENSOR_MAG
         if self._baro.due(time_us):
-            _lat, _lon, alt = geodetic_from_ned(*state.position_ned_m.tolist())
-            baro_alt = alt + self.baro_offset_m + z[_BARO_NOISE]
+            baro_alt = self.home.alt_amsl_m - float(state.position_ned_m[2]) + \
+                self.baro_offset_m + z[_BARO_NOISE]
             self._last_baro = (pressure_hpa(baro_alt), baro_alt)
             fields_updated |= HIL_SENSOR_BARO
         sensor = SensorSample(time_us, tuple(readings[3:6]), tuple(readings[0:3]),
@@ -300,7 +302,7 @@ class SensorSuite:
         p = self.profile
         position = state.position_ned_m + self.gps_error
         velocity = state.velocity_ned_mps + self.rng.normal(size=3) * p.gps_velocity_noise_mps
-        lat, lon, alt = geodetic_from_ned(*(float(v) for v in position))
+        lat, lon, alt = self.home.geodetic_from_ned(*(float(v) for v in position))
         return GpsSample(time_us, lat, lon, alt, _tuple(velocity), p.gps_hdop, p.gps_vdop,
                          3, p.gps_satellites)
 

@@ -30,6 +30,7 @@ import numpy as np
 from contracts import timeline
 from contracts.airframe import Airframe, airframe_from_spec, hover_rotor_speeds
 from contracts.airframe_file import AirframeSpec
+from contracts.frames import DEFAULT_HOME, Home
 from contracts.mavlink import (
     SIM_TCP_PORT,
     SIMULATOR_COMPID,
@@ -80,6 +81,7 @@ class SimulatorConfig:
     seed: int = 0  # sensor noise and link loss
     sensors: SensorProfile = field(default_factory=SensorProfile)  # ideal by default
     rt_priority: int = 40  # real time: SCHED_FIFO priority (0: normal), below the autopilot's
+    home: Home = DEFAULT_HOME  # where on Earth the local frame's origin is
 
     def __post_init__(self) -> None:
         if not 0 <= self.rt_priority <= 99:
@@ -136,7 +138,7 @@ class Simulator(PacedProcess):
         self._sensor = NO_SENSOR_EFFECTS
         self.book = PerturbationBook(SITL, config.schedule)
         self.rng = np.random.default_rng(config.seed)
-        self.sensors = SensorSuite(config.sensors, config.rate_hz, config.seed)
+        self.sensors = SensorSuite(config.sensors, config.rate_hz, config.seed, config.home)
         self._state = self.plant.state()
         self._history: collections.deque[VehicleState] = collections.deque(maxlen=101)
         self._commands = np.zeros(4)
@@ -176,7 +178,7 @@ class Simulator(PacedProcess):
                 self._state, self._history, effects, self.rng)
             truth = truth_sample(self.time_us, self._state, self._acceleration, position,
                                  velocity, quaternion, body_rate)
-        msgs = sample_messages(truth, readings, fix)
+        msgs = sample_messages(truth, readings, fix, self.config.home)
         return b"".join(m.pack(self.mav) for m in msgs)
 
     def _update_perturbations(self, t_s: float) -> None:

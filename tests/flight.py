@@ -122,10 +122,10 @@ def mission_item(seq: int, north: float, east: float, altitude_m: float,
     """A MISSION_ITEM_INT-style item at ``north``, ``east`` [m] from home, ``altitude_m``
     above home (GLOBAL_RELATIVE_ALT_INT, as QGroundControl and MAVSDK send them)."""
     from autopilot.navigator.mission_store import MissionItem
-    from contracts.frames import geodetic_from_ned
+    from contracts.frames import DEFAULT_HOME
     from contracts.mavlink import mavlink
 
-    lat, lon, _ = geodetic_from_ned(north, east, 0.0)
+    lat, lon, _ = DEFAULT_HOME.geodetic_from_ned(north, east, 0.0)
     return MissionItem(seq, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
                        mavlink.MAV_CMD_NAV_WAYPOINT if command is None else command, 0, 1,
                        tuple(float(p) for p in params), round(lat * 1e7), round(lon * 1e7),

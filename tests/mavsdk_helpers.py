@@ -10,7 +10,7 @@ import time
 
 from mavsdk.asyncio.plugins.mission import MissionItem
 
-from contracts.frames import geodetic_from_ned
+from contracts.frames import DEFAULT_HOME
 
 
 async def until(check, timeout_s: float, what: str) -> None:
@@ -30,7 +30,7 @@ def mission_item(north_m: float, east_m: float, alt_m: float, speed_mps: float =
                  loiter_s: float = math.nan, yaw_deg: float = math.nan) -> MissionItem:
     """A MAVSDK mission item ``north_m``, ``east_m`` from home, ``alt_m`` above it; it flies
     through unless it loiters."""
-    lat, lon, _ = geodetic_from_ned(north_m, east_m, 0.0)
+    lat, lon, _ = DEFAULT_HOME.geodetic_from_ned(north_m, east_m, 0.0)
     return MissionItem(lat, lon, alt_m, speed_mps, math.isnan(loiter_s), math.nan, math.nan,
                        MissionItem.CameraAction.NONE, loiter_s, math.nan, 1.0, yaw_deg,
                        math.nan, MissionItem.VehicleAction.NONE)

@@ -11,12 +11,7 @@ import pytest
 
 from autopilot.estimation import eskf
 from autopilot.estimation.estimator import Estimator, GpsFix, heading_from_mag
-from contracts.frames import (
-    HOME_MAG_DECLINATION_RAD,
-    home_mag_field_ned_gauss,
-    quat_from_euler,
-    rotation_from_quat,
-)
+from contracts.frames import DEFAULT_HOME, quat_from_euler, rotation_from_quat
 
 NOISE = eskf.FilterNoise()
 
@@ -73,7 +68,7 @@ def test_the_prediction_jacobian_is_the_nominal_propagation_differentiated():
 
 def test_the_magnetometer_and_heading_jacobians_are_their_derivatives():
     x = _state()
-    field = np.array(home_mag_field_ned_gauss())
+    field = np.array(DEFAULT_HOME.mag_field_ned_gauss())
     h = 1e-7
     for j in range(3):
         dx = np.zeros(eskf.E_SIZE)
@@ -89,10 +84,10 @@ def test_the_magnetometer_and_heading_jacobians_are_their_derivatives():
 
 
 def test_heading_from_a_tilted_magnetometer():
-    field = np.array(home_mag_field_ned_gauss())
+    field = np.array(DEFAULT_HOME.mag_field_ned_gauss())
     for euler in ((0.0, 0.0, 0.5), (0.3, -0.2, 1.0), (0.5, 0.4, -2.0)):
         mag = rotation_from_quat(quat_from_euler(*euler)).T @ field
-        assert heading_from_mag(mag, euler[0], euler[1], HOME_MAG_DECLINATION_RAD) == \
+        assert heading_from_mag(mag, euler[0], euler[1], DEFAULT_HOME.mag_declination_rad()) == \
             pytest.approx(euler[2], abs=1e-12)
 
 
@@ -100,7 +95,7 @@ def _hover_imu(rng: np.random.Generator, tilt=(0.0, 0.0, 0.3)):
     rot = rotation_from_quat(quat_from_euler(*tilt))
     accel = rot.T @ np.array([0.0, 0.0, -9.81]) + rng.normal(size=3) * 0.05
     gyro = rng.normal(size=3) * 0.003
-    mag = rot.T @ np.array(home_mag_field_ned_gauss()) + rng.normal(size=3) * 0.003
+    mag = rot.T @ np.array(DEFAULT_HOME.mag_field_ned_gauss()) + rng.normal(size=3) * 0.003
     return gyro, accel, mag
 
 

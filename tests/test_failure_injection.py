@@ -127,16 +127,18 @@ def test_baro_and_mag_off_reach_the_estimator_as_no_reading():
     from autopilot.process.navigation import Navigation
     from autopilot.process.sim_link import ImuReading
     from contracts.airframe import PAPER
+    from contracts.frames import DEFAULT_HOME
 
     vehicle = Commander(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01,
                         {"SYS_FAILURE_EN": 1.0})
+    vehicle.set_home(DEFAULT_HOME)
     navigation = Navigation(vehicle, Estimator())
     vehicle.inject_failure(BARO, OFF, 0)
     vehicle.inject_failure(M.FAILURE_UNIT_SENSOR_MAG, OFF, 0)
-    reading = ImuReading(10_000, np.zeros(3), np.array([0.0, 0.0, -9.81]), 488.0,
-                         np.array([0.2, 0.0, 0.4]))
+    reading = ImuReading(10_000, np.zeros(3), np.array([0.0, 0.0, -9.81]),
+                         DEFAULT_HOME.alt_amsl_m + 5.0, np.array([0.2, 0.0, 0.4]))
     navigation.measurements([reading])
     assert navigation.estimator._align_baro is None and navigation.estimator._align_mag is None
     vehicle.inject_failure(BARO, OK, 0)
     navigation.measurements([reading._replace(time_us=20_000)])
-    assert navigation.estimator._align_baro == 488.0 and navigation.estimator._align_mag is None
+    assert navigation.estimator._align_baro == 5.0 and navigation.estimator._align_mag is None

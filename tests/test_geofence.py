@@ -10,7 +10,7 @@ import pytest
 
 from autopilot.navigator.geofence import breach, zones_from_items
 from autopilot.navigator.mission_store import FENCE, MissionItem
-from contracts.frames import geodetic_from_ned
+from contracts.frames import DEFAULT_HOME
 from contracts.mavlink import mavlink
 from contracts.modes import FlightMode
 from tests.flight import Flight, position_setpoint
@@ -19,7 +19,7 @@ M = mavlink
 
 
 def _at(seq: int, command: int, north: float, east: float, param1: float) -> MissionItem:
-    lat, lon, _ = geodetic_from_ned(north, east, 0.0)
+    lat, lon, _ = DEFAULT_HOME.geodetic_from_ned(north, east, 0.0)
     return MissionItem(seq, M.MAV_FRAME_GLOBAL_INT, command, 0, 1, (param1, 0.0, 0.0, 0.0),
                        round(lat * 1e7), round(lon * 1e7), 0.0, FENCE)
 
@@ -38,7 +38,7 @@ def square_with_a_hole() -> tuple[MissionItem, ...]:
     (0.0, -20.5, "outside the inclusion fence"), (11.0, 1.0, "inside an exclusion zone"),
     (10.0, 3.5, None)])
 def test_a_position_is_inside_or_says_which_zone_it_breaks(north, east, reason):
-    zones = zones_from_items(square_with_a_hole())
+    zones = zones_from_items(square_with_a_hole(), DEFAULT_HOME)
     assert breach(np.array([north, east, -2.0]), zones, 0.0, 0.0) == reason
 
 
@@ -108,7 +108,7 @@ def test_an_empty_circle_is_no_zone():
     """MAVSDK's geofence plugin sends a circle of radius 0 at 0, 0 when a caller has none."""
     empty = MissionItem(5, M.MAV_FRAME_GLOBAL_INT, M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, 0, 1,
                         (0.0, 0.0, 0.0, 0.0), 0, 0, 0.0, FENCE)
-    zones = zones_from_items((*square_with_a_hole(), empty))
+    zones = zones_from_items((*square_with_a_hole(), empty), DEFAULT_HOME)
     assert len(zones) == 2  # the square and the hole
     assert breach(np.array([15.0, -15.0, -2.0]), zones, 0.0, 0.0) is None
-    assert zones_from_items((empty,)) == ()
+    assert zones_from_items((empty,), DEFAULT_HOME) == ()

@@ -22,7 +22,7 @@ from autopilot.commander.commander import Commander
 from autopilot.control.factory import make_controller
 from autopilot.parameters import PARAMETERS, default_parameters
 from contracts.airframe import PAPER
-from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, geodetic_from_ned
+from contracts.frames import DEFAULT_HOME
 from contracts.mavlink import StatustextAssembler
 from contracts.modes import FlightMode, px4_custom_mode
 from tests.flight import mission_item
@@ -293,8 +293,8 @@ def test_take_off_and_land_are_temporarily_rejected_disarmed(station):
 
 @pytest.mark.parametrize("param7, kind, altitude", [
     (math.nan, "long", DEFAULTS["MIS_TAKEOFF_ALT"]),  # NaN: MIS_TAKEOFF_ALT
-    (HOME_ALT_AMSL_M + 3.0, "long", 3.0),  # PX4 reads param7 as AMSL
-    (HOME_ALT_AMSL_M + 4.0, "int", 4.0)])
+    (DEFAULT_HOME.alt_amsl_m + 3.0, "long", 3.0),  # PX4 reads param7 as AMSL
+    (DEFAULT_HOME.alt_amsl_m + 4.0, "int", 4.0)])
 def test_take_off_is_accepted_armed_to_the_altitude_asked(station, param7, kind, altitude):
     station.state_up()
     station.client.result(ARM, 1)
@@ -420,7 +420,8 @@ def test_home_position_on_request(station, command, params):
     (home,) = others
     assert home.get_type() == "HOME_POSITION"
     assert (home.latitude, home.longitude, home.altitude) == (
-        int(HOME_LAT_DEG * 1e7), int(HOME_LON_DEG * 1e7), int(HOME_ALT_AMSL_M * 1000))
+        round(DEFAULT_HOME.lat_deg * 1e7), round(DEFAULT_HOME.lon_deg * 1e7),
+        round(DEFAULT_HOME.alt_amsl_m * 1000))
 
 
 @pytest.mark.parametrize("kind", ["long", "int"])
@@ -581,7 +582,8 @@ def test_telemetry_shows_the_vehicle_state(station):
     local = request(M.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
     assert local.z == -1.0
     position = request(M.MAVLINK_MSG_ID_GLOBAL_POSITION_INT)
-    assert position.relative_alt == 1000 and position.alt == round((HOME_ALT_AMSL_M + 1) * 1e3)
+    assert position.relative_alt == 1000
+    assert position.alt == round((DEFAULT_HOME.alt_amsl_m + 1) * 1e3)
     station.vehicle.set_mode(FlightMode.HOLD, T0)
     assert request(ext).landed_state == M.MAV_LANDED_STATE_IN_AIR
     station.client.result(LAND)
@@ -789,7 +791,7 @@ REL_INT = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
 
 
 def north_east(north_m: float, east_m: float) -> tuple[float, float]:
-    lat, lon, _ = geodetic_from_ned(north_m, east_m, 0.0)
+    lat, lon, _ = DEFAULT_HOME.geodetic_from_ned(north_m, east_m, 0.0)
     return lat, lon
 
 
@@ -811,7 +813,7 @@ def test_go_to_amsl_and_left_out_coordinates(station):
     # COMMAND_LONG: altitude AMSL, latitude and longitude in float32 (0.1 m steps here);
     # COMMAND_INT x = y = INT32_MAX: stay over this point.
     result = station.client.result(REPOSITION, -1, 1, 0, math.nan, *north_east(3.0, 4.0),
-                                   HOME_ALT_AMSL_M + 6.0)
+                                   DEFAULT_HOME.alt_amsl_m + 6.0)
     assert result == (ACCEPTED, [])
     assert np.allclose(station.vehicle.setpoint.position_ned_m, (3.0, 4.0, -6.0), atol=0.2)
     result = station.client.result(REPOSITION, -1, 1, 0, math.nan, math.nan, math.nan, 9.0,
@@ -923,7 +925,7 @@ def test_orbit_command_circles_the_centre_it_names_and_changes_it_while_orbiting
     lat, lon = north_east(6.0, 0.0)
     # MAVSDK's do_orbit: an AMSL altitude, even in a relative-altitude frame (as PX4 reads).
     assert station.client.result(ORBIT, 4.0, 1.5, 0, math.nan, lat, lon,
-                                 HOME_ALT_AMSL_M + 3.0, kind="int", frame=REL_INT) == (
+                                 DEFAULT_HOME.alt_amsl_m + 3.0, kind="int", frame=REL_INT) == (
         ACCEPTED, [])
     v = station.vehicle
     task = v.tasks[FlightMode.ORBIT]

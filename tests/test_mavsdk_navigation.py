@@ -18,7 +18,7 @@ from mavsdk.asyncio.plugins.manual_control import ManualControlAsync
 from mavsdk.asyncio.plugins.mission import MissionAsync, MissionPlan
 from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
 
-from contracts.frames import HOME_ALT_AMSL_M, geodetic_from_ned
+from contracts.frames import DEFAULT_HOME
 from tests.harness import start_processes
 from tests.mavsdk_helpers import mission_item, until
 
@@ -144,8 +144,8 @@ async def _goto_and_sticks_session(port: int) -> dict:
         watch = Watch()
         follower = asyncio.ensure_future(watch.follow(telem))
         await _take_off(action, watch)
-        lat, lon, _ = geodetic_from_ned(15.0, -5.0, 0.0)
-        await action.goto_location(lat, lon, HOME_ALT_AMSL_M + 4.0, 90.0)
+        lat, lon, _ = DEFAULT_HOME.geodetic_from_ned(15.0, -5.0, 0.0)
+        await action.goto_location(lat, lon, DEFAULT_HOME.alt_amsl_m + 4.0, 90.0)
         await until(lambda: np.linalg.norm(watch.ned - (15.0, -5.0, -4.0)) < 0.5
                      and np.linalg.norm(watch.velocity) < 0.05, 30.0, "the go-to")
         await asyncio.sleep(1.0)
@@ -193,9 +193,9 @@ async def _orbit_session(port: int) -> dict:
         watch = Watch()
         follower = asyncio.ensure_future(watch.follow(telem))
         await _take_off(action, watch)
-        lat, lon, _ = geodetic_from_ned(6.0, 0.0, 0.0)
+        lat, lon, _ = DEFAULT_HOME.geodetic_from_ned(6.0, 0.0, 0.0)
         await action.do_orbit(4.0, 1.5, OrbitYawBehavior.HOLD_FRONT_TO_CIRCLE_CENTER, lat, lon,
-                              HOME_ALT_AMSL_M + 3.0)
+                              DEFAULT_HOME.alt_amsl_m + 3.0)
         await asyncio.sleep(15.0)  # onto the circle
         end = time.monotonic() + 10.0
         while time.monotonic() < end:

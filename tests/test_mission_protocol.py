@@ -12,6 +12,7 @@ import pytest
 from autopilot.mavlink.mission_protocol import RETRY_S, TIMEOUT_S
 from autopilot.navigator.geofence import zones_from_items
 from autopilot.navigator.mission_store import MISSION
+from contracts.frames import DEFAULT_HOME
 from tests.test_mavlink_server import T0, M, Station
 
 HOME_LAT, HOME_LON = 47.397742, 8.545594
@@ -244,7 +245,7 @@ def test_fence_and_rally_lists_are_kept_apart_from_the_mission(station):
     assert upload(station, [*fence, empty], M.MAV_MISSION_TYPE_FENCE)[0].type == \
         M.MAV_MISSION_ACCEPTED
     assert len(lists[M.MAV_MISSION_TYPE_FENCE]) == 6
-    assert len(zones_from_items(lists[M.MAV_MISSION_TYPE_FENCE])) == 2
+    assert len(zones_from_items(lists[M.MAV_MISSION_TYPE_FENCE], DEFAULT_HOME)) == 2
     assert upload(station, fence, M.MAV_MISSION_TYPE_FENCE)[0].type == M.MAV_MISSION_ACCEPTED
     c = station.client
     c.send(M.MAVLink_mission_clear_all_message(1, 1, M.MAV_MISSION_TYPE_FENCE))

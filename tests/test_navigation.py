@@ -18,6 +18,7 @@ import pytest
 from autopilot.flight_tasks.sticks import Sticks, deadband, expo, sticks_from_manual_control
 from autopilot.navigator.mission_store import MISSION
 from autopilot.refusal import RefusedError
+from contracts.frames import DEFAULT_HOME
 from contracts.mavlink import mavlink
 from contracts.modes import FlightMode
 from ground.metrics import distance_to_path
@@ -332,7 +333,7 @@ def test_a_jump_loop_without_a_position_ends_the_mission_instead_of_stalling():
 
     items = (mission_item(0, 5, 0, 3.0), do_item(1, M.MAV_CMD_DO_JUMP, (2, -1, 0, 0)),
              do_item(2, M.MAV_CMD_DO_JUMP, (1, -1, 0, 0)))
-    runner = MissionRunner(items, default_parameters())
+    runner = MissionRunner(items, default_parameters(), DEFAULT_HOME)
     runner.start(1, np.zeros(3), 0.0, False, 2.5)
     runner.step(0.0, np.zeros(3), np.zeros(3))
     assert runner.finished
@@ -346,11 +347,12 @@ def test_local_ned_items_are_metres_from_home():
 
     item = MissionItem(0, M.MAV_FRAME_LOCAL_NED, WAYPOINT, 0, 1, (0, 0, 0, math.nan),
                        4.0, -3.0, -6.0)
-    assert np.array_equal(item_position_ned(item, np.zeros(3)), (4.0, -3.0, -6.0))
+    assert np.array_equal(item_position_ned(item, np.zeros(3), DEFAULT_HOME), (4.0, -3.0, -6.0))
     # GLOBAL_INT: the altitude is AMSL (home is 488 m).
     amsl = dataclasses.replace(mission_item(0, 10.0, 20.0, 0.0), frame=M.MAV_FRAME_GLOBAL_INT,
                                z=498.0)
-    assert np.allclose(item_position_ned(amsl, np.zeros(3)), (10.0, 20.0, -10.0), atol=0.01)
+    assert np.allclose(item_position_ned(amsl, np.zeros(3), DEFAULT_HOME), (10.0, 20.0, -10.0),
+                       atol=0.01)
 
 
 def test_loiter_unlimited_holds_and_payload_items_are_passed_over():

@@ -19,7 +19,7 @@ from autopilot.mavlink.offboard import (
     local_setpoint,
 )
 from autopilot.refusal import RefusedError
-from contracts.frames import HOME_ALT_AMSL_M, geodetic_from_ned
+from contracts.frames import DEFAULT_HOME
 from contracts.mavlink import mavlink
 
 HERE = np.array([10.0, -4.0, -3.0])
@@ -105,8 +105,8 @@ def test_unsupported_frames_and_force_setpoints_are_refused() -> None:
     with pytest.raises(RefusedError, match="force"):
         local(mavlink.MAV_FRAME_LOCAL_NED, FORCE_SET)
     with pytest.raises(RefusedError, match="terrain"):
-        global_setpoint(mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT, POSITION_ONLY, 0, 0, 5.0,
-                        (0, 0, 0), (0, 0, 0), 0.0, 0.0)
+        global_setpoint(DEFAULT_HOME, mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT, POSITION_ONLY,
+                        0, 0, 5.0, (0, 0, 0), (0, 0, 0), 0.0, 0.0)
 
 
 @pytest.mark.parametrize("frame, relative", [(mavlink.MAV_FRAME_GLOBAL_INT, False),
@@ -115,15 +115,15 @@ def test_unsupported_frames_and_force_setpoints_are_refused() -> None:
                                              (mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, True)])
 def test_global_setpoints_land_where_geodetic_from_ned_puts_them(frame, relative) -> None:
     target = (35.0, -12.0, -6.0)
-    lat, lon, amsl = geodetic_from_ned(*target)
-    alt = amsl - HOME_ALT_AMSL_M if relative else amsl
-    sp = global_setpoint(frame, POSITION_ONLY, round(lat * 1e7), round(lon * 1e7), alt,
-                         (0, 0, 0), (0, 0, 0), 1.0, 0.0)
+    lat, lon, amsl = DEFAULT_HOME.geodetic_from_ned(*target)
+    alt = amsl - DEFAULT_HOME.alt_amsl_m if relative else amsl
+    sp = global_setpoint(DEFAULT_HOME, frame, POSITION_ONLY, round(lat * 1e7),
+                         round(lon * 1e7), alt, (0, 0, 0), (0, 0, 0), 1.0, 0.0)
     assert np.allclose(sp.position_ned_m, target, atol=0.02)  # 1e-7 deg is ~1 cm
     assert sp.yaw_rad == 1.0
 
 
 def test_global_setpoints_off_the_earth_are_refused() -> None:
     with pytest.raises(RefusedError, match="not on Earth"):
-        global_setpoint(mavlink.MAV_FRAME_GLOBAL_INT, POSITION_ONLY, 950_000_000, 0, 500.0,
-                        (0, 0, 0), (0, 0, 0), 0.0, 0.0)
+        global_setpoint(DEFAULT_HOME, mavlink.MAV_FRAME_GLOBAL_INT, POSITION_ONLY,
+                        950_000_000, 0, 500.0, (0, 0, 0), (0, 0, 0), 0.0, 0.0)

@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from contracts.frames import HOME_ALT_AMSL_M, altitude_from_pressure_m, pressure_hpa
+from contracts.frames import DEFAULT_HOME, altitude_from_pressure_m, pressure_hpa
 from contracts.mavlink import (
     HIL_SENSOR_BARO,
     HIL_SENSOR_IMU,
@@ -168,12 +168,13 @@ def test_the_autopilot_reads_hil_sensor_and_hil_gps_as_sent():
     gyro, accel, baro, mag = imu_from_hil_sensor(_packed(sensor_message(sensor)))
     np.testing.assert_allclose(gyro, sensor.gyro_frd_rad_s, rtol=1e-6)
     np.testing.assert_allclose(accel, sensor.accel_frd_mps2, rtol=1e-6)
-    assert baro == pytest.approx(sensor.pressure_alt_m - HOME_ALT_AMSL_M, abs=0.05)
+    assert baro == pytest.approx(sensor.pressure_alt_m, abs=0.05)
     assert mag is not None
     no_baro = next(s for s, _ in out if not s.fields_updated & HIL_SENSOR_BARO)
     assert math.isnan(imu_from_hil_sensor(_packed(sensor_message(no_baro)))[2])
     fix = next(f for _s, f in out[1:] if f is not None)
-    position, velocity, fix_type, satellites = fix_from_hil_gps(_packed(gps_message(fix)))
+    position, velocity, fix_type, satellites = fix_from_hil_gps(_packed(gps_message(fix)),
+                                                                DEFAULT_HOME)
     assert fix_type == 3 and satellites == 14
     assert np.all(np.abs(position - (0.0, 0.0, -1.0)) < 1.5)
     assert altitude_from_pressure_m(pressure_hpa(488.0)) == pytest.approx(488.0, abs=1e-6)
@@ -200,7 +201,7 @@ def test_a_fix_off_the_earth_is_refused():
     msg = _packed(gps_message(out[0][1]))
     msg.lat = 91 * 10**7
     with pytest.raises(LinkDataError, match="not on Earth"):
-        fix_from_hil_gps(msg)
+        fix_from_hil_gps(msg, DEFAULT_HOME)
 
 
 def test_a_profile_beside_a_scenario_file_is_found_from_it(tmp_path):

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from contracts.airframe import PAPER, hover_rotor_speeds
+from contracts.frames import DEFAULT_HOME, Home
 from contracts.mavlink import (
     LinkDataError,
     actuator_message,
@@ -38,7 +39,8 @@ def _flying_plant(fidelity: str) -> Plant:
 def _decoded(plant: Plant) -> dict[str, object]:
     s = plant.state()
     mav = mavlink.MAVLink(None, 1, 51)
-    data = b"".join(m.pack(mav) for m in sample_messages(*ideal_readings(123456, s, np.zeros(3))))
+    data = b"".join(m.pack(mav) for m in sample_messages(
+        *ideal_readings(123456, s, np.zeros(3)), DEFAULT_HOME))
     return {m.get_type(): m for m in mavlink.MAVLink(None, 1, 1).parse_buffer(data)}
 
 
@@ -50,7 +52,7 @@ def test_odometry_gives_the_plant_measurement_to_float32(fidelity):
     np.testing.assert_allclose(measurement_from_odometry(msgs["ODOMETRY"]),
                                plant.true_measurement(), atol=1e-5)
     # HIL_STATE_QUATERNION alone: 1e-7 deg (~1 cm), mm, cm/s.
-    hil = measurement_from_hil_state(msgs["HIL_STATE_QUATERNION"])
+    hil = measurement_from_hil_state(msgs["HIL_STATE_QUATERNION"], DEFAULT_HOME)
     truth = plant.true_measurement()
     np.testing.assert_allclose(hil[0:3], truth[0:3], atol=0.02)
     np.testing.assert_allclose(hil[3:6], truth[3:6], atol=0.006)
@@ -94,7 +96,8 @@ def test_split_frames_keeps_partial_frames_for_later():
     plant = _flying_plant("paper")
     s = plant.state()
     mav = mavlink.MAVLink(None, 1, 51)
-    data = b"".join(m.pack(mav) for m in sample_messages(*ideal_readings(1, s, np.zeros(3))))
+    data = b"".join(m.pack(mav) for m in sample_messages(
+        *ideal_readings(1, s, np.zeros(3)), DEFAULT_HOME))
     frames, rest = split_frames(b"\x00\x01" + data + data[:20])
     assert [i for i, _ in frames] == [-1, 113, 107, 115, 331] and rest == data[:20]
 
@@ -169,11 +172,11 @@ def test_autopilot_refuses_bad_simulator_data_and_keeps_serving(tmp_path):
         mav = mavlink.MAVLink(None, 1, 51)
         plant = Plant(PAPER, "paper", ground_contact=True)
         s = plant.state()
-        msgs = sample_messages(*ideal_readings(0, s, np.zeros(3)))
+        msgs = sample_messages(*ideal_readings(0, s, np.zeros(3)), DEFAULT_HOME)
         msgs[3].vx = math.nan
         conn.sendall(b"".join(m.pack(mav) for m in msgs))
         time.sleep(0.5)
-        good = sample_messages(*ideal_readings(10000, s, np.zeros(3)))
+        good = sample_messages(*ideal_readings(10000, s, np.zeros(3)), DEFAULT_HOME)
         conn.sendall(b"".join(m.pack(mav) for m in good))
         reply = []
         reader = mavlink.MAVLink(None, 1, 51)
@@ -225,8 +228,10 @@ def test_odometry_velocity_in_body_frd_is_turned_into_ned():
         measurement_from_odometry(frd_position)
 
 
-def _autopilot_on_a_socket(rate_hz: float = 100.0, source: str = "auto"):
-    """The autopilot process's simulator side on one end of a socket pair."""
+def _autopilot_on_a_socket(rate_hz: float = 100.0, source: str = "auto",
+                           home: Home | None = DEFAULT_HOME):
+    """The autopilot process's simulator side on one end of a socket pair (its home given,
+    as scenario runs give it, unless ``home`` is None)."""
     from autopilot.commander.commander import Commander
     from autopilot.control.factory import make_controller
     from autopilot.mavlink.server import MavlinkServer
@@ -234,7 +239,8 @@ def _autopilot_on_a_socket(rate_hz: float = 100.0, source: str = "auto"):
 
     vehicle = Commander(lambda p: make_controller("smc", PAPER, 1 / rate_hz, None, p),
                       1 / rate_hz)
-    autopilot = Autopilot(AutopilotConfig(rate_hz=rate_hz, state_source=source), vehicle,
+    autopilot = Autopilot(AutopilotConfig(rate_hz=rate_hz, state_source=source, home=home),
+                          vehicle,
                           MavlinkServer(vehicle, []), log=lambda text: None)
     ours, theirs = socket.socketpair()
     ours.setblocking(False)
@@ -247,7 +253,7 @@ def _send_samples(theirs: socket.socket, times_us, kinds=("HIL_STATE_QUATERNION"
     s = plant.state()
     mav = mavlink.MAVLink(None, 1, 51)
     for t in times_us:
-        msgs = sample_messages(*ideal_readings(t, s, np.zeros(3)))
+        msgs = sample_messages(*ideal_readings(t, s, np.zeros(3)), DEFAULT_HOME)
         theirs.sendall(b"".join(m.pack(mav) for m in msgs if m.get_type() in kinds))
 
 

@@ -82,11 +82,11 @@ def test_offboard_needs_a_stream_and_follows_setpoints(vehicle):
 def test_offboard_global_and_body_offset_setpoints(vehicle):
     """SET_POSITION_TARGET_GLOBAL_INT (altitude above home) and a one-off BODY_OFFSET_NED
     position, then a frame the vehicle does not take (refused, nothing changes)."""
-    from contracts.frames import geodetic_from_ned
+    from contracts.frames import DEFAULT_HOME
 
     procs, tool = vehicle
     _take_off(tool)
-    lat, lon, _ = geodetic_from_ned(3.0, 2.0, 0.0)
+    lat, lon, _ = DEFAULT_HOME.geodetic_from_ned(3.0, 2.0, 0.0)
 
     def global_target() -> None:
         tool.mav.set_position_target_global_int_send(

@@ -42,6 +42,7 @@ from autopilot.navigator.navigator import Navigator
 from autopilot.parameters import validate_parameters
 from autopilot.refusal import RefusedError
 from contracts.airframe import max_thrust_n
+from contracts.frames import DEFAULT_HOME, Home
 from contracts.modes import FlightMode
 from contracts.perturbation_book import PerturbationBook
 from contracts.perturbations import Perturbation
@@ -81,6 +82,10 @@ class Commander:
         self.messages: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) for STATUSTEXT
         self.failures = InjectedFailures()  # from ground tools (MAV_CMD_INJECT_FAILURE)
         self.sim_link_ok = False
+        # The local frame's origin on Earth: given or from the simulator's first position;
+        # PX4's default until then (the vehicle has no position to report before it).
+        self.home = DEFAULT_HOME
+        self.home_known = False
         # Why the state is not good enough to arm on (the estimator's reason), None if it is.
         self.navigation_problem: str | None = None
         self.estimator_status = None  # EstimatorStatus when flying on the estimator
@@ -278,6 +283,12 @@ class Commander:
     def check_links(self, link_t_s: float) -> None:
         """Failsafes timed on the link clock: ground station and the mode's input stream."""
         self.failsafes.check_links(link_t_s)
+
+    def set_home(self, home: Home) -> None:
+        """Where the local frame is on Earth: missions, fences, go-to and telemetry's
+        latitudes and longitudes are taken around it from now on."""
+        self.home, self.home_known = home, True
+        self.navigator.home = home
 
     def sim_link_lost(self) -> None:
         if self.sim_link_ok:

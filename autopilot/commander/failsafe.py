@@ -122,7 +122,7 @@ class Failsafes:
         v = self.vehicle
         p = v.parameters
         reason = self.geofence.crossed_out(
-            v.mission.lists[FENCE], v.measurement[MEASUREMENT.position_ned_m],
+            v.mission.lists[FENCE], v.home, v.measurement[MEASUREMENT.position_ned_m],
             p["GF_MAX_HOR_DIST"], p["GF_MAX_VER_DIST"])
         if reason is None:
             return

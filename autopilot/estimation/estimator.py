@@ -11,11 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot.estimation import eskf
-from contracts.frames import (
-    HOME_MAG_DECLINATION_RAD,
-    home_mag_field_ned_gauss,
-    quat_from_euler,
-)
+from contracts.frames import DEFAULT_HOME, Home, quat_from_euler
 from contracts.vectors import MEASUREMENT
 
 # The history reaches back 0.4 s at 1000 Hz (1.6 s at 250 Hz): beyond EKF2_GPS_DELAY's
@@ -78,12 +74,11 @@ def heading_from_mag(mag_frd: np.ndarray, phi: float, theta: float,
 class Estimator:
     """IMU + GPS + baro + magnetometer -> the controller's measurement."""
 
-    def __init__(self, noise: eskf.FilterNoise | None = None, gps_delay_s: float = 0.11) -> None:
+    def __init__(self, noise: eskf.FilterNoise | None = None, gps_delay_s: float = 0.11,
+                 home: Home = DEFAULT_HOME) -> None:
         self.noise = noise or eskf.FilterNoise()
         self.gps_delay_us = round(gps_delay_s * 1e6)
-        # The field at home, as PX4 looks it up for its position (the world magnetic model).
-        self.field_ned = np.array(home_mag_field_ned_gauss())
-        self.declination_rad = HOME_MAG_DECLINATION_RAD
+        self.set_home(home)
         self.x = np.zeros(eskf.X_SIZE)
         self.x[eskf.X_QUAT] = 1.0
         self.p = np.eye(eskf.E_SIZE)
@@ -111,6 +106,12 @@ class Estimator:
         self.gps_rejected = 0
         self.gps_late = 0
         self._converged = False
+
+    def set_home(self, home: Home) -> None:
+        """The field at home, as PX4 looks it up for its position (the world magnetic
+        model); a home taken from the simulator's first message arrives this way."""
+        self.field_ned = np.array(home.mag_field_ned_gauss())
+        self.declination_rad = home.mag_declination_rad()
 
     @property
     def aligned(self) -> bool:

@@ -18,7 +18,6 @@ from autopilot.mavlink.telemetry import (
 )
 from autopilot.navigator.mission_store import ItemError
 from autopilot.refusal import RefusedError
-from contracts.frames import HOME_ALT_AMSL_M
 from contracts.mavlink import GLOBAL_FRAMES, mavlink, ned_from_global
 from contracts.modes import FlightMode, mode_from_custom, px4_custom_mode_from_command
 
@@ -42,7 +41,8 @@ class CommandProtocol:
             mavlink.MAV_CMD_DO_SET_MODE: self._set_mode,
             mavlink.MAV_CMD_REQUEST_MESSAGE: self._request_message,
             mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: lambda *_: [autopilot_version()],
-            mavlink.MAV_CMD_GET_HOME_POSITION: lambda *_: [home_position()],
+            mavlink.MAV_CMD_GET_HOME_POSITION: lambda *_: [
+                home_position(self.server.vehicle.home)],
             mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: self._message_interval,
             mavlink.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
             mavlink.MAV_CMD_MISSION_START: self._mission_start,
@@ -125,7 +125,7 @@ class CommandProtocol:
         if math.isnan(altitude):
             relative = None
         elif self.server.flavour == "px4":
-            relative = altitude - HOME_ALT_AMSL_M  # PX4 reads param7 as AMSL
+            relative = altitude - self.server.vehicle.home.alt_amsl_m  # PX4: AMSL
         else:
             relative = altitude  # ArduPilot reads it above home
         self.server.vehicle.takeoff(relative)
@@ -181,7 +181,7 @@ class CommandProtocol:
             raise RefusedError("go-to gives latitude without longitude or the reverse")
         if math.isfinite(lat) and (abs(lat) > 90.0 or abs(lon) > 180.0):
             raise RefusedError(f"go-to latitude/longitude {lat:g}, {lon:g} is not on Earth")
-        target = ned_from_global(self.frame, lat, lon, alt)
+        target = ned_from_global(self.server.vehicle.home, self.frame, lat, lon, alt)
         # param4 in radians, as PX4 and MAVSDK read it (the MAVLink spec said degrees
         # until 2025 and now says radians too); NaN keeps the heading.
         yaw = p[3]
@@ -203,8 +203,8 @@ class CommandProtocol:
             raise RefusedError("orbit values must be finite or NaN")
         vehicle = self.server.vehicle
         task = vehicle.tasks[FlightMode.ORBIT]
-        task.request(ned_from_global(mavlink.MAV_FRAME_GLOBAL, lat, lon, p[6]), p[0], p[1],
-                     0 if math.isnan(p[2]) else int(p[2]))
+        task.request(ned_from_global(vehicle.home, mavlink.MAV_FRAME_GLOBAL, lat, lon, p[6]),
+                     p[0], p[1], 0 if math.isnan(p[2]) else int(p[2]))
         if vehicle.mode is FlightMode.ORBIT:
             task.apply()
             return

@@ -27,9 +27,7 @@ import numpy as np
 
 from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.refusal import RefusedError
-from contracts.frames import (
-    heading_to_ned,
-)
+from contracts.frames import Home, heading_to_ned
 from contracts.mavlink import GLOBAL_FRAMES, mavlink, ned_from_global
 
 # POSITION_TARGET_TYPEMASK bits.
@@ -106,9 +104,9 @@ def local_setpoint(frame: int, type_mask: int, position, velocity, accel, yaw: f
     return Setpoint(pos, vel, acc, *_yaw(type_mask, yaw, yaw_rate))
 
 
-def global_setpoint(frame: int, type_mask: int, lat_int: int, lon_int: int, alt_m: float,
-                    velocity, accel, yaw: float, yaw_rate: float) -> Setpoint:
-    """SET_POSITION_TARGET_GLOBAL_INT -> Setpoint in local NED around home."""
+def global_setpoint(home: Home, frame: int, type_mask: int, lat_int: int, lon_int: int,
+                    alt_m: float, velocity, accel, yaw: float, yaw_rate: float) -> Setpoint:
+    """SET_POSITION_TARGET_GLOBAL_INT -> Setpoint in local NED around ``home``."""
     if frame not in GLOBAL_FRAMES:
         raise RefusedError(f"setpoint frame {frame} is not supported (no terrain data)")
     if type_mask & FORCE_SET:
@@ -118,7 +116,7 @@ def global_setpoint(frame: int, type_mask: int, lat_int: int, lon_int: int, alt_
     lat, lon, alt = given
     if abs(lat) > 90.0 or abs(lon) > 180.0:  # False for NaN: left out
         raise RefusedError(f"setpoint latitude/longitude {lat:g}, {lon:g} is not on Earth")
-    pos = ned_from_global(frame, lat, lon, alt)
+    pos = ned_from_global(home, frame, lat, lon, alt)
     vel = _masked(type_mask, VELOCITY_BITS, velocity, "velocity")
     acc = _masked(type_mask, ACCEL_BITS, accel, "acceleration")
     return Setpoint(pos, vel, acc, *_yaw(type_mask, yaw, yaw_rate))

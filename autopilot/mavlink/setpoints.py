@@ -51,8 +51,9 @@ class SetpointProtocol:
     def on_global(self, link: GroundLink, address, msg, now: float) -> None:
         try:
             setpoint = global_setpoint(
-                msg.coordinate_frame, msg.type_mask, msg.lat_int, msg.lon_int, msg.alt,
-                (msg.vx, msg.vy, msg.vz), (msg.afx, msg.afy, msg.afz), msg.yaw, msg.yaw_rate)
+                self.server.vehicle.home, msg.coordinate_frame, msg.type_mask, msg.lat_int,
+                msg.lon_int, msg.alt, (msg.vx, msg.vy, msg.vz), (msg.afx, msg.afy, msg.afz),
+                msg.yaw, msg.yaw_rate)
             self.server.vehicle.position_setpoint(now, setpoint)
         except RefusedError as exc:
             self._refuse(link, address, str(exc), now)

@@ -12,7 +12,7 @@ import math
 import numpy as np
 
 from autopilot.commander.commander import Commander
-from contracts.frames import HOME_ALT_AMSL_M, HOME_LAT_DEG, HOME_LON_DEG, geodetic_from_ned
+from contracts.frames import Home
 from contracts.frames import quat_from_euler as _quat_from_euler
 from contracts.mavlink import mavlink
 from contracts.modes import custom_mode
@@ -145,9 +145,9 @@ def landed_state(v: Commander) -> int:
     return mavlink.MAV_LANDED_STATE_IN_AIR
 
 
-def home_position() -> mavlink.MAVLink_home_position_message:
+def home_position(home: Home) -> mavlink.MAVLink_home_position_message:
     return mavlink.MAVLink_home_position_message(
-        int(HOME_LAT_DEG * 1e7), int(HOME_LON_DEG * 1e7), int(HOME_ALT_AMSL_M * 1000),
+        round(home.lat_deg * 1e7), round(home.lon_deg * 1e7), round(home.alt_amsl_m * 1000),
         0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
 
 
@@ -187,20 +187,20 @@ def telemetry_message(msg_id: int, v: Commander, flavour: str, boot_ms: int,
         return mavlink.MAVLink_local_position_ned_message(
             boot_ms, *m[MEASUREMENT.position_ned_m], *m[MEASUREMENT.velocity_ned_mps])
     if msg_id == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
-        lat, lon, alt = geodetic_from_ned(*m[MEASUREMENT.position_ned_m])
+        lat, lon, alt = v.home.geodetic_from_ned(*m[MEASUREMENT.position_ned_m])
         heading = int(math.degrees(m[MEAS_YAW]) % 360.0 * 100) % 36000
         return mavlink.MAVLink_global_position_int_message(
             boot_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),
             int(round(-m[MEAS_Z] * 1000)), *(int(np.clip(round(c * 100), -32768, 32767))
                                              for c in m[MEASUREMENT.velocity_ned_mps]), heading)
     if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
-        return home_position()
+        return home_position(v.home)
     if msg_id == mavlink.MAVLINK_MSG_ID_VFR_HUD:
         speed = float(np.hypot(m[MEAS_VEL], m[MEAS_VEL + 1]))
         heading = int(math.degrees(m[MEAS_YAW]) % 360.0)
         throttle = int(round(100 * float(np.mean(v.last_commands))))
         return mavlink.MAVLink_vfr_hud_message(speed, speed, heading, throttle,
-                                               HOME_ALT_AMSL_M - m[MEAS_Z], -m[MEAS_VZ])
+                                               v.home.alt_amsl_m - m[MEAS_Z], -m[MEAS_VZ])
     if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
         return autopilot_version()
     if msg_id == mavlink.MAVLINK_MSG_ID_MISSION_CURRENT:

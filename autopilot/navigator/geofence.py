@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot.navigator.mission_store import MissionItem, is_empty_circle
-from contracts.frames import ned_from_geodetic
+from contracts.frames import Home
 from contracts.mavlink import mavlink
 
 M = mavlink
@@ -43,18 +43,18 @@ class Zone:
         return inside
 
 
-def zones_from_items(items: tuple[MissionItem, ...]) -> tuple[Zone, ...]:
-    """The fence list's zones: consecutive polygon vertices (param1 of each = their count),
-    circles one item each."""
+def zones_from_items(items: tuple[MissionItem, ...], home: Home) -> tuple[Zone, ...]:
+    """The fence list's zones around ``home``: consecutive polygon vertices (param1 of each
+    = their count), circles one item each."""
     zones, i = [], 0
     while i < len(items):
         item = items[i]
-        north, east, _ = ned_from_geodetic(item.x * 1e-7, item.y * 1e-7, 0.0)
+        north, east, _ = home.ned_from_geodetic(item.x * 1e-7, item.y * 1e-7, 0.0)
         inclusion = item.command in INCLUSIONS
         if item.command in POLYGONS:
             count = int(item.params[0])
             group = items[i:i + count]
-            vertices = np.array([ned_from_geodetic(g.x * 1e-7, g.y * 1e-7, 0.0)[:2]
+            vertices = np.array([home.ned_from_geodetic(g.x * 1e-7, g.y * 1e-7, 0.0)[:2]
                                  for g in group])
             zones.append(Zone(inclusion, vertices=vertices))
             i += max(count, 1)
@@ -88,14 +88,15 @@ class GeofenceWatch:
 
     def __init__(self) -> None:
         self.breach: str | None = None  # why the vehicle is outside its fence
-        self._fence_of: tuple | None = None  # the fence list the zones were built from
+        self._fence_of: tuple | None = None  # the fence list and home the zones are from
         self._zones: tuple = ()
 
-    def crossed_out(self, fence: tuple, position_ned_m: np.ndarray, max_hor_m: float,
-                    max_ver_m: float) -> str | None:
+    def crossed_out(self, fence: tuple, home: Home, position_ned_m: np.ndarray,
+                    max_hor_m: float, max_ver_m: float) -> str | None:
         """The reason when this sample is the first outside, else None."""
-        if fence is not self._fence_of:
-            self._fence_of, self._zones = fence, zones_from_items(fence)
+        if self._fence_of is None or fence is not self._fence_of[0] or \
+                home != self._fence_of[1]:
+            self._fence_of, self._zones = (fence, home), zones_from_items(fence, home)
         reason = breach(position_ned_m, self._zones, max_hor_m, max_ver_m)
         first = reason is not None and self.breach is None
         self.breach = reason

@@ -26,6 +26,7 @@ import numpy as np
 from autopilot.flight_tasks.goal import LAND_DOWN_M, Goal, Vertical
 from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.navigator.mission_store import DO_COMMANDS, PAYLOAD_COMMANDS, MissionItem
+from contracts.frames import Home
 from contracts.mavlink import mavlink, ned_from_global
 
 M = mavlink
@@ -71,12 +72,12 @@ class Event(NamedTuple):
     text: str = ""
 
 
-def item_position_ned(item: MissionItem, here_ned_m: np.ndarray) -> np.ndarray:
-    """A positioned item's target in local NED around home. A landing item at latitude
+def item_position_ned(item: MissionItem, here_ned_m: np.ndarray, home: Home) -> np.ndarray:
+    """A positioned item's target in local NED around ``home``. A landing item at latitude
     and longitude 0 (or x, y NaN in LOCAL_NED) lands where the vehicle is."""
     if item.is_global:
         here_latlon = item.x == 0 and item.y == 0
-        out = ned_from_global(item.frame, item.x * 1e-7, item.y * 1e-7, item.z)
+        out = ned_from_global(home, item.frame, item.x * 1e-7, item.y * 1e-7, item.z)
     else:
         here_latlon = not (math.isfinite(item.x) and math.isfinite(item.y))
         out = np.array([item.x, item.y, item.z], dtype=float)
@@ -110,6 +111,7 @@ class MissionRunner:
 
     items: tuple[MissionItem, ...]
     parameters: dict[str, float]
+    home: Home  # where the items' latitudes and longitudes are taken around
     seq: int = 0
     speed_mps: float = math.nan  # DO_CHANGE_SPEED; NaN: MPC_XY_CRUISE
     events: list[Event] = field(default_factory=list)  # for the navigator to act on
@@ -150,7 +152,7 @@ class MissionRunner:
     def _first_position(self, seq: int, here: np.ndarray) -> np.ndarray | None:
         for item in self.items[seq:]:
             if item.command in (*WAYPOINT_COMMANDS, M.MAV_CMD_NAV_TAKEOFF):
-                return item_position_ned(item, here)
+                return item_position_ned(item, here, self.home)
         return None
 
     def _begin_item(self, here: np.ndarray, t_s: float) -> None:
@@ -196,7 +198,7 @@ class MissionRunner:
             self._phase = Phase.WAIT
             self._wait_until_s = t_s + float(item.params[0])
             return
-        target = item_position_ned(item, self._leg_start)
+        target = item_position_ned(item, self._leg_start, self.home)
         if command == M.MAV_CMD_NAV_LAND:
             target[2] = self._leg_start[2]  # fly there at this altitude, then descend
         self._target = target
@@ -232,7 +234,7 @@ class MissionRunner:
         following = self.seq + 1
         if following < len(self.items) and \
                 self.items[following].command in WAYPOINT_COMMANDS:
-            after = item_position_ned(self.items[following], self._target)
+            after = item_position_ned(self.items[following], self._target, self.home)
             return turn_angle(self._leg_start, self._target, after) < STRAIGHT_ON_RAD
         return False
 

@@ -16,6 +16,7 @@ from autopilot.flight_tasks.goal import Goal
 from autopilot.navigator.mission_runner import EventKind, MissionRunner
 from autopilot.navigator.mission_store import MAX_SPEED_MPS, MISSION, MissionStore
 from autopilot.refusal import RefusedError
+from contracts.frames import DEFAULT_HOME
 
 
 class Navigator:
@@ -28,6 +29,7 @@ class Navigator:
         self.reached: list[int] = []  # mission items reached, for MISSION_ITEM_REACHED
         self._current_shown = 0  # the current item as the runner last set it
         self._say = say
+        self.home = DEFAULT_HOME  # the vehicle's, set with it
 
     @property
     def mission(self) -> tuple:
@@ -53,7 +55,7 @@ class Navigator:
                 self.runner.items is not items:  # from the start, fresh jump counts and speed
             if self.complete or self.store.current >= len(items):
                 self.store.current = 0
-            self.runner = MissionRunner(items, parameters)
+            self.runner = MissionRunner(items, parameters, self.home)
         self.complete = False  # (resuming keeps the jump counts and the speed)
         self.runner.start(self.store.current, stopping_point, heading_rad, landed,
                           parameters["MIS_TAKEOFF_ALT"])

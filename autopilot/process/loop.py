@@ -37,6 +37,7 @@ from autopilot.process.telemetry import TelemetryPublisher
 from autopilot.process.warm_up import load_compiled_code
 from autopilot.refusal import RefusedError
 from contracts import timeline
+from contracts.frames import Home
 from contracts.mavlink import (
     AUTOPILOT_SYSID,
     SIM_TCP_PORT,
@@ -69,6 +70,7 @@ class AutopilotConfig:
     sysid: int = AUTOPILOT_SYSID  # also the vehicle id in telemetry keys
     rt_priority: int = 50  # SCHED_FIFO priority of the real-time loop (0: normal)
     zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(enabled=False))
+    home: Home | None = None  # None: the simulator's first position, as PX4 takes it
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.rate_hz) and 1.0 <= self.rate_hz <= 1000.0):
@@ -101,7 +103,10 @@ class Autopilot(PacedProcess):
         self.start_mission = start_mission  # until armed in AUTO.MISSION
         self.period_us = round(1e6 / config.rate_hz)
         self.navigation = Navigation.for_source(vehicle, config.state_source)
-        self.sim = SimLink(config.sim_host, config.sim_port, config.state_source, config.sysid)
+        self.sim = SimLink(config.sim_host, config.sim_port, config.state_source, config.sysid,
+                           config.home)
+        if config.home is not None:
+            self._set_home(config.home, "given")
         self.timing = LoopTiming(self.period_us / 1e6)
         self.node = TelemetryNode(config.zenoh, config.sysid, AUTOPILOT, self.log)
         self.telemetry = TelemetryPublisher(self.node, config.sysid, vehicle, ground,
@@ -198,6 +203,12 @@ class Autopilot(PacedProcess):
         self.vehicle.sim_link_lost()
         self.next_control_us = None
 
+    def _set_home(self, home: Home, how: str) -> None:
+        self.vehicle.set_home(home)
+        self.navigation.set_home(home)
+        self.log(f"home {home.lat_deg:.7f}, {home.lon_deg:.7f}, {home.alt_amsl_m:.2f} m "
+                 f"({how})")
+
     def _connect(self, now: float) -> None:
         if self.sim.connect(now):
             timeline.mark(AUTOPILOT, "connected to the simulator")
@@ -214,6 +225,8 @@ class Autopilot(PacedProcess):
         if self.sim.last_bad:
             self.log(f"refused simulator data: {self.sim.last_bad}")
             self.sim.last_bad = None
+        if self.sim.home is not None and not self.vehicle.home_known:
+            self._set_home(self.sim.home, "from the simulator's first position")
         for time_us, measurement in self.navigation.measurements(readings):
             if measurement is None:  # the estimator is aligning: nothing to fly on yet
                 self.navigation.aligning(time_us)

@@ -15,6 +15,7 @@ import numpy as np
 from autopilot.commander.commander import Commander
 from autopilot.estimation.estimator import Estimator
 from autopilot.process.sim_link import GpsReading, ImuReading, LinkReading
+from contracts.frames import Home
 
 
 class Navigation:
@@ -48,13 +49,20 @@ class Navigation:
                     est.gps(reading.time_us, reading.fix)
             elif isinstance(reading, ImuReading):
                 failed = self.vehicle.failures  # injected failures drop a sensor's data
+                baro_alt_m = reading.baro_alt_amsl_m - self.vehicle.home.alt_amsl_m
                 est.imu(reading.time_us, reading.gyro, reading.accel,
-                        math.nan if failed.baro_off else reading.baro_alt_m,
+                        math.nan if failed.baro_off or not self.vehicle.home_known
+                        else baro_alt_m,
                         None if failed.mag_off else reading.mag)
                 samples.append((reading.time_us, est.measurement() if est.aligned else None))
             else:
                 samples.append(reading)
         return samples
+
+    def set_home(self, home: Home) -> None:
+        """The estimator's field for ``home`` (the vehicle's own home is the vehicle's)."""
+        if self.estimator is not None:
+            self.estimator.set_home(home)
 
     def aligning(self, time_us: int) -> None:
         """A sample without a measurement: arming waits for the estimator to align."""

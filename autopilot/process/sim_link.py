@@ -16,12 +16,14 @@ from typing import NamedTuple
 import numpy as np
 
 from autopilot.estimation.estimator import GpsFix
+from contracts.frames import Home
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
     STATE_SOURCES,
     LinkDataError,
     fix_from_hil_gps,
+    home_from_message,
     imu_from_hil_sensor,
     mavlink,
     measurement_from_hil_state,
@@ -30,6 +32,8 @@ from contracts.mavlink import (
     split_frames,
 )
 
+# The messages a home can come from, read for it whatever the vehicle flies on.
+HOME_IDS = frozenset((mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION, mavlink.MAVLINK_MSG_ID_HIL_GPS))
 SIM_HEARTBEAT_S = 1.0  # to the simulator, from the connection on (jMAVSim waits for one)
 RECONNECT_S = 0.5
 
@@ -42,13 +46,13 @@ class TruthReading(NamedTuple):
 
 
 class ImuReading(NamedTuple):
-    """HIL_SENSOR: gyro and specific force FRD, baro altitude above home [m] (NaN: not
-    fresh), magnetometer FRD [gauss] (None: not fresh)."""
+    """HIL_SENSOR: gyro and specific force FRD, baro altitude AMSL [m] (NaN: not fresh),
+    magnetometer FRD [gauss] (None: not fresh)."""
 
     time_us: int
     gyro: np.ndarray
     accel: np.ndarray
-    baro_alt_m: float
+    baro_alt_amsl_m: float
     mag: np.ndarray | None
 
 
@@ -66,8 +70,11 @@ class SimLink:
     """TCP client of the simulator; reconnects while the simulator is away."""
 
     def __init__(self, host: str, port: int, source: str,
-                 sysid: int = AUTOPILOT_SYSID) -> None:
+                 sysid: int = AUTOPILOT_SYSID, home: Home | None = None) -> None:
         self.address = (host, port)
+        # The local frame's origin: given, or the simulator's first position (as PX4's
+        # simulator_mavlink takes its reference); None until then.
+        self.home = home
         self.sock: socket.socket | None = None
         self.source_types = STATE_SOURCES[source]
         self.source_ids = frozenset(getattr(mavlink, f"MAVLINK_MSG_ID_{t}")
@@ -109,19 +116,32 @@ class SimLink:
             mavlink.MAV_STATE_ACTIVE, 3)
         return self.send(msg.pack(self.mav))
 
-    @staticmethod
-    def decode(msg: mavlink.MAVLink_message) -> LinkReading:
-        """The sample of a state message (raises LinkDataError on bad data)."""
+    def decode(self, msg: mavlink.MAVLink_message) -> LinkReading | None:
+        """The sample of a state message (raises LinkDataError on bad data); None for a
+        position before home is known (a HIL_GPS without a fix)."""
         kind = msg.get_type()
         if kind == "ODOMETRY":
             return TruthReading(msg.time_usec, measurement_from_odometry(msg))
+        if self.home is None and kind != "HIL_SENSOR":
+            return None
         if kind == "HIL_STATE_QUATERNION":
-            return TruthReading(msg.time_usec, measurement_from_hil_state(msg))
+            return TruthReading(msg.time_usec, measurement_from_hil_state(msg, self.home))
         if kind == "HIL_GPS":
-            position, velocity, fix_type, satellites = fix_from_hil_gps(msg)
+            position, velocity, fix_type, satellites = fix_from_hil_gps(msg, self.home)
             return GpsReading(msg.time_usec, GpsFix(position, velocity, fix_type, satellites))
         gyro, accel, baro_alt, mag = imu_from_hil_sensor(msg)
         return ImuReading(msg.time_usec, gyro, accel, baro_alt, mag)
+
+    def _take_home(self, msgs: list[mavlink.MAVLink_message]) -> None:
+        for msg in msgs:
+            try:
+                self.home = home_from_message(msg)
+            except LinkDataError as exc:
+                self.bad_messages += 1
+                self.last_bad = str(exc)
+                continue
+            if self.home is not None:
+                return
 
     def close(self) -> None:
         if self.sock is not None:
@@ -140,9 +160,12 @@ class SimLink:
         if not data:
             return None
         frames, self._pending = split_frames(self._pending + data)
-        wanted = b"".join(f for msgid, f in frames if msgid in self.source_ids)
-        msgs = [m for m in (self.mav.parse_buffer(wanted) if wanted else None) or []
-                if m.get_type() in self.source_types]
+        ids = self.source_ids if self.home is not None else self.source_ids | HOME_IDS
+        wanted = b"".join(f for msgid, f in frames if msgid in ids)
+        parsed = (self.mav.parse_buffer(wanted) if wanted else None) or []
+        if self.home is None:
+            self._take_home(parsed)
+        msgs = [m for m in parsed if m.get_type() in self.source_types]
         if not self.odometry_seen and any(m.get_type() == "ODOMETRY" for m in msgs):
             self.odometry_seen = True
         samples = []
@@ -150,10 +173,13 @@ class SimLink:
             if self.odometry_seen and msg.get_type() != "ODOMETRY":
                 continue  # the same sample, from the message the controller prefers
             try:
-                samples.append(self.decode(msg))
+                sample = self.decode(msg)
             except LinkDataError as exc:
                 self.bad_messages += 1
                 self.last_bad = str(exc)
+                continue
+            if sample is not None:
+                samples.append(sample)
         return samples
 
     def send(self, data: bytes) -> bool:

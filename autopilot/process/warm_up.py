@@ -9,6 +9,7 @@ and on the estimator its filter steps.
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -20,10 +21,8 @@ from autopilot.process.navigation import Navigation
 from autopilot.process.sim_link import SimLink
 from contracts.airframe import max_thrust_n
 from contracts.frames import (
+    DEFAULT_HOME,
     GRAVITY_MPS2,
-    HOME_ALT_AMSL_M,
-    HOME_LAT_DEG,
-    HOME_LON_DEG,
     euler_from_quat,
     wrap_pi,
 )
@@ -53,13 +52,15 @@ def load_compiled_code(vehicle: Commander, period_s: float, link: SimLink) -> No
     # A first decoded sample costs milliseconds; the estimator's compiled steps load on a
     # scratch estimator.
     scratch_navigation = Navigation(vehicle, Estimator())
+    decoder = copy.copy(link)  # the link's own home is the simulator's to give
+    decoder.home = DEFAULT_HOME
     for k in range(3):
         truth = TruthSample(k * 10_000, (0.0, 0.0, -1.0), (0.0, 0.0, 0.0),
                             (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, -GRAVITY_MPS2))
         sensor = SensorSample(k * 10_000, (0.0, 0.0, -GRAVITY_MPS2), (0.0, 0.0, 0.0),
                               (0.2, 0.0, 0.4), 950.0, 500.0, 20.0, HIL_SENSOR_ALL_FIELDS)
-        fix = GpsSample(k * 10_000, HOME_LAT_DEG, HOME_LON_DEG, HOME_ALT_AMSL_M + 1.0,
+        fix = GpsSample(k * 10_000, *DEFAULT_HOME.geodetic_from_ned(0.0, 0.0, -1.0),
                         (0.0, 0.0, 0.0), 0.8, 1.2, 3, 12)
-        for msg in sample_messages(truth, sensor, fix):
+        for msg in sample_messages(truth, sensor, fix, DEFAULT_HOME):
             if msg.get_type() in link.source_types:
-                scratch_navigation.measurements([link.decode(msg)])
+                scratch_navigation.measurements([decoder.decode(msg)])

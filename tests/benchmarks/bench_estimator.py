@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 
 from autopilot.estimation import eskf  # noqa: E402
 from autopilot.estimation.estimator import Estimator, GpsFix  # noqa: E402
-from contracts.frames import ned_from_geodetic  # noqa: E402
+from contracts.frames import DEFAULT_HOME  # noqa: E402
 from contracts.mavlink import HIL_SENSOR_BARO, HIL_SENSOR_MAG  # noqa: E402
 from sitl.plant import VehicleState  # noqa: E402
 from sitl.sensors import SensorSuite, read_profile  # noqa: E402
@@ -52,7 +52,8 @@ def main() -> None:
         t_us = round(k * 1e6 / RATE_HZ)
         sensor, fix = suite.sample(t_us, state, np.zeros(3))
         if fix is not None:
-            position = np.array(ned_from_geodetic(fix.lat_deg, fix.lon_deg, fix.alt_amsl_m))
+            position = np.array(DEFAULT_HOME.ned_from_geodetic(fix.lat_deg, fix.lon_deg,
+                                                                fix.alt_amsl_m))
             start = time.perf_counter()
             est.gps(t_us, GpsFix(position, np.array(fix.velocity_ned_mps), 3, 14))
             if est.aligned:

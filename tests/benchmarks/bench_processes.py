@@ -27,6 +27,7 @@ from autopilot.commander.commander import Commander  # noqa: E402
 from autopilot.control.factory import load_models, make_controller  # noqa: E402
 from autopilot.flight_tasks.reference import Reference  # noqa: E402
 from contracts.airframe import PAPER, hover_rotor_speeds  # noqa: E402
+from contracts.frames import DEFAULT_HOME  # noqa: E402
 from contracts.mavlink import (  # noqa: E402
     actuator_message,
     commands_from_actuator,
@@ -76,7 +77,7 @@ def cycle_parts() -> dict[str, float]:
     s = plant.state()
 
     def encode_sample():
-        msgs = sample_messages(*ideal_readings(0, s, np.zeros(3)))
+        msgs = sample_messages(*ideal_readings(0, s, np.zeros(3)), DEFAULT_HOME)
         return b"".join(m.pack(sim_mav) for m in msgs)
 
     sample = encode_sample()

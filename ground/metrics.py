@@ -85,12 +85,12 @@ def path_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
     from contracts.mavlink import mavlink
 
     p = validate_parameters(scenario.parameters)
-    home = np.zeros(3)
+    start_ned = np.zeros(3)
     legs, radii, seqs = [], [], []
     for item in scenario.mission_items:
         if item.command not in (mavlink.MAV_CMD_NAV_TAKEOFF, *WAYPOINT_COMMANDS):
             continue
-        legs.append(item_position_ned(item, legs[-1] if legs else home))
+        legs.append(item_position_ned(item, legs[-1] if legs else start_ned, scenario.home))
         given = item.params[1] if item.command == mavlink.MAV_CMD_NAV_WAYPOINT else 0.0
         radii.append(given if np.isfinite(given) and given > 0 else p["NAV_ACC_RAD"])
         seqs.append(item.seq)
@@ -114,7 +114,7 @@ def path_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
     if len(legs) >= 2 and arrivals[0] is not None:
         end = arrivals[-1] if arrivals[-1] is not None else record.time_s[-1]
         window = (record.time_s >= arrivals[0]) & (record.time_s <= end)
-        deviation = distance_to_path(position[window], np.array([home, *legs]))
+        deviation = distance_to_path(position[window], np.array([start_ned, *legs]))
         if deviation.size:
             out["cross_track_rmse_m"] = float(np.sqrt(np.mean(deviation**2)))
             out["cross_track_max_m"] = float(np.max(deviation))

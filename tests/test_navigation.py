@@ -422,3 +422,35 @@ def test_altctl_yaw_stick_turns_and_stops_when_centred():
     assert turned == pytest.approx(math.radians(72.0), abs=0.05)  # 45 deg/s after 0.4 s
     # Then only the braking: 45 deg/s stopped at MPC_YAWRAUTO_ACC 60 deg/s^2 is 17 deg.
     assert after - turned == pytest.approx(0.31, abs=0.02)
+
+
+def test_path_metrics_of_a_flight_along_the_planned_legs():
+    """The six-waypoint plan flown exactly along its legs: every item reached, no
+    cross-track error (the planned legs are placed around the scenario's home)."""
+    from autopilot.navigator.mission_runner import WAYPOINT_COMMANDS, item_position_ned
+    from ground.metrics import path_metrics
+    from ground.run_files import RunRecord
+    from ground.scenarios import scenario_by_name
+
+    scenario = scenario_by_name("mission-six-waypoints")
+    corners = [np.zeros(3)]
+    for item in scenario.mission_items:
+        if item.command in (M.MAV_CMD_NAV_TAKEOFF, *WAYPOINT_COMMANDS):
+            corners.append(item_position_ned(item, corners[-1], scenario.home))
+    path = np.concatenate([np.linspace(a, b, 200, endpoint=False)
+                           for a, b in zip(corners[:-1], corners[1:], strict=True)]
+                          + [corners[-1][None, :]])
+    n = len(path)
+    state = np.zeros((n, 12))
+    state[:, 0:3] = path
+    record = RunRecord("mission-six-waypoints", "ivfc", "rigid-body", 0.01,
+                       np.arange(n) * 0.01, state, np.zeros((n, 18)), np.zeros((n, 2)),
+                       np.zeros((n, 4)), np.zeros((n, 6, 10)), np.zeros((n, 6)), [], 0.0,
+                       False)
+    metrics = path_metrics(record, scenario)
+    assert metrics["all_reached"]
+    assert len(metrics["items"]) == len(corners) - 1
+    assert metrics["cross_track_max_m"] < 1e-9
+    # Each corner is reached on its way in, inside the acceptance radius before the corner.
+    assert all(a is not None for a in metrics["arrival_s"])
+    assert metrics["arrival_s"] == sorted(metrics["arrival_s"])

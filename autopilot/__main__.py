@@ -114,7 +114,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                    help="MAVLink system id, also the vehicle id in telemetry keys (1-255)")
     p.add_argument("--home", type=home_argument, metavar="LAT,LON,ALT",
                    help="where on Earth the local frame is: degrees, degrees, metres AMSL "
-                        "(default: the simulator's first position, as PX4 takes it)")
+                        "(default: the simulator's first HIL_STATE_QUATERNION, as PX4 takes it)")
     add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT)
     return p
 

@@ -51,9 +51,6 @@ class Processes:
             [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{self.sim_port}",
              "--gcs", f"127.0.0.1:{self.gcs_port}", "--gcs-bind", str(self.vehicle_port),
              "--api", "none", "--api-bind", "0",
-             # the simulator's home, given as scenario runs give it (an autopilot on the
-             # estimator that takes home from the first GPS fix does not converge yet)
-             *([] if "--home" in self.autopilot_args else ["--home", "47.397742,8.545594,488"]),
              *self.autopilot_args],
             stdout=log, stderr=subprocess.STDOUT)
 

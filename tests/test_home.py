@@ -105,3 +105,59 @@ def test_the_autopilot_takes_home_from_the_simulators_first_position():
     msg = telemetry_message(mavlink.MAVLINK_MSG_ID_HOME_POSITION, autopilot.vehicle, "px4", 0)
     assert (msg.latitude, msg.longitude) == (round(home.lat_deg * 1e7),
                                              round(home.lon_deg * 1e7))
+
+
+def _sample_with_an_erring_fix(time_us: int, kinds: tuple[str, ...]) -> bytes:
+    """One sample from a vehicle standing at DEFAULT_HOME whose GPS fix is 0.5 m north and
+    0.4 m low (a receiver's error), its messages in the order our simulator sends them:
+    HIL_GPS first."""
+    from contracts.mavlink import mavlink, sample_messages
+    from sitl.plant import VehicleState
+    from sitl.sensors import ideal_readings
+
+    at_rest = VehicleState(time_us * 1e-6, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3),
+                           np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))
+    truth, sensor, fix = ideal_readings(time_us, at_rest, np.zeros(3))
+    lat, lon, alt = DEFAULT_HOME.geodetic_from_ned(0.5, 0.0, 0.4)
+    fix = fix._replace(lat_deg=lat, lon_deg=lon, alt_amsl_m=alt)
+    mav = mavlink.MAVLink(None, 1, 51)
+    return b"".join(m.pack(mav) for m in sample_messages(truth, sensor, fix, DEFAULT_HOME)
+                    if m.get_type() in kinds)
+
+
+def test_home_comes_from_the_truth_even_when_a_fix_comes_first():
+    """The simulator's HIL_STATE_QUATERNION is home, not the GPS fix sent before it in the
+    same sample: the fix's error would put a vehicle standing on the ground 0.4 m up (where
+    arming is refused) and half a metre from where it stands."""
+    from tests.test_sim_link import _autopilot_on_a_socket
+
+    autopilot, theirs = _autopilot_on_a_socket(source="estimator", home=None)
+    theirs.sendall(_sample_with_an_erring_fix(0, ("HIL_GPS",)))
+    autopilot._on_sim_readable()
+    assert autopilot.sim.home is None  # a fix alone does not settle home at once
+    theirs.sendall(_sample_with_an_erring_fix(10_000, ("HIL_GPS", "HIL_SENSOR",
+                                                       "HIL_STATE_QUATERNION")))
+    autopilot._on_sim_readable()
+    assert autopilot.vehicle.home_known
+    home = autopilot.vehicle.home
+    assert np.allclose(home, DEFAULT_HOME, rtol=0, atol=1e-6)  # e7 degrees, mm altitude
+    assert "HIL_STATE_QUATERNION" in autopilot.sim.home_source
+
+
+def test_a_simulator_without_truth_gives_home_from_its_first_fix():
+    """No HIL_STATE_QUATERNION: home is the first 3D fix, once fixes have come for
+    HOME_FROM_GPS_AFTER_US without one."""
+    from autopilot.process.sim_link import HOME_FROM_GPS_AFTER_US
+    from tests.test_sim_link import _autopilot_on_a_socket
+
+    autopilot, theirs = _autopilot_on_a_socket(source="estimator", home=None)
+    for t in range(0, HOME_FROM_GPS_AFTER_US, 100_000):
+        theirs.sendall(_sample_with_an_erring_fix(t, ("HIL_GPS", "HIL_SENSOR")))
+        autopilot._on_sim_readable()
+        assert autopilot.sim.home is None
+    theirs.sendall(_sample_with_an_erring_fix(HOME_FROM_GPS_AFTER_US, ("HIL_GPS", "HIL_SENSOR")))
+    autopilot._on_sim_readable()
+    home = autopilot.vehicle.home
+    assert autopilot.vehicle.home_known and "first GPS fix" in autopilot.sim.home_source
+    north, east, down = DEFAULT_HOME.ned_from_geodetic(*home)
+    assert (north, east, down) == pytest.approx((0.5, 0.0, 0.4), abs=0.01)

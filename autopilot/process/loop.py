@@ -226,7 +226,7 @@ class Autopilot(PacedProcess):
             self.log(f"refused simulator data: {self.sim.last_bad}")
             self.sim.last_bad = None
         if self.sim.home is not None and not self.vehicle.home_known:
-            self._set_home(self.sim.home, "from the simulator's first position")
+            self._set_home(self.sim.home, self.sim.home_source or "")
         for time_us, measurement in self.navigation.measurements(readings):
             if measurement is None:  # the estimator is aligning: nothing to fly on yet
                 self.navigation.aligning(time_us)

@@ -34,6 +34,10 @@ from contracts.mavlink import (
 
 # The messages a home can come from, read for it whatever the vehicle flies on.
 HOME_IDS = frozenset((mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION, mavlink.MAVLINK_MSG_ID_HIL_GPS))
+# A simulator that sends no HIL_STATE_QUATERNION gives home from its first GPS fix, once
+# fixes have come for this long without one (a fix carries the receiver's error, typically
+# decimetres, which the vehicle's idea of where it stands inherits).
+HOME_FROM_GPS_AFTER_US = 500_000
 SIM_HEARTBEAT_S = 1.0  # to the simulator, from the connection on (jMAVSim waits for one)
 RECONNECT_S = 0.5
 
@@ -75,6 +79,8 @@ class SimLink:
         # The local frame's origin: given, or the simulator's first position (as PX4's
         # simulator_mavlink takes its reference); None until then.
         self.home = home
+        self.home_source = "given" if home is not None else None
+        self._first_fix: tuple[int, Home] | None = None  # (time_usec, home) of HIL_GPS
         self.sock: socket.socket | None = None
         self.source_types = STATE_SOURCES[source]
         self.source_ids = frozenset(getattr(mavlink, f"MAVLINK_MSG_ID_{t}")
@@ -103,6 +109,7 @@ class SimLink:
         self.mav = new_mavlink(self.sysid, AUTOPILOT_COMPID)
         self._pending = b""
         self.odometry_seen = False
+        self._first_fix = None  # a fix from another simulator's session gives no home
         self.next_heartbeat_s = now  # at once: some simulators wait for it
         return True
 
@@ -133,14 +140,26 @@ class SimLink:
         return ImuReading(msg.time_usec, gyro, accel, baro_alt, mag)
 
     def _take_home(self, msgs: list[mavlink.MAVLink_message]) -> None:
+        """Home from the first HIL_STATE_QUATERNION (the simulator's truth, exact); from
+        the first 3D GPS fix only when no HIL_STATE_QUATERNION has come after
+        HOME_FROM_GPS_AFTER_US of fixes."""
         for msg in msgs:
             try:
-                self.home = home_from_message(msg)
+                home = home_from_message(msg)
             except LinkDataError as exc:
                 self.bad_messages += 1
                 self.last_bad = str(exc)
                 continue
-            if self.home is not None:
+            if home is None:
+                continue
+            if msg.get_type() == "HIL_STATE_QUATERNION":
+                self.home, self.home_source = home, "from the simulator's HIL_STATE_QUATERNION"
+                return
+            if self._first_fix is None:
+                self._first_fix = (msg.time_usec, home)
+            elif msg.time_usec - self._first_fix[0] >= HOME_FROM_GPS_AFTER_US:
+                self.home = self._first_fix[1]
+                self.home_source = "from the simulator's first GPS fix (no HIL_STATE_QUATERNION)"
                 return
 
     def close(self) -> None:

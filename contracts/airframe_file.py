@@ -90,10 +90,12 @@ def shipped_airframe_names() -> list[str]:
     return shipped_names("contracts", SHIPPED_DIR)
 
 
-def read_airframe(source: str | Path) -> AirframeSpec:
-    """A shipped airframe by name, or an airframe file by path."""
+def read_airframe(source: str | Path, controllable: bool = True) -> AirframeSpec:
+    """A shipped airframe by name, or an airframe file by path. ``controllable=False``
+    reads a file whose rotors cannot fly it (for a rehearsal to say why, check by check)."""
     data, where = read_named_toml(source, "contracts", SHIPPED_DIR, "airframe", AirframeError)
-    return parse_airframe(data, where, default_name=Path(str(source)).stem)
+    return parse_airframe(data, where, default_name=Path(str(source)).stem,
+                          controllable=controllable)
 
 
 def checked_argument(load: Callable[[str], object]) -> Callable[[str], str]:
@@ -110,7 +112,7 @@ def checked_argument(load: Callable[[str], object]) -> Callable[[str], str]:
 
 
 def parse_airframe(data: dict[str, Any], where: str = "airframe",
-                   default_name: str = "airframe") -> AirframeSpec:
+                   default_name: str = "airframe", controllable: bool = True) -> AirframeSpec:
     unknown = sorted(set(data) - _TOP_KEYS)
     if unknown:
         raise AirframeError(f"{where}: unknown field(s) {', '.join(unknown)}")
@@ -138,7 +140,8 @@ def parse_airframe(data: dict[str, Any], where: str = "airframe",
         rotors=tuple(_rotor(r, f"{where}: rotor[{i + 1}]") for i, r in enumerate(rotors)),
         source=where,
     )
-    _check_controllable(spec, where)
+    if controllable:
+        check_controllable(spec, where)
     return spec
 
 
@@ -197,7 +200,7 @@ def _rotor(value: Any, where: str) -> RotorSpec:
     )
 
 
-def _check_controllable(spec: AirframeSpec, where: str) -> None:
+def check_controllable(spec: AirframeSpec, where: str) -> None:
     """Rotors that can hover it and that reach every axis (the effectiveness matrix has
     full rank), so the mixer can invert it."""
     if len(spec.rotors) != 4:
@@ -205,15 +208,21 @@ def _check_controllable(spec: AirframeSpec, where: str) -> None:
                             f"{len(spec.rotors)}")
     if np.linalg.matrix_rank(spec.effectiveness(), tol=1e-12) < 4:
         raise AirframeError(f"{where}: the rotors cannot produce thrust, roll, pitch and yaw "
-                            "independently (the effectiveness matrix is rank deficient)")
+                            "independently (the effectiveness matrix is rank deficient; on a "
+                            "quad, rotors of one spin sit diagonally opposite)")
     hover_share = np.linalg.inv(spec.effectiveness())[:, 0]  # W_i^2 per newton, no torque
+    spins = [r.spin for r in spec.rotors]
+    unbalanced = (f" ({spins.count(1.0)} rotor(s) spin cw and {spins.count(-1.0)} ccw: "
+                  "their drag torques cannot cancel)" if sum(spins) != 0.0 else "")
     if np.any(hover_share <= 0.0):
-        raise AirframeError(f"{where}: thrust without torque needs a rotor to push down (the "
-                            "centre of mass is outside the rotors): no mixer can hover it")
+        raise AirframeError(f"{where}: thrust without torque needs a rotor to push down"
+                            f"{unbalanced or ' (the centre of mass is outside the rotors)'}: "
+                            "no mixer can hover it")
     # The largest thrust with no torque: until the first rotor is at its top.
     max_thrust = min(r.max_rad_s**2 / share for r, share in zip(spec.rotors, hover_share,
                                                                  strict=True))
     weight = spec.mass_kg * 9.81
     if max_thrust <= weight:
         raise AirframeError(f"{where}: the rotors give at most {max_thrust:.3g} N without "
-                            f"torque, not more than the weight {weight:.3g} N: it cannot fly")
+                            f"torque, not more than the weight {weight:.3g} N{unbalanced}: "
+                            "it cannot fly")

@@ -169,20 +169,24 @@ class CheckOptions:
     tolerance: float = DEFAULT_TOLERANCE
     keep_passed: bool = False
     warm: bool = True  # each job's processes kept warm between its scenarios
+    figures: bool = False  # each run folder's figures (ivfm report's)
 
 
 def check_one(scenario: Scenario, options: CheckOptions,
-              warm: WarmProcesses | None = None) -> ScenarioResult:
-    """Fly one scenario (as runs of ``warm`` processes, if given) and judge it; a failed
-    flight is a result, not an exception."""
+              warm: WarmProcesses | None = None,
+              overrides: Overrides | None = None) -> ScenarioResult:
+    """Fly one scenario (as runs of ``warm`` processes, if given; with ``overrides`` of
+    its choices, else only ``options.realtime``) and judge it; a failed flight is a
+    result, not an exception."""
     from ground.processes import ProcessRunError
 
     run_dir = options.out_dir / scenario.name
     result = ScenarioResult(scenario, run_dir)
     start = time.perf_counter()
     try:
-        plan = plan_flight(scenario, Overrides(realtime=options.realtime))
-        result.metrics = fly_processes(plan, run_dir, figures=False, quiet=True, warm=warm)
+        plan = plan_flight(scenario, overrides or Overrides(realtime=options.realtime))
+        result.metrics = fly_processes(plan, run_dir, figures=options.figures, quiet=True,
+                                       warm=warm)
     except (ProcessRunError, ValueError, OSError) as exc:
         result.error = str(exc)
     result.wall_time_s = time.perf_counter() - start

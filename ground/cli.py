@@ -84,6 +84,38 @@ def _check_parser(check: argparse.ArgumentParser) -> None:
                        help="keep the run folders of passed scenarios too")
 
 
+def _rehearse_parser(p: argparse.ArgumentParser) -> None:
+    from autopilot.__main__ import param_argument
+
+    p.add_argument("--airframe", required=True,
+                   help="the airframe to rehearse: a shipped name or an airframe .toml file "
+                        "(read even when its rotors cannot fly it, to say why)")
+    p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the airframe's "
+                   "shipped one, else one identified on it now)")
+    p.add_argument("--rate-hz", type=_positive_rate, default=100.0,
+                   help="control rate of the flights, (0, 10000] Hz (default 100)")
+    p.add_argument("--sensors", help="sensor profile of the flights on the estimator: ideal, "
+                   "typical, degraded or a .toml file (default: each flight's, typical)")
+    p.add_argument("--profile", default="default",
+                   help="readiness profile: default (shipped) or a .toml file")
+    p.add_argument("--param", type=param_argument, action="append", default=[],
+                   metavar="NAME=VALUE", help="a parameter of the vehicle (repeatable)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="rehearsal folder (default: a new one under runs/)")
+    p.add_argument("--junit", type=Path, metavar="FILE",
+                   help="also write the JUnit XML here (it is always in the folder)")
+
+
+def _positive_rate(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 < value <= 10_000.0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 10000] Hz, got {text}")
+    return value
+
+
 def _report_parser(rep: argparse.ArgumentParser) -> None:
     rep.add_argument("run_dir", type=Path, help="a folder written by ivfm run")
     rep.add_argument("--no-figures", action="store_true")
@@ -148,6 +180,11 @@ _COMMANDS: tuple[tuple[str, str, str | None, Callable[[argparse.ArgumentParser],
     ("check", "fly scenario files and judge them by their [expect] tables",
      "Fly each scenario through the processes and check its expectations (docs/checks.md). "
      "Exit status 0 when all hold, 1 when any fails, 2 on bad input.", _check_parser),
+    ("rehearse", "go / no-go for a first flight of an airframe (docs/rehearsal.md)",
+     "Check the airframe and parameters, then fly the readiness profile's flights through "
+     "the processes and judge each (docs/rehearsal.md). Writes rehearsal.md, rehearsal.html, "
+     "JUnit XML and the parameters as a QGroundControl .params file. Exit status 0 when "
+     "every check passes (go), 1 when any fails (no-go), 2 on bad input.", _rehearse_parser),
     ("report", "metrics.json and figures of a run folder, from its log", None, _report_parser),
     ("compare", "every controller on every scenario, tables+figures", None, _compare_parser),
     ("identify", "build the IVFM and T1FM from input-output data", None, _identify_parser),
@@ -235,6 +272,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         handler = {
             "report": commands.report_command,
             "check": commands.check_command,
+            "rehearse": commands.rehearse_command,
             "ground log": commands.ground_log_command,
             "ground perturb": commands.ground_perturb_command,
             "ground router": commands.ground_router_command,

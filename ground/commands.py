@@ -109,6 +109,25 @@ def check_command(args: argparse.Namespace) -> int:
     return 1 if failed else 0
 
 
+def rehearse_command(args: argparse.Namespace) -> int:
+    from ground.readiness import load_profile
+    from ground.rehearsal import print_progress, rehearse, summary_lines
+
+    profile = load_profile(args.profile)
+    out = args.out or Path("runs") / time.strftime("rehearse-%Y%m%d-%H%M%S")
+    print(f"ivfm rehearse: {args.airframe}, profile {profile.name} ({len(profile.flights)} "
+          f"flights), control at {args.rate_hz:g} Hz; folder {out}", file=sys.stderr)
+    result = rehearse(args.airframe, profile, out, model=args.model, rate_hz=args.rate_hz,
+                      sensors=args.sensors, parameters=dict(args.param), say=print_progress)
+    print("\n".join(summary_lines(result)))
+    print(f"wrote {out / 'rehearsal.html'}, rehearsal.md, rehearsal.xml, parameters.params")
+    if args.junit is not None:
+        args.junit.parent.mkdir(parents=True, exist_ok=True)
+        args.junit.write_text((out / "rehearsal.xml").read_text())
+        print(f"wrote {args.junit}")
+    return 0 if result.passed else 1
+
+
 def report_command(args: argparse.Namespace) -> int:
     from ground.report import report
 

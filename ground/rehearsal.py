@@ -77,6 +77,8 @@ class Rehearsal:
 
 
 def _static_advice(outcome: Outcome) -> str:
+    if outcome.measured is None and outcome.limit is not None:
+        return ""  # not measurable: the airframe check says why
     key = "parameters" if outcome.name.startswith("parameter ") else outcome.name
     return ADVICE.get(key, "")
 
@@ -175,10 +177,12 @@ def write_outputs(r: Rehearsal, out_dir: Path) -> None:
 
 def write_params(path: Path, parameters: dict[str, float], what: str) -> None:
     """QGroundControl's parameter file (Vehicle-Id, Component-Id, Name, Value, Type; every
-    parameter REAL32, type 9), which QGC's Parameters > Tools > Load from file reads."""
+    parameter REAL32, type 9), which QGC's Parameters > Tools > Load from file reads;
+    values in full, so the set flown reloads exactly."""
     lines = [f"# Onboard parameters of {what}", "#",
              "# Vehicle-Id Component-Id Name Value Type"]
-    lines += [f"1\t1\t{name}\t{value:.9g}\t9" for name, value in sorted(parameters.items())]
+    lines += [f"1\t1\t{name}\t{float(value)!r}\t9"
+              for name, value in sorted(parameters.items())]
     path.write_text("\n".join(lines) + "\n")
 
 
@@ -230,6 +234,14 @@ def markdown(r: Rehearsal) -> str:
         lines.append("")
     if r.not_flown:
         lines += [f"Flights: {r.not_flown}.", ""]
+    if r.flights:
+        lines += ["## Flights", "", "| flight | result | expectations held | how | wall time |",
+                  "|---|---|---|---|---|"]
+        lines += [f"| {f.name} | {'pass' if f.result.passed else '**FAIL**'} | "
+                  f"{sum(o.passed for o in f.result.outcomes)} of {len(f.result.outcomes)} | "
+                  f"{'real time' if f.flight.realtime else 'lockstep'} | "
+                  f"{f.result.wall_time_s:.1f} s |" for f in r.flights]
+        lines.append("")
     lines += ["## Static checks", "", "| check | result | measured |", "|---|---|---|"]
     lines += [f"| {_cell(o.name)} | {'pass' if o.passed else '**FAIL**'} | {_cell(o.message)} |"
               for o in r.static]
@@ -253,7 +265,7 @@ def _cell(text: str) -> str:
 
 
 _STYLE = """
-body{font-family:system-ui,sans-serif;margin:2em auto;max-width:70em;color:#222}
+body{font-family:system-ui,sans-serif;margin:2em auto;max-width:70em;padding:0 1.5em;color:#222}
 .verdict{font-size:2.4em;font-weight:700;padding:.4em .8em;border-radius:.3em;color:#fff;
 display:inline-block}
 .go{background:#1a7f37}.nogo{background:#c62828}
@@ -291,6 +303,15 @@ def html_page(r: Rehearsal, out_dir: Path) -> str:
         parts.append("</table>")
     if r.not_flown:
         parts.append(f"<p class='fail'>Flights: {e(r.not_flown)}.</p>")
+    if r.flights:
+        parts.append("<h2>Flights</h2><table id='flights'><tr><th>flight</th><th>result</th>"
+                     "<th>expectations held</th><th>how</th><th>wall time</th></tr>")
+        parts += [f"<tr{'' if f.result.passed else ' class=failed'}><td><a href='#flight-"
+                  f"{e(f.name)}'>{e(f.name)}</a></td><td>{mark(f.result.passed)}</td><td>"
+                  f"{sum(o.passed for o in f.result.outcomes)} of {len(f.result.outcomes)}</td>"
+                  f"<td>{'real time' if f.flight.realtime else 'lockstep'}</td>"
+                  f"<td>{f.result.wall_time_s:.1f} s</td></tr>" for f in r.flights]
+        parts.append("</table>")
     parts.append("<h2>Static checks</h2><table><tr><th>check</th><th>result</th>"
                  "<th>measured</th></tr>")
     parts += [f"<tr{'' if o.passed else ' class=failed'}><td>{e(o.name)}</td>"
@@ -298,7 +319,7 @@ def html_page(r: Rehearsal, out_dir: Path) -> str:
     parts.append("</table>")
     for f in r.flights:
         res = f.result
-        parts.append(f"<h2>Flight {e(f.name)}: {mark(res.passed)}</h2>"
+        parts.append(f"<h2 id='flight-{e(f.name)}'>Flight {e(f.name)}: {mark(res.passed)}</h2>"
                      f"<p>{e(res.scenario.description)}; "
                      f"{'real time' if f.flight.realtime else 'lockstep'}, flown in "
                      f"{res.wall_time_s:.1f} s.</p>")

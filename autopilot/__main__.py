@@ -114,7 +114,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                    help="MAVLink system id, also the vehicle id in telemetry keys (1-255)")
     p.add_argument("--home", type=home_argument, metavar="LAT,LON,ALT",
                    help="where on Earth the local frame is: degrees, degrees, metres AMSL "
-                        "(default: the simulator's first HIL_STATE_QUATERNION, as PX4 takes it)")
+                        "(default: the simulator's first HIL_STATE_QUATERNION, as PX4 "
+                        "takes it); south or west: --home=-33.86,151.21,40")
     add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT)
     return p
 

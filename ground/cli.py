@@ -51,7 +51,8 @@ def _run_parser(run: argparse.ArgumentParser) -> None:
                      help="seed of the simulator's sensors and link loss (default 0)")
     run.add_argument("--home", type=home_argument, metavar="LAT,LON,ALT",
                      help="where on Earth the flight is: degrees, degrees, metres AMSL "
-                          "(default: the scenario's, else PX4's SITL home in Zurich)")
+                          "(default: the scenario's, else PX4's SITL home in Zurich); "
+                          "south or west: --home=-33.86,151.21,40")
     run.add_argument("--controller", choices=CONTROLLERS, help="(default: the scenario's)")
     run.add_argument("--plant", choices=list(FIDELITIES), help="(default: the scenario's)")
     run.add_argument("--out", type=Path, required=True, help="output directory (run folder)")

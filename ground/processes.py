@@ -82,8 +82,10 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
                      endpoint: str) -> tuple[list, list]:
     """The simulator's and the autopilot's command lines for one vehicle of a run."""
     pace = ["--realtime"] if settings.realtime else ["--lockstep"]
+    # "--home=": a southern or western home starts with "-", which argparse would take
+    # for an option if it came as its own argument.
     zenoh_args = ["--zenoh-connect", endpoint,
-                  "--home", ",".join(repr(v) for v in settings.home)]
+                  "--home=" + ",".join(repr(v) for v in settings.home)]
     ref = scenario.reference
     sim = [sys.executable, "-m", "sitl", "--port", str(sim_port), *pace,
            "--rate-hz", str(settings.rate_hz), "--plant", settings.plant,

@@ -57,9 +57,17 @@ SIMULATOR_COMPID = 51  # any id that is not the autopilot's
 # What the autopilot flies on. "auto" (PX4's way with a simulator's ground truth) takes
 # ODOMETRY when the simulator sends it and HIL_STATE_QUATERNION when it does not;
 # "estimator" flies on the onboard estimator fed by HIL_SENSOR and HIL_GPS, as hardware.
-STATE_SOURCES = {"auto": ("ODOMETRY", "HIL_STATE_QUATERNION"), "odometry": ("ODOMETRY",),
-                 "hil-state": ("HIL_STATE_QUATERNION",),
+# What the autopilot reads for each --state-source. On the truth, attitude, position and
+# velocity come from ODOMETRY or HIL_STATE_QUATERNION and the body rates from HIL_SENSOR's
+# gyro when the simulator sends it, as PX4's rate loop flies on the gyro and takes
+# HIL_STATE_QUATERNION as ground truth only.
+STATE_SOURCES = {"auto": ("ODOMETRY", "HIL_STATE_QUATERNION", "HIL_SENSOR"),
+                 "odometry": ("ODOMETRY", "HIL_SENSOR"),
+                 "hil-state": ("HIL_STATE_QUATERNION", "HIL_SENSOR"),
                  "estimator": ("HIL_GPS", "HIL_SENSOR")}
+# A gyro reading rates a truth sample at most this far from its time (our simulator
+# stamps both with the sample's time).
+GYRO_MATCH_US = 20_000
 
 # HIL_ACTUATOR_CONTROLS
 HIL_FLAG_LOCKSTEP = 1  # flags bit 0
@@ -231,6 +239,15 @@ def measurement_from_odometry(msg: mavlink.MAVLink_odometry_message) -> np.ndarr
         velocity = body_to_world(w / norm, x / norm, y / norm, z / norm, *velocity)
     return _measurement((msg.x, msg.y, msg.z), velocity, msg.q,
                         (msg.rollspeed, msg.pitchspeed, msg.yawspeed))
+
+
+def with_body_rates(measurement: np.ndarray, body_rate_frd_rad_s: np.ndarray) -> np.ndarray:
+    """The measurement with its Euler rates from these body rates (the gyro's)."""
+    out = measurement.copy()
+    phi, theta = out[MEASUREMENT.euler_rad][:2]
+    out[MEASUREMENT.euler_rate_rad_s] = euler_rates_from_body_rates(
+        float(phi), float(theta), *(float(b) for b in body_rate_frd_rad_s))
+    return out
 
 
 def measurement_from_hil_state(msg: mavlink.MAVLink_hil_state_quaternion_message,

@@ -23,6 +23,7 @@ from contracts.mavlink import (
     sample_messages,
     split_frames,
 )
+from contracts.vectors import MEASUREMENT
 from sitl.plant import Plant
 from sitl.sensors import ideal_readings
 from tests.harness import free_port
@@ -296,3 +297,72 @@ def test_auto_source_takes_odometry_when_sent_and_hil_state_when_not():
     assert _answers(theirs) == [0, 10_000, 20_000, 30_000]
     odometry_position = autopilot.latest[1][0:3]
     assert 0 < np.max(np.abs(odometry_position - hil_position)) < 0.02  # float32 vs 1e-7 deg
+
+
+def _samples_with_gyro(times_us, gyro_frd_rad_s, kinds, fields_updated=None) -> bytes:
+    """The flying plant's samples, HIL_SENSOR's gyro replaced by ``gyro_frd_rad_s`` (a
+    simulator whose gyro and ground truth disagree) and its fields_updated by the given."""
+    s = _flying_plant("paper").state()
+    mav = mavlink.MAVLink(None, 1, 51)
+    data = b""
+    for t in times_us:
+        truth, sensor, fix = ideal_readings(t, s, np.zeros(3))
+        sensor = sensor._replace(gyro_frd_rad_s=tuple(gyro_frd_rad_s),
+                                 fields_updated=fields_updated or sensor.fields_updated)
+        data += b"".join(m.pack(mav) for m in sample_messages(truth, sensor, fix, DEFAULT_HOME)
+                         if m.get_type() in kinds)
+    return data
+
+
+@pytest.mark.parametrize("source, truth", [("hil-state", "HIL_STATE_QUATERNION"),
+                                           ("odometry", "ODOMETRY"),
+                                           ("auto", "ODOMETRY")])
+def test_on_the_truth_body_rates_come_from_the_gyro(source, truth):
+    """As PX4's rate loop: attitude and position from the truth message, the body rates
+    from HIL_SENSOR's gyro of the same sample (here 0.1, -0.2, 0.3 rad/s, unlike the
+    truth's); the Euler rates the controller flies on are the gyro's."""
+    from contracts.frames import euler_rates_from_body_rates
+
+    autopilot, theirs = _autopilot_on_a_socket(source=source)
+    gyro = (0.1, -0.2, 0.3)
+    theirs.sendall(_samples_with_gyro([0, 10_000], gyro, ("HIL_SENSOR", truth)))
+    autopilot._on_sim_readable()
+    assert autopilot.steps == 2 and _answers(theirs) == [0, 10_000]
+    m = autopilot.latest[1]
+    phi, theta = m[MEASUREMENT.euler_rad][:2]
+    np.testing.assert_allclose(m[MEASUREMENT.euler_rate_rad_s],
+                               euler_rates_from_body_rates(phi, theta, *gyro), rtol=1e-6)
+    # The attitude is still the truth's: the gyro only rates it.
+    truth_euler = _flying_plant("paper").true_measurement()[MEASUREMENT.euler_rad]
+    np.testing.assert_allclose(m[MEASUREMENT.euler_rad], truth_euler, atol=1e-5)
+
+
+def test_without_hil_sensor_the_truth_gives_its_own_rates():
+    autopilot, theirs = _autopilot_on_a_socket(source="hil-state")
+    theirs.sendall(_samples_with_gyro([0], (0.1, -0.2, 0.3), ("HIL_STATE_QUATERNION",)))
+    autopilot._on_sim_readable()
+    plant = _flying_plant("paper")
+    np.testing.assert_allclose(autopilot.latest[1][MEASUREMENT.euler_rate_rad_s],
+                               plant.true_measurement()[MEASUREMENT.euler_rate_rad_s],
+                               rtol=1e-5, atol=1e-6)
+
+
+def test_a_simulator_with_only_an_imu_and_ground_truth_flies_on_the_truth():
+    """HIL_SENSOR with the IMU bits alone (no barometer, no magnetometer) and
+    HIL_STATE_QUATERNION, no HIL_GPS: every sample answered, flown on the truth with the
+    gyro's rates, nothing refused."""
+    from contracts.mavlink import HIL_SENSOR_IMU
+
+    autopilot, theirs = _autopilot_on_a_socket(source="auto", home=None)
+    times = [k * 10_000 for k in range(50)]
+    theirs.sendall(_samples_with_gyro(times, (0.0, 0.0, 0.05),
+                                      ("HIL_SENSOR", "HIL_STATE_QUATERNION"), HIL_SENSOR_IMU))
+    autopilot._on_sim_readable()
+    assert _answers(theirs) == times and autopilot.steps == 50
+    assert autopilot.sim.bad_messages == 0
+    assert autopilot.vehicle.home_known  # from HIL_STATE_QUATERNION
+    m = autopilot.latest[1]
+    phi, theta = m[MEASUREMENT.euler_rad][:2]
+    # psi rate of a pure body yaw rate r: r cos(phi) / cos(theta).
+    assert m[MEASUREMENT.euler_rate_rad_s][2] == pytest.approx(
+        0.05 * math.cos(phi) / math.cos(theta), rel=1e-6)

@@ -14,8 +14,9 @@ import numpy as np
 
 from autopilot.commander.commander import Commander
 from autopilot.estimation.estimator import Estimator
-from autopilot.process.sim_link import GpsReading, ImuReading, LinkReading
+from autopilot.process.sim_link import GpsReading, ImuReading, LinkReading, TruthReading
 from contracts.frames import Home
+from contracts.mavlink import GYRO_MATCH_US, with_body_rates
 
 
 class Navigation:
@@ -26,6 +27,7 @@ class Navigation:
         self.vehicle = vehicle
         self.estimator = estimator
         self._gps_ok: bool | None = None
+        self._gyro: ImuReading | None = None  # on the truth: the latest gyro reading
 
     @classmethod
     def for_source(cls, vehicle: Commander, source: str) -> Navigation:
@@ -42,6 +44,8 @@ class Navigation:
         is the estimate (None until it has aligned); a fix goes into it and is no sample.
         All readings are taken before any sample is flown, as they came in together."""
         est = self.estimator
+        if est is None:
+            return self._truth_samples(readings)
         samples = []
         for reading in readings:
             if isinstance(reading, GpsReading):
@@ -56,6 +60,23 @@ class Navigation:
                         None if failed.mag_off else reading.mag)
                 samples.append((reading.time_us, est.measurement() if est.aligned else None))
             else:
+                samples.append(reading)
+        return samples
+
+    def _truth_samples(self, readings: list[LinkReading]
+                       ) -> list[tuple[int, np.ndarray | None]]:
+        """On the simulator's truth: each truth sample, its body rates the gyro's of the
+        same sample when HIL_SENSOR came with it (PX4's rate loop flies on the gyro),
+        else the truth's own; an IMU reading is no sample."""
+        samples = []
+        for reading in readings:
+            if isinstance(reading, ImuReading):
+                self._gyro = reading
+            elif isinstance(reading, TruthReading):
+                gyro = self._gyro
+                if gyro is not None and abs(reading.time_us - gyro.time_us) <= GYRO_MATCH_US:
+                    reading = TruthReading(reading.time_us,
+                                           with_body_rates(reading.measurement, gyro.gyro))
                 samples.append(reading)
         return samples
 

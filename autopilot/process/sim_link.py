@@ -189,7 +189,7 @@ class SimLink:
             self.odometry_seen = True
         samples = []
         for msg in msgs:
-            if self.odometry_seen and msg.get_type() != "ODOMETRY":
+            if self.odometry_seen and msg.get_type() == "HIL_STATE_QUATERNION":
                 continue  # the same sample, from the message the controller prefers
             try:
                 sample = self.decode(msg)

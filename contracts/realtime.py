@@ -58,6 +58,17 @@ class LoopTiming:
         self.misses = 0
         # The last few misses (step index, how late [s]): where to look, in fixed memory.
         self.recent_misses: collections.deque[tuple[int, float]] = collections.deque(maxlen=8)
+        # Simulator stalls: control instants with no sample for over two periods (the last
+        # command held); episodes, steps held and the longest episode's sample gap.
+        self.stalls = 0
+        self.stall_steps = 0
+        self.longest_stall_s = 0.0
+
+    def record_stall(self, new_episode: bool, gap_s: float) -> None:
+        """One control instant without a fresh sample; ``gap_s`` since the last one."""
+        self.stalls += new_episode
+        self.stall_steps += 1
+        self.longest_stall_s = max(self.longest_stall_s, gap_s)
 
     def record_miss(self, periods: int, late_s: float) -> None:
         self.misses += periods
@@ -73,8 +84,10 @@ class LoopTiming:
     def summary(self) -> dict[str, float | int]:
         """Statistics so far, in milliseconds (computed now: call it when asked, not per
         period)."""
+        stalls = {"sim_stalls": self.stalls, "sim_stall_steps": self.stall_steps,
+                  "sim_stall_longest_ms": self.longest_stall_s * 1e3}
         if self.jitter.n < 1:
-            return {"steps": self.compute.n, "deadline_misses": self.misses}
+            return {"steps": self.compute.n, "deadline_misses": self.misses, **stalls}
         j, c = self.jitter, self.compute
         return {
             "steps": c.n,
@@ -89,6 +102,7 @@ class LoopTiming:
             "deadline_misses": self.misses,
             "recent_misses": [{"step": step, "late_ms": round(late * 1e3, 3)}
                               for step, late in self.recent_misses],
+            **stalls,
         }
 
 

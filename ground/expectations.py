@@ -39,7 +39,8 @@ SECTION_METRICS: dict[str, tuple[str, ...]] = {
                    "euler_rate_rmse_rad_s"),
     "path": ("cross_track_rmse_m", "cross_track_max_m"),
     "timing": ("deadline_misses", "jitter_p50_ms", "jitter_p99_ms", "jitter_max_ms",
-               "compute_p50_ms", "compute_p99_ms", "compute_max_ms"),
+               "compute_p50_ms", "compute_p99_ms", "compute_max_ms", "sim_stalls",
+               "sim_stall_steps", "sim_stall_longest_ms"),
     "control": ("effort_mean_sum_c2", "chattering_per_s", "saturated_fraction"),
 }
 # What ground/events.py reads from a log.

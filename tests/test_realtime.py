@@ -46,4 +46,15 @@ def test_loop_summary_in_milliseconds() -> None:
     # Percentiles are bin upper edges: at most one 1 us bin above the exact value.
     assert 0.1 - 1e-9 <= s["jitter_p50_ms"] <= 0.1 + BIN_S * 1e3 + 1e-9
     assert 0.3 - 1e-9 <= s["compute_p99_ms"] <= 0.3 + BIN_S * 1e3 + 1e-9
-    assert LoopTiming(0.01).summary() == {"steps": 0, "deadline_misses": 0}
+    assert LoopTiming(0.01).summary() == {"steps": 0, "deadline_misses": 0, "sim_stalls": 0,
+                                          "sim_stall_steps": 0, "sim_stall_longest_ms": 0.0}
+    assert (s["sim_stalls"], s["sim_stall_steps"]) == (0, 0)
+
+
+def test_stalls_count_episodes_steps_and_the_longest_gap() -> None:
+    timing = LoopTiming(0.01)
+    for new, gap_s in ((True, 0.021), (False, 0.031), (False, 0.041), (True, 0.025)):
+        timing.record_stall(new, gap_s)
+    s = timing.summary()
+    assert (s["sim_stalls"], s["sim_stall_steps"]) == (2, 4)
+    assert s["sim_stall_longest_ms"] == pytest.approx(41.0)

@@ -241,6 +241,35 @@ def test_stalled_simulator_triggers_the_link_loss_failsafe_after_its_timeout(veh
     assert _custom_mode(tool.heartbeat()) == (4, 6)  # landing once state is back
 
 
+def test_a_late_simulator_is_a_counted_stall_that_holds_the_command(vehicle):
+    """A simulator that goes quiet for 0.2 s (SIGSTOP, shorter than COM_SIM_LOSS_T): the
+    control instants without a fresh sample hold the last command and are counted, one
+    stall of about 200 ms in the timing summary, and the log says so; the link stays up."""
+    import json
+    import signal
+
+    procs, tool = vehicle
+    _take_off(tool)
+    procs.sim.send_signal(signal.SIGSTOP)
+    time.sleep(0.2)
+    procs.sim.send_signal(signal.SIGCONT)
+    end = time.monotonic() + 1.0
+    while time.monotonic() < end:
+        tool.pump()
+    assert not any("simulator link lost" in t for t in tool.texts)
+    procs.autopilot.terminate()
+    procs.autopilot.wait(5)
+    log = procs.autopilot_log()
+    timing = json.loads(log.split("autopilot: timing ", 1)[1].splitlines()[0])
+    assert timing["sim_stalls"] == 1
+    # At 100 Hz: the first 20 ms are not a stall yet, then 18 of 10 ms (OS wake-up adds
+    # a little: the signals and the sleep are not instant).
+    assert 15 <= timing["sim_stall_steps"] <= 30
+    assert 170 <= timing["sim_stall_longest_ms"] <= 300
+    (line,) = [ln for ln in log.splitlines() if "simulator late" in ln]
+    assert "control step(s) held the last command" in line
+
+
 def test_a_flooded_vehicle_answers_and_shows_its_drops(vehicle):
     """Garbage and valid heartbeats from 50 ports on the vehicle's port: the tool is
     still answered, the loss shows in SYS_STATUS and one

@@ -57,6 +57,7 @@ GROUND_GUARD_S = 0.0005  # ground work ends at least this long before the next s
 GROUND_SLICE = 16  # datagrams per link per turn
 SERVICE_PERIOD_S = 0.005  # telemetry out, link failsafes, Zenoh requests, status
 LOCKSTEP_GROUND_BUDGET_S = 0.001  # per service period in lockstep
+STALL_PERIODS = 2.0  # real time: no sample for this many periods is a simulator stall
 
 
 @dataclass
@@ -124,6 +125,10 @@ class Autopilot(PacedProcess):
         self._next_service = 0.0               # are read within a budget (_ground_work)
         self._progress_at = 0.1
         self._last_sample_wall = 0.0  # when the simulator last sent (time.monotonic)
+        self._sample_period_us = 0  # between the simulator's last two samples
+        self._stall_started: float | None = None  # a stall going on: since (monotonic)
+        self._stall_held = 0  # control steps it has held the last command
+        self._stall_gap_s = 0.0  # its sample gap so far
 
     def _start_mission(self, sim_t_s: float) -> None:
         """Scenario runs: arm in AUTO.MISSION as soon as the vehicle allows it (on the
@@ -235,6 +240,8 @@ class Autopilot(PacedProcess):
             self.navigation.update(time_us)
             if self.latest is not None and time_us < self.latest[0]:
                 self.next_control_us = None  # a new simulator: its clock starts again
+            elif self.latest is not None and time_us > self.latest[0]:
+                self._sample_period_us = time_us - self.latest[0]
             self.latest = (time_us, measurement)
             if not self.config.lockstep:
                 self.vehicle.sample(time_us / 1e6, measurement)
@@ -255,6 +262,25 @@ class Autopilot(PacedProcess):
                 timeline.mark(AUTOPILOT, "last control step")
                 self._stop = True
                 return
+
+    def _stalled(self, now: float, period_s: float) -> bool:
+        """Real time: a control instant whose newest sample is over STALL_PERIODS periods
+        old (of the control or of the simulator, whichever is longer) is a simulator
+        stall: counted, and the last command holds (nothing is flown on old data)."""
+        gap_s = now - self._last_sample_wall
+        if gap_s <= STALL_PERIODS * max(period_s, self._sample_period_us / 1e6):
+            if self._stall_started is not None:
+                self.log(f"simulator late: no sample for at least "
+                         f"{1e3 * self._stall_gap_s:.0f} ms; {self._stall_held} control "
+                         f"step(s) held the last command")
+                self._stall_started, self._stall_held = None, 0
+            return False
+        self.timing.record_stall(self._stall_started is None, gap_s)
+        if self._stall_started is None:
+            self._stall_started = now
+        self._stall_held += 1
+        self._stall_gap_s = gap_s
+        return True
 
     def _sim_watchdog(self, now: float) -> None:
         """Real time: no sample for COM_SIM_LOSS_T means the simulator is gone."""
@@ -351,6 +377,8 @@ class Autopilot(PacedProcess):
             start = time.perf_counter()
             self._poll(0.0)
             stepped = self.latest is not None and self.vehicle.sim_link_ok
+            if stepped and self._stalled(time.monotonic(), period_s):
+                stepped = False  # the last command holds; counted, not flown on old data
             if stepped:
                 time_us, measurement = self.latest
                 commands = self._control(time_us, measurement, start)

@@ -125,6 +125,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "3 land", choices=(1.0, 2.0, 3.0)),
     # The estimator (--state-source estimator), PX4's EKF2 name.
     ParamSpec("EKF2_GPS_DELAY", 110.0, 0.0, 300.0, "ms", "GPS fix age on arrival"),
+    ParamSpec("EKF2_NOAID_TOUT", 5e6, 5e5, 1e8, "us", "dead reckoning this long without a "
+              "GPS fix fused: position lost (failsafe: land)"),
 )
 PARAMETER_SPECS: dict[str, ParamSpec] = {spec.name: spec for spec in PARAMETERS}
 assert all(len(name) <= 16 for name in PARAMETER_SPECS)

@@ -41,7 +41,8 @@ SECTION_METRICS: dict[str, tuple[str, ...]] = {
     "timing": ("deadline_misses", "jitter_p50_ms", "jitter_p99_ms", "jitter_max_ms",
                "compute_p50_ms", "compute_p99_ms", "compute_max_ms", "sim_stalls",
                "sim_stall_steps", "sim_stall_longest_ms"),
-    "control": ("effort_mean_sum_c2", "chattering_per_s", "saturated_fraction"),
+    "control": ("effort_mean_sum_c2", "chattering_per_s", "saturated_fraction",
+                "tilt_rate_rms_rad_s"),
 }
 # What ground/events.py reads from a log.
 EVENT_KINDS = ("mode", "armed", "disarmed", "failsafe", "landed", "statustext")

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from contracts.frames import wrap_pi_array
-from contracts.vectors import REF_EULER, REF_POS
+from contracts.vectors import MEAS_EULER_RATE, REF_EULER, REF_POS
 from ground.run_files import RunRecord
 from ground.scenarios import Scenario
 
@@ -147,6 +147,10 @@ def compute_metrics(record: RunRecord, scenario: Scenario, airframe_name: str) -
     estimation = estimation_metrics(record, window) if record.truth is not None else None
     duration = float(np.count_nonzero(window)) * record.period_s
     tv = float(np.sum(np.abs(np.diff(c, axis=0)))) if len(c) > 1 else 0.0
+    # How hard roll and pitch swing: an attitude limit cycle shows here whatever the
+    # position does (RMS of the truth's |(phi_dot, theta_dot)|).
+    rates = record.true_state[window][:, MEAS_EULER_RATE:MEAS_EULER_RATE + 2]
+    tilt_rate = float(np.sqrt(np.mean(np.sum(rates**2, axis=1)))) if len(rates) else None
     sim_time = float(len(record.time_s)) * record.period_s
     return {
         "scenario": record.scenario,
@@ -167,11 +171,14 @@ def compute_metrics(record: RunRecord, scenario: Scenario, airframe_name: str) -
             "chattering_total_variation": tv,
             "chattering_per_s": tv / duration if duration > 0 else None,
             "saturated_fraction": float(np.mean((c >= 0.999) | (c <= 0.001))) if len(c) else None,
+            "tilt_rate_rms_rad_s": tilt_rate,
         },
         "definitions": {
             "error": "reference - output over t >= transient_s (angles wrapped)",
             "effort_mean_sum_c2": "mean over samples of sum_i c_i^2, c_i = W_i / W_max",
             "chattering_total_variation": "sum_k sum_i |c_i[k] - c_i[k-1]|",
+            "tilt_rate_rms_rad_s": "RMS over t >= transient_s of the truth's "
+                                   "sqrt(phi_dot^2 + theta_dot^2)",
             **({"estimation": ESTIMATION_DEFINITION} if estimation is not None else {}),
             **({"path": PATH_DEFINITION} if scenario.plan is not None else {}),
         },

@@ -30,6 +30,12 @@ from ground.readiness import ADVICE, Flight, Profile, airframe_checks, parameter
 from ground.scenarios import load_scenario
 
 PARAMS_FILE = "parameters.params"
+# What to change when one expectation fails, whatever the flight (else the flight's advice).
+EXPECTATION_ADVICE = {
+    "control.tilt_rate_rms_rad_s": "roll and pitch swing in a limit cycle: soften the "
+                                   "position loop (a wider boundary layer POS_EPS, e.g. 0.5; a "
+                                   "lower POS_LAM) or lower MPC_TILTMAX_AIR",
+}
 
 
 @dataclass
@@ -72,7 +78,8 @@ class Rehearsal:
             if f.result.error is not None:
                 out.append((f.name, Outcome("flight", False, None, None, f.result.error),
                             f.flight.advice))
-            out += [(f.name, o, f.flight.advice) for o in f.result.failures]
+            out += [(f.name, o, EXPECTATION_ADVICE.get(o.name.split(" ")[0], f.flight.advice))
+                    for o in f.result.failures]
         return out
 
 

@@ -189,3 +189,30 @@ def test_bad_input_exits_2_with_the_problem_named(tmp_path, capsys, argv, messag
     assert code == 2
     assert re.search(message, capsys.readouterr().err)
     assert not (out / "rehearsal.html").exists()
+
+
+def test_the_tilt_rate_metric_catches_the_x500_limit_cycle(tmp_path):
+    """The shipped quad X 500 hovering on its IVFM model, kicked 0.3 rad in pitch: at the
+    default POS_EPS (0.3) roll/pitch keep swinging (a limit cycle of the position loop at
+    its tilt limit), which the rehearsal's tilt_rate_rms_rad_s limit (0.5) fails; at
+    POS_EPS 0.5 the swing dies out. In process, lockstep-exact numbers."""
+    from autopilot.control.factory import load_models
+    from contracts.airframe import airframe_by_name
+    from ground.inprocess import run_inprocess
+    from ground.metrics import compute_metrics
+    from ground.scenarios import scenario_from_dict
+
+    data = tomllib.loads((Path(__file__).parents[1] / "ground/readiness/flights/wind.toml")
+                         .read_text())
+    data["perturbation"] = [{"kind": "kick", "theta_rad": 0.3, "start_s": 5.0, "end_s": 5.5}]
+    data["transient_s"] = 10.0
+    scenario = scenario_from_dict(data, tmp_path / "kick.toml", tmp_path)
+    models = load_models(None, "quad-x-500")
+    rates = {}
+    for eps in (0.3, 0.5):
+        record = run_inprocess(scenario, "ivfc", "rigid-body", airframe_by_name("quad-x-500"),
+                               models, period_s=0.01, parameters={"POS_EPS": eps})
+        rates[eps] = compute_metrics(record, scenario, "quad-x-500")["control"][
+            "tilt_rate_rms_rad_s"]
+    assert rates[0.3] > 1.0  # measured 1.21 rad/s
+    assert rates[0.5] < 0.01  # measured 1e-4 rad/s

@@ -290,6 +290,10 @@ class Commander:
         self.home, self.home_known = home, True
         self.navigator.home = home
 
+    def position_lost(self, what: str) -> None:
+        """The estimator has dead-reckoned past EKF2_NOAID_TOUT: land (PX4 descends)."""
+        self.failsafes.trigger(what, FlightMode.LAND)
+
     def sim_link_lost(self) -> None:
         if self.sim_link_ok:
             self.sim_link_ok = False

@@ -43,6 +43,7 @@ class EstimatorStatus:
     aligned: bool
     converged: bool
     gps_ok: bool  # a fix fused within GPS_TIMEOUT_S
+    since_gps_s: float  # since the last fix fused (inf before the first): dead reckoning
     reason: str  # why not converged ("" when it is)
     tilt_sigma_rad: float
     yaw_sigma_rad: float
@@ -256,7 +257,9 @@ class Estimator:
             reason = f"velocity not converged ({velocity:.2f} m/s 1-sigma)"
         self._converged = reason == ""
         return EstimatorStatus(
-            aligned=self.aligned, converged=reason == "", gps_ok=gps_ok, reason=reason,
+            aligned=self.aligned, converged=reason == "", gps_ok=gps_ok,
+            since_gps_s=(math.inf if self._last_fused_gps_us is None
+                         else (time_us - self._last_fused_gps_us) / 1e6), reason=reason,
             tilt_sigma_rad=tilt, yaw_sigma_rad=yaw, horizontal_sigma_m=horizontal,
             vertical_sigma_m=vertical, velocity_sigma_mps=velocity,
             gps_test_ratio=float(np.max(self._gps_ratios)),

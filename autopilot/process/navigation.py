@@ -27,6 +27,7 @@ class Navigation:
         self.vehicle = vehicle
         self.estimator = estimator
         self._gps_ok: bool | None = None
+        self._position_lost = False  # dead reckoning past EKF2_NOAID_TOUT, until a fix
         self._gyro: ImuReading | None = None  # on the truth: the latest gyro reading
 
     @classmethod
@@ -104,4 +105,11 @@ class Navigation:
                 v.say("GPS regained" if status.gps_ok else "GPS lost: dead reckoning",
                       6 if status.gps_ok else 4)
             self._gps_ok = status.gps_ok
+        # PX4's EKF2_NOAID_TOUT: dead reckoning has a limit, then the position is lost.
+        limit_s = v.parameters["EKF2_NOAID_TOUT"] / 1e6
+        if status.gps_ok:
+            self._position_lost = False
+        elif status.aligned and status.since_gps_s > limit_s and not self._position_lost:
+            self._position_lost = True
+            v.position_lost(f"position lost: no GPS fix for {limit_s:g} s")
         v.estimator_status = status

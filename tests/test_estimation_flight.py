@@ -78,7 +78,10 @@ def test_a_gps_outage_in_hover_through_the_processes(shipped_models, tmp_path):
     the vehicle stays within 2 m; the autopilot says when the GPS goes and comes back; the
     log holds the estimate and its health at every control step, beside the truth."""
     scenario = scenario_by_name("gps-outage")
-    ours, accounting = fly(scenario, ON_ESTIMATOR, tmp_path)
+    # The scenario's own parameters (EKF2_NOAID_TOUT 10 s: dead-reckon through the outage).
+    settings = dataclasses.replace(ON_ESTIMATOR, parameters={**(ON_ESTIMATOR.parameters or {}),
+                                                             **scenario.parameters})
+    ours, accounting = fly(scenario, settings, tmp_path)
     assert accounting["lost"] == {} and not ours.diverged
     reference = run_inprocess(scenario, "ivfc", "rigid-body", PAPER, shipped_models,
                               sensors="typical", state_source="estimator")

@@ -1,7 +1,7 @@
 """MAV_CMD_INJECT_FAILURE from a ground tool over a real socket, as PX4: refused unless
-SYS_FAILURE_EN is 1; GPS and motor failures applied inside the flight stack (fixes
-dropped, the motor's output held at zero), announced, and cleared with OK; every other
-unit or type refused as unsupported, changing nothing."""
+SYS_FAILURE_EN is 1; sensor failures (off, stuck, garbage, wrong, slow, intermittent)
+and motor failures applied inside the flight stack, announced, and cleared with OK;
+every other unit or type refused as unsupported, changing nothing."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ INJECT = M.MAV_CMD_INJECT_FAILURE
 GPS, MOTOR, BARO = (M.FAILURE_UNIT_SENSOR_GPS, M.FAILURE_UNIT_SYSTEM_MOTOR,
                     M.FAILURE_UNIT_SENSOR_BARO)
 OK, OFF, STUCK = M.FAILURE_TYPE_OK, M.FAILURE_TYPE_OFF, M.FAILURE_TYPE_STUCK
+DELAYED = M.FAILURE_TYPE_DELAYED
 
 
 @pytest.fixture
@@ -46,10 +47,10 @@ def test_refused_while_sys_failure_en_is_0(station):
 
 def test_gps_off_then_ok(enabled):
     assert enabled.client.result(INJECT, GPS, OFF, 0)[0] == ACCEPTED
-    assert enabled.vehicle.failures.gps_off
+    assert enabled.vehicle.failures.failed(GPS) == OFF
     assert _said(enabled) == ["failure injected: GPS off"]
     assert enabled.client.result(INJECT, GPS, OK, 0)[0] == ACCEPTED
-    assert not enabled.vehicle.failures.gps_off
+    assert enabled.vehicle.failures.failed(GPS) == OK
 
 
 def test_one_motor_off_holds_its_output_at_zero(enabled):
@@ -63,10 +64,10 @@ def test_one_motor_off_holds_its_output_at_zero(enabled):
 
 
 @pytest.mark.parametrize("unit, kind, instance, reason", [
-    (BARO, STUCK, 0, "failure barometer stuck is not supported"),
+    (BARO, DELAYED, 0, "failure barometer delayed is not supported"),
     (BARO, OFF, 2, "one barometer"),
-    (M.FAILURE_UNIT_SENSOR_GYRO, OFF, 0, "failure gyro off is not supported"),
-    (GPS, STUCK, 0, "failure GPS stuck is not supported"),
+    (M.FAILURE_UNIT_SENSOR_OPTICAL_FLOW, OFF, 0, "failure optical flow off is not supported"),
+    (MOTOR, STUCK, 1, "failure motor stuck is not supported"),
     (MOTOR, OFF, 5, "motor instance 5"),
     (GPS, OFF, 2, "one GPS"),
     (math.nan, OFF, 0, "failure unit nan is not a whole number"),
@@ -109,12 +110,13 @@ def test_gps_off_drops_the_fixes_before_the_estimator():
     assert navigation.estimator._pending_fix is None  # dropped
 
 
-@pytest.mark.parametrize("unit, flag, name", [(BARO, "baro_off", "barometer"),
-                                             (M.FAILURE_UNIT_SENSOR_MAG, "mag_off",
-                                              "magnetometer")])
-def test_a_sensor_off_then_ok(enabled, unit, flag, name):
+@pytest.mark.parametrize("unit, name", [(BARO, "barometer"),
+                                        (M.FAILURE_UNIT_SENSOR_MAG, "magnetometer"),
+                                        (M.FAILURE_UNIT_SENSOR_GYRO, "gyro"),
+                                        (M.FAILURE_UNIT_SENSOR_ACCEL, "accelerometer")])
+def test_a_sensor_off_then_ok(enabled, unit, name):
     assert enabled.client.result(INJECT, unit, OFF, 0)[0] == ACCEPTED
-    assert getattr(enabled.vehicle.failures, flag)
+    assert enabled.vehicle.failures.failed(unit) == OFF
     assert _said(enabled) == [f"failure injected: {name} off"]
     assert enabled.client.result(INJECT, unit, OK, 1)[0] == ACCEPTED
     assert not enabled.vehicle.failures.any
@@ -142,3 +144,78 @@ def test_baro_and_mag_off_reach_the_estimator_as_no_reading():
     vehicle.inject_failure(BARO, OK, 0)
     navigation.measurements([reading._replace(time_us=20_000)])
     assert navigation.estimator._align_baro == 5.0 and navigation.estimator._align_mag is None
+
+
+def test_each_sensor_failure_type_on_the_data():
+    """PX4's types on a reading: stuck keeps the value at the injection, garbage is noise
+    (seeded: two vehicles draw the same), wrong a fixed plausible error, slow one in ten,
+    intermittent about half; OK gives the data back untouched."""
+    from autopilot.commander import failures as fl
+
+    f = InjectedFailures()
+    gyro = np.array([0.01, 0.02, 0.03])
+    assert f.sensor(fl.GYRO, gyro) is gyro  # nothing failed
+    f.inject(True, fl.GYRO, fl.STUCK, 0)
+    first = f.sensor(fl.GYRO, gyro)
+    assert f.sensor(fl.GYRO, gyro + 1.0) is first  # stuck at the first value
+    f.inject(True, fl.GYRO, fl.WRONG, 0)
+    assert np.allclose(f.sensor(fl.GYRO, gyro), gyro + (0.2, 0.0, 0.0))
+    f.inject(True, fl.BARO, fl.WRONG, 0)
+    assert f.sensor(fl.BARO, 488.0) == 508.0
+    f.inject(True, fl.MAG, fl.WRONG, 0)
+    turned = f.sensor(fl.MAG, np.array([0.2, 0.0, 0.4]))
+    assert math.degrees(math.atan2(turned[1], turned[0])) == pytest.approx(45.0)
+    f.inject(True, fl.BARO, fl.SLOW, 0)
+    kept = [f.sensor(fl.BARO, float(i)) for i in range(30)]
+    assert [k for k in kept if k is not None] == [0.0, 10.0, 20.0]
+    f.inject(True, fl.ACCEL, fl.INTERMITTENT, 0)
+    passed = sum(f.sensor(fl.ACCEL, gyro) is not None for _ in range(1000))
+    assert 450 < passed < 550
+    g1, g2 = InjectedFailures(), InjectedFailures()
+    for g in (g1, g2):
+        g.inject(True, fl.ACCEL, fl.GARBAGE, 0)
+    a, b = g1.sensor(fl.ACCEL, gyro), g2.sensor(fl.ACCEL, gyro)
+    assert np.array_equal(a, b) and np.max(np.abs(a - gyro)) > 1.0
+    f.inject(True, fl.GYRO, fl.OK, 0)
+    assert f.sensor(fl.GYRO, gyro) is gyro and f.failed(fl.GYRO) == OK
+    assert f.sensor(fl.MAG, None) is None  # a reading that was not fresh stays so
+
+
+def test_a_wrong_gps_moves_the_fixes_100_m_north():
+    from autopilot.commander.commander import Commander
+    from autopilot.control.factory import make_controller
+    from autopilot.estimation.estimator import Estimator, GpsFix
+    from autopilot.process.navigation import Navigation
+    from autopilot.process.sim_link import GpsReading
+    from contracts.airframe import PAPER
+
+    vehicle = Commander(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01,
+                        {"SYS_FAILURE_EN": 1.0})
+    navigation = Navigation(vehicle, Estimator())
+    vehicle.inject_failure(GPS, M.FAILURE_TYPE_WRONG, 0)
+    fix = GpsFix(np.array([1.0, 2.0, -3.0]), np.zeros(3), 3, 12)
+    navigation.measurements([GpsReading(10_000, fix)])
+    taken = navigation.estimator._pending_fix
+    assert taken.position_ned_m.tolist() == [101.0, 2.0, -3.0]
+    assert fix.position_ned_m.tolist() == [1.0, 2.0, -3.0]  # the reading is not touched
+
+
+def test_on_the_truth_a_stuck_gyro_is_what_the_rate_loop_gets():
+    from autopilot.commander import failures as fl
+    from tests.test_sim_link import _answers, _autopilot_on_a_socket, _samples_with_gyro
+
+    autopilot, theirs = _autopilot_on_a_socket(source="hil-state")
+    autopilot.vehicle.set_parameter("SYS_FAILURE_EN", 1.0)
+    theirs.sendall(_samples_with_gyro([0], (0.1, 0.0, 0.0),
+                                      ("HIL_SENSOR", "HIL_STATE_QUATERNION")))
+    autopilot._on_sim_readable()
+    autopilot.vehicle.inject_failure(fl.GYRO, fl.STUCK, 0)
+    theirs.sendall(_samples_with_gyro([10_000], (0.1, 0.0, 0.0),
+                                      ("HIL_SENSOR", "HIL_STATE_QUATERNION")))
+    autopilot._on_sim_readable()
+    stuck_rate = autopilot.latest[1][9]
+    theirs.sendall(_samples_with_gyro([20_000], (0.5, 0.0, 0.0),
+                                      ("HIL_SENSOR", "HIL_STATE_QUATERNION")))
+    autopilot._on_sim_readable()
+    assert _answers(theirs) == [0, 10_000, 20_000]
+    assert autopilot.latest[1][9] == pytest.approx(stuck_rate)  # 0.5 rad/s never seen

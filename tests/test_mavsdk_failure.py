@@ -55,7 +55,7 @@ async def _fly(port: int) -> dict:
             seen["disabled"] = exc.result
         await param.set_param_float("SYS_FAILURE_EN", 1.0)
         try:
-            await failure.inject(FailureUnit.SENSOR_BARO, FailureType.STUCK, 0)
+            await failure.inject(FailureUnit.SENSOR_BARO, FailureType.DELAYED, 0)
         except FailureError as exc:
             seen["unsupported"] = exc.result
 
@@ -89,7 +89,8 @@ def test_mavsdk_injects_failures_as_into_px4(tmp_path):
     assert seen.get("unsupported") == FailureResult.UNSUPPORTED
     assert seen.get("fell")
     assert "failure injection disabled: set SYS_FAILURE_EN to 1" in seen["texts"]
-    # 87 characters: sent in two STATUSTEXT chunks, shown whole by MAVSDK
-    assert "failure barometer stuck is not supported (GPS, barometer, magnetometer, " \
-        "motor: ok, off)" in seen["texts"]
+    # 162 characters: sent in four STATUSTEXT chunks, shown whole by MAVSDK
+    assert "failure barometer delayed is not supported (gyro, accelerometer, magnetometer, " \
+        "barometer, GPS: ok, off, stuck, garbage, wrong, slow, intermittent; motor: ok, off)" \
+        in seen["texts"]
     assert "failure injected: motor 1 off" in seen["texts"]

@@ -13,6 +13,7 @@ import math
 import numpy as np
 
 from autopilot.commander.commander import Commander
+from autopilot.commander.failures import ACCEL, BARO, GPS, GYRO, MAG
 from autopilot.estimation.estimator import Estimator
 from autopilot.process.sim_link import GpsReading, ImuReading, LinkReading, TruthReading
 from contracts.frames import Home
@@ -48,17 +49,26 @@ class Navigation:
         if est is None:
             return self._truth_samples(readings)
         samples = []
+        failed = self.vehicle.failures  # injected failures act on each sensor's data
         for reading in readings:
             if isinstance(reading, GpsReading):
-                if not self.vehicle.failures.gps_off:  # an injected failure drops the fixes
-                    est.gps(reading.time_us, reading.fix)
+                fix = failed.sensor(GPS, reading.fix)
+                if fix is not None:
+                    est.gps(reading.time_us, fix)
             elif isinstance(reading, ImuReading):
-                failed = self.vehicle.failures  # injected failures drop a sensor's data
-                baro_alt_m = reading.baro_alt_amsl_m - self.vehicle.home.alt_amsl_m
-                est.imu(reading.time_us, reading.gyro, reading.accel,
-                        math.nan if failed.baro_off or not self.vehicle.home_known
-                        else baro_alt_m,
-                        None if failed.mag_off else reading.mag)
+                gyro = failed.sensor(GYRO, reading.gyro)
+                accel = failed.sensor(ACCEL, reading.accel)
+                if gyro is None or accel is None:  # no IMU sample: nothing to step on
+                    samples.append((reading.time_us, est.measurement() if est.aligned
+                                    else None))
+                    continue
+                baro_alt_m = math.nan
+                if self.vehicle.home_known and math.isfinite(reading.baro_alt_amsl_m):
+                    baro = failed.sensor(BARO, reading.baro_alt_amsl_m)
+                    baro_alt_m = math.nan if baro is None else \
+                        baro - self.vehicle.home.alt_amsl_m
+                est.imu(reading.time_us, gyro, accel, baro_alt_m,
+                        failed.sensor(MAG, reading.mag))
                 samples.append((reading.time_us, est.measurement() if est.aligned else None))
             else:
                 samples.append(reading)
@@ -72,7 +82,9 @@ class Navigation:
         samples = []
         for reading in readings:
             if isinstance(reading, ImuReading):
-                self._gyro = reading
+                gyro = self.vehicle.failures.sensor(GYRO, reading.gyro)
+                if gyro is not None:  # a failed gyro that gives nothing: the truth's rates
+                    self._gyro = reading._replace(gyro=gyro)
             elif isinstance(reading, TruthReading):
                 gyro = self._gyro
                 if gyro is not None and abs(reading.time_us - gyro.time_us) <= GYRO_MATCH_US:

@@ -57,6 +57,7 @@ class Rehearsal:
     sensors: str | None
     model: str  # where the model came from
     parameters: dict[str, float]
+    given: dict[str, float] = field(default_factory=dict)  # set on the command line
     static: list[Outcome] = field(default_factory=list)
     flights: list[FlightResult] = field(default_factory=list)
     not_flown: str | None = None  # why the flights were not flown
@@ -137,7 +138,7 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
     spec = read_airframe(airframe, controllable=False)
     given = dict(parameters or {})
     flown = validate_parameters(given)
-    rehearsal = Rehearsal(airframe, spec.name, profile, rate_hz, sensors, "", flown)
+    rehearsal = Rehearsal(airframe, spec.name, profile, rate_hz, sensors, "", flown, given)
     rehearsal.static = (airframe_checks(spec, flown, profile.airframe_limits)
                         + parameter_checks(flown, profile.parameter_ranges))
     write_params(out_dir / PARAMS_FILE, flown, f"{spec.name}, ivfm rehearse")
@@ -213,6 +214,7 @@ def rehearsal_json(r: Rehearsal) -> dict[str, Any]:
     return {"verdict": r.verdict, "passed": bool(r.passed), "airframe": r.airframe,
             "profile": r.profile.source,
             "rate_hz": r.rate_hz, "sensors": r.sensors, "model": r.model,
+            "parameters_set": r.given,
             "wall_time_s": r.wall_time_s, "not_flown": r.not_flown,
             "static": [_outcome_json(o) for o in r.static],
             "flights": [{"name": f.name, "passed": bool(f.result.passed), "error": f.result.error,
@@ -231,7 +233,7 @@ def markdown(r: Rehearsal) -> str:
     lines = [f"# Rehearsal of {r.airframe_name}: **{r.verdict}**", "",
              f"Profile `{r.profile.name}`; {static_ok} of {len(r.static)} static checks and "
              f"{_flight_count(r)} passed in {r.wall_time_s:.0f} s; control at "
-             f"{r.rate_hz:g} Hz; model {r.model or 'none'}.", ""]
+             f"{r.rate_hz:g} Hz; model {r.model or 'none'}; {_given(r)}.", ""]
     failed = r.failed_checks()
     if failed:
         lines += ["## What failed, and what to change", "",
@@ -267,6 +269,12 @@ def markdown(r: Rehearsal) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _given(r: Rehearsal) -> str:
+    if not r.given:
+        return "default parameters"
+    return "parameters set: " + ", ".join(f"{k} = {v:g}" for k, v in sorted(r.given.items()))
+
+
 def _cell(text: str) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
@@ -299,7 +307,7 @@ def html_page(r: Rehearsal, out_dir: Path) -> str:
              f"{r.verdict}</div>",
              f"<p>Profile <code>{e(r.profile.name)}</code>: {static_ok} of {len(r.static)} "
              f"static checks and {_flight_count(r)} passed in {r.wall_time_s:.0f} s; control "
-             f"at {r.rate_hz:g} Hz; model {e(r.model or 'none')}.</p>"]
+             f"at {r.rate_hz:g} Hz; model {e(r.model or 'none')}; {e(_given(r))}.</p>"]
     failed = r.failed_checks()
     if failed:
         parts.append("<h2>What failed, and what to change</h2><table id='failed'><tr>"

@@ -1,8 +1,8 @@
-"""``ivfm rehearse`` as a person runs it: the shipped quad X 500 through the whole default
-profile (go, exit 0, with POS_EPS 0.5: at the default 0.3 its position loop falls into a
-roll/pitch limit cycle in the GPS-loss hover, which the rehearsal calls a no-go; see
-docs/rehearsal.md), its page rendered by headless Chromium, and an airframe with 0.2 s
-motors judged no-go on the right checks."""
+"""``ivfm rehearse`` as a person runs it: the shipped quad X 500 through the default
+profile's lockstep flights (go, exit 0, with POS_EPS 0.5: at the default 0.3 its
+position loop falls into a roll/pitch limit cycle in the GPS-loss hover, which the
+rehearsal calls a no-go; see docs/rehearsal.md), its page rendered by headless Chromium,
+and an airframe with 0.2 s motors judged no-go on the right checks."""
 
 from __future__ import annotations
 
@@ -31,24 +31,35 @@ def ivfm(*argv: str, cwd: Path) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def x500_rehearsal(tmp_path_factory):
-    out = tmp_path_factory.mktemp("rehearse") / "x500"
-    done = ivfm("rehearse", "--airframe", "quad-x-500", "--param", "POS_EPS=0.5", "--out",
-                str(out), cwd=ROOT)
+    """The default profile without its real-time timing flight: what that flight measures
+    is how busy this machine is (on a shared CI machine, 1 run in 4 missed its limits
+    here), so the verdict pinned is the lockstep flights' and the static checks'.
+    tests/test_processes.py runs the loop in real time and reads its timing."""
+    folder = tmp_path_factory.mktemp("rehearse")
+    shipped = ROOT / "ground/readiness/default.toml"
+    profile = tomllib.loads(shipped.read_text())
+    profile["flight"] = [{**f, "scenario": str(shipped.parent / f["scenario"])}
+                         for f in profile["flight"] if not f.get("realtime")]
+    (folder / "lockstep.toml").write_text(tomli_w.dumps(profile))
+    out = folder / "x500"
+    done = ivfm("rehearse", "--airframe", "quad-x-500", "--param", "POS_EPS=0.5",
+                "--profile", str(folder / "lockstep.toml"), "--out", str(out), cwd=ROOT)
     return out, done
 
 
 def test_the_x500_rehearsal_is_a_go(x500_rehearsal):
     out, done = x500_rehearsal
     assert done.returncode == 0, done.stdout + done.stderr
-    assert done.stdout.startswith("rehearsal of quad-x-500: GO (15 of 15 static checks, "
+    assert done.stdout.startswith("rehearsal of quad-x-500: GO (16 of 16 static checks, "
                                   "6 of 6 flights passed")
     result = json.loads((out / "rehearsal.json").read_text())
     assert result["verdict"] == "GO" and result["model"] == "shipped quad-x-500.json"
+    assert result["parameters_set"] == {"POS_EPS": 0.5}
+    assert "parameters set: POS_EPS = 0.5" in (out / "rehearsal.html").read_text()
     flights = {f["name"]: f for f in result["flights"]}
     assert all(f["passed"] for f in flights.values())
-    assert flights["timing"]["realtime"] and not flights["tracking"]["realtime"]
-    timing = {o["name"]: o["measured"] for o in flights["timing"]["outcomes"]}
-    assert timing["timing.deadline_misses <= 3"] <= 3
+    assert set(flights) == {"takeoff-hold-land", "tracking", "wind", "weak-motor",
+                            "gps-loss", "geofence"}
     # The progress line names each flight as it starts.
     for name in flights:
         assert f"] {name} (" in done.stderr

@@ -134,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
     from autopilot.control.factory import load_models, make_controller
     from autopilot.flight_tasks.reference import Reference
     from autopilot.mavlink.server import MavlinkServer, open_link
-    from autopilot.parameters import validate_parameters
+    from autopilot.parameters import airframe_parameters, validate_parameters
     from autopilot.process.loop import Autopilot, AutopilotConfig
     from contracts.airframe import airframe_by_name
     from contracts.perturbations import load_schedule
@@ -147,7 +147,8 @@ def run(args: argparse.Namespace) -> int:
                              rt_priority=args.rt_priority,
                              zenoh=zenoh_options_from_args(args), home=args.home)
     airframe = airframe_by_name(args.airframe)
-    parameters = validate_parameters(dict(args.param))
+    # The airframe file's own defaults, then the command line's.
+    parameters = validate_parameters({**airframe_parameters(args.airframe), **dict(args.param)})
     models = (load_models(args.model, args.airframe, args.any_airframe_model)
               if args.controller in ("ivfc", "t1fc") else None)
     period_s = 1.0 / args.rate_hz

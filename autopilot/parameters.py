@@ -150,6 +150,22 @@ def default_parameters() -> dict[str, float]:
     return {spec.name: spec.default for spec in PARAMETERS}
 
 
+def airframe_parameters(airframe: str | None) -> dict[str, float]:
+    """An airframe file's own parameter defaults ([parameters]), checked against the
+    table; {} for none."""
+    if airframe is None:
+        return {}
+    from contracts.airframe_file import read_airframe
+
+    spec = read_airframe(airframe, controllable=False)
+    own = dict(spec.parameters)
+    try:
+        validate_parameters(own)
+    except ValueError as exc:
+        raise ValueError(f"{spec.source}: parameters: {exc}") from None
+    return own
+
+
 def validate_parameters(overrides: dict[str, float]) -> dict[str, float]:
     """Defaults updated with ``overrides``; unknown names, NaN or out-of-range values raise."""
     params = default_parameters()

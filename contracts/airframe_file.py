@@ -32,7 +32,7 @@ SHIPPED_DIR = "airframes"
 COMMAND_MAPS = ("speed", "thrust")  # c -> W = c W_max (jMAVSim, Gazebo) / T = c T_max (SIH)
 SPINS = {"cw": 1.0, "ccw": -1.0}
 _TOP_KEYS = {"name", "description", "mass_kg", "inertia_kgm2", "linear_drag_nspm",
-             "command_map", "rotor"}
+             "command_map", "rotor", "parameters"}
 _ROTOR_KEYS = {"position_m", "spin", "thrust_coeff_ns2", "moment_coeff_nms2", "max_rad_s",
                "time_constant_s", "inertia_kgm2"}
 
@@ -62,6 +62,10 @@ class AirframeSpec:
     command_map: str
     rotors: tuple[RotorSpec, ...]
     source: str = ""
+    # The vehicle's own parameter defaults (as a PX4 airframe file sets them): names and
+    # values checked by the autopilot's parameter table where they are used; not part of
+    # the fingerprint (a model identified on the vehicle does not depend on them).
+    parameters: tuple[tuple[str, float], ...] = ()
 
     def fingerprint(self) -> str:
         """A short hash of everything that makes the vehicle fly as it does (not its name
@@ -139,10 +143,27 @@ def parse_airframe(data: dict[str, Any], where: str = "airframe",
         command_map=command_map,
         rotors=tuple(_rotor(r, f"{where}: rotor[{i + 1}]") for i, r in enumerate(rotors)),
         source=where,
+        parameters=_parameters(data.get("parameters", {}), where),
     )
     if controllable:
         check_controllable(spec, where)
     return spec
+
+
+def _parameters(value: Any, where: str) -> tuple[tuple[str, float], ...]:
+    """[parameters] NAME = value: the vehicle's parameter defaults."""
+    if not isinstance(value, dict):
+        raise AirframeError(f"{where}: parameters must be a table of NAME = value")
+    out = []
+    for name, number in value.items():
+        if not (isinstance(name, str) and 0 < len(name) <= 16):
+            raise AirframeError(f"{where}: parameters: {name!r} is not a parameter name")
+        if isinstance(number, bool) or not isinstance(number, (int, float)) or \
+                not math.isfinite(number):
+            raise AirframeError(f"{where}: parameters.{name} must be a finite number, got "
+                                f"{number!r}")
+        out.append((name, float(number)))
+    return tuple(out)
 
 
 def _number(value: Any, what: str, low: float, high: float, positive: bool = False) -> float:

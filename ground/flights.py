@@ -65,7 +65,7 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
     """The scenario's choices after ``overrides``; ValueError on a bad combination
     (an unknown airframe, a model for another airframe)."""
     from autopilot.control.factory import load_models
-    from autopilot.parameters import validate_parameters
+    from autopilot.parameters import airframe_parameters, validate_parameters
     from contracts.airframe import airframe_by_name
     from sitl.sensors import read_profile
 
@@ -75,7 +75,8 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
     airframe_by_name(airframe)
     sensors = o.sensors or scenario.sensors
     state_source = o.state_source or scenario.state_source
-    given = {**scenario.parameters, **o.parameters}
+    # The airframe file's own defaults, then the scenario's, then the command line's.
+    given = {**airframe_parameters(airframe), **scenario.parameters, **o.parameters}
     if state_source == "estimator" and "EKF2_GPS_DELAY" not in given:
         # The vehicle's estimator is set up for its GPS receiver, as a user would set it.
         given["EKF2_GPS_DELAY"] = 1000.0 * read_profile(sensors).gps_latency_s

@@ -32,9 +32,10 @@ from ground.scenarios import load_scenario
 PARAMS_FILE = "parameters.params"
 # What to change when one expectation fails, whatever the flight (else the flight's advice).
 EXPECTATION_ADVICE = {
-    "control.tilt_rate_rms_rad_s": "roll and pitch swing in a limit cycle: soften the "
-                                   "position loop (a wider boundary layer POS_EPS, e.g. 0.5; a "
-                                   "lower POS_LAM) or lower MPC_TILTMAX_AIR",
+    "control.tilt_rate_rms_rad_s": "roll and pitch swing in a limit cycle: raise "
+                                   "CMDF_ACC_MAX (the desired-angle filter's acceleration "
+                                   "limit; 20 rad/s^2 on the quad X 500), or soften the "
+                                   "position loop (POS_EPS)",
 }
 
 
@@ -137,8 +138,14 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
     out_dir.mkdir(parents=True, exist_ok=True)
     spec = read_airframe(airframe, controllable=False)
     given = dict(parameters or {})
-    flown = validate_parameters(given)
-    rehearsal = Rehearsal(airframe, spec.name, profile, rate_hz, sensors, "", flown, given)
+    own = dict(spec.parameters)  # the airframe file's defaults, then the command line's
+    try:
+        validate_parameters(own)
+    except ValueError as exc:
+        raise ValueError(f"{spec.source}: parameters: {exc}") from None
+    flown = validate_parameters({**own, **given})
+    rehearsal = Rehearsal(airframe, spec.name, profile, rate_hz, sensors, "", flown,
+                          {**own, **given})
     rehearsal.static = (airframe_checks(spec, flown, profile.airframe_limits)
                         + parameter_checks(flown, profile.parameter_ranges))
     write_params(out_dir / PARAMS_FILE, flown, f"{spec.name}, ivfm rehearse")

@@ -7,6 +7,7 @@ import copy
 import math
 import tomllib
 from importlib import resources
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -25,6 +26,8 @@ from contracts.airframe import (
 from contracts.airframe_file import AirframeError, parse_airframe, read_airframe
 from sitl import dynamics
 from tests.airframes import PlusNumbers, plus_numbers
+
+AIRFRAMES = Path(__file__).parents[1] / "contracts" / "airframes"
 
 
 def _rotor(x: float, y: float, spin: str, k: float = 1e-5) -> dict:
@@ -326,3 +329,49 @@ def test_max_thrust_and_hover_of_the_shipped_quad_x():
     assert max_thrust_n(af) / (af.mass_kg * 9.81) == pytest.approx(1.743, abs=1e-3)
     np.testing.assert_allclose(hover_rotor_speeds(af), math.sqrt(2.0 * 9.81 / (4 * 8.55e-6)),
                                rtol=1e-12)
+
+
+@pytest.mark.parametrize("table, message", [
+    ({"CMDF_ACC_MAX": "fast"}, "parameters.CMDF_ACC_MAX must be a finite number"),
+    ({"CMDF_ACC_MAX": float("nan")}, "must be a finite number"),
+    ({"CMDF_ACC_MAX": True}, "must be a finite number"),
+    ({"A_NAME_FAR_TOO_LONG": 1.0}, "is not a parameter name"),
+])
+def test_bad_parameter_tables_are_refused(table, message):
+    from contracts.airframe_file import AirframeError, parse_airframe
+
+    data = tomllib.loads((AIRFRAMES / "quad-x-500.toml").read_text())
+    data["parameters"] = table
+    with pytest.raises(AirframeError, match=message):
+        parse_airframe(data, "airframe file mine.toml")
+
+
+def test_airframe_parameters_are_defaults_that_scenarios_and_the_command_line_override():
+    """The quad X 500's own CMDF_ACC_MAX reaches the flight; a scenario's or the command
+    line's value wins; a name the table does not have is refused, naming the file."""
+    import dataclasses
+
+    from autopilot.parameters import airframe_parameters
+    from ground.flights import Overrides, plan_flight
+    from ground.scenarios import scenario_by_name
+
+    assert airframe_parameters("quad-x-500") == {"CMDF_ACC_MAX": 20.0}
+    assert airframe_parameters("paper") == {}
+    scenario = scenario_by_name("x500-position-sine")
+    assert plan_flight(scenario).parameters["CMDF_ACC_MAX"] == 20.0
+    assert plan_flight(scenario, Overrides(parameters={"CMDF_ACC_MAX": 9.0})
+                       ).parameters["CMDF_ACC_MAX"] == 9.0
+    mine = dataclasses.replace(scenario, parameters={"CMDF_ACC_MAX": 12.0})
+    assert plan_flight(mine).parameters["CMDF_ACC_MAX"] == 12.0
+    assert plan_flight(scenario_by_name("position-sine")).parameters["CMDF_ACC_MAX"] == 8.0
+
+
+def test_an_unknown_parameter_in_an_airframe_file_is_refused_where_it_is_used(tmp_path):
+    from autopilot.parameters import airframe_parameters
+
+    text = (AIRFRAMES / "quad-x-500.toml").read_text().replace(
+        "CMDF_ACC_MAX = 20.0", "NOT_A_PARAM = 1.0")
+    path = tmp_path / "mine.toml"
+    path.write_text(text)
+    with pytest.raises(ValueError, match="mine.toml: parameters: unknown parameter"):
+        airframe_parameters(str(path))

@@ -84,7 +84,9 @@ def test_the_quad_x_flies_the_papers_tests_with_the_model_the_workflow_identifie
     mine, shipped = (json.loads(p.read_text()) for p in (
         model, Path(str(resources.files("autopilot.models").joinpath("quad-x-500.json")))))
     _assert_same_numbers(mine["channels"], shipped["channels"])
-    measured = {"x500-position-sine": {"x": 0.00489, "y": 0.00451},
+    # Position with the airframe file's own CMDF_ACC_MAX (20; at the paper's 8 it was
+    # x 0.00489, y 0.00451 and the hover could fall into a limit cycle).
+    measured = {"x500-position-sine": {"x": 0.00486, "y": 0.00479},
                 "x500-attitude-sine": {"phi": 0.00106, "theta": 0.00214}}
     targets = {"x": 0.05, "y": 0.05, "phi": 0.02, "theta": 0.02}
     for scenario, golden in measured.items():

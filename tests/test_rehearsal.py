@@ -172,7 +172,8 @@ def test_a_no_go_rehearsal_writes_every_output_and_exits_1(tmp_path, capsys):
             if not line.startswith("#")]
     values = {name: float(value) for _v, _c, name, value, kind in rows}
     assert all(r[0] == "1" and r[1] == "1" and r[4] == "9" for r in rows)
-    assert values == validate_parameters({"SYS_FAILURE_EN": 1.0})
+    # The airframe file's own parameter (the x500's CMDF_ACC_MAX), then the command line's.
+    assert values == validate_parameters({"CMDF_ACC_MAX": 20.0, "SYS_FAILURE_EN": 1.0})
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -194,15 +195,17 @@ def test_bad_input_exits_2_with_the_problem_named(tmp_path, capsys, argv, messag
 
 def test_the_tilt_rate_metric_catches_the_x500_limit_cycle(tmp_path):
     """The shipped quad X 500 hovering on its IVFM model, kicked 0.3 rad in pitch: at the
-    default POS_EPS (0.3) roll/pitch keep swinging (a limit cycle of the position loop at
-    its tilt limit), which the rehearsal's tilt_rate_rms_rad_s limit (0.5) fails; at
-    POS_EPS 0.5 the swing dies out. In process, lockstep-exact numbers."""
+    paper's CMDF_ACC_MAX (8 rad/s^2) roll/pitch keep swinging (the desired-angle filter
+    saturates: a limit cycle), which the rehearsal's tilt_rate_rms_rad_s limit (0.5)
+    fails; at the airframe file's own 20 rad/s^2 the swing dies out. In process."""
     from autopilot.control.factory import load_models
+    from autopilot.parameters import airframe_parameters
     from contracts.airframe import airframe_by_name
     from ground.inprocess import run_inprocess
     from ground.metrics import compute_metrics
     from ground.scenarios import scenario_from_dict
 
+    assert airframe_parameters("quad-x-500") == {"CMDF_ACC_MAX": 20.0}
     data = tomllib.loads((Path(__file__).parents[1] / "ground/readiness/flights/wind.toml")
                          .read_text())
     data["perturbation"] = [{"kind": "kick", "theta_rad": 0.3, "start_s": 5.0, "end_s": 5.5}]
@@ -210,10 +213,10 @@ def test_the_tilt_rate_metric_catches_the_x500_limit_cycle(tmp_path):
     scenario = scenario_from_dict(data, tmp_path / "kick.toml", tmp_path)
     models = load_models(None, "quad-x-500")
     rates = {}
-    for eps in (0.3, 0.5):
+    for acc in (8.0, 20.0):
         record = run_inprocess(scenario, "ivfc", "rigid-body", airframe_by_name("quad-x-500"),
-                               models, period_s=0.01, parameters={"POS_EPS": eps})
-        rates[eps] = compute_metrics(record, scenario, "quad-x-500")["control"][
+                               models, period_s=0.01, parameters={"CMDF_ACC_MAX": acc})
+        rates[acc] = compute_metrics(record, scenario, "quad-x-500")["control"][
             "tilt_rate_rms_rad_s"]
-    assert rates[0.3] > 1.0  # measured 1.21 rad/s
-    assert rates[0.5] < 0.01  # measured 1e-4 rad/s
+    assert rates[8.0] > 1.0  # measured 1.21 rad/s
+    assert rates[20.0] < 0.01

@@ -52,7 +52,7 @@ def _address(text: str) -> tuple[str, int] | None:
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     from autopilot.control.factory import CONTROLLERS
     from autopilot.flight_tasks.reference import REFERENCE_KINDS
-    from contracts.airframe import airframe_argument
+    from contracts.airframe import DEFAULT_AIRFRAME, airframe_argument
     from contracts.mavlink import STATE_SOURCES
 
     p = parser or argparse.ArgumentParser(prog="python -m autopilot", description=__doc__)
@@ -67,8 +67,11 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--state-source", default="auto", choices=list(STATE_SOURCES),
                    help="auto: ODOMETRY when the simulator sends it, else HIL_STATE_QUATERNION")
     p.add_argument("--controller", default="ivfc", choices=CONTROLLERS)
-    p.add_argument("--airframe", default="paper", type=airframe_argument,
-                   help="shipped airframe name or airframe .toml file")
+    # PX4 SITL's default vehicle is the x500: scripts written against it expect its
+    # thrust (the paper's airframe hovers at 22 % and climbs at 2 g on PX4's 0.5-0.6).
+    p.add_argument("--airframe", default=DEFAULT_AIRFRAME, type=airframe_argument,
+                   help="shipped airframe name or airframe .toml file (default: "
+                        f"{DEFAULT_AIRFRAME}, the x500-sized quad X; scenarios name theirs)")
     p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")
     p.add_argument("--any-airframe-model", action="store_true",
                    help="fly a model identified on another airframe")

@@ -98,6 +98,9 @@ airframe_argument = checked_argument(airframe_by_name)  # ``--airframe NAME|FILE
 # Shipped airframes (contracts/airframes/*.toml): the paper's Table 1 with the rotor limit
 # W_max = 500 rad/s, and a 450-class "+" vehicle off the paper's design point.
 PAPER = airframe_by_name("paper")
+# The vehicle `ivfm sitl` and `ivfm autopilot` give ground tools unless told otherwise, as
+# PX4 SITL's is its x500; the paper's scenarios name the paper's airframe.
+DEFAULT_AIRFRAME = "quad-x-500"
 REALISTIC = airframe_by_name("realistic")
 
 

@@ -12,7 +12,7 @@ from contracts import SITL, timeline
 if __name__ == "__main__":
     timeline.mark(SITL, "main")  # before the heavy imports below
 
-from contracts.airframe import airframe_argument  # noqa: E402
+from contracts.airframe import DEFAULT_AIRFRAME, airframe_argument  # noqa: E402
 from contracts.airframe_file import read_airframe  # noqa: E402
 from contracts.frames import DEFAULT_HOME, home_argument  # noqa: E402
 from contracts.mavlink import SIM_TCP_PORT  # noqa: E402
@@ -39,8 +39,11 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--rate-hz", type=float, default=100.0,
                    help="samples per second; in lockstep the autopilot's rate or a multiple")
     p.add_argument("--plant", default="rigid-body", choices=list(FIDELITIES))
-    p.add_argument("--airframe", default="paper", type=airframe_argument,
-                   help="shipped airframe name or airframe .toml file")
+    # PX4 SITL's default vehicle is the x500: scripts written against it expect its
+    # thrust (the paper's airframe hovers at 22 % and climbs at 2 g on PX4's 0.5-0.6).
+    p.add_argument("--airframe", default=DEFAULT_AIRFRAME, type=airframe_argument,
+                   help="shipped airframe name or airframe .toml file (default: "
+                        f"{DEFAULT_AIRFRAME}, the x500-sized quad X; scenarios name theirs)")
     p.add_argument("--start-altitude", type=float, default=0.0, metavar="M",
                    help="start hovering at this altitude (default: on the ground)")
     p.add_argument("--schedule", type=Path, help="perturbation schedule JSON (sim time)")

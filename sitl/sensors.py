@@ -8,6 +8,7 @@ messages.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import math
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -65,6 +66,32 @@ def ideal_readings(time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray
                           HIL_SENSOR_IMU | HIL_SENSOR_MAG | HIL_SENSOR_BARO)
     fix = GpsSample(time_us, lat, lon, alt, truth.velocity_ned_mps, 0.8, 1.2, 3, 14)
     return truth, sensor, fix
+
+
+def seen_by_the_gyro(before: VehicleState, after: VehicleState, period_s: float
+                     ) -> VehicleState:
+    """``after`` as the IMU reads it: when the ground contact levelled the vehicle within
+    the period (it does so in one integration step, at rest after), the gyro reads the
+    rotation it made over the period, as a real gyro integrating the impact would; else
+    ``after`` itself."""
+    landed_now = after.position_ned_m[2] == 0.0 and before.position_ned_m[2] < 0.0 and \
+        not np.any(after.velocity_ned_mps) and not np.any(after.body_rate_rad_s)
+    if not landed_now:
+        return after
+    w0, x0, y0, z0 = (float(v) for v in before.quaternion)
+    w1, x1, y1, z1 = (float(v) for v in after.quaternion)
+    # conj(q_before) * q_after: the rotation in the body frame of before
+    w = w0 * w1 + x0 * x1 + y0 * y1 + z0 * z1
+    v = np.array([w0 * x1 - x0 * w1 - y0 * z1 + z0 * y1,
+                  w0 * y1 + x0 * z1 - y0 * w1 - z0 * x1,
+                  w0 * z1 - x0 * y1 + y0 * x1 - z0 * w1])
+    if w < 0.0:
+        w, v = -w, -v
+    norm = float(np.linalg.norm(v))
+    if norm == 0.0:
+        return after
+    rotation = 2.0 * math.atan2(norm, w) * v / norm
+    return dataclasses.replace(after, body_rate_rad_s=rotation / period_s)
 
 
 def _tuple(values) -> tuple[float, ...]:

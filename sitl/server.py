@@ -54,7 +54,13 @@ from contracts.realtime import Histogram
 from contracts.telemetry import SITL, STATE, json_record
 from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
 from sitl.plant import Plant, VehicleState
-from sitl.sensors import SensorProfile, SensorSuite, sensed_state, truth_sample
+from sitl.sensors import (
+    SensorProfile,
+    SensorSuite,
+    seen_by_the_gyro,
+    sensed_state,
+    truth_sample,
+)
 
 # STATE record fields that are VehicleState's of the same name (then the plant effects).
 STATE_FROM_PLANT = ("position_ned_m", "velocity_ned_mps", "quaternion", "euler_rad",
@@ -140,6 +146,7 @@ class Simulator(PacedProcess):
         self.rng = np.random.default_rng(config.seed)
         self.sensors = SensorSuite(config.sensors, config.rate_hz, config.seed, config.home)
         self._state = self.plant.state()
+        self._imu_state = self._state  # what the IMU reads (seen_by_the_gyro)
         self._history: collections.deque[VehicleState] = collections.deque(maxlen=101)
         self._commands = np.zeros(4)
         self._previous_velocity = self._state.velocity_ned_mps
@@ -167,7 +174,7 @@ class Simulator(PacedProcess):
         self._publish_state()
         self.node.status(self.time_us, **self._status_fields())
         effects = self._sensor
-        readings, fix = self.sensors.sample(self.time_us, self._state, self._acceleration,
+        readings, fix = self.sensors.sample(self.time_us, self._imu_state, self._acceleration,
                                             effects)
         if effects is NO_SENSOR_EFFECTS:
             truth = truth_sample(self.time_us, self._state, self._acceleration)
@@ -207,9 +214,11 @@ class Simulator(PacedProcess):
 
     def advance(self) -> None:
         """One sample period of plant time with the commands in force."""
+        before = self._state
         self.plant.advance(self.period_s)
         self.step_index += 1
         self._state = self.plant.state()
+        self._imu_state = seen_by_the_gyro(before, self._state, self.period_s)
         self._history.append(self._state)
         velocity = self._state.velocity_ned_mps
         self._acceleration = (velocity - self._previous_velocity) / self.period_s

@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from contracts.frames import DEFAULT_HOME, altitude_from_pressure_m, pressure_hpa
+from contracts.frames import DEFAULT_HOME, altitude_from_pressure_m, pressure_hpa, quat_from_euler
 from contracts.mavlink import (
     HIL_SENSOR_BARO,
     HIL_SENSOR_IMU,
@@ -214,3 +214,26 @@ def test_a_profile_beside_a_scenario_file_is_found_from_it(tmp_path):
     scenario = load_scenario(tmp_path / "mine.toml")
     assert scenario.sensors == str(tmp_path / "noisy.toml")
     assert read_profile(scenario.sensors).name == "noisy"  # a file's name is its stem
+
+
+def test_a_touchdown_that_levels_the_vehicle_shows_in_the_gyro():
+    """The plant levels a vehicle that touches down tilted within one integration step and
+    leaves it at rest; the gyro of that sample reads the rotation it made over the period
+    (as a gyro integrating the impact would), so an estimator integrating it levels too.
+    In the air the gyro reads the body rate as it is."""
+    import dataclasses
+
+    from sitl.sensors import seen_by_the_gyro
+
+    roll = -0.17
+    tilted = VehicleState(0.0, np.array([0.0, 0.0, -0.005]), np.array([0.0, 0.0, 0.7]),
+                          np.array([roll, 0.0, 0.3]), np.zeros(3),
+                          np.array([-1.3, 0.0, 0.0]),
+                          np.array(quat_from_euler(roll, 0.0, 0.3)))
+    level = VehicleState(0.01, np.zeros(3), np.zeros(3), np.array([0.0, 0.0, 0.3]),
+                         np.zeros(3), np.zeros(3), np.array(quat_from_euler(0.0, 0.0, 0.3)))
+    seen = seen_by_the_gyro(tilted, level, 0.01)
+    np.testing.assert_allclose(seen.body_rate_rad_s, (0.17 / 0.01, 0.0, 0.0), atol=1e-9)
+    assert seen.quaternion is level.quaternion  # only the gyro's reading changes
+    flying = dataclasses.replace(level, position_ned_m=np.array([0.0, 0.0, -1.0]))
+    assert seen_by_the_gyro(tilted, flying, 0.01) is flying

@@ -268,45 +268,59 @@ def _json_value(value: Any) -> Any:
 
 # -- reports --------------------------------------------------------------------------------
 
+def junit_suite(root: ET.Element, name: str, classname: str, outcomes: Iterable[Outcome],
+                error: str | None, wall_time_s: float,
+                failure_text: Callable[[Outcome], str] | None = None,
+                **attributes: str) -> ET.Element:
+    """One testsuite: a testcase per outcome (a failure says measured against limit), and
+    first an error case when the flight itself failed; its counts set on it."""
+    suite = ET.SubElement(root, "testsuite", name=name, time=f"{wall_time_s:.3f}",
+                          **attributes)
+    cases = failures = errors = 0
+    if error is not None:
+        case = ET.SubElement(suite, "testcase", classname=classname, name="flight")
+        ET.SubElement(case, "error", message=error.splitlines()[0][:500],
+                      type="FlightError").text = error
+        cases, errors = 1, 1
+    for o in outcomes:
+        case = ET.SubElement(suite, "testcase", classname=classname, name=o.name)
+        cases += 1
+        if not o.passed:
+            failures += 1
+            ET.SubElement(case, "failure", message=o.message, type="ExpectationFailed"
+                          ).text = failure_text(o) if failure_text else o.message
+    suite.set("tests", str(cases))
+    suite.set("failures", str(failures))
+    suite.set("errors", str(errors))
+    return suite
+
+
+def junit_document(root: ET.Element, wall_time_s: float) -> str:
+    """The testsuites' totals on the root, and the XML text."""
+    for key in ("tests", "failures", "errors"):
+        root.set(key, str(sum(int(s.get(key)) for s in root.iter("testsuite"))))
+    root.set("time", f"{wall_time_s:.3f}")
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
+
+
 def junit_xml(results: list[ScenarioResult]) -> str:
     """JUnit XML: a testsuite per scenario, a testcase per expectation; a failure's
     message says the measured value against the limit."""
     root = ET.Element("testsuites", name="ivfm check")
-    total = failures = errors = 0
     for r in results:
-        suite = ET.SubElement(root, "testsuite", name=r.scenario.name,
-                              file=str(r.scenario.source), time=f"{r.wall_time_s:.3f}")
-        props = ET.SubElement(suite, "properties")
+        suite = junit_suite(
+            root, r.scenario.name, f"ivfm.check.{r.scenario.name}", r.outcomes, r.error,
+            r.wall_time_s, lambda o, r=r: (f"{o.message}\nrun folder kept: {r.run_dir} "
+                                           f"(ivfm report {r.run_dir})"),
+            file=str(r.scenario.source))
+        props = ET.Element("properties")
         ET.SubElement(props, "property", name="run_dir", value=str(r.run_dir))
         if r.metrics is not None and r.metrics.get("loop_real_time_factor"):
             ET.SubElement(props, "property", name="loop_real_time_factor",
                           value=f"{r.metrics['loop_real_time_factor']:.1f}")
-        classname = f"ivfm.check.{r.scenario.name}"
-        cases = 0
-        suite_failures = suite_errors = 0
-        if r.error is not None:
-            case = ET.SubElement(suite, "testcase", classname=classname, name="flight")
-            ET.SubElement(case, "error", message=r.error.splitlines()[0][:500],
-                          type="FlightError").text = r.error
-            cases, suite_errors = 1, 1
-        for o in r.outcomes:
-            case = ET.SubElement(suite, "testcase", classname=classname, name=o.name)
-            cases += 1
-            if not o.passed:
-                suite_failures += 1
-                ET.SubElement(case, "failure", message=o.message, type="ExpectationFailed"
-                              ).text = (f"{o.message}\nrun folder kept: {r.run_dir} "
-                                        f"(ivfm report {r.run_dir})")
-        suite.set("tests", str(cases))
-        suite.set("failures", str(suite_failures))
-        suite.set("errors", str(suite_errors))
-        total, failures, errors = total + cases, failures + suite_failures, errors + suite_errors
-    root.set("tests", str(total))
-    root.set("failures", str(failures))
-    root.set("errors", str(errors))
-    root.set("time", f"{sum(r.wall_time_s for r in results):.3f}")
-    ET.indent(root)
-    return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
+        suite.insert(0, props)
+    return junit_document(root, sum(r.wall_time_s for r in results))
 
 
 def markdown_summary(results: list[ScenarioResult], wall_time_s: float) -> str:

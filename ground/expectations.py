@@ -140,7 +140,7 @@ def parse_expectations(data: Any, axes: tuple[str, ...], duration_s: float) -> E
         raise ValueError(f"expect: unknown field(s) {', '.join(unknown)}; known: "
                          f"{', '.join(sorted(_TOP))}")
     limits: list[Limit] = []
-    for axis, table in _table(data, "axes", "expect.axes").items():
+    for axis, table in subtable(data, "axes", "expect.axes").items():
         where = f"expect.axes.{axis}"
         if axis not in axes:
             raise ValueError(f"{where}: the scenario is judged on {', '.join(axes)} only")
@@ -151,10 +151,10 @@ def parse_expectations(data: Any, axes: tuple[str, ...], duration_s: float) -> E
                 raise ValueError(f"{where}: unknown limit {key!r}; known: "
                                  f"{', '.join(AXIS_LIMITS)}")
             limits.append(Limit(("axes", axis, key.removesuffix("_max")), "max",
-                                _number(value, f"{where}.{key}")))
+                                finite_number(value, f"{where}.{key}")))
     sections = set()
     for section, known in SECTION_METRICS.items():
-        table = _table(data, section, f"expect.{section}")
+        table = subtable(data, section, f"expect.{section}")
         if table:
             sections.add(section)
         for key, value in table.items():
@@ -171,7 +171,7 @@ def parse_expectations(data: Any, axes: tuple[str, ...], duration_s: float) -> E
                     f"{where}: unknown limit; known: "
                     f"{', '.join(f'{m}_max' for m in known)}"
                     + (", all_reached" if section == "path" else "") + " (or _min)")
-            limits.append(Limit((section, metric), bound, _number(value, where)))
+            limits.append(Limit((section, metric), bound, finite_number(value, where)))
     no_failsafe = data.get("no_failsafe", False)
     if not isinstance(no_failsafe, bool):
         raise ValueError("expect.no_failsafe must be true or false")
@@ -204,7 +204,7 @@ def _event(data: Any, where: str, duration_s: float) -> EventExpectation:
         raise ValueError(f"{where}: text (a string) is for statustext events")
     if kind == "statustext" and not text:
         raise ValueError(f"{where}: a statustext event needs the text to look for")
-    times = {k: _number(data[k], f"{where}.{k}", low=0.0)
+    times = {k: finite_number(data[k], f"{where}.{k}", low=0.0)
              for k in ("at_s", "within_s", "after_s", "before_s", "by_s") if k in data}
     if "at_s" in times or "within_s" in times:
         if set(times) != {"at_s", "within_s"}:
@@ -228,7 +228,8 @@ def _event(data: Any, where: str, duration_s: float) -> EventExpectation:
     return EventExpectation(kind, after, before, mode, text, absent)
 
 
-def _number(value: Any, where: str, low: float = -math.inf) -> float:
+def finite_number(value: Any, where: str, low: float = -math.inf) -> float:
+    """A TOML number that is finite (and at least ``low``); ValueError names ``where``."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or \
             not math.isfinite(value) or value < low:
         bound = f" >= {low:g}" if math.isfinite(low) else ""
@@ -236,7 +237,8 @@ def _number(value: Any, where: str, low: float = -math.inf) -> float:
     return float(value)
 
 
-def _table(data: dict[str, Any], key: str, where: str) -> dict[str, Any]:
+def subtable(data: dict[str, Any], key: str, where: str) -> dict[str, Any]:
+    """``data[key]`` as a table ({} when absent); ValueError names ``where``."""
     value = data.get(key, {})
     if not isinstance(value, dict):
         raise ValueError(f"{where} must be a table")

@@ -23,7 +23,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ground.check import CheckOptions, ScenarioResult, check_one
+from ground.check import (
+    CheckOptions,
+    ScenarioResult,
+    check_one,
+    junit_document,
+    junit_suite,
+)
 from ground.expectations import Outcome
 from ground.flights import Overrides
 from ground.readiness import ADVICE, Flight, Profile, airframe_checks, parameter_checks
@@ -130,7 +136,7 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
              say: Callable[[str], None] = lambda text: None) -> Rehearsal:
     """Run every check of ``profile`` on ``airframe``; ValueError on bad input (an
     unreadable airframe file, a parameter out of its range, a bad model)."""
-    from autopilot.parameters import validate_parameters
+    from autopilot.parameters import airframe_parameters, validate_parameters
     from contracts.airframe_file import read_airframe
     from ground.processes import WarmProcesses
 
@@ -138,11 +144,7 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
     out_dir.mkdir(parents=True, exist_ok=True)
     spec = read_airframe(airframe, controllable=False)
     given = dict(parameters or {})
-    own = dict(spec.parameters)  # the airframe file's defaults, then the command line's
-    try:
-        validate_parameters(own)
-    except ValueError as exc:
-        raise ValueError(f"{spec.source}: parameters: {exc}") from None
+    own = airframe_parameters(airframe)  # the airframe file's defaults, then the given
     flown = validate_parameters({**own, **given})
     rehearsal = Rehearsal(airframe, spec.name, profile, rate_hz, sensors, "", flown,
                           {**own, **given})
@@ -379,32 +381,9 @@ def junit(r: Rehearsal) -> str:
                for f in r.flights]
     if r.not_flown:
         suites += [(fl.scenario.stem, [], r.not_flown, 0.0) for fl in r.profile.flights]
-    total = failures = errors = 0
     for name, outcomes, error, wall_s in suites:
-        suite = ET.SubElement(root, "testsuite", name=name, time=f"{wall_s:.3f}")
-        cases = fails = errs = 0
-        if error is not None:
-            case = ET.SubElement(suite, "testcase", classname=f"ivfm.rehearse.{name}",
-                                 name="flight")
-            ET.SubElement(case, "error", message=error.splitlines()[0][:500],
-                          type="FlightError").text = error
-            cases, errs = 1, 1
-        for o in outcomes:
-            case = ET.SubElement(suite, "testcase", classname=f"ivfm.rehearse.{name}",
-                                 name=o.name)
-            cases += 1
-            if not o.passed:
-                fails += 1
-                ET.SubElement(case, "failure", message=o.message, type="CheckFailed")
-        suite.set("tests", str(cases))
-        suite.set("failures", str(fails))
-        suite.set("errors", str(errs))
-        total, failures, errors = total + cases, failures + fails, errors + errs
-    root.set("tests", str(total))
-    root.set("failures", str(failures))
-    root.set("errors", str(errors))
-    ET.indent(root)
-    return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
+        junit_suite(root, name, f"ivfm.rehearse.{name}", outcomes, error, wall_s)
+    return junit_document(root, r.wall_time_s)
 
 
 def summary_lines(r: Rehearsal) -> list[str]:

@@ -219,3 +219,47 @@ def test_on_the_truth_a_stuck_gyro_is_what_the_rate_loop_gets():
     autopilot._on_sim_readable()
     assert _answers(theirs) == [0, 10_000, 20_000]
     assert autopilot.latest[1][9] == pytest.approx(stuck_rate)  # 0.5 rad/s never seen
+
+
+def test_dead_reckoning_past_ekf2_noaid_tout_loses_the_position_once():
+    """Navigation on sim time: GPS lost is announced, the position is called lost once
+    the last fix fused is older than EKF2_NOAID_TOUT (a failsafe), once only, and a fix
+    fused again ends the loss."""
+    import dataclasses
+
+    from autopilot.commander.commander import Commander
+    from autopilot.control.factory import make_controller
+    from autopilot.estimation.estimator import EstimatorStatus
+    from autopilot.process.navigation import Navigation
+    from contracts.airframe import PAPER
+
+    class StatusOnly:  # the estimator's status on a given clock, nothing else
+        gps_delay_us = 0
+        status_now = None
+
+        def status(self, time_us):
+            return self.status_now
+
+    good = EstimatorStatus(True, True, True, 0.1, "", *[0.01] * 5, *[0.1] * 5, 0, 0)
+    vehicle = Commander(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01,
+                        {"EKF2_NOAID_TOUT": 3e6})
+    estimator = StatusOnly()
+    navigation = Navigation(vehicle, estimator)
+
+    def at(since_gps_s, gps_ok, t_us):
+        estimator.status_now = dataclasses.replace(good, gps_ok=gps_ok,
+                                                   since_gps_s=since_gps_s)
+        navigation.update(t_us)
+
+    at(0.1, True, 0)
+    at(1.5, False, 1_400_000)
+    assert [t for _, t in vehicle.messages] == ["GPS lost: dead reckoning"]
+    at(2.9, False, 2_800_000)
+    assert vehicle.failsafe is None
+    at(3.1, False, 3_000_000)
+    assert vehicle.failsafe == "position lost: no GPS fix for 3 s"
+    at(4.0, False, 3_900_000)  # once only
+    assert [t for _, t in vehicle.messages].count("position lost: no GPS fix for 3 s") == 1
+    at(0.05, True, 4_000_000)
+    at(3.5, False, 7_500_000)  # a new loss after the fixes came back: said again
+    assert [t for _, t in vehicle.messages].count("position lost: no GPS fix for 3 s") == 2

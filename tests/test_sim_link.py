@@ -366,3 +366,26 @@ def test_a_simulator_with_only_an_imu_and_ground_truth_flies_on_the_truth():
     # psi rate of a pure body yaw rate r: r cos(phi) / cos(theta).
     assert m[MEASUREMENT.euler_rate_rad_s][2] == pytest.approx(
         0.05 * math.cos(phi) / math.cos(theta), rel=1e-6)
+
+
+def test_a_stall_is_a_gap_over_two_periods_counted_once_per_episode():
+    """The real-time stall rule on an injected clock: a sample gap of up to two periods
+    (of the control or of the simulator, the longer) is no stall; beyond it each control
+    instant is held and counted, one episode until a sample comes again."""
+    autopilot, _theirs = _autopilot_on_a_socket(100.0)
+    logged = []
+    autopilot.log = logged.append
+    autopilot._last_sample_wall = 100.0
+    autopilot._sample_period_us = 4_000  # a 250 Hz simulator: the control period rules
+    assert not autopilot._stalled(100.020, 0.01)
+    assert autopilot._stalled(100.021, 0.01) and autopilot._stalled(100.031, 0.01)
+    autopilot._last_sample_wall = 100.035  # a sample again
+    assert not autopilot._stalled(100.040, 0.01)
+    summary = autopilot.timing.summary()
+    assert (summary["sim_stalls"], summary["sim_stall_steps"]) == (1, 2)
+    assert summary["sim_stall_longest_ms"] == pytest.approx(31.0)
+    assert logged == ["simulator late: no sample for at least 31 ms; 2 control step(s) "
+                      "held the last command"]
+    autopilot._sample_period_us = 50_000  # a 20 Hz simulator: its period rules
+    assert not autopilot._stalled(100.130, 0.01)
+    assert autopilot._stalled(100.140, 0.01)

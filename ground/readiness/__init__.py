@@ -31,7 +31,7 @@ import numpy as np
 
 from contracts.airframe_file import AirframeError, AirframeSpec, check_controllable
 from contracts.frames import GRAVITY_MPS2
-from ground.expectations import Outcome
+from ground.expectations import Outcome, finite_number, subtable
 
 AIRFRAME_LIMITS = {  # key: (what it limits, "min" or "max", unit)
     "thrust_to_weight_min": ("thrust-to-weight", "min", ""),
@@ -102,19 +102,20 @@ def parse_profile(data: dict[str, Any], path: Path, where: str) -> Profile:
     if bad:
         raise ValueError(f"{where}: unknown field(s) {', '.join(bad)}; known: "
                          f"{', '.join(sorted(_TOP))}")
-    limits = _table(data, "airframe", where)
+    limits = subtable(data, "airframe", f"{where}: airframe")
     bad = sorted(set(limits) - set(AIRFRAME_LIMITS))
     if bad:
         raise ValueError(f"{where}: airframe: unknown limit(s) {', '.join(bad)}; known: "
                          f"{', '.join(AIRFRAME_LIMITS)}")
-    airframe_limits = {k: _number(v, f"{where}: airframe.{k}") for k, v in limits.items()}
+    airframe_limits = {k: finite_number(v, f"{where}: airframe.{k}")
+                       for k, v in limits.items()}
     ranges: dict[str, tuple[float, float]] = {}
-    for name, value in _table(data, "parameters", where).items():
+    for name, value in subtable(data, "parameters", f"{where}: parameters").items():
         if name not in PARAMETER_SPECS:
             raise ValueError(f"{where}: parameters.{name}: no such parameter (ivfm params)")
         if not (isinstance(value, list) and len(value) == 2):
             raise ValueError(f"{where}: parameters.{name} must be [min, max]")
-        low, high = (_number(v, f"{where}: parameters.{name}") for v in value)
+        low, high = (finite_number(v, f"{where}: parameters.{name}") for v in value)
         if low > high:
             raise ValueError(f"{where}: parameters.{name}: min {low:g} above max {high:g}")
         ranges[name] = (low, high)
@@ -139,20 +140,6 @@ def parse_profile(data: dict[str, Any], path: Path, where: str) -> Profile:
                              str(f.get("advice", ""))))
     return Profile(str(data.get("name", path.stem)), str(data.get("description", "")),
                    str(path), airframe_limits, ranges, tuple(parsed))
-
-
-def _table(data: dict[str, Any], key: str, where: str) -> dict[str, Any]:
-    value = data.get(key, {})
-    if not isinstance(value, dict):
-        raise ValueError(f"{where}: {key} must be a table")
-    return value
-
-
-def _number(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
-            not math.isfinite(value):
-        raise ValueError(f"{where} must be a finite number, got {value!r}")
-    return float(value)
 
 
 # -- the static checks ------------------------------------------------------------------

@@ -11,8 +11,8 @@ What the two loops share, and only that:
   polls while far from it, sleeps, then spins the last stretch (``wait``), and drops the
   periods it lost (``skip_missed``). The simulator only has to stay in step with the wall
   clock: it reads what arrives until the deadline (``serve``), and catches up after a late
-  period instead of dropping it, since each period is a period of sim time
-  (``catch_up``).
+  period instead of dropping it, since each period is a period of sim time; far behind
+  (a stall) it re-anchors, as a paused world resumes (``catch_up``).
 
 The lockstep loops share nothing beyond the shell: the autopilot answers samples as they
 come, the simulator sends one and waits for its answer.
@@ -87,13 +87,16 @@ class Deadlines:
         self.next_s += skipped * self.period_s
         return skipped, late
 
-    def catch_up(self, passed_s: float, limit_s: float) -> None:
+    def catch_up(self, passed_s: float, limit_s: float) -> float:
         """After ``advance``: a deadline ``passed_s`` that is more than ``limit_s`` behind
         (suspended?) re-anchors the schedule a period from now; less is caught up by
-        running the next periods without waiting."""
+        running the next periods without waiting. Returns how far behind it re-anchored
+        [s] (0 when it did not)."""
         now = time.perf_counter()
         if now - passed_s > limit_s:
             self.next_s = now + self.period_s
+            return now - passed_s
+        return 0.0
 
 
 class PacedProcess:

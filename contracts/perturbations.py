@@ -231,6 +231,11 @@ KINDS: dict[str, Kind] = {
     "baro_drift": Kind(SITL, {"rate_mps": _needed(-1.0, 1.0)},
                        "the barometer's altitude drifts at this rate (and stays drifted)",
                        _vector("baro_drift_mps", "rate_mps")),
+    # The whole simulator freezes once, at start_s, for freeze_s of wall time: no physics,
+    # no samples (a simulator that answers late); sim time goes on where it stopped.
+    "sim_stall": Kind(SITL, {"freeze_s": _needed(0.001, 10.0)},
+                      "the simulator freezes once for freeze_s of wall time (real time)",
+                      lambda e, t: {}, in_process=False),
     "kick": Kind(AUTOPILOT, {"phi_rad": Param(-1.0, 1.0, 0.0),
                              "theta_rad": Param(-1.0, 1.0, 0.0)},
                  "added to the desired roll and pitch",

@@ -58,6 +58,9 @@ def run_inprocess(
     if scenario.plan is not None:
         raise ValueError(f"{scenario.name} flies a mission: the vehicle's modes and navigator "
                          "run in the autopilot process (run it without --inprocess)")
+    if scenario.ground_station is not None:
+        raise ValueError(f"{scenario.name} has a [ground_station] on the vehicle's MAVLink "
+                         "link: run it through the processes (without --inprocess)")
     unsupported = sorted({e.kind for e in scenario.perturbations
                           if e.kind not in IN_PROCESS_KINDS})
     if unsupported:

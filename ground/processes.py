@@ -35,6 +35,7 @@ from contracts.telemetry import AUTOPILOT, SITL, logger_key, vehicle_key
 from contracts.warm import WARM_FLAG
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground import run_timeline
+from ground.ground_station import GroundStation
 from ground.perturb import PerturbationClient, PerturbationError
 from ground.scenarios import Scenario
 
@@ -48,6 +49,12 @@ class ProcessRunError(RuntimeError):
 
 def free_tcp_port() -> int:
     with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
@@ -79,8 +86,9 @@ class RunSettings:
 
 
 def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
-                     endpoint: str) -> tuple[list, list]:
-    """The simulator's and the autopilot's command lines for one vehicle of a run."""
+                     endpoint: str, gcs_port: int = 0) -> tuple[list, list]:
+    """The simulator's and the autopilot's command lines for one vehicle of a run
+    (``gcs_port``: the autopilot's ground link, for a scenario's ground station)."""
     pace = ["--realtime"] if settings.realtime else ["--lockstep"]
     # "--home=": a southern or western home starts with "-", which argparse would take
     # for an option if it came as its own argument.
@@ -105,7 +113,7 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
                  "--rate-hz", str(settings.rate_hz), "--state-source", settings.state_source,
                  "--controller", settings.controller, "--airframe", settings.airframe,
                  *flies, "--duration", str(scenario.duration_s),
-                 "--sysid", str(settings.vehicle), "--gcs-bind", "0", "--api", "none",
+                 "--sysid", str(settings.vehicle), "--gcs-bind", str(gcs_port), "--api", "none",
                  "--api-bind", "0", *zenoh_args]
     if settings.model_path is not None:
         autopilot += ["--model", str(settings.model_path)]
@@ -306,7 +314,9 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
     sim_port = free_tcp_port()
     v = settings.vehicle
     logs = {name: out_dir / f"{name}.log" for name in ("logger", SITL, AUTOPILOT)}
-    sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint)
+    gcs_port = free_udp_port() if scenario.ground_station is not None else 0
+    sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint, gcs_port)
+    ground_station = None
     logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm, env=env)
     run_timeline.mark(out_dir, "logger started")
     procs: dict[str, subprocess.Popen | WarmProcess] = {}
@@ -343,16 +353,25 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
         run_timeline.mark(out_dir, "schedule delivered")
         client.start(v)
         run_timeline.mark(out_dir, "simulator released")
+        if scenario.ground_station is not None:
+            ref = scenario.reference
+            ground_station = GroundStation(scenario.ground_station, gcs_port, v,
+                                           (0.0, 0.0, -ref.altitude_m), ref.yaw_rad)
+            ground_station.start()
         # The report's imports (matplotlib, the metrics) load while the vehicle flies.
         threading.Thread(target=importlib.import_module, args=("ground.report",),
                          daemon=True).start()
         _follow(session, procs, v, scenario.duration_s, timeout_s, logs, quiet)
+        if ground_station is not None and ground_station.error is not None:
+            raise ProcessRunError(f"the ground station failed: {ground_station.error}")
         run_timeline.mark(out_dir, "processes exited")
         final = logger.wait_until(session, status_keys, final=True, timeout_s=30.0)
         run_timeline.mark(out_dir, "logger heard the final status")
     except PerturbationError as exc:
         raise ProcessRunError(f"{exc}\n{_tail(logs[SITL])}") from None
     finally:
+        if ground_station is not None:
+            ground_station.stop()
         for proc in procs.values():
             if proc.poll() is None:
                 proc.kill()

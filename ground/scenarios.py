@@ -24,11 +24,12 @@ from contracts.perturbations import (
     plant_perturbations_at,
 )
 from ground.expectations import Expectations, parse_expectations
+from ground.ground_station import GroundStationPlan, parse_ground_station
 
 SCENARIO_DIR = Path(__file__).parent / "scenario_files"
 AXES = ("x", "y", "z", "phi", "theta", "psi")
 _TOP = {"name", "description", "duration_s", "axes", "transient_s", "reference", "plant",
-        "controller", "perturbation", "mission", "expect"}
+        "controller", "perturbation", "mission", "expect", "ground_station"}
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,8 @@ class Scenario:
     plan: Path | None = None  # a QGroundControl .plan flown in AUTO.MISSION from the ground
     expect: Expectations = field(default_factory=Expectations)  # what must hold (checks)
     home: Home = DEFAULT_HOME  # where on Earth the local frame is ([plant] home)
+    # A ground tool on the vehicle's ground link during the run (ground/ground_station.py).
+    ground_station: GroundStationPlan | None = None
 
     @property
     def mission_items(self) -> tuple:
@@ -158,6 +161,11 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     if bad:
         raise ValueError(f"controller: unknown field(s) {', '.join(bad)}")
     perturbations = parse_schedule(data.get("perturbation", []))
+    ground_station = parse_ground_station(data.get("ground_station"), duration)
+    if ground_station is not None and ground_station.offboard_at_s is not None and \
+            (plan is not None or reference.kind != "hover"):
+        raise ValueError("ground_station.offboard_at_s streams a hover point: the scenario's "
+                         "reference must be kind = \"hover\"")
     expect = parse_expectations(data.get("expect"), tuple(axes), duration)
     if expect.sections & {"estimation"} and state_source != "estimator":
         raise ValueError("expect.estimation: the scenario does not fly on the estimator "
@@ -170,7 +178,8 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
                     plant=fidelity, airframe=airframe, sensors=sensors,
                     state_source=state_source,
                     parameters={k: float(v) for k, v in params.items()},
-                    model_path=model_path, source=path, plan=plan, expect=expect, home=home)
+                    model_path=model_path, source=path, plan=plan, expect=expect, home=home,
+                    ground_station=ground_station)
 
 
 def _home(value: Any) -> Home:

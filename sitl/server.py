@@ -117,6 +117,9 @@ class LinkStats:
     latency: Histogram = field(default_factory=Histogram)  # sample -> its answer [s]
 
 
+CATCH_UP_PERIODS = 2  # real time: behind by more, re-anchor instead of catching up
+
+
 class Simulator(PacedProcess):
     """The plant and its sensors, one sample period at a time, paced by the autopilot's
     answers (lockstep) or by the wall clock (real time)."""
@@ -199,6 +202,14 @@ class Simulator(PacedProcess):
             self._event_pub.put(json_record(self._event_pub.count, self.time_us, event=event,
                                             **e.to_request()))
             self.log(f"t={t_s:.3f} s perturbation {e.id} ({e.kind}) {event}")
+            if event == "start" and e.kind == "sim_stall":
+                self._freeze(e.params["freeze_s"])
+
+    def _freeze(self, freeze_s: float) -> None:
+        """A stalled simulator: the whole process stops (no physics, no samples, no
+        requests served), as a suspended or overloaded one would."""
+        self.log(f"frozen for {freeze_s:g} s of wall time (sim_stall)")
+        time.sleep(freeze_s)
 
     def _publish_state(self) -> None:
         if not self.node.enabled:
@@ -430,7 +441,13 @@ class Simulator(PacedProcess):
             self.advance()
             passed_s = pace.next_s
             pace.advance()
-            pace.catch_up(passed_s, 1.0)  # far behind (suspended?): re-anchor
+            # A period or two late is caught up. Further behind (frozen, suspended), the
+            # world resumes at its pace from where it stopped: a burst of periods would
+            # run the plant on commands the autopilot had no time to answer.
+            behind_s = pace.catch_up(passed_s, CATCH_UP_PERIODS * self.period_s)
+            if behind_s:
+                self.log(f"{1e3 * behind_s:.0f} ms behind the wall clock at "
+                         f"t={self.time_us / 1e6:.3f} s: resumed from there")
         if link.conn is not None:
             link.conn.close()
 

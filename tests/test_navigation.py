@@ -79,9 +79,38 @@ def test_six_waypoints_at_5_mps_every_item_reached_on_the_path(six):
     flying = (-log[:, 3] > 4.9)
     deviation = distance_to_path(log[flying, POS], path)
     rmse = float(np.sqrt(np.mean(deviation**2)))
-    assert rmse == pytest.approx(0.0222, abs=0.001)  # target: <= 0.3 m
-    assert deviation.max() == pytest.approx(0.077, abs=0.005)
+    # Corners are cut inside the acceptance radius (NAV_ACC_RAD 2 m), as PX4 cuts them.
+    assert rmse == pytest.approx(0.0837, abs=0.002)
+    assert deviation.max() == pytest.approx(0.385, abs=0.01)
     assert speed(log).max() == pytest.approx(5.0, abs=0.13)  # MPC_XY_CRUISE
+
+
+def test_mission_corners_are_rounded_at_a_reduced_speed_not_stopped_at(six):
+    """Each turning waypoint is passed inside its acceptance radius at the corner's
+    speed (sharper turns slower); only the last one, before the landing, is stopped at."""
+    log = six.log
+    closest, speeds = [], []
+    for north, east in SIX:
+        d = np.linalg.norm(log[:, POS] - (north, east, -5.0), axis=1)
+        i = int(np.argmin(d))
+        closest.append(float(d[i]))
+        speeds.append(float(speed(log)[i]))
+    # Turns of 90, 90, 45, 90 and 162 degrees, then the landing point.
+    assert closest == pytest.approx([0.475, 0.474, 0.415, 0.470, 0.301, 0.052], abs=0.01)
+    assert speeds == pytest.approx([1.40, 1.42, 2.38, 1.39, 0.10, 0.05], abs=0.03)
+    landed_s = log[np.argmax((log[:, 3] == 0.0) & (log[:, 0] > 10.0)), 0]
+    assert landed_s == pytest.approx(61.0, abs=0.1)  # 73.6 s when it stopped at each
+
+
+def test_corner_speed_follows_the_turn():
+    from autopilot.navigator.mission_runner import corner_speed_mps
+
+    assert corner_speed_mps(math.radians(90), 2.0, 3.0, 5.0) == pytest.approx(math.sqrt(3.0))
+    assert corner_speed_mps(math.radians(45), 2.0, 3.0, 5.0) == pytest.approx(
+        math.sqrt(3.0 / math.tan(math.radians(22.5))))
+    assert corner_speed_mps(math.radians(5), 2.0, 3.0, 5.0) == 5.0  # straight on: cruise
+    assert corner_speed_mps(math.radians(12), 2.0, 3.0, 5.0) == 5.0  # capped at cruise
+    assert corner_speed_mps(math.pi, 2.0, 3.0, 5.0) == 0.0  # a reversal stops
 
 
 def test_the_mission_is_repeated_bit_for_bit():
@@ -372,7 +401,9 @@ def test_change_speed_in_flight_sets_the_mission_speed():
     f.vehicle.change_speed(2.0)
     start = f.t_s
     f.run(10.0)
-    assert reference_speed(f.since(start + 3.0)).max() == pytest.approx(2.0, abs=1e-6)
+    # On cruise; leaving a rounded corner, the reference turns its acceleration at the
+    # jerk limit and passes the speed by a little (here 0.004 %, below: 2.4 %).
+    assert reference_speed(f.since(start + 3.0)).max() == pytest.approx(2.0000754, abs=1e-6)
 
 
 def test_a_mission_uploaded_in_flight_is_flown_and_a_cleared_one_holds():
@@ -399,7 +430,7 @@ def test_parameters_changed_in_a_mission_apply_at_once_and_a_new_upload_is_not_s
     f.vehicle.set_parameter("MPC_XY_CRUISE", 2.0)
     start = f.t_s
     f.run(8.0)
-    assert reference_speed(f.since(start + 2.0)).max() == pytest.approx(2.0, abs=1e-6)
+    assert reference_speed(f.since(start + 2.0)).max() == pytest.approx(2.04743, abs=1e-5)
     f.vehicle.set_mode(FlightMode.HOLD, f.t_s)
     assert f.vehicle.mission_state == "paused"
     f.vehicle.mission.replace(MISSION, tuple(six_waypoints()))

@@ -139,8 +139,8 @@ def test_the_shipped_profile_names_flights_that_load():
     profile = load_profile()
     assert [f.scenario.stem for f in profile.flights] == [
         "takeoff-hold-land", "tracking", "wind", "weak-motor", "gps-loss", "geofence",
-        "timing"]
-    assert [f.realtime for f in profile.flights] == [False] * 6 + [True]
+        "gcs-loss", "setpoint-loss", "sim-stall", "timing"]
+    assert [f.realtime for f in profile.flights] == [False] * 6 + [True] * 4
     for flight in profile.flights:
         scenario = load_scenario(flight.scenario)
         assert scenario.expect.limits or scenario.expect.events, scenario.name
@@ -166,7 +166,8 @@ def test_a_no_go_rehearsal_writes_every_output_and_exits_1(tmp_path, capsys):
     xml = junitparser.JUnitXml.fromfile(str(out / "rehearsal.xml"))
     suites = {s.name: s for s in xml}
     assert set(suites) == {"static", "timing", "takeoff-hold-land", "tracking", "wind",
-                           "weak-motor", "gps-loss", "geofence"}
+                           "weak-motor", "gps-loss", "geofence", "gcs-loss",
+                           "setpoint-loss", "sim-stall"}
     assert suites["static"].failures == 6 and suites["wind"].errors == 1
     rows = [line.split("\t") for line in (out / "parameters.params").read_text().splitlines()
             if not line.startswith("#")]

@@ -268,6 +268,11 @@ def test_a_late_simulator_is_a_counted_stall_that_holds_the_command(vehicle):
     assert 170 <= timing["sim_stall_longest_ms"] <= 300
     (line,) = [ln for ln in log.splitlines() if "simulator late" in ln]
     assert "control step(s) held the last command" in line
+    # The simulator resumes from where it stopped instead of running the lost periods in
+    # a burst the autopilot has no time to answer (which timed its commands out).
+    sim_log = procs.sim_log()
+    assert "behind the wall clock" in sim_log and "resumed from there" in sim_log
+    assert "motors stopped" not in sim_log
 
 
 def test_a_flooded_vehicle_answers_and_shows_its_drops(vehicle):

@@ -39,7 +39,7 @@ class MissionTask(BaseTask):
         elif nav.current_moved and self.restart():  # a tool set the current item
             return None
         goal = nav.step(s.sim_t_s, s.position_ned_m, s.reference_position_ned_m(),
-                        s.parameters)
+                        s.parameters, s.reference_velocity_ned_mps())
         if goal is None:
             self.env.switch_to(FlightMode.RTL)
             return None

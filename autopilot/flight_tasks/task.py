@@ -146,6 +146,14 @@ class TaskState:
             return self.shaper.position_ned_m
         return self.position_ned_m
 
+    def reference_velocity_ned_mps(self) -> np.ndarray:
+        """How the shaped reference moves (the vehicle's velocity when none is shaped)."""
+        if self.shaped is Shaped.TRANSLATION:
+            return self.shaper.velocity_ned_mps
+        if self.measurement is None:
+            return np.zeros(3)
+        return self.measurement[MEASUREMENT.velocity_ned_mps]
+
     def stream_position(self, link_t_s: float, setpoint: Setpoint) -> None:
         """Take a checked position setpoint as the newest streamed one. Its velocity and
         acceleration feed-forward lapse FEED_FORWARD_HOLD_S after its position stops."""

@@ -8,10 +8,13 @@ item, a return asked for, the mission finished) comes back as events.
 
 Missions follow PX4's rules (docs/missions.md): a waypoint is *reached* when the vehicle
 is within its acceptance radius (NAV_ACC_RAD when the item gives none) and within
-NAV_MC_ALT_RAD of its altitude. A leg that turns starts once the shaped reference has
-also come to the waypoint (AT_WAYPOINT_M), so that the path turns on the waypoint rather
-than cutting the corner inside the acceptance radius; a hold time runs from then. Headings face
-the next waypoint (PX4's MPC_YAW_MODE 0) unless the item names one.
+NAV_MC_ALT_RAD of its altitude. A corner is flown as PX4 flies it: rounded inside the
+acceptance radius at a reduced speed (:func:`corner_speed_mps`). The next leg starts
+once the shaped reference is inside the radius and has slowed to the corner's speed; the
+reference then turns towards the next waypoint at its acceleration limit. A waypoint
+with a hold time, the last one, and a reversal are stopped at (AT_WAYPOINT_M), and a
+hold time runs from then. Headings face the next waypoint (PX4's MPC_YAW_MODE 0) unless
+the item names one.
 """
 
 from __future__ import annotations
@@ -36,6 +39,9 @@ M = mavlink
 # on start as soon as the reference is within the acceptance radius.
 AT_WAYPOINT_M = 0.05
 STRAIGHT_ON_RAD = math.radians(10.0)  # legs this close to straight do not slow down
+# The share of MPC_ACC_HOR a corner's arc may take across the path: the rest is left to
+# the reference's braking along it, so the rounded path stays inside the radius.
+CORNER_ACCEL_SHARE = 0.5
 FACE_TARGET_M = 2.0  # legs shorter than this keep the heading (no spinning on the spot)
 # Items flown to a position and left (after a hold) for the next.
 WAYPOINT_COMMANDS = (M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_LOITER_TIME,
@@ -94,6 +100,20 @@ def heading_to(start_ned_m: np.ndarray, target_ned_m: np.ndarray) -> float:
     if math.hypot(d[0], d[1]) < FACE_TARGET_M:
         return math.nan
     return math.atan2(d[1], d[0])
+
+
+def corner_speed_mps(turn_rad: float, acceptance_m: float, acc_hor_mps2: float,
+                     cruise_mps: float) -> float:
+    """The speed a corner is passed at: the arc tangent to both legs at ``acceptance_m``
+    from the waypoint has the radius acceptance / tan(turn / 2), and flown at a lateral
+    acceleration of CORNER_ACCEL_SHARE * MPC_ACC_HOR it allows sqrt(a r); at most the
+    cruise speed, nothing for a reversal."""
+    if turn_rad < STRAIGHT_ON_RAD:
+        return cruise_mps
+    if turn_rad >= math.pi - 1e-6:
+        return 0.0
+    radius_m = acceptance_m / math.tan(0.5 * turn_rad)
+    return min(cruise_mps, math.sqrt(CORNER_ACCEL_SHARE * acc_hor_mps2 * radius_m))
 
 
 def turn_angle(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> float:
@@ -229,19 +249,22 @@ class MissionRunner:
             return float(item.params[0]) if math.isfinite(item.params[0]) else 0.0
         return 0.0
 
-    def _straight_on(self) -> bool:
-        """Whether the next leg goes on in (nearly) the same direction."""
+    def _corner_speed(self, radius_m: float) -> float:
+        """The speed the current waypoint may be left at for the next leg: 0 unless a
+        waypoint follows (the path stops at the last one, and before a landing)."""
         following = self.seq + 1
         if following < len(self.items) and \
                 self.items[following].command in WAYPOINT_COMMANDS:
             after = item_position_ned(self.items[following], self._target, self.home)
-            return turn_angle(self._leg_start, self._target, after) < STRAIGHT_ON_RAD
-        return False
+            return corner_speed_mps(turn_angle(self._leg_start, self._target, after),
+                                    radius_m, self.parameters["MPC_ACC_HOR"], self._speed())
+        return 0.0
 
     # -- the step ----------------------------------------------------------------------
-    def step(self, t_s: float, position_ned_m: np.ndarray, reference_ned_m: np.ndarray
-             ) -> Goal:
-        """This period's goal, from the vehicle's position and the shaped reference's."""
+    def step(self, t_s: float, position_ned_m: np.ndarray, reference_ned_m: np.ndarray,
+             reference_velocity_ned_mps: np.ndarray | None = None) -> Goal:
+        """This period's goal, from the vehicle's position and the shaped reference's
+        position and velocity (None: at rest)."""
         if self._phase is Phase.CLIMB:
             goal = Goal(Setpoint.hold(self._target, self._yaw_rad), math.nan, Vertical.TAKEOFF)
             if abs(position_ned_m[2] - self._target[2]) <= self.parameters["NAV_MC_ALT_RAD"]:
@@ -279,10 +302,19 @@ class MissionRunner:
                 if self._hold_from_s is not None and \
                         t_s - self._hold_from_s >= self._hold_s(item):
                     self._next(position_ned_m, t_s)
-            elif away <= AT_WAYPOINT_M or (away <= radius and self._straight_on()):
+            elif away <= AT_WAYPOINT_M or (away <= radius and self._slowed_for_corner(
+                    reference_velocity_ned_mps, radius)):
                 self._next(position_ned_m, t_s)
         return Goal(Setpoint.hold(self._target, self._yaw_rad), self._speed(),
                     Vertical.TAKEOFF if self._phase is Phase.TAKEOFF else Vertical.CRUISE)
+
+    def _slowed_for_corner(self, velocity_ned_mps: np.ndarray | None,
+                           radius_m: float) -> bool:
+        corner = self._corner_speed(radius_m)
+        if corner <= 0.0:
+            return False
+        speed = 0.0 if velocity_ned_mps is None else float(np.linalg.norm(velocity_ned_mps))
+        return speed <= corner
 
     def _next(self, here: np.ndarray, t_s: float) -> None:
         self.seq += 1

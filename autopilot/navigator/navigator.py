@@ -72,10 +72,12 @@ class Navigator:
         return self.store.current != self._current_shown
 
     def step(self, sim_t_s: float, here_ned_m: np.ndarray, reference_ned_m: np.ndarray,
-             parameters: dict[str, float]) -> Goal | None:
+             parameters: dict[str, float],
+             reference_velocity_ned_mps: np.ndarray | None = None) -> Goal | None:
         """This period's goal; None when the mission asks for a return."""
         self.runner.parameters = parameters  # changed in flight: they apply at once
-        goal = self.runner.step(sim_t_s, here_ned_m, reference_ned_m)
+        goal = self.runner.step(sim_t_s, here_ned_m, reference_ned_m,
+                                reference_velocity_ned_mps)
         return None if self._take_events() else goal
 
     def _take_events(self) -> bool:

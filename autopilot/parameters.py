@@ -113,6 +113,18 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("NAV_MC_ALT_RAD", 0.8, 0.05, 200.0, "m", "waypoint altitude acceptance"),
     ParamSpec("RTL_RETURN_ALT", 10.0, 0.5, 500.0, "m", "return altitude above home"),
     ParamSpec("RTL_DESCEND_ALT", 5.0, 0.5, 500.0, "m", "altitude return descends to first"),
+    # Follow Me (AUTO.FOLLOW_TARGET, docs/missions.md): PX4's names and defaults.
+    ParamSpec("FLW_TGT_HT", 8.0, 1.0, 500.0, "m", "follow height (above home; above the "
+              "target with FLW_TGT_ALT_M 2)"),
+    ParamSpec("FLW_TGT_DST", 8.0, 1.0, 500.0, "m", "horizontal distance to the target"),
+    ParamSpec("FLW_TGT_FA", 180.0, -180.0, 180.0, "deg", "follow angle from the target's "
+              "course, clockwise: 0 in front, 90 right, 180 behind"),
+    ParamSpec("FLW_TGT_ALT_M", 0.0, 0.0, 2.0, "", "altitude: 0 constant, 1 terrain "
+              "(flat here: constant), 2 track the target's", choices=(0.0, 1.0, 2.0)),
+    ParamSpec("FLW_TGT_RS", 0.1, 0.0, 1.0, "", "smoothing of the target's position: 0 "
+              "follows each report, 1 never moves"),
+    ParamSpec("FLW_TGT_MAX_VEL", 5.0, 0.1, 20.0, "m/s", "largest speed round the target "
+              "when the follow direction changes"),
     # Manual flight from MANUAL_CONTROL (docs/mavlink.md): PX4's stick meanings.
     ParamSpec("MPC_VEL_MANUAL", 5.0, 0.5, 20.0, "m/s", "full-stick speed in POSCTL"),
     ParamSpec("MPC_HOLD_DZ", 0.1, 0.0, 0.5, "", "stick deadband"),

@@ -23,6 +23,7 @@ class FlightMode(enum.Enum):
     ALTCTL = "altctl"  # manual: sticks command tilt and climb rate, altitude held
     STABILIZED = "stabilized"  # manual: sticks command tilt and collective thrust
     ORBIT = "orbit"  # circle a centre (MAV_CMD_DO_ORBIT)
+    FOLLOW_TARGET = "follow_target"  # follow a target's FOLLOW_TARGET messages (Follow Me)
 
 
 MANUAL_MODES = (FlightMode.POSCTL, FlightMode.ALTCTL, FlightMode.STABILIZED)
@@ -40,6 +41,7 @@ PX4_SUB_AUTO_LOITER = 3
 PX4_SUB_AUTO_MISSION = 4
 PX4_SUB_AUTO_RTL = 5
 PX4_SUB_AUTO_LAND = 6
+PX4_SUB_AUTO_FOLLOW_TARGET = 8
 PX4_SUB_POSCTL_ORBIT = 1
 
 PX4_MODES: dict[FlightMode, tuple[int, int]] = {
@@ -53,6 +55,7 @@ PX4_MODES: dict[FlightMode, tuple[int, int]] = {
     FlightMode.ALTCTL: (PX4_MAIN_ALTCTL, 0),
     FlightMode.STABILIZED: (PX4_MAIN_STABILIZED, 0),
     FlightMode.ORBIT: (PX4_MAIN_POSCTL, PX4_SUB_POSCTL_ORBIT),
+    FlightMode.FOLLOW_TARGET: (PX4_MAIN_AUTO, PX4_SUB_AUTO_FOLLOW_TARGET),
     # PX4 has no such mode: the paper's reference shows as AUTO.READY.
     FlightMode.REFERENCE: (PX4_MAIN_AUTO, PX4_SUB_AUTO_READY),
 }
@@ -70,6 +73,7 @@ COPTER_MODES: dict[FlightMode, int] = {
     FlightMode.LAND: 9,
     FlightMode.POSCTL: 16,  # POSHOLD
     FlightMode.ORBIT: 7,  # CIRCLE
+    FlightMode.FOLLOW_TARGET: 23,  # FOLLOW
     FlightMode.REFERENCE: 25,  # SYSTEMID: ArduPilot's own excitation mode
 }
 

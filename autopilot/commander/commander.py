@@ -275,6 +275,13 @@ class Commander:
         self.links.manual_heard_s = link_t_s
         self.state.sticks = sticks
 
+    def follow_target(self, position_ned_m: np.ndarray,
+                      velocity_ned_mps: np.ndarray | None) -> None:
+        """A FOLLOW_TARGET report in local NED (None: no velocity given), stamped with the
+        sim time it arrived at; refused (RefusedError) and ignored when out of range."""
+        self.tasks[FlightMode.FOLLOW_TARGET].report(self.state.sim_t_s, position_ned_m,
+                                                    velocity_ned_mps)
+
     # -- links and failsafes -----------------------------------------------------------------
     def gcs_heartbeat(self, link_t_s: float) -> None:
         if self.links.gcs_heartbeat(link_t_s):

@@ -17,6 +17,7 @@ from functools import partial
 from typing import TYPE_CHECKING
 
 from autopilot.commander.failsafe import Stream
+from autopilot.flight_tasks.follow import FollowTargetTask
 from autopilot.flight_tasks.hold import HoldTask
 from autopilot.flight_tasks.land import LandTask
 from autopilot.flight_tasks.manual import AttitudeControlTask, PositionControlTask
@@ -95,6 +96,8 @@ MODES: dict[FlightMode, ModeRow] = {
                                 ends_with_flight=True),
     FlightMode.RTL: ModeRow(ReturnTask, entry=_needs_air("return"), ends_with_flight=True),
     FlightMode.ORBIT: ModeRow(OrbitTask, entry=_needs_air("orbit"), ends_with_flight=True),
+    FlightMode.FOLLOW_TARGET: ModeRow(FollowTargetTask, entry=_needs_air("follow target"),
+                                      ends_with_flight=True),
     FlightMode.POSCTL: ModeRow(PositionControlTask, armable=True, stream=Stream.MANUAL),
     FlightMode.ALTCTL: ModeRow(partial(AttitudeControlTask, thrust_stick=False),
                                armable=True, stream=Stream.MANUAL),

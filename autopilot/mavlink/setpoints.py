@@ -1,6 +1,6 @@
 """Setpoint streams from ground tools (SET_POSITION_TARGET_LOCAL_NED / GLOBAL_INT,
-SET_ATTITUDE_TARGET, MANUAL_CONTROL) to the vehicle; refusals said at most once a
-second."""
+SET_ATTITUDE_TARGET, MANUAL_CONTROL, and a Follow Me target's FOLLOW_TARGET) to the
+vehicle; refusals said at most once a second."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import numpy as np
 from autopilot.flight_tasks.sticks import sticks_from_manual_control
 from autopilot.mavlink.offboard import global_setpoint, local_setpoint
 from autopilot.refusal import RefusedError
+from contracts.mavlink import mavlink, ned_from_global
 from contracts.vectors import MEASUREMENT
 
 if TYPE_CHECKING:
@@ -23,6 +24,8 @@ BODY_RATES_IGNORE = 0b111
 THRUST_IGNORE = 1 << 6
 ATTITUDE_IGNORE = 1 << 7
 REFUSAL_EVERY_S = 1.0  # setpoints stream at 20 Hz and more: one STATUSTEXT per second
+# FOLLOW_TARGET est_capabilities bits: position, velocity.
+TARGET_HAS_POSITION, TARGET_HAS_VELOCITY = 1 << 0, 1 << 1
 
 
 class SetpointProtocol:
@@ -33,7 +36,8 @@ class SetpointProtocol:
     def handlers(self) -> dict[str, Callable]:
         return {"SET_POSITION_TARGET_LOCAL_NED": self.on_local,
                 "SET_POSITION_TARGET_GLOBAL_INT": self.on_global,
-                "SET_ATTITUDE_TARGET": self.on_attitude, "MANUAL_CONTROL": self.on_manual}
+                "SET_ATTITUDE_TARGET": self.on_attitude, "MANUAL_CONTROL": self.on_manual,
+                "FOLLOW_TARGET": self.on_follow_target}
 
     def on_local(self, link: GroundLink, address, msg, now: float) -> None:
         v = self.server.vehicle
@@ -77,6 +81,28 @@ class SetpointProtocol:
             self._refuse(link, address, str(exc), now)
             return
         self.server.vehicle.manual_input(now, sticks)
+
+    def on_follow_target(self, link: GroundLink, address, msg, now: float) -> None:
+        """FOLLOW_TARGET (MAVSDK's follow-me plugin): the target's latitude, longitude and
+        altitude AMSL, with its NED velocity when est_capabilities says it has one."""
+        v = self.server.vehicle
+        try:
+            if not msg.est_capabilities & TARGET_HAS_POSITION:
+                raise RefusedError("follow target: the report has no position")
+            lat, lon = msg.lat * 1e-7, msg.lon * 1e-7
+            if not (abs(lat) <= 90.0 and abs(lon) <= 180.0 and math.isfinite(msg.alt)):
+                raise RefusedError(f"follow target: {lat:g}, {lon:g}, {msg.alt:g} m is not "
+                                   "a position on Earth")
+            position = ned_from_global(v.home, mavlink.MAV_FRAME_GLOBAL, lat, lon, msg.alt)
+            # MAVSDK sets only the position bit but sends the velocity its caller gave: a
+            # finite velocity counts unless it is all zeros without the velocity bit.
+            velocity = np.array(msg.vel, dtype=float)
+            if not np.all(np.isfinite(velocity)) or (
+                    not msg.est_capabilities & TARGET_HAS_VELOCITY and not np.any(velocity)):
+                velocity = None  # the task estimates it from the positions
+            v.follow_target(position, velocity)
+        except RefusedError as exc:
+            self._refuse(link, address, str(exc), now)
 
     def _refuse(self, link: GroundLink, address, text: str, now: float) -> None:
         if now - self._last_refusal_s >= REFUSAL_EVERY_S:

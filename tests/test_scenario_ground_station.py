@@ -1,0 +1,146 @@
+"""A scenario's ``[ground_station]``: the table checked, and the ground tool it makes
+(ground/ground_station.py) as a real MAVLink client on a real UDP socket, heard by a
+pymavlink reader standing in the autopilot's ground-link port; and the ``sim_stall``
+perturbation kind's checks. The rehearsal flights that use them run in real time
+(``ivfm rehearse``; docs/rehearsal.md)."""
+
+from __future__ import annotations
+
+import socket
+import time
+
+import pytest
+
+from contracts.mavlink import mavlink
+from contracts.modes import PX4_MODES, FlightMode
+from contracts.perturbations import parse_request
+from ground.ground_station import GroundStation, Silence, parse_ground_station
+from ground.inprocess import run_inprocess
+from ground.scenarios import load_scenario
+
+
+@pytest.mark.parametrize("table, error", [
+    ({"heartbeat_hz": -1}, "heartbeat_hz must be a number in"),
+    ({"heartbeat_hz": float("nan")}, "heartbeat_hz must be a number in"),
+    ({"colour": 1}, "unknown field"),
+    ({"silence": [{"what": "radio", "start_s": 1}]}, "what must be one of"),
+    ({"silence": [{"what": "setpoints", "start_s": 1}]}, "give offboard_at_s"),
+    ({"silence": [{"start_s": 5, "end_s": 2}]}, "end_s must be a number in"),
+    ({"silence": [{"end_s": 2}]}, "start_s is required"),
+    ({"offboard_at_s": 99}, "offboard_at_s must be a number in"),
+    ({"silence": {"start_s": 1}}, "list of tables"),
+])
+def test_bad_ground_station_tables_are_refused_with_the_field(table, error):
+    with pytest.raises(ValueError, match=error):
+        parse_ground_station(table, 20.0)
+
+
+def test_a_ground_station_table_and_its_defaults():
+    plan = parse_ground_station({"offboard_at_s": 2, "silence": [
+        {"what": "setpoints", "start_s": 6}, {"start_s": 8, "end_s": 9}]}, 12.0)
+    assert plan.heartbeat_hz == 1.0 and plan.setpoint_hz == 20.0 and plan.offboard_at_s == 2
+    assert plan.silences == (Silence("setpoints", 6.0, 12.0), Silence("all", 8.0, 9.0))
+    assert plan.silent("setpoints", 7.0) and not plan.silent("heartbeat", 7.0)
+    assert plan.silent("heartbeat", 8.5) and not plan.silent("heartbeat", 9.0)
+    assert parse_ground_station(None, 12.0) is None
+
+
+def test_the_shipped_link_flights_load_and_refuse_to_fly_in_one_process():
+    from ground.readiness import load_profile
+
+    flights = {f.scenario.stem: f for f in load_profile().flights}
+    for name in ("gcs-loss", "setpoint-loss"):
+        scenario = load_scenario(flights[name].scenario)
+        assert flights[name].realtime and scenario.ground_station is not None
+        with pytest.raises(ValueError, match="through the processes"):
+            run_inprocess(scenario, "ivfc", "rigid-body", 0.01)
+    stall = load_scenario(flights["sim-stall"].scenario)
+    assert [(e.kind, e.params) for e in stall.perturbations] == [
+        ("sim_stall", {"freeze_s": 0.3})]
+    with pytest.raises(ValueError, match="sim_stall act on the simulator link"):
+        run_inprocess(stall, "ivfc", "rigid-body", 0.01)
+
+
+def test_an_offboard_ground_station_needs_a_hover_reference(tmp_path):
+    path = tmp_path / "mine.toml"
+    path.write_text("[reference]\nkind = 'position-sine'\n[ground_station]\n"
+                    "offboard_at_s = 1.0\n")
+    with pytest.raises(ValueError, match="must be kind = \"hover\""):
+        load_scenario(path)
+
+
+@pytest.mark.parametrize("request_, error", [
+    ({"kind": "sim_stall", "start_s": 1}, "freeze_s is required"),
+    ({"kind": "sim_stall", "start_s": 1, "freeze_s": 0}, "freeze_s must be in"),
+    ({"kind": "sim_stall", "start_s": 1, "freeze_s": 11}, "freeze_s must be in"),
+])
+def test_bad_sim_stalls_are_refused(request_, error):
+    with pytest.raises(ValueError, match=error):
+        parse_request(request_)
+
+
+def test_the_ground_station_sends_what_its_plan_says_and_falls_silent():
+    """Heartbeats at 20 Hz silenced 0.4-0.8 s; the hover setpoint at 20 Hz from the
+    start; DO_SET_MODE OFFBOARD from 0.2 s, again until acknowledged (here on its second
+    sending); the setpoints silenced from 1.0 s."""
+    from pymavlink import mavutil
+
+    vehicle = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=1)
+    port = vehicle.port.getsockname()[1]
+    plan = parse_ground_station({"heartbeat_hz": 20.0, "offboard_at_s": 0.2, "silence": [
+        {"what": "heartbeat", "start_s": 0.4, "end_s": 0.8},
+        {"what": "setpoints", "start_s": 1.0}]}, 10.0)
+    gcs = GroundStation(plan, port, 1, (1.0, 2.0, -3.0), 0.5)
+    heard: list[tuple[float, object]] = []
+    gcs.start()
+    start = time.monotonic()
+    modes = 0
+    try:
+        while time.monotonic() - start < 1.4:
+            msg = vehicle.recv_match(blocking=True, timeout=0.05)
+            if msg is None:
+                continue
+            heard.append((time.monotonic() - start, msg))
+            if msg.get_type() == "COMMAND_LONG":
+                modes += 1
+                if modes == 2:  # acknowledge the second: the third must not come
+                    vehicle.mav.command_ack_send(msg.command, mavlink.MAV_RESULT_ACCEPTED)
+    finally:
+        gcs.stop()
+        vehicle.close()
+    assert gcs.error is None
+
+    def times(kind: str) -> list[float]:
+        return [t for t, m in heard if m.get_type() == kind]
+
+    beats = times("HEARTBEAT")
+    assert all(not 0.45 < t < 0.78 for t in beats)  # silent (slack for a late read)
+    assert sum(t < 0.4 for t in beats) >= 7 and sum(t > 0.8 for t in beats) >= 10
+    beat = next(m for _, m in heard if m.get_type() == "HEARTBEAT")
+    assert beat.type == mavlink.MAV_TYPE_GCS and beat.get_srcSystem() == 255
+    setpoints = [(t, m) for t, m in heard if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+    assert setpoints[0][0] < 0.1 and all(t < 1.02 for t, _ in setpoints)
+    assert len(setpoints) >= 18
+    sp = setpoints[0][1]
+    assert (sp.x, sp.y, sp.z, sp.yaw) == pytest.approx((1.0, 2.0, -3.0, 0.5))
+    assert sp.coordinate_frame == mavlink.MAV_FRAME_LOCAL_NED and sp.target_system == 1
+    commands = [m for _, m in heard if m.get_type() == "COMMAND_LONG"]
+    assert len(commands) == 2 and gcs.mode_acked
+    assert commands[0].command == mavlink.MAV_CMD_DO_SET_MODE
+    assert (commands[0].param2, commands[0].param3) == PX4_MODES[FlightMode.OFFBOARD]
+    assert times("COMMAND_LONG")[0] == pytest.approx(0.2, abs=0.05)
+
+
+def test_a_ground_station_to_nobody_keeps_going():
+    """No vehicle on the port (ICMP unreachable on loopback): the sends fail quietly and
+    the thread runs on until stopped."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    gcs = GroundStation(parse_ground_station({"heartbeat_hz": 50.0}, 5.0), port, 1,
+                        (0.0, 0.0, -2.0), 0.0)
+    gcs.start()
+    time.sleep(0.3)
+    assert gcs._thread.is_alive()
+    gcs.stop()
+    assert gcs.error is None and gcs.sent["heartbeat"] >= 10

@@ -239,11 +239,11 @@ async def _follow_me_session(port: int) -> dict:
         def target_ned(t_s: float) -> np.ndarray:
             return np.array([5.0, 1.5 * t_s, 0.0])
 
-        while time.monotonic() - start < 22.0:
+        while time.monotonic() - start < 16.0:
             t = time.monotonic() - start
             lat, lon, alt = DEFAULT_HOME.geodetic_from_ned(*target_ned(t))
             await follow_me.set_target_location(TargetLocation(lat, lon, alt, 0.0, 1.5, 0.0))
-            if t > 14.0:  # caught up: the station moves with the target
+            if t > 10.0:  # caught up: the station moves with the target
                 for _ in range(10):
                     now = time.monotonic() - start
                     out["track"].append(np.concatenate((watch.ned - target_ned(now),

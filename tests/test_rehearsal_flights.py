@@ -34,8 +34,12 @@ def x500_rehearsal(tmp_path_factory):
     folder = tmp_path_factory.mktemp("rehearse")
     shipped = ROOT / "ground/readiness/default.toml"
     profile = tomllib.loads(shipped.read_text())
+    # The lockstep flights, and of the real-time ones the setpoint loss: its ground station
+    # (a real MAVLink client) switches to OFFBOARD, streams and stops; its event windows
+    # are seconds wide. The timing figures of the others depend on the machine's load.
     profile["flight"] = [{**f, "scenario": str(shipped.parent / f["scenario"])}
-                         for f in profile["flight"] if not f.get("realtime")]
+                         for f in profile["flight"]
+                         if not f.get("realtime") or "setpoint-loss" in f["scenario"]]
     (folder / "pinned.toml").write_text(tomli_w.dumps(profile))
     out = folder / "x500"
     done = ivfm("rehearse", "--airframe", "quad-x-500", "--profile",
@@ -46,8 +50,8 @@ def x500_rehearsal(tmp_path_factory):
 def test_the_x500_rehearsal_is_a_go(x500_rehearsal):
     out, done = x500_rehearsal
     assert done.returncode == 0, done.stdout + done.stderr
-    assert done.stdout.startswith("rehearsal of quad-x-500: GO (16 of 16 static checks, "
-                                  "6 of 6 flights passed")
+    assert done.stdout.startswith("rehearsal of quad-x-500: GO (17 of 17 static checks, "
+                                  "7 of 7 flights passed")
     result = json.loads((out / "rehearsal.json").read_text())
     assert result["verdict"] == "GO" and result["model"] == "shipped quad-x-500.json"
     assert result["parameters_set"] == {"CMDF_ACC_MAX": 20.0}  # the airframe file's own
@@ -55,7 +59,7 @@ def test_the_x500_rehearsal_is_a_go(x500_rehearsal):
     flights = {f["name"]: f for f in result["flights"]}
     assert all(f["passed"] for f in flights.values())
     assert set(flights) == {"takeoff-hold-land", "tracking", "wind", "weak-motor",
-                            "gps-loss", "geofence"}
+                            "gps-loss", "geofence", "setpoint-loss"}
     # The progress line names each flight as it starts.
     for name in flights:
         assert f"] {name} (" in done.stderr

@@ -12,6 +12,16 @@ from contracts import AUTOPILOT, timeline
 if __name__ == "__main__":
     timeline.mark(AUTOPILOT, "main")  # before the heavy imports below
 
+from contracts.arguments import (  # noqa: E402
+    ALTITUDE_M,
+    DURATION_S,
+    PORT,
+    RATE_HZ,
+    RT_PRIORITY,
+    VEHICLE_ID,
+    address,
+    number,
+)
 from contracts.frames import home_argument  # noqa: E402
 from contracts.mavlink import (  # noqa: E402
     API_LOCAL_PORT,
@@ -39,16 +49,6 @@ def param_argument(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _address(text: str) -> tuple[str, int] | None:
-    if text.lower() == "none":
-        return None
-    host, _, port = text.rpartition(":")
-    try:
-        return host or "127.0.0.1", int(port)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected HOST:PORT or none, got {text!r}") from None
-
-
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     from autopilot.control.factory import CONTROLLERS
     from autopilot.flight_tasks.reference import REFERENCE_KINDS
@@ -56,14 +56,15 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     from contracts.mavlink import STATE_SOURCES
 
     p = parser or argparse.ArgumentParser(prog="python -m autopilot", description=__doc__)
-    p.add_argument("--sim", type=_address, default=("127.0.0.1", SIM_TCP_PORT),
+    p.add_argument("--sim", type=address, default=("127.0.0.1", SIM_TCP_PORT),
                    metavar="HOST:PORT", help="the simulator's TCP address")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--lockstep", dest="lockstep", action="store_true", default=True,
                       help="answer every simulator sample (default)")
     mode.add_argument("--realtime", dest="lockstep", action="store_false",
                       help="run on a wall-clock timer")
-    p.add_argument("--rate-hz", type=float, default=100.0, help="control rate")
+    p.add_argument("--rate-hz", type=RATE_HZ, default=100.0,
+                   help="control rate, 1-1000 Hz")
     p.add_argument("--state-source", default="auto", choices=list(STATE_SOURCES),
                    help="auto: ODOMETRY when the simulator sends it, else HIL_STATE_QUATERNION")
     p.add_argument("--controller", default="ivfc", choices=CONTROLLERS)
@@ -79,17 +80,17 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                    metavar="NAME=VALUE")
     p.add_argument("--flavour", default="px4", choices=FLAVOURS,
                    help="how the vehicle presents itself to ground tools")
-    p.add_argument("--gcs", type=_address, default=("127.0.0.1", GCS_UDP_PORT),
+    p.add_argument("--gcs", type=address, default=("127.0.0.1", GCS_UDP_PORT),
                    metavar="HOST:PORT", help="ground-station link target (or none)")
-    p.add_argument("--gcs-bind", type=int, default=GCS_LOCAL_PORT, metavar="PORT",
+    p.add_argument("--gcs-bind", type=PORT, default=GCS_LOCAL_PORT, metavar="PORT",
                    help="the ground-station link's own UDP port (0: any)")
-    p.add_argument("--api", type=_address, default=("127.0.0.1", API_UDP_PORT),
+    p.add_argument("--api", type=address, default=("127.0.0.1", API_UDP_PORT),
                    metavar="HOST:PORT", help="offboard-API link target (or none)")
-    p.add_argument("--api-bind", type=int, default=API_LOCAL_PORT, metavar="PORT")
-    p.add_argument("--max-peers", type=int, default=4, metavar="N",
+    p.add_argument("--api-bind", type=PORT, default=API_LOCAL_PORT, metavar="PORT")
+    p.add_argument("--max-peers", type=number(0, 64, integer=True), default=4, metavar="N",
                    help="addresses per ground link that get telemetry (0-64; a newcomer "
                         "takes the place of one silent for 3 s)")
-    p.add_argument("--rt-priority", type=int, default=50, metavar="N",
+    p.add_argument("--rt-priority", type=RT_PRIORITY, default=50, metavar="N",
                    help="real time: SCHED_FIFO priority of the control loop (1-99; 0: "
                         "normal scheduling; needs CAP_SYS_NICE, else normal with a note)")
     p.add_argument("--signing-key", metavar="HEX",
@@ -97,7 +98,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         "then ignored")
     p.add_argument("--reference", choices=REFERENCE_KINDS,
                    help="offer the onboard reference generator of a paper scenario")
-    p.add_argument("--altitude", type=float, default=1.0, help="reference altitude [m]")
+    p.add_argument("--altitude", type=ALTITUDE_M, default=1.0, help="reference altitude [m]")
     p.add_argument("--reference-option", action="append", default=[], metavar="NAME=VALUE",
                    help="another reference field (yaw_rad, amplitude, hold_start_s, "
                         "hold_end_s, seed; repeatable)")
@@ -111,9 +112,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--start-mission", action="store_true",
                    help="scenario runs: fly the --mission from the ground, armed in "
                         "AUTO.MISSION as soon as arming is allowed")
-    p.add_argument("--duration", type=float, default=float("inf"), metavar="S",
+    p.add_argument("--duration", type=DURATION_S, default=float("inf"), metavar="S",
                    help="stop after this much sim time of control")
-    p.add_argument("--sysid", type=int, default=1, metavar="ID",
+    p.add_argument("--sysid", type=VEHICLE_ID, default=1, metavar="ID",
                    help="MAVLink system id, also the vehicle id in telemetry keys (1-255)")
     p.add_argument("--home", type=home_argument, metavar="LAT,LON,ALT",
                    help="where on Earth the local frame is: degrees, degrees, metres AMSL "

@@ -11,6 +11,8 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from contracts.arguments import RATE_HZ, SEED, TIMEOUT_S, VEHICLE_ID, number
+
 
 def _add_common(p: argparse.ArgumentParser) -> None:
     from autopilot.__main__ import param_argument
@@ -39,7 +41,8 @@ def _run_parser(run: argparse.ArgumentParser) -> None:
                       help="plant and controller in one process (no MAVLink)")
     pace.add_argument("--realtime", action="store_true",
                       help="the two processes paced to the wall clock (default: lockstep)")
-    run.add_argument("--rate-hz", type=float, default=100.0, help="control rate")
+    run.add_argument("--rate-hz", type=RATE_HZ, default=100.0,
+                     help="control rate, 1-1000 Hz (default 100)")
     run.add_argument("--state-source", choices=list(STATE_SOURCES),
                      help="what the autopilot flies on: the simulator's truth (auto, odometry, "
                           "hil-state) or its estimator on the sensors (default: the "
@@ -47,7 +50,7 @@ def _run_parser(run: argparse.ArgumentParser) -> None:
     run.add_argument("--sensors", type=profile_argument,
                      help="the simulator's sensor profile: ideal, typical, degraded or a "
                           ".toml file (default: the scenario's, else ideal)")
-    run.add_argument("--seed", type=int, default=0,
+    run.add_argument("--seed", type=SEED, default=0,
                      help="seed of the simulator's sensors and link loss (default 0)")
     run.add_argument("--home", type=home_argument, metavar="LAT,LON,ALT",
                      help="where on Earth the flight is: degrees, degrees, metres AMSL "
@@ -74,9 +77,10 @@ def _check_parser(check: argparse.ArgumentParser) -> None:
                             "when set)")
     check.add_argument("--baseline", type=Path, metavar="DIR",
                        help="an earlier check's folder (or its check.json): fail on drift")
-    check.add_argument("--tolerance", type=float, default=0.05,
+    check.add_argument("--tolerance", type=number(0.0, 10.0), default=0.05,
                        help="relative change a baseline allows (default 0.05)")
-    check.add_argument("-j", "--jobs", type=int, default=1, help="scenarios at a time")
+    check.add_argument("-j", "--jobs", type=number(1, 64, integer=True), default=1,
+                       help="scenarios at a time, 1-64 (default 1)")
     check.add_argument("--realtime", action="store_true",
                        help="pace to the wall clock (default: lockstep)")
     check.add_argument("--cold", action="store_true",
@@ -87,15 +91,17 @@ def _check_parser(check: argparse.ArgumentParser) -> None:
 
 def _rehearse_parser(p: argparse.ArgumentParser) -> None:
     from autopilot.__main__ import param_argument
+    from sitl.sensors import profile_argument
 
     p.add_argument("--airframe", required=True,
                    help="the airframe to rehearse: a shipped name or an airframe .toml file "
                         "(read even when its rotors cannot fly it, to say why)")
     p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the airframe's "
                    "shipped one, else one identified on it now)")
-    p.add_argument("--rate-hz", type=_positive_rate, default=100.0,
-                   help="control rate of the flights, (0, 10000] Hz (default 100)")
-    p.add_argument("--sensors", help="sensor profile of the flights on the estimator: ideal, "
+    p.add_argument("--rate-hz", type=RATE_HZ, default=100.0,
+                   help="control rate of the flights, 1-1000 Hz (default 100)")
+    p.add_argument("--sensors", type=profile_argument,
+                   help="sensor profile of the flights on the estimator: ideal, "
                    "typical, degraded or a .toml file (default: each flight's, typical)")
     p.add_argument("--profile", default="default",
                    help="readiness profile: default (shipped) or a .toml file")
@@ -105,16 +111,6 @@ def _rehearse_parser(p: argparse.ArgumentParser) -> None:
                    help="rehearsal folder (default: a new one under runs/)")
     p.add_argument("--junit", type=Path, metavar="FILE",
                    help="also write the JUnit XML here (it is always in the folder)")
-
-
-def _positive_rate(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
-    if not 0.0 < value <= 10_000.0:
-        raise argparse.ArgumentTypeError(f"must be in (0, 10000] Hz, got {text}")
-    return value
 
 
 def _report_parser(rep: argparse.ArgumentParser) -> None:
@@ -136,16 +132,19 @@ def _compare_parser(compare: argparse.ArgumentParser) -> None:
 
 def _identify_parser(ident: argparse.ArgumentParser) -> None:
     from contracts.airframe import airframe_argument
+    from ground.excitation import MIN_SAMPLES
 
     ident.add_argument("--data", type=Path, help="dataset CSV (default: fly the excitation)")
     ident.add_argument("--log", type=Path, metavar="MCAP_OR_RUN_DIR",
                        help="identify from a logged flight (see docs/scenarios.md)")
-    ident.add_argument("--vehicle", type=int, default=1, help="vehicle id in the log")
+    ident.add_argument("--vehicle", type=VEHICLE_ID, default=1, help="vehicle id in the log")
     ident.add_argument("--out", type=Path, default=None, help="model JSON to write")
     ident.add_argument("--write-data", type=Path, help="also save the generated excitation CSV")
-    ident.add_argument("--seed", type=int, default=0)
-    ident.add_argument("--samples", type=int, default=4000)
-    ident.add_argument("--clusters", type=int, default=None)
+    ident.add_argument("--seed", type=SEED, default=0)
+    ident.add_argument("--samples", type=number(MIN_SAMPLES, 10_000_000, integer=True),
+                       default=4000, help=f"excitation samples, at least {MIN_SAMPLES}")
+    ident.add_argument("--clusters", type=number(2, 20, integer=True), default=None,
+                       help="fuzzy clusters per model, 2-20 (default: the airframe's)")
     ident.add_argument("--airframe", default="paper", type=airframe_argument,
                        help="shipped airframe name or airframe .toml file")
 
@@ -167,7 +166,7 @@ def _plan_parser(plan: argparse.ArgumentParser) -> None:
     plan.add_argument("--connect", default="udpin:0.0.0.0:14550",
                       help="where the vehicle's ground link arrives (default: "
                            "udpin:0.0.0.0:14550, where QGroundControl listens)")
-    plan.add_argument("--timeout", type=float, default=30.0,
+    plan.add_argument("--timeout", type=TIMEOUT_S, default=30.0,
                       help="seconds to wait for the vehicle's heartbeat")
 
 
@@ -225,11 +224,14 @@ def _ground_parsers(ground: argparse.ArgumentParser) -> None:
     log.add_argument("--out", type=Path, required=True, help="folder for the .mcap files")
     log.add_argument("--name", default="logger", help="logger name (status key, token)")
     log.add_argument("--prefix", default="telemetry", help="file name prefix")
-    log.add_argument("--chunk-kib", type=int, default=256, help="MCAP chunk size [KiB]")
-    log.add_argument("--flush-s", type=float, default=0.25,
-                     help="close a chunk at least this often [s]")
-    log.add_argument("--rotate-mib", type=int, default=512, help="start a new file past this")
-    log.add_argument("--rotate-chunks", type=int, default=2048,
+    log.add_argument("--chunk-kib", type=number(1, 65536, integer=True), default=256,
+                     help="MCAP chunk size [KiB], 1-65536")
+    log.add_argument("--flush-s", type=number(0.01, 60.0, "s"), default=0.25,
+                     help="close a chunk at least this often [s], 0.01-60")
+    log.add_argument("--rotate-mib", type=number(1, 1_000_000, integer=True), default=512,
+                     help="start a new file past this [MiB]")
+    log.add_argument("--rotate-chunks", type=number(1, 10_000_000, integer=True),
+                     default=2048,
                      help="... or past this many chunks (bounds the logger's memory)")
     log.add_argument("--compression", default="zstd", choices=["zstd", "lz4", "none"])
     add_zenoh_arguments(log, [DEFAULT_GROUND_ENDPOINT], [])
@@ -242,13 +244,15 @@ def _ground_parsers(ground: argparse.ArgumentParser) -> None:
     pert.add_argument("kind", choices=[*KINDS, "list", "clear"])
     pert.add_argument("values", nargs="*", metavar="NAME=VALUE",
                       help="fields; vectors comma-separated (ned_mps=3,0,0)")
-    pert.add_argument("--vehicle", type=int, default=1)
+    pert.add_argument("--vehicle", type=VEHICLE_ID, default=1)
     pert.add_argument("--start", default="now", help="sim time [s] or now (default)")
-    pert.add_argument("--end", type=float, help="sim time it ends [s]")
-    pert.add_argument("--duration", type=float, help="how long [s] (instead of --end)")
+    pert.add_argument("--end", type=number(0.0, 1e9, "s"), help="sim time it ends [s]")
+    pert.add_argument("--duration", type=number(0.0, 1e9, "s"),
+                      help="how long [s] (instead of --end)")
     pert.add_argument("--id", help="name it (clear: the one to end)")
     pert.add_argument("--target", choices=[SITL, AUTOPILOT], help="list/clear: one side")
-    pert.add_argument("--timeout", type=float, default=5.0, help="seconds to wait for the ack")
+    pert.add_argument("--timeout", type=TIMEOUT_S, default=5.0,
+                      help="seconds to wait for the ack")
     add_zenoh_arguments(pert, [], [DEFAULT_GROUND_ENDPOINT])
 
     router = sub.add_parser("router", help="a Zenoh router linking machines")
@@ -291,6 +295,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (commands.UsageError, ValueError, OSError) as exc:
         print(f"ivfm: error: {exc}", file=sys.stderr)
         return 2
+    except RuntimeError as exc:  # a process of the run failed: said, exit 1
+        from ground.processes import ProcessRunError
+
+        if not isinstance(exc, ProcessRunError):
+            raise
+        print(f"ivfm: error: {exc}", file=sys.stderr)
+        return 1
 
 
 def console_main() -> None:

@@ -76,10 +76,6 @@ def check_command(args: argparse.Namespace) -> int:
         run_check,
     )
 
-    if args.jobs < 1:
-        raise UsageError(f"--jobs must be at least 1, got {args.jobs}")
-    if not (0.0 <= args.tolerance < 10.0):
-        raise UsageError(f"--tolerance must be in [0, 10), got {args.tolerance!r}")
     scenarios = collect(args.paths)
     baseline = read_baseline(args.baseline) if args.baseline is not None else None
     out = args.out or Path("runs") / time.strftime("check-%Y%m%d-%H%M%S")
@@ -196,8 +192,6 @@ def identify_command(args: argparse.Namespace) -> int:
 
     airframe = airframe_by_name(args.airframe)
     n_clusters = DEFAULT_N_CLUSTERS if args.clusters is None else args.clusters
-    if n_clusters < 2:
-        raise ValueError(f"--clusters must be at least 2, got {n_clusters}")
     start = time.perf_counter()
     if args.data is not None and args.log is not None:
         raise UsageError("give --data or --log, not both")

@@ -75,6 +75,9 @@ def _sample(t_s: float, euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray, w_r
     return row
 
 
+MIN_SAMPLES = 20  # fewer cannot fit the clusters
+
+
 def excitation_dataset(
     airframe: Airframe,
     n_samples: int = 4000,
@@ -84,8 +87,8 @@ def excitation_dataset(
 ) -> Dataset:
     """Fly the excitation and return the samples (noise: fraction of each output's
     amplitude max |y|, Gaussian, seeded)."""
-    if n_samples < 20:
-        raise ValueError(f"n_samples must be at least 20, got {n_samples}")
+    if n_samples < MIN_SAMPLES:
+        raise ValueError(f"n_samples must be at least {MIN_SAMPLES}, got {n_samples}")
     if not 0.0 <= noise_fraction < 1.0:
         raise ValueError(f"noise_fraction must be in [0, 1), got {noise_fraction}")
     rng = np.random.default_rng(seed)

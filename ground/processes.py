@@ -257,14 +257,21 @@ class LoggerProcess:
             time.sleep(0.002)
 
     def wait_until(self, session: zenoh.Session, heard: list[str], final: bool,
-                   timeout_s: float) -> dict[str, Any]:
-        """Until the logger holds a status record (the final one, if asked) from each key."""
+                   timeout_s: float,
+                   others: dict[str, tuple[subprocess.Popen | WarmProcess, Path]] | None = None
+                   ) -> dict[str, Any]:
+        """Until the logger holds a status record (the final one, if asked) from each key;
+        ``others``: processes (name -> process, log) whose early exit ends the wait."""
         deadline = time.monotonic() + timeout_s
         status: dict[str, Any] | None = None
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 raise ProcessRunError(f"the logger exited ({self.proc.returncode}):\n"
                                       f"{_tail(self.log_path)}")
+            for name, (proc, log) in (others or {}).items():
+                if proc.poll() is not None:
+                    raise ProcessRunError(f"the {name} exited ({proc.returncode}) before it "
+                                          f"was heard:\n{_tail(log)}")
             status = self.status(session)
             if status is not None and all(
                     key in status["heard"] and (status["heard"][key].get("final") or not final)
@@ -341,7 +348,8 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
             procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, env=env)
             run_timeline.mark(out_dir, f"{name} started")
         status_keys = [vehicle_key(v, p, "status") for p in (SITL, AUTOPILOT)]
-        logger.wait_until(session, status_keys, final=False, timeout_s=60.0)
+        logger.wait_until(session, status_keys, final=False, timeout_s=60.0,
+                          others={name: (proc, logs[name]) for name, proc in procs.items()})
         run_timeline.mark(out_dir, "logger heard both")
         client = PerturbationClient(session=session, timeout_s=10.0)
         for entry in scenario.perturbations:

@@ -14,6 +14,15 @@ if __name__ == "__main__":
 
 from contracts.airframe import DEFAULT_AIRFRAME, airframe_argument  # noqa: E402
 from contracts.airframe_file import read_airframe  # noqa: E402
+from contracts.arguments import (  # noqa: E402
+    ALTITUDE_M,
+    DURATION_S,
+    PORT,
+    RT_PRIORITY,
+    SEED,
+    SIM_RATE_HZ,
+    VEHICLE_ID,
+)
 from contracts.frames import DEFAULT_HOME, home_argument  # noqa: E402
 from contracts.mavlink import SIM_TCP_PORT  # noqa: E402
 from contracts.perturbations import load_schedule  # noqa: E402
@@ -30,36 +39,37 @@ from sitl.sensors import profile_argument, read_profile  # noqa: E402
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     p = parser or argparse.ArgumentParser(prog="python -m sitl", description=__doc__)
     p.add_argument("--host", default="127.0.0.1", help="address to listen on")
-    p.add_argument("--port", type=int, default=SIM_TCP_PORT, help="TCP port (PX4: 4560)")
+    p.add_argument("--port", type=PORT, default=SIM_TCP_PORT, help="TCP port (PX4: 4560)")
     mode = p.add_mutually_exclusive_group()
     mode.add_argument("--lockstep", dest="lockstep", action="store_true", default=True,
                       help="wait for the autopilot each sample (default)")
     mode.add_argument("--realtime", dest="lockstep", action="store_false",
                       help="pace to the wall clock")
-    p.add_argument("--rate-hz", type=float, default=100.0,
-                   help="samples per second; in lockstep the autopilot's rate or a multiple")
+    p.add_argument("--rate-hz", type=SIM_RATE_HZ, default=100.0,
+                   help="samples per second, 1-2000; in lockstep the autopilot's rate "
+                        "or a multiple")
     p.add_argument("--plant", default="rigid-body", choices=list(FIDELITIES))
     # PX4 SITL's default vehicle is the x500: scripts written against it expect its
     # thrust (the paper's airframe hovers at 22 % and climbs at 2 g on PX4's 0.5-0.6).
     p.add_argument("--airframe", default=DEFAULT_AIRFRAME, type=airframe_argument,
                    help="shipped airframe name or airframe .toml file (default: "
                         f"{DEFAULT_AIRFRAME}, the x500-sized quad X; scenarios name theirs)")
-    p.add_argument("--start-altitude", type=float, default=0.0, metavar="M",
+    p.add_argument("--start-altitude", type=ALTITUDE_M, default=0.0, metavar="M",
                    help="start hovering at this altitude (default: on the ground)")
     p.add_argument("--schedule", type=Path, help="perturbation schedule JSON (sim time)")
-    p.add_argument("--duration", type=float, default=float("inf"), metavar="S",
+    p.add_argument("--duration", type=DURATION_S, default=float("inf"), metavar="S",
                    help="stop after this much sim time")
     p.add_argument("--exit-on-disconnect", action="store_true",
                    help="stop when the autopilot disconnects (scenario runs)")
-    p.add_argument("--vehicle", type=int, default=1, metavar="ID",
+    p.add_argument("--vehicle", type=VEHICLE_ID, default=1, metavar="ID",
                    help="vehicle id in telemetry keys (the autopilot's MAVLink system id)")
     p.add_argument("--hold", action="store_true",
                    help="lockstep: wait for a start request over Zenoh before the first sample")
-    p.add_argument("--seed", type=int, default=0, help="seed of sensor noise and link loss")
+    p.add_argument("--seed", type=SEED, default=0, help="seed of sensor noise and link loss")
     p.add_argument("--sensors", default="ideal", type=profile_argument,
                    help="sensor profile: ideal, typical, degraded or a .toml file "
                         "(docs/sensors.md)")
-    p.add_argument("--rt-priority", type=int, default=40, metavar="N",
+    p.add_argument("--rt-priority", type=RT_PRIORITY, default=40, metavar="N",
                    help="real time: SCHED_FIFO priority (1-99; 0: normal scheduling)")
     p.add_argument("--home", type=home_argument, default=DEFAULT_HOME, metavar="LAT,LON,ALT",
                    help="where on Earth the vehicle starts: degrees, degrees, metres AMSL "

@@ -30,6 +30,7 @@ import numpy as np
 from contracts import timeline
 from contracts.airframe import Airframe, airframe_from_spec, hover_rotor_speeds
 from contracts.airframe_file import AirframeSpec
+from contracts.arguments import SIM_RATE_RANGE_HZ
 from contracts.frames import DEFAULT_HOME, Home
 from contracts.mavlink import (
     SIM_TCP_PORT,
@@ -92,8 +93,9 @@ class SimulatorConfig:
     def __post_init__(self) -> None:
         if not 0 <= self.rt_priority <= 99:
             raise ValueError(f"real-time priority must be in [0, 99], got {self.rt_priority}")
-        if not (math.isfinite(self.rate_hz) and 1.0 <= self.rate_hz <= 2000.0):
-            raise ValueError(f"rate must be in [1, 2000] Hz, got {self.rate_hz!r}")
+        low, high = SIM_RATE_RANGE_HZ
+        if not (math.isfinite(self.rate_hz) and low <= self.rate_hz <= high):
+            raise ValueError(f"rate must be in [{low:g}, {high:g}] Hz, got {self.rate_hz!r}")
         period_us = 1e6 / self.rate_hz
         if abs(period_us - round(period_us)) > 1e-6:
             raise ValueError(f"rate {self.rate_hz} Hz does not give a whole microsecond period")

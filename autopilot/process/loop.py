@@ -37,6 +37,7 @@ from autopilot.process.telemetry import TelemetryPublisher
 from autopilot.process.warm_up import load_compiled_code
 from autopilot.refusal import RefusedError
 from contracts import timeline
+from contracts.arguments import CONTROL_RATE_RANGE_HZ
 from contracts.frames import Home
 from contracts.mavlink import (
     AUTOPILOT_SYSID,
@@ -74,8 +75,10 @@ class AutopilotConfig:
     home: Home | None = None  # None: the simulator's first position, as PX4 takes it
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.rate_hz) and 1.0 <= self.rate_hz <= 1000.0):
-            raise ValueError(f"control rate must be in [1, 1000] Hz, got {self.rate_hz!r}")
+        low, high = CONTROL_RATE_RANGE_HZ
+        if not (math.isfinite(self.rate_hz) and low <= self.rate_hz <= high):
+            raise ValueError(f"control rate must be in [{low:g}, {high:g}] Hz, got "
+                             f"{self.rate_hz!r}")
         if abs(1e6 / self.rate_hz - round(1e6 / self.rate_hz)) > 1e-6:
             raise ValueError(f"rate {self.rate_hz} Hz does not give a whole microsecond period")
         if not 0 <= self.rt_priority <= 99:

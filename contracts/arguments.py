@@ -1,0 +1,86 @@
+"""Command-line numbers, checked where they are parsed: every numeric option of ``ivfm``,
+``python -m sitl`` and ``python -m autopilot`` takes its type from here, so a value out
+of range, NaN, an infinity or a word is refused by argparse with the option's name and
+its range ("argument --rate-hz: must be a number in (0, 10000] Hz, got '-5'"), exit
+status 2, before anything runs or is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from collections.abc import Callable
+
+
+def number(low: float, high: float, unit: str = "", *, integer: bool = False,
+           low_open: bool = False, allow_inf: bool = False) -> Callable[[str], float]:
+    """An argparse type: a number in [low, high] (``low_open``: (low, high]); whole with
+    ``integer``; ``allow_inf``: "inf" too (when ``high`` is infinite, e.g. a duration)."""
+    left = "(" if low_open else "["
+    right = "]" if math.isfinite(high) else ")"
+    what = "a whole number" if integer else "a number"
+    def shown(v: float) -> str:
+        return str(int(v)) if integer and math.isfinite(v) else f"{v:g}"
+
+    span = f"{left}{shown(low)}, {shown(high)}{right}{' ' + unit if unit else ''}"
+
+    def parse(text: str) -> float:
+        try:
+            value = int(text) if integer else float(text)
+        except ValueError:
+            value = None
+        ok = value is not None and (math.isfinite(value) or (allow_inf and value == math.inf))
+        ok = ok and (low < value if low_open else low <= value) and value <= high
+        if not ok:
+            raise argparse.ArgumentTypeError(f"must be {what} in {span}, got {text!r}")
+        return value
+
+    parse.__name__ = "number"  # argparse names the type in some messages
+    return parse
+
+
+# The ranges every process shares. The control loop and the simulator check theirs again
+# (a configuration may come from code); both read them from here.
+CONTROL_RATE_RANGE_HZ = (1.0, 1000.0)
+SIM_RATE_RANGE_HZ = (1.0, 2000.0)
+
+
+def _rate(low: float, high: float) -> Callable[[str], float]:
+    """A rate in [low, high] Hz whose period is a whole number of microseconds (sim time
+    counts microseconds)."""
+    in_range = number(low, high, "Hz")
+
+    def parse(text: str) -> float:
+        value = in_range(text)
+        if abs(1e6 / value - round(1e6 / value)) > 1e-6:
+            raise argparse.ArgumentTypeError(f"{text} Hz does not give a whole microsecond "
+                                             "period (100, 250, 400, 1000 Hz do)")
+        return value
+
+    return parse
+
+
+RATE_HZ = _rate(*CONTROL_RATE_RANGE_HZ)  # the control rate
+SIM_RATE_HZ = _rate(*SIM_RATE_RANGE_HZ)
+PORT = number(0, 65535, integer=True)
+SEED = number(0, 2**32 - 1, integer=True)
+VEHICLE_ID = number(1, 255, integer=True)  # a MAVLink system id
+RT_PRIORITY = number(0, 99, integer=True)
+DURATION_S = number(0.0, math.inf, "s", low_open=True, allow_inf=True)
+TIMEOUT_S = number(0.0, 3600.0, "s", low_open=True)
+ALTITUDE_M = number(0.0, 10_000.0, "m")
+
+
+def address(text: str) -> tuple[str, int] | None:
+    """HOST:PORT (HOST default 127.0.0.1), or "none"."""
+    if text.lower() == "none":
+        return None
+    host, _, port = text.rpartition(":")
+    try:
+        number_ = int(port)
+    except ValueError:
+        number_ = -1
+    if not 1 <= number_ <= 65535:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT (port 1-65535) or none, got "
+                                         f"{text!r}")
+    return host or "127.0.0.1", number_

@@ -203,7 +203,7 @@ def _rotor(value: Any, where: str) -> RotorSpec:
     if not isinstance(position, list) or len(position) != 3:
         raise AirframeError(f"{where}.position_m must be [x, y, z] in metres (FRD)")
     spin = value["spin"]
-    if spin not in SPINS:
+    if not isinstance(spin, str) or spin not in SPINS:
         raise AirframeError(f"{where}.spin must be \"cw\" or \"ccw\" (seen from above), "
                             f"got {spin!r}")
     return RotorSpec(

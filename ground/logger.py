@@ -54,6 +54,11 @@ from ground.run_files import iter_messages
 ACTIVE_SUFFIX = ".mcap.active"
 PROCESS = "logger"  # in the run's timeline
 SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
+# Bounds under hostile traffic (docs/telemetry.md, "Limits"): distinct keys with their
+# own channel and counters, the longest key, and records waiting for the writer.
+MAX_KEYS = 1024
+MAX_KEY_CHARS = 256
+MAX_INBOX = 200_000
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
 
@@ -95,6 +100,8 @@ class Counters:
     rejected_per_key: dict[str, int] = field(
         default_factory=lambda: collections.defaultdict(int))
     last_error: str = ""
+    keys_over_limit: int = 0  # records refused on a new key past MAX_KEYS (or too long)
+    inbox_dropped: int = 0  # records dropped with MAX_INBOX waiting (the writer behind)
     files: list[str] = field(default_factory=list)
     heard: dict[str, dict[str, Any]] = field(default_factory=dict)  # status key -> record
 
@@ -252,6 +259,9 @@ class Logger:
 
     # -- records -------------------------------------------------------------------------
     def _on_sample(self, sample: zenoh.Sample) -> None:
+        if len(self._inbox) >= MAX_INBOX:
+            self.counters.inbox_dropped += 1
+            return
         attachment = sample.attachment
         self._inbox.append((str(sample.key_expr), sample.payload.to_bytes(),
                             attachment.to_bytes() if attachment is not None else None,
@@ -259,6 +269,15 @@ class Logger:
 
     def _write(self, key: str, payload: bytes, attachment: bytes | None,
                log_time_ns: int) -> None:
+        c = self.counters
+        if key not in c.per_key and key not in c.rejected_per_key and (
+                len(c.per_key) + len(c.rejected_per_key) >= MAX_KEYS
+                or len(key) > MAX_KEY_CHARS):
+            c.rejected += 1
+            c.keys_over_limit += 1
+            c.last_error = (f"a record on a new key past the {MAX_KEYS}-key limit, or a key "
+                            f"over {MAX_KEY_CHARS} characters ({c.keys_over_limit} so far)")
+            return
         schema = schema_for_key(key)
         try:
             seq, sim_time_us = self._check(key, schema, payload, attachment)
@@ -302,7 +321,8 @@ class Logger:
         c.rejected_per_key[key] += 1
         c.last_error = f"{key}: {reason}"
         now = time.monotonic()
-        if now - self._warned.get(key, -10.0) > 5.0:  # one line per key per 5 s
+        if now - self._warned.get(key, -10.0) > 5.0:  # one line per key per 5 s (bounded:
+            # only keys under MAX_KEYS get here)
             self._warned[key] = now
             self.log(f"refused a record on {key}: {reason} "
                      f"({c.rejected_per_key[key]} so far on this key)")
@@ -312,6 +332,7 @@ class Logger:
         return {"name": self.config.name, "records": c.records, "rejected": c.rejected,
                 "per_key": dict(c.per_key), "rejected_per_key": dict(c.rejected_per_key),
                 "last_error": c.last_error, "heard": c.heard,
+                "keys_over_limit": c.keys_over_limit, "inbox_dropped": c.inbox_dropped,
                 "file": str(self._file.active_path) if self._file else None,
                 "finished_files": c.files}
 

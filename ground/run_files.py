@@ -106,6 +106,11 @@ def iter_messages(path: Path, topic_prefix: str = "") -> Iterator[tuple[str, Any
                         yield channel.topic, message, message.data
             except McapError as exc:
                 raise ValueError(f"{file} is not a readable MCAP file: {exc}") from None
+            except Exception as exc:  # noqa: BLE001 (only the reader's: see below)
+                # A damaged file fails inside the reader in many ways (a chunk that does
+                # not decompress, a record cut short); the caller's own errors are not
+                # raised in here (they happen where it takes the yielded message).
+                raise ValueError(f"{file} is damaged: {type(exc).__name__}: {exc}") from None
 
 
 def control_records(log: Path, vehicle: int) -> dict[str, np.ndarray]:

@@ -43,9 +43,9 @@ def read_plan(path: Path) -> dict[int, tuple[MissionItem, ...]]:
         raise PlanError(f"{path}: not JSON: {exc}") from None
     if not isinstance(data, dict) or data.get("fileType") != "Plan":
         raise PlanError(f"{path}: not a QGroundControl plan (fileType must be \"Plan\")")
-    lists = {MISSION: _mission(data.get("mission", {}), path),
-             FENCE: _fence(data.get("geoFence", {}), path),
-             RALLY: _rally(data.get("rallyPoints", {}), path)}
+    lists = {MISSION: _shapes(_mission, _section(data, "mission", path), path, "mission"),
+             FENCE: _shapes(_fence, _section(data, "geoFence", path), path, "geoFence"),
+             RALLY: _shapes(_rally, _section(data, "rallyPoints", path), path, "rallyPoints")}
     for items in lists.values():
         for item in items:
             try:
@@ -53,6 +53,26 @@ def read_plan(path: Path) -> dict[int, tuple[MissionItem, ...]]:
             except ItemError as exc:
                 raise PlanError(f"{path}: {exc}") from None
     return lists
+
+
+def _section(data: dict, key: str, path: Path) -> dict:
+    value = data.get(key, {})
+    if not isinstance(value, dict):
+        raise PlanError(f"{path}: {key} must be an object, got {type(value).__name__}")
+    return value
+
+
+def _shapes(read: Any, section: dict, path: Path, key: str) -> tuple[MissionItem, ...]:
+    """A mission, fence or rally section, its lists and their entries checked for shape: anything
+    malformed is a PlanError naming the section."""
+    try:
+        return read(section, path)
+    except PlanError:
+        raise
+    except (TypeError, AttributeError, IndexError, KeyError, ValueError,
+            OverflowError) as exc:
+        raise PlanError(f"{path}: {key} is malformed ({type(exc).__name__}: {exc}); "
+                        "QGroundControl writes lists of objects there") from None
 
 
 def _number(value: Any) -> float:
@@ -76,7 +96,7 @@ def _mission(mission: dict, path: Path) -> tuple[MissionItem, ...]:
         try:
             params = [_number(v) for v in entry["params"]]
             command, frame = int(entry["command"]), int(entry["frame"])
-        except (KeyError, TypeError, ValueError):
+        except (KeyError, TypeError, ValueError, OverflowError):
             raise PlanError(f"{path}: mission.items[{seq}] needs command, frame and 7 "
                             "params") from None
         if len(params) != 7:

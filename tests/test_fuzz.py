@@ -1,0 +1,202 @@
+"""The CI-sized fuzz run: every boundary's target (tests/fuzzing.py) for a bounded
+number of seeded hypothesis examples (derandomized: the same inputs each run, so a
+failure reproduces). The long run is ``python tests/stress/fuzz_long.py``."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from tests import fuzzing as fz
+
+# FUZZ_EXAMPLES raises every target's count (the long script sets it).
+EXAMPLES = int(os.environ.get("FUZZ_EXAMPLES", "150"))
+FUZZ = settings(max_examples=EXAMPLES, derandomize=True, deadline=None, database=None,
+                suppress_health_check=list(HealthCheck))
+
+
+@pytest.fixture(scope="module")
+def station():
+    from tests.test_mavlink_server import Station
+
+    s = Station()
+    s.flying()
+    yield s
+    s.close()
+
+
+@pytest.fixture(scope="module")
+def handled(station):
+    return tuple(station.server.handlers)
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_mavlink_into_the_ground_link(station, handled, data):
+    fz.mavlink_ground(station, data.draw(fz.ground_input(handled)))
+
+
+@pytest.fixture(scope="module")
+def sim_pair():
+    pair = fz.SimLinkPair()
+    yield pair
+    pair.close()
+
+
+@st.composite
+def _sim_frames(draw) -> bytes:
+    encoder = fz.M.MAVLink(None, srcSystem=1, srcComponent=51)
+    classes = [c for c in fz.MESSAGE_CLASSES if c.msgname in fz.SIM_TYPES]
+    out = b""
+    for _ in range(draw(st.integers(1, 6))):
+        try:
+            frame = draw(fz.hostile_message(classes)).pack(encoder)
+        except (ValueError, TypeError, OverflowError, fz.struct.error):
+            continue
+        out += draw(fz.damaged(frame)) if draw(st.integers(0, 3)) == 0 else frame
+    return out
+
+
+@FUZZ
+@given(data=_sim_frames())
+def test_fuzz_the_simulator_link_into_the_autopilot(sim_pair, data):
+    fz.sim_link(sim_pair, data)
+
+
+@pytest.fixture(scope="module")
+def simulator():
+    from contracts.airframe import PAPER
+    from sitl.server import Simulator, SimulatorConfig
+
+    return Simulator(SimulatorConfig(PAPER), log=lambda text: None)
+
+
+@FUZZ
+@given(msg=fz.hostile_message([c for c in fz.MESSAGE_CLASSES
+                               if c.msgname == "HIL_ACTUATOR_CONTROLS"]))
+def test_fuzz_actuator_commands_into_the_simulator(simulator, msg):
+    fz.actuators(simulator, msg)
+
+
+@FUZZ
+@given(requests=st.lists(fz.perturbation_request(), min_size=1, max_size=5),
+       now_s=fz.hostile_float())
+def test_fuzz_perturbation_requests(requests, now_s):
+    from contracts.perturbation_book import PerturbationBook
+
+    for target in ("sitl", "autopilot"):
+        book = PerturbationBook(target)
+        for request in requests:
+            fz.perturbation(book, request, now_s if now_s == now_s else 0.0)
+
+
+@pytest.fixture(scope="module")
+def logger(tmp_path_factory):
+    from contracts.zenoh_link import ZenohOptions
+    from ground.logger import Logger, LoggerConfig
+
+    out = tmp_path_factory.mktemp("fuzz-logger")
+    lg = Logger(LoggerConfig(out, ZenohOptions(enabled=False)), log=lambda text: None)
+    lg._start_files()
+    yield lg
+    lg._file.finish()
+
+
+KEYS = st.one_of(st.sampled_from((
+    "ivfm/vehicle/1/autopilot/control", "ivfm/vehicle/1/sitl/state",
+    "ivfm/vehicle/1/autopilot/status", "ivfm/vehicle/1/sitl/perturbation",
+    "mavlink/1/1/HEARTBEAT", "ivfm/vehicle/999/x/y", "ivfm/logger/run/status")),
+    st.text(max_size=80))
+
+
+@FUZZ
+@given(key=KEYS, payload=st.one_of(st.binary(max_size=600), fz.json_values().map(
+    lambda v: fz.json.dumps(v).encode())), attachment=st.one_of(st.none(),
+                                                                 st.binary(max_size=24)))
+def test_fuzz_records_into_the_logger(logger, key, payload, attachment):
+    fz.logger_record(logger, key, payload, attachment)
+
+
+# -- files -----------------------------------------------------------------------------------
+
+ROOT = fz.Path(__file__).parents[1]
+SOURCES = {
+    "scenario": [ROOT / "ground/scenario_files" / f for f in (
+        "position-kick.toml", "mission-six-waypoints.toml", "gps-outage.toml")]
+    + [ROOT / "ground/readiness/flights/setpoint-loss.toml",
+       ROOT / "ground/readiness/flights/sim-stall.toml"],
+    "airframe": [ROOT / "contracts/airframes/quad-x-500.toml"],
+    "sensors": [ROOT / "sitl/sensor_profiles/typical.toml"],
+    "plan": [ROOT / "ground/scenario_files/six-waypoints.plan"],
+    "model": [ROOT / "autopilot/models/quad-x-500.json"],
+    "profile": [ROOT / "ground/readiness/default.toml"],
+}
+
+
+def _load(path):
+    import tomllib
+
+    return fz.json.loads(path.read_text()) if path.suffix in (".json", ".plan") else \
+        tomllib.loads(path.read_text())
+
+
+@pytest.fixture(scope="module")
+def file_folder(tmp_path_factory):
+    """A scratch folder holding what the shipped files name beside them."""
+    import shutil
+
+    folder = tmp_path_factory.mktemp("fuzz-files")
+    shutil.copy(ROOT / "ground/scenario_files/six-waypoints.plan", folder)
+    shutil.copytree(ROOT / "ground/readiness/flights", folder / "flights")
+    return folder
+
+
+@st.composite
+def _hostile_file(draw):
+    kind = draw(st.sampled_from(sorted(SOURCES)))
+    if draw(st.integers(0, 4)) == 0:  # not even the file's syntax
+        return kind, draw(st.text(max_size=200))
+    doc = draw(fz.mutated(_load(draw(st.sampled_from(SOURCES[kind])))))
+    text = fz.json.dumps(doc) if kind in ("plan", "model") else fz._toml(doc)
+    return kind, text if text is not None else ""
+
+
+@FUZZ
+@given(case=_hostile_file())
+def test_fuzz_files(file_folder, case):
+    kind, text = case
+    fz.hostile_file(kind, file_folder, text)
+
+
+# -- logs ------------------------------------------------------------------------------------
+
+LOG = (fz.SHORT_RUN / "telemetry-000.mcap").read_bytes()
+
+
+@settings(FUZZ, max_examples=max(10, EXAMPLES // 10))  # each runs three commands
+@given(data=fz.corrupt(LOG))
+def test_fuzz_logs_into_report_tlog_and_identify(tmp_path_factory, capsys, data):
+    fz.hostile_log(tmp_path_factory.mktemp("fuzz-log"), data, capsys)
+
+
+def test_the_logger_bounds_its_keys(tmp_path):
+    """Hostile keys cannot grow the logger's per-key structures past MAX_KEYS: the
+    records are refused and counted, and the known keys still log."""
+    from contracts.zenoh_link import ZenohOptions
+    from ground.logger import MAX_KEY_CHARS, MAX_KEYS, Logger, LoggerConfig
+
+    lg = Logger(LoggerConfig(tmp_path, ZenohOptions(enabled=False)), log=lambda text: None)
+    lg._start_files()
+    for i in range(MAX_KEYS + 500):
+        lg._write(f"ivfm/vehicle/1/junk/k{i}", b"x", None, 0)
+    lg._write("ivfm/vehicle/1/" + "k" * MAX_KEY_CHARS, b"x", None, 0)
+    c = lg.counters
+    assert len(c.per_key) + len(c.rejected_per_key) == MAX_KEYS
+    assert len(lg._file.channels) <= MAX_KEYS and c.keys_over_limit == 501
+    lg._write("ivfm/vehicle/1/junk/k0", b"y", None, 0)  # a key it knows: still logged
+    assert c.per_key["ivfm/vehicle/1/junk/k0"] == 2
+    assert lg.status()["keys_over_limit"] == 501
+    lg._file.finish()

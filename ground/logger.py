@@ -33,7 +33,6 @@ from pathlib import Path
 from typing import Any
 
 import zenoh
-from mcap.exceptions import McapError
 from mcap.records import Channel, Message, Schema
 from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
@@ -203,8 +202,10 @@ def salvage(active_path: Path, log: Callable[[str], None] = print) -> Path:
                     writer.add_message(channel_ids[record.channel_id], record.log_time,
                                        record.data, record.publish_time, record.sequence)
                     count += 1
-        except (McapError, EOFError, ValueError, struct.error) as exc:
-            log(f"salvage of {active_path.name} stopped at a torn record: {exc}")
+        except Exception as exc:  # noqa: BLE001 (a torn file fails in many ways: a cut
+            # record, a chunk that does not decompress); what came before it is kept
+            log(f"salvage of {active_path.name} stopped at a torn record: "
+                f"{type(exc).__name__}: {exc}")
         writer.finish()
     active_path.unlink()
     log(f"salvaged {count} records from {active_path.name} into {final.name}")

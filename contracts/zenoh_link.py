@@ -200,6 +200,11 @@ class Request:
         self.answered.set()
 
 
+# Bounds on what askers can queue in a vehicle process (the loop answers a few per step).
+MAX_REQUEST_BYTES = 64 * 1024
+MAX_PENDING_REQUESTS = 64
+
+
 class TelemetryNode:
     """A vehicle process's Zenoh side: publishers, liveliness, request queues, status."""
 
@@ -238,6 +243,14 @@ class TelemetryNode:
 
         def on_query(query: zenoh.Query) -> None:
             raw = query.payload.to_bytes() if query.payload is not None else b""
+            if len(raw) > MAX_REQUEST_BYTES:
+                Request(topic, None, query).reply(
+                    False, error=f"payload of {len(raw)} bytes is over {MAX_REQUEST_BYTES}")
+                return
+            if self.requests.qsize() >= MAX_PENDING_REQUESTS:
+                Request(topic, None, query).reply(
+                    False, error=f"busy: {MAX_PENDING_REQUESTS} requests are waiting")
+                return
             try:
                 data = json.loads(raw) if raw else {}
             except (ValueError, UnicodeDecodeError) as exc:

@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import collections
+import contextlib
 import json
 import queue
 import re
@@ -58,6 +59,7 @@ SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
 MAX_KEYS = 1024
 MAX_KEY_CHARS = 256
 MAX_INBOX = 200_000
+MAX_QUERIES = 64  # status queries waiting for the loop
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
 
@@ -347,7 +349,7 @@ class Logger:
         self._start_files()
         subscribers = [session.declare_subscriber(k, self._on_sample) for k in SUBSCRIBED]
         queryable = session.declare_queryable(logger_key(self.config.name, "status"),
-                                              self._queries.put)
+                                              self._on_query)
         token = session.liveliness().declare_token(logger_key(self.config.name))
         self.log(f"listening on {', '.join(self.config.zenoh.listen) or 'no endpoint'}"
                  f"{'; connecting to ' + ', '.join(self.config.zenoh.connect) if self.config.zenoh.connect else ''}"  # noqa: E501
@@ -381,6 +383,15 @@ class Logger:
             self.log(f"finished {done.name}: {self.counters.records} records, "
                      f"{self.counters.rejected} refused")
         return 0
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        """A status query, answered by the loop; past MAX_QUERIES waiting, refused here."""
+        if self._queries.qsize() >= MAX_QUERIES:
+            with contextlib.suppress(zenoh.ZError):
+                query.reply_err(b'{"ok": false, "error": "busy"}')
+                query.drop()
+            return
+        self._queries.put(query)
 
     def _drain(self) -> int:
         n = 0

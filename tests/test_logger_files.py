@@ -58,7 +58,7 @@ def test_a_kill_after_a_flush_keeps_every_flushed_record(tmp_path):
 @pytest.mark.parametrize("seed", range(5))
 def test_a_file_torn_anywhere_after_the_flush_salvages_without_error(tmp_path, seed):
     f, at_flush = _file_with(tmp_path, 300, 0)
-    for more in range(3):  # three more flushed chunks after the first
+    for _ in range(3):  # three more flushed chunks after the first
         channel = f.channel("ivfm/vehicle/1/sitl/status", "json")
         for i in range(100):
             f.add(channel, i, i, i, b'{"seq": 0, "sim_time_us": 0}')

@@ -93,6 +93,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--rt-priority", type=RT_PRIORITY, default=50, metavar="N",
                    help="real time: SCHED_FIFO priority of the control loop (1-99; 0: "
                         "normal scheduling; needs CAP_SYS_NICE, else normal with a note)")
+    p.add_argument("--signing-state", type=Path, metavar="FILE",
+                   help="where the MAVLink signing clock and stream timestamps are kept "
+                        "across restarts, so a replay of frames from before one is refused "
+                        "(default: $XDG_STATE_HOME/ivfm/signing-SYSID.json)")
     p.add_argument("--signing-key", metavar="HEX",
                    help="MAVLink 2 signing: 64 hex digits (32 bytes); unsigned commands are "
                         "then ignored")
@@ -138,6 +142,7 @@ def run(args: argparse.Namespace) -> int:
     from autopilot.control.factory import load_models, make_controller
     from autopilot.flight_tasks.reference import Reference
     from autopilot.mavlink.server import MavlinkServer, open_link
+    from autopilot.mavlink.signing import SigningState, default_state_path
     from autopilot.parameters import airframe_parameters, validate_parameters
     from autopilot.process.loop import Autopilot, AutopilotConfig
     from contracts.airframe import airframe_by_name
@@ -195,8 +200,12 @@ def run(args: argparse.Namespace) -> int:
     if args.api is not None or args.api_bind:
         links.append(open_link("api", ("0.0.0.0", args.api_bind), args.api, key, 1,
                                config.sysid))
+    state = SigningState(args.signing_state or default_state_path(config.sysid))
+    restored = state.restore([link.mav.signing for link in links])  # also for SETUP_SIGNING
+    if key is not None:
+        print(f"autopilot: {restored}", file=sys.stderr)
     ground = MavlinkServer(vehicle, links, args.flavour, sysid=config.sysid,
-                           max_peers=args.max_peers)
+                           max_peers=args.max_peers, signing_state=state)
     return Autopilot(config, vehicle, ground, arm_in_reference=args.arm_in_reference,
                      start_mission=args.start_mission).run()
 

@@ -170,7 +170,8 @@ def test_killing_the_autopilot_stops_the_motors_and_a_new_one_reconnects(vehicle
 
 def test_signing_ignores_unsigned_and_wrongly_signed_commands(tmp_path):
     key = bytes(range(32))
-    procs = start_processes(tmp_path, autopilot_args=["--signing-key", key.hex()])
+    procs = start_processes(tmp_path, autopilot_args=[
+        "--signing-key", key.hex(), "--signing-state", str(tmp_path / "signing.json")])
     signed = GroundTool(procs.gcs_port, key)
     try:
         signed.connect()

@@ -24,6 +24,12 @@ from autopilot.mavlink.commands import CommandProtocol
 from autopilot.mavlink.mission_protocol import MissionProtocol
 from autopilot.mavlink.params import ParameterProtocol
 from autopilot.mavlink.setpoints import SetpointProtocol
+from autopilot.mavlink.signing import (
+    SigningState,
+    apply_setup_signing,
+    is_local,
+    signing_clock_now,
+)
 from autopilot.mavlink.telemetry import DEFAULT_STREAMS, telemetry_message
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
@@ -126,12 +132,11 @@ def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
     sock.bind(bind)
     sock.setblocking(False)
     mav = new_mavlink(sysid, AUTOPILOT_COMPID)
+    mav.signing.link_id = link_id  # also for a key SETUP_SIGNING sets later
+    mav.signing.timestamp = signing_clock_now()
     if signing_key is not None:
         mav.signing.secret_key = signing_key
-        mav.signing.link_id = link_id
         mav.signing.sign_outgoing = True
-        # MAVLink's signing clock: 10 us units since 2015-01-01.
-        mav.signing.timestamp = int((time.time() - 1420070400) * 100000)
         mav.signing.allow_unsigned_callback = None
     return GroundLink(name, sock, remote, mav)
 
@@ -175,7 +180,8 @@ class MavlinkServer:
 
     def __init__(self, vehicle: Commander, links: list[GroundLink], flavour: str = "px4",
                  clock: Callable[[], float] = time.monotonic,
-                 sysid: int = AUTOPILOT_SYSID, max_peers: int = PEERS_MAX) -> None:
+                 sysid: int = AUTOPILOT_SYSID, max_peers: int = PEERS_MAX,
+                 signing_state: SigningState | None = None) -> None:
         if not 0 <= max_peers <= 64:
             raise ValueError(f"max peers must be in [0, 64], got {max_peers}")
         self.vehicle = vehicle
@@ -184,6 +190,7 @@ class MavlinkServer:
         # Called once per message sent to tools (the Zenoh MAVLink mirror listens here).
         self.on_sent: Callable[[GroundLink, object, bytes], None] | None = None
         self.links = links
+        self.signing_state = signing_state  # signing clock and streams across restarts
         self.flavour = flavour
         self.clock = clock
         self.boot_s = clock()
@@ -196,7 +203,8 @@ class MavlinkServer:
         # Message type -> handler(link, address, msg, now); what is not here is ignored.
         self.handlers: dict[str, Callable] = {
             "HEARTBEAT": self._on_heartbeat, "PING": self._on_ping,
-            "TIMESYNC": self._on_timesync, **self.commands.handlers(),
+            "TIMESYNC": self._on_timesync, "SETUP_SIGNING": self._on_setup_signing,
+            **self.commands.handlers(),
             **self.parameters.handlers(), **self.setpoints.handlers(),
             **self.missions.handlers()}
 
@@ -332,6 +340,25 @@ class MavlinkServer:
             self.send(link, mavlink.MAVLink_timesync_message(
                 int((now - self.boot_s) * 1e9), msg.ts1), address)
 
+    def _on_setup_signing(self, link, address, msg, now) -> None:
+        """SETUP_SIGNING: only over a signed link (with signing on, an unsigned frame never
+        gets here) or from this machine; a key never crosses a network in the clear."""
+        if msg.target_system != self.sysid:
+            return
+        if link.mav.signing.secret_key is None and not is_local(address):
+            self.send_text(link, 4, "SETUP_SIGNING refused: only over a signed link or from "
+                           "this machine", address)
+            return
+        text = apply_setup_signing([lk.mav.signing for lk in self.links],
+                                   bytes(msg.secret_key), msg.initial_timestamp)
+        self.send_text(link, 5, text, address)
+
+    def save_signing(self, force: bool = False) -> None:
+        """Persist the signing clock and streams (at most once a second; ``force``: now)."""
+        signings = [link.mav.signing for link in self.links]
+        if self.signing_state is not None and any(s.secret_key for s in signings):
+            self.signing_state.save(signings, self.clock(), force)
+
     # -- telemetry -----------------------------------------------------------------------
     def announce(self) -> None:
         """Send what the vehicle said (STATUSTEXT). The loop calls it after each control
@@ -352,6 +379,7 @@ class MavlinkServer:
                 link.next_due_s[mavlink.MAVLINK_MSG_ID_HEARTBEAT] = now
                 link.next_due_s[mavlink.MAVLINK_MSG_ID_EXTENDED_SYS_STATE] = now
         self.announce()
+        self.save_signing()
         while self.vehicle.reached:
             seq = self.vehicle.reached.pop(0)
             self.broadcast(lambda q=seq: mavlink.MAVLink_mission_item_reached_message(q))

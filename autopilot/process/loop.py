@@ -306,6 +306,7 @@ class Autopilot(PacedProcess):
 
     def shut_down(self) -> None:
         self.sim.close()
+        self.ground.save_signing(force=True)
         self._service_requests()
         self.telemetry.status(self.steps, final=True)
         self.node.close()

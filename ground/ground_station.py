@@ -31,6 +31,7 @@ from typing import Any
 
 from contracts.mavlink import mavlink
 from contracts.modes import PX4_MODES, FlightMode
+from ground.expectations import finite_number
 
 GCS_SYSID = 255  # QGroundControl's system id
 SILENCE_KINDS = ("heartbeat", "setpoints", "all")
@@ -105,11 +106,10 @@ def _number(table: dict, key: str, default: float | None, low: float, high: floa
     value = table.get(key, default)
     if value is None:
         raise ValueError(f"ground_station: {key} is required")
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
-            not (math.isfinite(value) or value == high) or not low <= value <= high:
-        raise ValueError(f"ground_station: {key} must be a number in [{low:g}, {high:g}], "
-                         f"got {value!r}")
-    return float(value)
+    number = finite_number(value, f"ground_station: {key}", low)
+    if number > high:
+        raise ValueError(f"ground_station: {key} must be at most {high:g}, got {value!r}")
+    return number
 
 
 class GroundStation:

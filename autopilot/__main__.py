@@ -20,6 +20,7 @@ from contracts.arguments import (  # noqa: E402
     RT_PRIORITY,
     VEHICLE_ID,
     address,
+    cpu_list,
     number,
 )
 from contracts.frames import home_argument  # noqa: E402
@@ -93,6 +94,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--rt-priority", type=RT_PRIORITY, default=50, metavar="N",
                    help="real time: SCHED_FIFO priority of the control loop (1-99; 0: "
                         "normal scheduling; needs CAP_SYS_NICE, else normal with a note)")
+    p.add_argument("--rt-cpus", type=cpu_list, metavar="LIST",
+                   help="keep the process on these CPUs (0, 0-1, 0,2): with `ivfm shield` "
+                        "on the same list, CPUs nothing else runs on (docs/realtime.md)")
     p.add_argument("--signing-state", type=Path, metavar="FILE",
                    help="where the MAVLink signing clock and stream timestamps are kept "
                         "across restarts, so a replay of frames from before one is refused "
@@ -150,6 +154,10 @@ def run(args: argparse.Namespace) -> int:
     from contracts.telemetry import check_vehicle_id
 
     timeline.mark(AUTOPILOT, "imports done")
+    if args.rt_cpus is not None:  # before Zenoh's threads start: they inherit it
+        from contracts.realtime import pin_to_cpus
+
+        print(f"autopilot: {pin_to_cpus(args.rt_cpus)}", file=sys.stderr, flush=True)
     config = AutopilotConfig(sim_host=args.sim[0], sim_port=args.sim[1], lockstep=args.lockstep,
                              rate_hz=args.rate_hz, state_source=args.state_source,
                              duration_s=args.duration, sysid=check_vehicle_id(args.sysid),

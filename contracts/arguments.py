@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 from collections.abc import Callable
 
 
@@ -69,6 +70,24 @@ RT_PRIORITY = number(0, 99, integer=True)
 DURATION_S = number(0.0, math.inf, "s", low_open=True, allow_inf=True)
 TIMEOUT_S = number(0.0, 3600.0, "s", low_open=True)
 ALTITUDE_M = number(0.0, 10_000.0, "m")
+
+
+def cpu_list(text: str) -> frozenset[int]:
+    """CPUs as Linux lists them: "0", "0,2" or "0-1", each one this machine has."""
+    cpus: set[int] = set()
+    have = os.cpu_count() or 1
+    for part in text.split(","):
+        low, _, high = part.strip().partition("-")
+        try:
+            first, last = int(low), int(high or low)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{text!r} is not a CPU list (examples: 0, 0,2, 0-1)") from None
+        if not 0 <= first <= last < have:
+            raise argparse.ArgumentTypeError(
+                f"CPU {part.strip()!r} is not on this machine (CPUs 0-{have - 1})")
+        cpus.update(range(first, last + 1))
+    return frozenset(cpus)
 
 
 def address(text: str) -> tuple[str, int] | None:

@@ -10,7 +10,9 @@ Percentiles are the upper edge of their bin: at most 1 us above the exact value.
 from __future__ import annotations
 
 import collections
+import contextlib
 import os
+from pathlib import Path
 
 import numpy as np
 
@@ -119,3 +121,66 @@ def set_realtime_priority(priority: int) -> str:
     except (AttributeError, OSError) as exc:
         return f"normal scheduling: SCHED_FIFO {priority} refused ({exc})"
     return f"SCHED_FIFO priority {priority}"
+
+
+def _cpus_text(cpus: frozenset[int] | set[int]) -> str:
+    return ",".join(str(c) for c in sorted(cpus))
+
+
+def pin_to_cpus(cpus: frozenset[int]) -> str:
+    """Keep every thread of this process on ``cpus`` (threads started later, such as
+    Zenoh's, inherit it). With ``shield_cpus`` the real-time loops get CPUs nothing else
+    runs on: on a virtual machine whose every CPU is busy, the host takes milliseconds at
+    a time from its CPUs whatever the guest's priorities (docs/realtime.md)."""
+    for tid in os.listdir("/proc/self/task"):
+        with contextlib.suppress(ProcessLookupError):  # a thread that has just ended
+            os.sched_setaffinity(int(tid), cpus)
+    return f"pinned to CPU {_cpus_text(cpus)}"
+
+
+_PF_KTHREAD = 0x00200000  # /proc/PID/stat flags: a kernel thread
+
+
+def _user_threads() -> list[int]:
+    """Thread ids of every user-space process on the machine, kernel threads left out."""
+    tids = []
+    for pid in filter(str.isdigit, os.listdir("/proc")):
+        try:
+            stat = Path(f"/proc/{pid}/stat").read_text()
+            flags = int(stat[stat.rindex(")") + 2:].split()[6])
+            if flags & _PF_KTHREAD:
+                continue
+            tids += [int(t) for t in os.listdir(f"/proc/{pid}/task")]
+        except (OSError, ValueError):
+            continue  # gone, or not ours to read
+    return tids
+
+
+def shield_cpus(reserved: frozenset[int] | None) -> tuple[int, int]:
+    """Move every user-space thread on the machine off the ``reserved`` CPUs, so that the
+    real-time processes pinned there (``--rt-cpus``) have them to themselves, as
+    ``cset shield`` does; what those threads start later inherits it. Threads already
+    confined to reserved CPUs (pinned on purpose) are left there. ``None`` lifts the
+    shield: every thread may use every CPU again. Returns (threads moved, refused)."""
+    every = frozenset(range(os.cpu_count() or 1))
+    if reserved is not None and not every - reserved:
+        raise ValueError(f"reserving CPU {_cpus_text(reserved)} would leave no CPU for "
+                         "the rest of the machine")
+    moved = refused = 0
+    for tid in _user_threads():
+        try:
+            now = frozenset(os.sched_getaffinity(tid))
+            if reserved is None:
+                new = every
+            elif now <= reserved:
+                continue
+            else:
+                new = now - reserved
+            if new != now:
+                os.sched_setaffinity(tid, new)
+                moved += 1
+        except ProcessLookupError:
+            continue
+        except OSError:
+            refused += 1
+    return moved, refused

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from contracts.arguments import RATE_HZ, SEED, TIMEOUT_S, VEHICLE_ID, number
+from contracts.arguments import RATE_HZ, SEED, TIMEOUT_S, VEHICLE_ID, cpu_list, number
 
 
 def _add_common(p: argparse.ArgumentParser) -> None:
@@ -170,6 +170,13 @@ def _plan_parser(plan: argparse.ArgumentParser) -> None:
                       help="seconds to wait for the vehicle's heartbeat")
 
 
+def _shield_parser(shield: argparse.ArgumentParser) -> None:
+    which = shield.add_mutually_exclusive_group(required=True)
+    which.add_argument("--cpus", type=cpu_list, metavar="LIST",
+                       help="the CPUs to keep for the real-time processes (0, 0-1)")
+    which.add_argument("--off", action="store_true", help="every CPU for everything again")
+
+
 def _no_arguments(_p: argparse.ArgumentParser) -> None:
     pass
 
@@ -194,6 +201,11 @@ _COMMANDS: tuple[tuple[str, str, str | None, Callable[[argparse.ArgumentParser],
      lambda p: _ground_parsers(p)),
     ("plan", "upload a QGroundControl .plan file to a vehicle (docs/missions.md)", None,
      _plan_parser),
+    ("shield", "keep CPUs for the real-time processes (docs/realtime.md)",
+     "Move every user-space thread on this machine off the given CPUs (what they start "
+     "later inherits it), so that the simulator and autopilot started with --rt-cpus on "
+     "the same list have them to themselves. Needs root (CAP_SYS_NICE) for other users' "
+     "processes. --off lifts it.", _shield_parser),
     ("scenarios", "list the scenarios", None, _no_arguments),
     ("params", "list the controller parameters with defaults", None, _no_arguments),
 )
@@ -286,6 +298,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "compare": commands.compare_command,
             "identify": commands.identify_command,
             "scenarios": commands.scenarios_command,
+            "shield": commands.shield_command,
             "params": commands.params_command,
             "sitl": commands.sitl_command,
             "autopilot": commands.autopilot_command,

@@ -237,6 +237,19 @@ def format_table_2(models: FuzzyModelSet, paper: dict[str, tuple[float, float]])
     return "\n".join(lines)
 
 
+def shield_command(args: argparse.Namespace) -> int:
+    from contracts.realtime import shield_cpus
+
+    reserved = None if args.off else args.cpus
+    moved, refused = shield_cpus(reserved)
+    where = ("every CPU open to every thread again" if reserved is None else
+             f"CPU {','.join(map(str, sorted(reserved)))} kept for processes started with "
+             f"--rt-cpus {','.join(map(str, sorted(reserved)))}")
+    print(f"{where}: {moved} threads moved"
+          + (f", {refused} refused (not ours to move: run as root)" if refused else ""))
+    return 0
+
+
 def scenarios_command(args: argparse.Namespace) -> int:
     from ground.scenarios import shipped_scenarios
 

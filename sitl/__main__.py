@@ -22,6 +22,7 @@ from contracts.arguments import (  # noqa: E402
     SEED,
     SIM_RATE_HZ,
     VEHICLE_ID,
+    cpu_list,
 )
 from contracts.frames import DEFAULT_HOME, home_argument  # noqa: E402
 from contracts.mavlink import SIM_TCP_PORT  # noqa: E402
@@ -71,6 +72,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         "(docs/sensors.md)")
     p.add_argument("--rt-priority", type=RT_PRIORITY, default=40, metavar="N",
                    help="real time: SCHED_FIFO priority (1-99; 0: normal scheduling)")
+    p.add_argument("--rt-cpus", type=cpu_list, metavar="LIST",
+                   help="keep the process on these CPUs (0, 0-1, 0,2): with `ivfm shield` "
+                        "on the same list, CPUs nothing else runs on (docs/realtime.md)")
     p.add_argument("--home", type=home_argument, default=DEFAULT_HOME, metavar="LAT,LON,ALT",
                    help="where on Earth the vehicle starts: degrees, degrees, metres AMSL "
                         "(default: PX4's SITL home, 47.397742,8.545594,488); south or west: "
@@ -83,6 +87,10 @@ def run(args: argparse.Namespace) -> int:
     from sitl.server import Simulator, SimulatorConfig
 
     timeline.mark(SITL, "imports done")
+    if args.rt_cpus is not None:  # before Zenoh's threads start: they inherit it
+        from contracts.realtime import pin_to_cpus
+
+        print(f"sitl: {pin_to_cpus(args.rt_cpus)}", file=sys.stderr, flush=True)
     config = SimulatorConfig(
         airframe=read_airframe(args.airframe), fidelity=args.plant, host=args.host,
         port=args.port, lockstep=args.lockstep, rate_hz=args.rate_hz,

@@ -1,21 +1,28 @@
-"""Real-time soak: logger + simulator + autopilot at 250 Hz for an hour (attitude-sine
-reference), sampled every minute.
+"""Real-time soak: logger + simulator + autopilot at 250 Hz for an hour, as a vehicle is
+flown: a ground tool (pymavlink) sends heartbeats, streams hover setpoints in OFFBOARD and
+changes a parameter every minute, a wind perturbation comes every minute over Zenoh, and
+CPU-bound neighbours (``ivfm run attitude-sine --inprocess`` in a loop) may run beside it.
 
 Each minute it prints the autopilot's deadline misses, jitter p50/p99/max and compute
 p99 over that minute (from the autopilot's timing records, read over Zenoh like any
-subscriber) and the resident memory of each process; at the end, each process's RSS
-against its value after the first minute.
+subscriber) and each process's resident memory, open files and threads; at the end, RSS
+against its value after the first minute and published against logged records.
 
-    python tests/benchmarks/soak.py                      # 60 minutes at 250 Hz
+    python tests/benchmarks/soak.py                      # 60 minutes at 250 Hz, alone
+    python tests/benchmarks/soak.py --neighbours 2 --rt-cpus 0 --shield
     python tests/benchmarks/soak.py --minutes 10 --rate-hz 100 --json soak.json
 
-Loopback only; bounded by --minutes; asserts nothing.
+``--shield`` runs ``ivfm shield`` on the --rt-cpus list for the soak (root) and lifts it
+afterwards. Loopback only; bounded by --minutes; asserts nothing.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -25,10 +32,49 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from contracts.realtime import Histogram  # noqa: E402
-from contracts.telemetry import AUTOPILOT, TIMING, vehicle_key  # noqa: E402
+from contracts.arguments import cpu_list  # noqa: E402
+from contracts.mavlink import mavlink  # noqa: E402
+from contracts.realtime import Histogram, shield_cpus  # noqa: E402
+from contracts.telemetry import AUTOPILOT, SITL, TIMING, vehicle_key  # noqa: E402
 from contracts.zenoh_link import ZenohOptions, open_session  # noqa: E402
-from ground.processes import LoggerProcess, free_tcp_port  # noqa: E402
+from ground.ground_station import GroundStation, GroundStationPlan  # noqa: E402
+from ground.perturb import PerturbationClient  # noqa: E402
+from ground.processes import (  # noqa: E402
+    LoggerProcess,
+    free_tcp_port,
+    free_udp_port,
+    telemetry_accounting,
+)
+
+NEIGHBOUR = ("while true; do {nice}ivfm run attitude-sine --inprocess "
+             "--out {out} >/dev/null 2>&1; done")
+PARAM = b"MPC_XY_VEL_MAX"  # changed every minute, between two values that fly the same
+
+
+def open_files(pid: int) -> int:
+    try:
+        return len(os.listdir(f"/proc/{pid}/fd"))
+    except OSError:
+        return -1
+
+
+def threads(pid: int) -> int:
+    try:
+        return len(os.listdir(f"/proc/{pid}/task"))
+    except OSError:
+        return -1
+
+
+def set_parameter(conn, value: float, timeout_s: float = 2.0) -> bool:
+    """PARAM_SET as a ground tool sends it; True when the vehicle echoes the value."""
+    conn.mav.param_set_send(1, 1, PARAM, value, mavlink.MAV_PARAM_TYPE_REAL32)
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        msg = conn.recv_match(type="PARAM_VALUE", blocking=True, timeout=0.2)
+        if msg is not None and msg.param_id == PARAM.decode() and abs(msg.param_value
+                                                                       - value) < 1e-6:
+            return True
+    return False
 
 
 def rss_mib(pid: int) -> float:
@@ -82,15 +128,37 @@ def main() -> None:
     parser.add_argument("--rate-hz", type=float, default=250.0)
     parser.add_argument("--json", type=Path, help="also write the per-minute rows here")
     parser.add_argument("--keep", type=Path, help="run folder to keep (default: temporary)")
+    parser.add_argument("--neighbours", type=int, default=0,
+                        help="CPU-bound neighbours beside the vehicle")
+    parser.add_argument("--nice", type=int, default=0, help="the neighbours' niceness")
+    parser.add_argument("--rt-cpus", type=cpu_list, help="the vehicle processes' CPUs")
+    parser.add_argument("--shield", action="store_true",
+                        help="keep --rt-cpus for the vehicle processes (ivfm shield)")
     args = parser.parse_args()
+    if args.shield:
+        if args.rt_cpus is None:
+            parser.error("--shield needs --rt-cpus")
+        moved, refused = shield_cpus(args.rt_cpus)
+        print(f"shield: {moved} threads moved off CPU {sorted(args.rt_cpus)}, "
+              f"{refused} refused", flush=True)
+    try:
+        soak(args)
+    finally:
+        if args.shield:
+            shield_cpus(None)
+
+
+def soak(args: argparse.Namespace) -> None:
     duration_s = args.minutes * 60.0
     with tempfile.TemporaryDirectory() as tmp:
         out = args.keep or Path(tmp)
         out.mkdir(parents=True, exist_ok=True)
         endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-        sim_port = free_tcp_port()
+        sim_port, gcs_port = free_tcp_port(), free_udp_port()
         logger = LoggerProcess(out, endpoint, out / "logger.txt")
         zenoh_args = ["--zenoh-connect", endpoint]
+        if args.rt_cpus is not None:
+            zenoh_args += ["--rt-cpus", ",".join(map(str, sorted(args.rt_cpus)))]
         logs = {name: open(out / f"{name}.txt", "w") for name in ("sitl", "autopilot")}  # noqa: SIM115
         procs = {"logger": logger.proc}
         procs["sitl"] = subprocess.Popen(
@@ -100,40 +168,86 @@ def main() -> None:
         procs["autopilot"] = subprocess.Popen(
             [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{sim_port}", "--realtime",
              "--rate-hz", str(args.rate_hz), "--reference", "attitude-sine",
-             "--arm-in-reference", "--duration", str(duration_s + 5.0), "--gcs-bind", "0",
+             "--arm-in-reference", "--duration", str(duration_s + 5.0),
+             "--gcs-bind", str(gcs_port),
              "--api", "none", "--api-bind", "0", *zenoh_args],
             stdout=logs["autopilot"], stderr=subprocess.STDOUT)
+        nice = f"nice -n {args.nice} " if args.nice else ""
+        neighbours = [subprocess.Popen(
+            ["bash", "-c", NEIGHBOUR.format(nice=nice, out=out / f"neighbour-{i}")],
+            start_new_session=True) for i in range(args.neighbours)]
         timing = MinuteTiming(1.0 / args.rate_hz)
         session = open_session(ZenohOptions(mode="peer", connect=[endpoint], listen=[]))
         sub = session.declare_subscriber(vehicle_key(1, AUTOPILOT, "timing"), timing.on_sample)
+        station = GroundStation(GroundStationPlan(heartbeat_hz=1.0, offboard_at_s=5.0,
+                                                  setpoint_hz=20.0),
+                                gcs_port, 1, (0.0, 0.0, -1.0), 0.0)
+        from pymavlink import mavutil
+
+        tool = mavutil.mavlink_connection(f"udpout:127.0.0.1:{gcs_port}", source_system=254)
+        perturb = PerturbationClient(session=session, timeout_s=5.0)
         rows = []
         try:
             start = time.monotonic()
             while timing.records == 0 and time.monotonic() - start < 120.0:
                 time.sleep(0.1)  # the loop is running
+            station.start()
             start = time.monotonic()
             timing.take()
             minute = 0
             while minute < args.minutes and procs["autopilot"].poll() is None:
+                time.sleep(max(0.0, start + 60.0 * minute + 20.0 - time.monotonic()))
+                tool.mav.heartbeat_send(mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID,
+                                        0, 0, 0)
+                param_ok = set_parameter(tool, 12.0 if minute % 2 else 11.0)
+                try:
+                    wind = perturb.perturb(1, "wind", duration_s=10.0, ned_mps=[1.0, 0.5, 0.0])
+                    wind_ok = bool(wind.get("ok"))
+                except RuntimeError:
+                    wind_ok = False
                 time.sleep(max(0.0, start + 60.0 * (minute + 1) - time.monotonic()))
                 minute += 1
-                row = {"minute": minute, **timing.take(),
-                       **{f"rss_{n}_mib": round(rss_mib(p.pid), 1) for n, p in procs.items()}}
+                row = {"minute": minute, **timing.take(), "param_acked": param_ok,
+                       "wind_acked": wind_ok,
+                       **{f"rss_{n}_mib": round(rss_mib(p.pid), 1) for n, p in procs.items()},
+                       **{f"fds_{n}": open_files(p.pid) for n, p in procs.items()},
+                       **{f"threads_{n}": threads(p.pid) for n, p in procs.items()}}
                 rows.append(row)
                 print(f"min {minute:3d}  steps {row['steps']:6d}  misses {row['misses']:3d}  "
                       f"jitter p50/p99/max {row['jitter_p50_ms']:.3f}/{row['jitter_p99_ms']:.3f}/"
                       f"{row['jitter_max_ms']:.3f} ms  compute p99 {row['compute_p99_ms']:.3f} ms"
-                      f"  RSS MiB " + " ".join(f"{n} {row[f'rss_{n}_mib']:.1f}" for n in procs),
-                      flush=True)
+                      f"  RSS MiB " + " ".join(f"{n} {row[f'rss_{n}_mib']:.1f}" for n in procs)
+                      + "  fds/threads " + " ".join(f"{row[f'fds_{n}']}/{row[f'threads_{n}']}"
+                                                   for n in procs)
+                      + f"  param {'ok' if param_ok else 'NOT acked'}"
+                      f"  wind {'ok' if wind_ok else 'NOT acked'}", flush=True)
         finally:
-            sub.undeclare()
-            session.close()
+            station.stop()
+            tool.close()
+            for neighbour in neighbours:
+                with contextlib.suppress(ProcessLookupError):
+                    os.killpg(neighbour.pid, signal.SIGKILL)
+                neighbour.wait()
             for name in ("autopilot", "sitl"):
                 if procs[name].poll() is None:
                     procs[name].terminate()
                     procs[name].wait(timeout=30.0)
                 logs[name].close()
+            try:
+                final = logger.wait_until(session, [vehicle_key(1, p, "status")
+                                                    for p in (SITL, AUTOPILOT)],
+                                          final=True, timeout_s=30.0)
+                accounting = telemetry_accounting(final)
+            except RuntimeError as exc:
+                accounting = {"error": str(exc)}
+            sub.undeclare()
+            session.close()
             logger.stop()
+        if "error" in accounting:
+            print(f"published vs logged: {accounting['error']}")
+        else:
+            print(f"published {sum(accounting['published'].values())} records, logged "
+                  f"{sum(accounting['logged'].values())}, lost {accounting['lost'] or 0}")
         if rows:
             first = rows[0]
             print("RSS change from the first minute to the last: " + ", ".join(

@@ -110,6 +110,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--reference-option", action="append", default=[], metavar="NAME=VALUE",
                    help="another reference field (yaw_rad, amplitude, hold_start_s, "
                         "hold_end_s, seed; repeatable)")
+    p.add_argument("--perturbations", action="store_true",
+                   help="take perturbation requests over Zenoh (scenario runs pass it); "
+                        "without it they are refused, so that nobody blows wind at or kicks "
+                        "a vehicle that did not ask for it")
     p.add_argument("--schedule", type=Path,
                    help="perturbation schedule JSON (sim time); the autopilot takes the kicks")
     p.add_argument("--arm-in-reference", action="store_true",
@@ -128,7 +132,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                    help="where on Earth the local frame is: degrees, degrees, metres AMSL "
                         "(default: the simulator's first HIL_STATE_QUATERNION, as PX4 "
                         "takes it); south or west: --home=-33.86,151.21,40")
-    add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT)
+    add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT, identity="vehicle", vehicle=True)
     return p
 
 
@@ -162,7 +166,8 @@ def run(args: argparse.Namespace) -> int:
                              rate_hz=args.rate_hz, state_source=args.state_source,
                              duration_s=args.duration, sysid=check_vehicle_id(args.sysid),
                              rt_priority=args.rt_priority,
-                             zenoh=zenoh_options_from_args(args), home=args.home)
+                             zenoh=zenoh_options_from_args(args), home=args.home,
+                             perturbations=args.perturbations)
     airframe = airframe_by_name(args.airframe)
     # The airframe file's own defaults, then the command line's.
     parameters = validate_parameters({**airframe_parameters(args.airframe), **dict(args.param)})

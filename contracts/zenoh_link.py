@@ -21,6 +21,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import zenoh
@@ -39,12 +40,54 @@ _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9a-fA-F:]+\]|[A-Za-z0-9.\-
 STATUS_PERIOD_S = 1.0
 
 
+@dataclass(frozen=True)
+class TlsIdentity:
+    """Mutual TLS: the authority every peer's certificate must be signed by, and this
+    process's own certificate and key. The certificate's common name is the identity
+    the vehicles' access control reads."""
+
+    ca: Path
+    cert: Path
+    key: Path
+
+    @classmethod
+    def from_folder(cls, folder: Path, name: str) -> TlsIdentity:
+        """``ca.pem``, ``NAME.pem`` and ``NAME-key.pem`` in ``folder`` (as ``ivfm ground
+        certs`` writes them)."""
+        identity = cls(folder / "ca.pem", folder / f"{name}.pem", folder / f"{name}-key.pem")
+        for path in (identity.ca, identity.cert, identity.key):
+            if not path.is_file():
+                raise ValueError(f"--zenoh-tls: {path} is missing (a folder with ca.pem, "
+                                 f"{name}.pem and {name}-key.pem; test ones: ivfm ground "
+                                 "certs --out FOLDER)")
+        return identity
+
+
+LOOPBACK_HOSTS = ("localhost", "[::1]", "::1")
+CLEAR_PROTOCOLS = ("tcp", "udp", "ws")  # tls and quic are encrypted
+
+
+def is_loopback(endpoint: str) -> bool:
+    host = endpoint.split("/", 1)[1].rsplit(":", 1)[0]
+    return host in LOOPBACK_HOSTS or host.startswith("127.")
+
+
+# Who may query a vehicle's services (perturb, start) when its links are certified: the
+# certificate common names of the ground station (ivfm ground certs makes "ground").
+DEFAULT_COMMANDERS = ("ground",)
+
+
 @dataclass
 class ZenohOptions:
     mode: str = "peer"
     listen: list[str] = field(default_factory=list)
     connect: list[str] = field(default_factory=list)
     enabled: bool = True
+    tls: TlsIdentity | None = None
+    # With ``tls``: only peers whose certificate names one of these may query this
+    # session (a vehicle's services); None: no access control (a ground process).
+    commanders: tuple[str, ...] | None = None
+    insecure: bool = False  # allow clear-text links beyond this machine
     # False: open returns at once and connects in the background, retrying every 20 ms
     # at first (a ground station's querying session, whose peers may not be up yet);
     # True: open waits (up to OPEN_WAIT_MS) for the endpoints, so the first records have a
@@ -56,6 +99,17 @@ class ZenohOptions:
             raise ValueError(f"zenoh mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         for endpoint in [*self.listen, *self.connect]:
             check_endpoint(endpoint)
+            protocol = endpoint.split("/", 1)[0]
+            if protocol not in CLEAR_PROTOCOLS and self.tls is None:
+                raise ValueError(f"{endpoint}: {protocol} needs certificates: --zenoh-tls "
+                                 "FOLDER (test ones: ivfm ground certs --out FOLDER)")
+            if protocol in CLEAR_PROTOCOLS and not is_loopback(endpoint) and not self.insecure:
+                host_port = endpoint.split("/", 1)[1]
+                raise ValueError(
+                    f"{endpoint} reaches beyond this machine in clear text, where anyone "
+                    f"on the network could command the vehicle: use tls/{host_port} with "
+                    "--zenoh-tls FOLDER (test certificates: ivfm ground certs --out FOLDER), "
+                    "or --zenoh-insecure on a network you trust")
         if self.mode == "client" and self.listen:
             raise ValueError("a zenoh client does not listen; drop --zenoh-listen")
 
@@ -68,7 +122,10 @@ def check_endpoint(endpoint: str) -> str:
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser, listen: list[str],
-                        connect: list[str]) -> None:
+                        connect: list[str], identity: str = "ground",
+                        vehicle: bool = False) -> None:
+    """The Zenoh options of a command; ``vehicle``: a process that serves requests, whose
+    commanders (--zenoh-commander) the access control admits."""
     g = parser.add_argument_group("zenoh")
     g.add_argument("--zenoh-mode", default="peer", choices=["peer", "client"],
                    help="peer (default) or client (through a router only)")
@@ -79,6 +136,19 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, listen: list[str],
                    help=f"endpoint to connect to (repeatable; 'none' for none; "
                         f"default {' '.join(connect) or 'none'})")
     g.add_argument("--no-zenoh", action="store_true", help="no telemetry, no requests")
+    g.add_argument("--zenoh-tls", type=Path, metavar="FOLDER",
+                   help="mutual TLS: FOLDER holds ca.pem, IDENTITY.pem and IDENTITY-key.pem "
+                        "(test ones: ivfm ground certs); needed for tls/ endpoints")
+    g.add_argument("--zenoh-identity", default=identity, metavar="NAME",
+                   help=f"whose certificate in --zenoh-tls is this process's (default "
+                        f"{identity})")
+    g.add_argument("--zenoh-insecure", action="store_true",
+                   help="allow clear-text tcp/udp endpoints beyond this machine")
+    if vehicle:
+        g.add_argument("--zenoh-commander", action="append", metavar="NAME",
+                       help="with --zenoh-tls: a certificate name that may send requests "
+                            "(perturbations, start); repeatable; default "
+                            + " ".join(DEFAULT_COMMANDERS))
     parser.set_defaults(_zenoh_listen_default=listen, _zenoh_connect_default=connect)
 
 
@@ -90,9 +160,15 @@ def zenoh_options_from_args(args: argparse.Namespace) -> ZenohOptions:
     listen = pick(args.zenoh_listen, args._zenoh_listen_default)
     if args.zenoh_mode == "client" and args.zenoh_listen is None:
         listen = []
+    tls = (TlsIdentity.from_folder(args.zenoh_tls, args.zenoh_identity)
+           if args.zenoh_tls is not None else None)
+    commanders = None
+    if hasattr(args, "zenoh_commander"):
+        commanders = tuple(args.zenoh_commander or DEFAULT_COMMANDERS)
     return ZenohOptions(args.zenoh_mode, listen,
                         pick(args.zenoh_connect, args._zenoh_connect_default),
-                        enabled=not args.no_zenoh)
+                        enabled=not args.no_zenoh, tls=tls, commanders=commanders,
+                        insecure=args.zenoh_insecure)
 
 
 VEHICLE_LISTEN = ["tcp/127.0.0.1:0"]
@@ -128,10 +204,46 @@ def session_config(options: ZenohOptions, exit_on_listen_failure: bool = False) 
     config.insert_json5("transport/link/tx/queue/size/data", str(TX_QUEUE_BATCHES))
     config.insert_json5("transport/link/tx/queue/congestion_control/drop/wait_before_drop",
                         str(WAIT_BEFORE_DROP_US))
+    if options.tls is not None:
+        tls = options.tls
+        config.insert_json5("transport/link/tls", json.dumps({
+            "root_ca_certificate": str(tls.ca), "enable_mtls": True,
+            "listen_certificate": str(tls.cert), "listen_private_key": str(tls.key),
+            "connect_certificate": str(tls.cert), "connect_private_key": str(tls.key)}))
+        if options.commanders is not None:
+            config.insert_json5("access_control", json.dumps(access_control(
+                options.commanders)))
     return config
 
 
+# What every peer may do with a vehicle: all but query its services.
+_TELEMETRY_MESSAGES = ["put", "delete", "declare_subscriber", "declare_queryable", "reply",
+                       "liveliness_token", "declare_liveliness_subscriber",
+                       "liveliness_query"]
+
+
+def access_control(commanders: tuple[str, ...]) -> dict[str, Any]:
+    """Zenoh access control of a vehicle: telemetry for every peer, queries (the
+    perturbation and start services) only from the ``commanders``' certificates; a query
+    from anyone else is dropped before it reaches the process."""
+    return {
+        "enabled": True, "default_permission": "deny",
+        "rules": [
+            {"id": "telemetry", "messages": _TELEMETRY_MESSAGES,
+             "flows": ["egress", "ingress"], "permission": "allow", "key_exprs": ["**"]},
+            {"id": "requests", "messages": ["query"], "flows": ["egress", "ingress"],
+             "permission": "allow", "key_exprs": ["**"]},
+        ],
+        "subjects": [{"id": "anyone"},
+                     {"id": "commanders", "cert_common_names": list(commanders)}],
+        "policies": [{"rules": ["telemetry"], "subjects": ["anyone"]},
+                     {"rules": ["requests"], "subjects": ["commanders"]}],
+    }
+
+
 CLIENT_CONNECT_TIMEOUT_S = 15.0
+PERTURBATIONS_OFF = ("perturbations are off on this vehicle: start its processes with "
+                     "--perturbations (scenario runs do) to take them")
 
 
 def open_session(options: ZenohOptions, exit_on_listen_failure: bool = False) -> zenoh.Session:
@@ -235,13 +347,17 @@ class TelemetryNode:
         self.publishers[topic] = pub
         return pub
 
-    def serve(self, topic: str) -> None:
+    def serve(self, topic: str, refuse: str | None = None) -> None:
         """Accept queries on ``topic``: JSON payloads go to ``requests``; a payload that is
-        not JSON is refused here, on the Zenoh thread."""
+        not JSON is refused here, on the Zenoh thread. ``refuse``: a service that is off
+        answers every query with this error."""
         if self.session is None:
             return
 
         def on_query(query: zenoh.Query) -> None:
+            if refuse is not None:
+                Request(topic, None, query).reply(False, error=refuse)
+                return
             raw = query.payload.to_bytes() if query.payload is not None else b""
             if len(raw) > MAX_REQUEST_BYTES:
                 Request(topic, None, query).reply(

@@ -267,11 +267,33 @@ def _ground_parsers(ground: argparse.ArgumentParser) -> None:
                       help="seconds to wait for the ack")
     add_zenoh_arguments(pert, [], [DEFAULT_GROUND_ENDPOINT])
 
-    router = sub.add_parser("router", help="a Zenoh router linking machines")
+    router = sub.add_parser("router", help="a Zenoh router linking machines",
+                            description="Links beyond this machine need certificates "
+                                        "(--zenoh-tls) or --zenoh-insecure "
+                                        "(docs/telemetry.md#security).")
     router.add_argument("--listen", action="append", metavar="ENDPOINT",
-                        help=f"default tcp/0.0.0.0:{DEFAULT_PORT} (repeatable)")
+                        help=f"default tls/0.0.0.0:{DEFAULT_PORT} with --zenoh-tls, else "
+                             f"tcp/0.0.0.0:{DEFAULT_PORT} (needs --zenoh-insecure); "
+                             "repeatable")
     router.add_argument("--connect", action="append", metavar="ENDPOINT",
                         help="other routers (repeatable)")
+    router.add_argument("--zenoh-tls", type=Path, metavar="FOLDER",
+                        help="mutual TLS: ca.pem, IDENTITY.pem, IDENTITY-key.pem")
+    router.add_argument("--zenoh-identity", default="ground", metavar="NAME")
+    router.add_argument("--zenoh-insecure", action="store_true",
+                        help="allow clear-text links beyond this machine")
+
+    certs = sub.add_parser("certs", help="make test certificates for mutual TLS",
+                           description="A certificate authority and one certificate per "
+                                       "--name (default: ground and vehicle), for "
+                                       "--zenoh-tls. Test certificates: a fleet's come "
+                                       "from its own authority.")
+    certs.add_argument("--out", type=Path, required=True, help="folder to write them to")
+    certs.add_argument("--name", action="append", metavar="NAME",
+                       help="an identity (repeatable; default: ground, vehicle)")
+    certs.add_argument("--host", action="append", metavar="HOST",
+                       help="a name or address the peers reach each other at (repeatable; "
+                            "default: localhost, 127.0.0.1)")
 
     tlog = sub.add_parser("tlog", help="export the MAVLink mirror of a log as a .tlog")
     tlog.add_argument("log", type=Path, help="an .mcap file or a run folder")
@@ -293,6 +315,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "ground log": commands.ground_log_command,
             "ground perturb": commands.ground_perturb_command,
             "ground router": commands.ground_router_command,
+            "ground certs": commands.ground_certs_command,
             "ground tlog": commands.ground_tlog_command,
             "run": commands.run_command,
             "compare": commands.compare_command,

@@ -354,10 +354,13 @@ def ground_router_command(args: argparse.Namespace) -> int:
     import threading
 
     from contracts.telemetry import DEFAULT_PORT
-    from contracts.zenoh_link import ZenohOptions, open_session
+    from contracts.zenoh_link import TlsIdentity, ZenohOptions, open_session
 
-    options = ZenohOptions("router", listen=args.listen or [f"tcp/0.0.0.0:{DEFAULT_PORT}"],
-                           connect=args.connect or [])
+    tls = (TlsIdentity.from_folder(args.zenoh_tls, args.zenoh_identity)
+           if args.zenoh_tls is not None else None)
+    default = f"{'tls' if tls else 'tcp'}/0.0.0.0:{DEFAULT_PORT}"
+    options = ZenohOptions("router", listen=args.listen or [default],
+                           connect=args.connect or [], tls=tls, insecure=args.zenoh_insecure)
     session = open_session(options, exit_on_listen_failure=True)
     stop = threading.Event()
     signal.signal(signal.SIGINT, lambda *_: stop.set())
@@ -367,6 +370,18 @@ def ground_router_command(args: argparse.Namespace) -> int:
           file=sys.stderr, flush=True)
     stop.wait()
     session.close()
+    return 0
+
+
+def ground_certs_command(args: argparse.Namespace) -> int:
+    from ground.certificates import DEFAULT_HOSTS, DEFAULT_NAMES, make_certificates
+
+    names = tuple(args.name or DEFAULT_NAMES)
+    written = make_certificates(args.out, names, tuple(args.host or DEFAULT_HOSTS))
+    print(f"wrote {len(written)} files to {args.out}: the authority ca.pem and, for "
+          + ", ".join(names) + ", NAME.pem and NAME-key.pem. Give each process "
+          f"--zenoh-tls {args.out} --zenoh-identity NAME; keep ca-key.pem away from the "
+          "vehicles.")
     return 0
 
 

@@ -92,7 +92,8 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
     pace = ["--realtime"] if settings.realtime else ["--lockstep"]
     # "--home=": a southern or western home starts with "-", which argparse would take
     # for an option if it came as its own argument.
-    zenoh_args = ["--zenoh-connect", endpoint,
+    # "--perturbations": the run delivers the scenario's perturbations over Zenoh.
+    zenoh_args = ["--zenoh-connect", endpoint, "--perturbations",
                   "--home=" + ",".join(repr(v) for v in settings.home)]
     ref = scenario.reference
     sim = [sys.executable, "-m", "sitl", "--port", str(sim_port), *pace,

@@ -70,6 +70,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--sensors", default="ideal", type=profile_argument,
                    help="sensor profile: ideal, typical, degraded or a .toml file "
                         "(docs/sensors.md)")
+    p.add_argument("--perturbations", action="store_true",
+                   help="take perturbation requests over Zenoh (scenario runs pass it); "
+                        "without it they are refused, so that nobody blows wind at or kicks "
+                        "a vehicle that did not ask for it")
     p.add_argument("--rt-priority", type=RT_PRIORITY, default=40, metavar="N",
                    help="real time: SCHED_FIFO priority (1-99; 0: normal scheduling)")
     p.add_argument("--rt-cpus", type=cpu_list, metavar="LIST",
@@ -79,7 +83,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                    help="where on Earth the vehicle starts: degrees, degrees, metres AMSL "
                         "(default: PX4's SITL home, 47.397742,8.545594,488); south or west: "
                         "--home=-33.86,151.21,40")
-    add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT)
+    add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT, identity="vehicle", vehicle=True)
     return p
 
 
@@ -99,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
         exit_on_disconnect=args.exit_on_disconnect, duration_s=args.duration,
         vehicle_id=args.vehicle, zenoh=zenoh_options_from_args(args), hold=args.hold,
         seed=args.seed, rt_priority=args.rt_priority, sensors=read_profile(args.sensors),
-        home=args.home)
+        home=args.home, perturbations=args.perturbations)
     return Simulator(config).run()
 
 

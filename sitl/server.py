@@ -53,7 +53,7 @@ from contracts.perturbations import (
 )
 from contracts.realtime import Histogram
 from contracts.telemetry import SITL, STATE, json_record
-from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
+from contracts.zenoh_link import PERTURBATIONS_OFF, Request, TelemetryNode, ZenohOptions
 from sitl.plant import Plant, VehicleState
 from sitl.sensors import (
     SensorProfile,
@@ -74,6 +74,9 @@ class SimulatorConfig:
     fidelity: str = "paper"
     host: str = "127.0.0.1"
     port: int = SIM_TCP_PORT
+    # Serve perturbation requests over Zenoh (scenario runs, tests); off by default, so
+    # that a vehicle started by hand is never blown or kicked by whoever reaches it.
+    perturbations: bool = False
     lockstep: bool = True
     rate_hz: float = 100.0
     plant_step_s: float = 0.001
@@ -161,7 +164,7 @@ class Simulator(PacedProcess):
         self.node = TelemetryNode(config.zenoh, config.vehicle_id, SITL, self.log)
         self._state_pub = self.node.publisher("state")
         self._event_pub = self.node.publisher("perturbation")
-        self.node.serve("perturb")
+        self.node.serve("perturb", None if config.perturbations else PERTURBATIONS_OFF)
         self.node.serve("start")
         self._state_record = STATE.buffer()
 

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
 from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from contracts.arguments import DURATION_S, number
+from contracts.arguments import DURATION_S, cpu_list, number
 from ground.cli import _build_parser, main
 
 # A command and the positional arguments it needs to parse.
@@ -23,7 +24,8 @@ COMMANDS = (
     ["run", "attitude-sine", "--out", "x"], ["check"], ["rehearse", "--airframe", "paper"],
     ["report", "x"], ["compare", "--out", "x"], ["identify"], ["sitl"], ["autopilot"],
     ["ground", "log", "--out", "x"], ["ground", "perturb", "wind"], ["ground", "router"],
-    ["ground", "tlog", "x"], ["plan", "x"], ["scenarios"], ["params"],
+    ["ground", "tlog", "x"], ["ground", "certs", "--out", "x"], ["plan", "x"],
+    ["scenarios"], ["params"], ["shield"],
 )
 HOSTILE = ("-5", "nan", "NaN", "inf", "-inf", "1e309", "", " ", "abc", "1e400", "-0",
            "99999999999999999999", "0x10", "1_000", "½", "\x00", "--", "1,2,3", "4.5.6")
@@ -125,3 +127,20 @@ def test_numbers_in_range_are_taken(text, value):
 def test_numbers_out_of_range_are_refused_with_the_range(text):
     with pytest.raises(argparse.ArgumentTypeError, match=r"must be a number in \(0, 10000\]"):
         number(0.0, 10_000.0, low_open=True)(text)
+
+
+@pytest.mark.parametrize("text, cpus", [("0", {0}), ("0,1", {0, 1}), ("0-1", {0, 1}),
+                                        (" 1 ", {1})])
+def test_cpu_lists_are_read_as_linux_writes_them(text, cpus, monkeypatch):
+    monkeypatch.setattr("os.cpu_count", lambda: 2)
+    assert cpu_list(text) == cpus
+
+
+@pytest.mark.parametrize("text, message", [("2", "not on this machine (CPUs 0-1)"),
+                                           ("1-0", "not on this machine"),
+                                           ("-1", "not a CPU list"), ("a", "not a CPU list"),
+                                           ("", "not a CPU list")])
+def test_cpu_lists_the_machine_lacks_are_refused(text, message, monkeypatch):
+    monkeypatch.setattr("os.cpu_count", lambda: 2)
+    with pytest.raises(argparse.ArgumentTypeError, match=re.escape(message)):
+        cpu_list(text)

@@ -49,7 +49,7 @@ from contracts.modes import FlightMode
 from contracts.paced_loop import Deadlines, PacedProcess
 from contracts.realtime import LoopTiming
 from contracts.telemetry import AUTOPILOT
-from contracts.zenoh_link import Request, TelemetryNode, ZenohOptions
+from contracts.zenoh_link import PERTURBATIONS_OFF, Request, TelemetryNode, ZenohOptions
 
 # Ground links get a bounded share of each period, after the control step (bad input:
 # docs/architecture.md).
@@ -65,6 +65,9 @@ STALL_PERIODS = 2.0  # real time: no sample for this many periods is a simulator
 class AutopilotConfig:
     sim_host: str = "127.0.0.1"
     sim_port: int = SIM_TCP_PORT
+    # Serve perturbation requests over Zenoh (scenario runs, tests); off by default, so
+    # that a vehicle started by hand is never blown or kicked by whoever reaches it.
+    perturbations: bool = False
     lockstep: bool = True
     rate_hz: float = 100.0
     state_source: str = "auto"
@@ -116,7 +119,7 @@ class Autopilot(PacedProcess):
         self.telemetry = TelemetryPublisher(self.node, config.sysid, vehicle, ground,
                                             self.timing, self.navigation.estimator,
                                             config.lockstep, self.log)
-        self.node.serve("perturb")
+        self.node.serve("perturb", None if config.perturbations else PERTURBATIONS_OFF)
         self.steps = 0
         self.max_steps = (math.inf if math.isinf(config.duration_s)
                           else round(config.duration_s * 1e6 / self.period_us))

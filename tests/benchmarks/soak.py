@@ -156,7 +156,7 @@ def soak(args: argparse.Namespace) -> None:
         endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
         sim_port, gcs_port = free_tcp_port(), free_udp_port()
         logger = LoggerProcess(out, endpoint, out / "logger.txt")
-        zenoh_args = ["--zenoh-connect", endpoint]
+        zenoh_args = ["--zenoh-connect", endpoint, "--perturbations"]
         if args.rt_cpus is not None:
             zenoh_args += ["--rt-cpus", ",".join(map(str, sorted(args.rt_cpus)))]
         logs = {name: open(out / f"{name}.txt", "w") for name in ("sitl", "autopilot")}  # noqa: SIM115

@@ -43,6 +43,9 @@ def _run_parser(run: argparse.ArgumentParser) -> None:
                       help="the two processes paced to the wall clock (default: lockstep)")
     run.add_argument("--rate-hz", type=RATE_HZ, default=100.0,
                      help="control rate, 1-1000 Hz (default 100)")
+    run.add_argument("--rt-cpus", type=cpu_list, metavar="LIST",
+                     help="keep the simulator and autopilot on these CPUs (with `ivfm "
+                          "shield`: CPUs nothing else runs on; docs/realtime.md)")
     run.add_argument("--state-source", choices=list(STATE_SOURCES),
                      help="what the autopilot flies on: the simulator's truth (auto, odometry, "
                           "hil-state) or its estimator on the sensors (default: the "

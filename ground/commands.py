@@ -32,7 +32,7 @@ def run_command(args: argparse.Namespace) -> int:
         sensors=args.sensors, state_source=args.state_source, parameters=dict(args.param),
         model_path=args.model, any_airframe_model=args.any_airframe_model,
         rate_hz=args.rate_hz, realtime=args.realtime, seed=args.seed,
-        home=args.home))
+        home=args.home, rt_cpus=args.rt_cpus))
     how = "in process" if args.inprocess else plan.how
     flying_on = ("its estimator" if plan.state_source == "estimator" else
                  "the simulator's truth")

@@ -34,6 +34,7 @@ class Overrides:
     realtime: bool = False
     seed: int = 0
     home: Home | None = None
+    rt_cpus: frozenset[int] | None = None  # the vehicle processes' CPUs (None: any)
 
 
 @dataclass(frozen=True)
@@ -54,6 +55,7 @@ class FlightPlan:
     realtime: bool
     seed: int
     home: Home
+    rt_cpus: frozenset[int] | None = None
 
     @property
     def how(self) -> str:
@@ -88,7 +90,7 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
     return FlightPlan(scenario, controller, o.plant or scenario.plant, airframe, sensors,
                       state_source, validate_parameters(given), frozenset(given), model_path,
                       o.any_airframe_model, o.rate_hz, o.realtime, o.seed,
-                      o.home or scenario.home)
+                      o.home or scenario.home, o.rt_cpus)
 
 
 def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
@@ -108,7 +110,7 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
                            realtime=plan.realtime, rate_hz=plan.rate_hz,
                            state_source=plan.state_source, sensors=plan.sensors,
                            seed=plan.seed, any_airframe_model=plan.any_airframe_model,
-                           home=plan.home)
+                           home=plan.home, rt_cpus=plan.rt_cpus)
     accounting = run_processes(scenario, settings, out_dir, quiet=quiet, warm=warm,
                                started_s=started_s)
     timing = accounting.pop("timing")

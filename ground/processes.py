@@ -83,6 +83,7 @@ class RunSettings:
     vehicle: int = 1
     any_airframe_model: bool = False  # fly a model identified on another airframe
     home: Home = DEFAULT_HOME  # given to both: the run's frames agree from the first sample
+    rt_cpus: frozenset[int] | None = None  # both vehicle processes' CPUs (None: any)
 
 
 def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
@@ -95,6 +96,8 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
     # "--perturbations": the run delivers the scenario's perturbations over Zenoh.
     zenoh_args = ["--zenoh-connect", endpoint, "--perturbations",
                   "--home=" + ",".join(repr(v) for v in settings.home)]
+    if settings.rt_cpus is not None:
+        zenoh_args += ["--rt-cpus", ",".join(map(str, sorted(settings.rt_cpus)))]
     ref = scenario.reference
     sim = [sys.executable, "-m", "sitl", "--port", str(sim_port), *pace,
            "--rate-hz", str(settings.rate_hz), "--plant", settings.plant,

@@ -135,6 +135,9 @@ def main() -> None:
     parser.add_argument("--shield", action="store_true",
                         help="keep --rt-cpus for the vehicle processes (ivfm shield)")
     args = parser.parse_args()
+    # Stopped by a signal (a background job ignores SIGINT): clean up as after the last
+    # minute, so that the neighbours end and the shield is lifted.
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(130))
     if args.shield:
         if args.rt_cpus is None:
             parser.error("--shield needs --rt-cpus")

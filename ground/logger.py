@@ -21,6 +21,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import json
+import os
 import queue
 import re
 import signal
@@ -103,6 +104,8 @@ class Counters:
     last_error: str = ""
     keys_over_limit: int = 0  # records refused on a new key past MAX_KEYS (or too long)
     inbox_dropped: int = 0  # records dropped with MAX_INBOX waiting (the writer behind)
+    write_error: str = ""  # the disk refused a write (full): logging stopped
+    unwritten: int = 0  # records that came after it
     files: list[str] = field(default_factory=list)
     heard: dict[str, dict[str, Any]] = field(default_factory=dict)  # status key -> record
 
@@ -121,6 +124,7 @@ class McapFile:
         self.schemas: dict[str, int] = {}
         self.channels: dict[str, int] = {}
         self.dirty = False
+        self.flushed_bytes = 0  # the file up to here is whole (a crash keeps it)
 
     def channel(self, key: str, schema: RecordSchema | str | None) -> int:
         channel_id = self.channels.get(key)
@@ -159,6 +163,17 @@ class McapFile:
             self.writer._Writer__flush()  # noqa: SLF001
             self.stream.flush()
             self.dirty = False
+            self.flushed_bytes = self.stream.tell()
+
+    def abandon(self) -> None:
+        """The disk refused a write: keep the file as its last flush left it (a whole
+        prefix, read as a killed logger's is) and write nothing more to it."""
+        with contextlib.suppress(OSError):
+            os.ftruncate(self.stream.fileno(), self.flushed_bytes)
+        with contextlib.suppress(OSError):
+            self.stream.close()  # may try its buffer once more
+        with contextlib.suppress(OSError):
+            os.truncate(self.active_path, self.flushed_bytes)
 
     @property
     def size(self) -> int:
@@ -225,6 +240,7 @@ class Logger:
         self._stop = threading.Event()
         self._file: McapFile | None = None
         self._index = 0
+        self._flushed_records = 0  # counters.records at the last flush that worked
         self._warned: dict[str, float] = {}
 
     def stop(self, *_args: Any) -> None:
@@ -250,10 +266,31 @@ class Logger:
 
     def _flush(self) -> None:
         """Close the open chunk; start the next file past the size or chunk limit."""
-        self._file.flush()
-        if (self._file.size >= self.config.rotate_bytes
-                or self._file.chunks >= self.config.rotate_chunks):
-            self._rotate()
+        if self.counters.write_error:
+            return
+        try:
+            self._file.flush()
+            self._flushed_records = self.counters.records
+            if (self._file.size >= self.config.rotate_bytes
+                    or self._file.chunks >= self.config.rotate_chunks):
+                self._rotate()
+        except OSError as exc:
+            self._write_failed(exc)
+
+    def _write_failed(self, exc: OSError) -> None:
+        """A full disk (or a file size limit): stop writing, keep what was flushed, say
+        so; the loop goes on answering status queries, which report it."""
+        c = self.counters
+        # The records since the last flush were in the chunk the disk refused.
+        c.unwritten += c.records - self._flushed_records
+        c.records = self._flushed_records
+        c.write_error = f"{exc.strerror or exc} ({self._file.active_path.name})"
+        c.last_error = f"logging stopped: {c.write_error}"
+        self._file.abandon()
+        self.log(f"cannot write {self._file.active_path}: {exc.strerror or exc}: logging "
+                 f"stopped after {c.records} records; the file keeps the "
+                 f"{self._file.flushed_bytes} bytes flushed before (readable: ivfm report "
+                 "and the next logger salvage it)")
 
     def _rotate(self) -> None:
         done = self._file.finish()
@@ -287,9 +324,17 @@ class Logger:
         except ValueError as exc:
             self._refuse(key, str(exc))
             return
-        f = self._file
-        f.add(f.channel(key, schema), log_time_ns, sim_time_us * 1000, seq, payload)
         c = self.counters
+        if c.write_error:
+            c.unwritten += 1
+            return
+        f = self._file
+        try:
+            f.add(f.channel(key, schema), log_time_ns, sim_time_us * 1000, seq, payload)
+        except OSError as exc:  # a chunk filled and the disk refused it
+            self._write_failed(exc)
+            c.unwritten += 1
+            return
         c.records += 1
         c.per_key[key] += 1
 
@@ -336,6 +381,7 @@ class Logger:
                 "per_key": dict(c.per_key), "rejected_per_key": dict(c.rejected_per_key),
                 "last_error": c.last_error, "heard": c.heard,
                 "keys_over_limit": c.keys_over_limit, "inbox_dropped": c.inbox_dropped,
+                "write_error": c.write_error, "unwritten": c.unwritten,
                 "file": str(self._file.active_path) if self._file else None,
                 "finished_files": c.files}
 
@@ -377,12 +423,23 @@ class Logger:
             self._answer_queries()
             session.close()
             timeline.mark(PROCESS, "zenoh session closed")
-            done = self._file.finish()
-            timeline.mark(PROCESS, "file closed")
-            self.counters.files.append(str(done))
-            self.log(f"finished {done.name}: {self.counters.records} records, "
-                     f"{self.counters.rejected} refused")
+            self._close_file()
         return 0
+
+    def _close_file(self) -> None:
+        """Finish the open file; after a refused write, leave it as the disk allowed."""
+        if not self.counters.write_error:
+            try:
+                done = self._file.finish()
+                timeline.mark(PROCESS, "file closed")
+                self.counters.files.append(str(done))
+                self.log(f"finished {done.name}: {self.counters.records} records, "
+                         f"{self.counters.rejected} refused")
+                return
+            except OSError as exc:  # the summary did not fit
+                self._write_failed(exc)
+        self.log(f"left {self._file.active_path.name} as the disk allowed: "
+                 f"{self.counters.records} records written, {self.counters.unwritten} not")
 
     def _on_query(self, query: zenoh.Query) -> None:
         """A status query, answered by the loop; past MAX_QUERIES waiting, refused here."""

@@ -73,3 +73,74 @@ def test_a_file_torn_anywhere_after_the_flush_salvages_without_error(tmp_path, s
         count = sum(1 for _ in make_reader(fh).iter_messages())
     assert 300 <= count <= 600  # every record flushed before the cut's chunk
     assert said[-1].startswith("salvaged ")
+
+
+def _limit_file_size() -> None:
+    """In the logger's process: files may not grow past 64 KiB, and a write past it fails
+    with EFBIG instead of killing the process (SIGXFSZ), as a full disk's ENOSPC does."""
+    import resource
+    import signal
+
+    signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, 64 * 1024))
+
+
+@pytest.mark.process
+def test_a_logger_out_of_space_stops_writing_says_so_and_leaves_a_readable_file(tmp_path):
+    import json
+    import subprocess
+    import sys
+    import time
+
+    from contracts.telemetry import TIMING, logger_key, vehicle_key
+    from contracts.zenoh_link import open_session
+    from ground.processes import free_tcp_port
+
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    out = tmp_path / "log"
+    log = open(tmp_path / "logger.txt", "w")  # noqa: SIM115
+    logger = subprocess.Popen(
+        [sys.executable, "-m", "ground.cli", "ground", "log", "--out", str(out),
+         "--zenoh-listen", endpoint, "--compression", "none", "--chunk-kib", "4",
+         "--flush-s", "0.05"], stdout=log, stderr=subprocess.STDOUT,
+        preexec_fn=_limit_file_size)
+    session = open_session(ZenohOptions(connect=[endpoint]))
+
+    def status() -> dict:
+        for reply in session.get(logger_key("logger", "status"), timeout=5.0):
+            if reply.ok is not None:
+                return json.loads(reply.ok.payload.to_bytes())
+        return {}
+
+    try:
+        deadline = time.monotonic() + 60.0
+        while not status() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        pub = session.declare_publisher(vehicle_key(1, "autopilot", "timing"))
+        record = TIMING.buffer()
+        for seq in range(4000):  # about 160 KiB of records
+            record["seq"], record["sim_time_us"] = seq, seq * 4000
+            pub.put(record.encode())
+            if seq % 200 == 0:
+                time.sleep(0.02)
+        time.sleep(1.0)
+        stopped = status()
+        alive = logger.poll() is None
+    finally:
+        session.close()
+        logger.send_signal(2)  # SIGINT: the logger's own stop
+        code = logger.wait(30)
+        log.close()
+    text = (tmp_path / "logger.txt").read_text()
+    assert alive and code == 0, text
+    assert "File too large" in stopped["write_error"]
+    assert stopped["last_error"].startswith("logging stopped: File too large")
+    assert 0 < stopped["records"] < 4000 and stopped["unwritten"] > 0
+    assert stopped["records"] + stopped["unwritten"] == 4000  # every record accounted for
+    assert "logging stopped after" in text and "Traceback" not in text
+    (active,) = out.glob("*.mcap.active")
+    assert active.stat().st_size <= 64 * 1024
+    done = salvage(active, log=lambda _text: None)
+    with open(done, "rb") as fh:
+        seqs = [m.sequence for _s, _c, m in make_reader(fh).iter_messages()]
+    assert seqs == list(range(stopped["records"]))  # every record it counted, in order

@@ -101,11 +101,23 @@ def _flip(frame: bytes, flips: list[tuple[int, int]]) -> bytes:
 
 
 @st.composite
-def ground_input(draw, handled: tuple[str, ...]) -> list[bytes]:
+def ground_input(draw, handled: tuple[str, ...], key: bytes | None = None,
+                 newest_timestamp: int = 0) -> list[bytes]:
     """1-8 datagrams: hostile messages (half of them of a type the server handles),
-    some of them damaged."""
+    some of them damaged. With ``key`` (a vehicle that signs): each frame signed with
+    that key, another key or not at all, at a timestamp up to 100 s older than
+    ``newest_timestamp`` (10 us units), on any link id, and some sent twice (replays).
+    Component 191: a stream of its own, beside the test client's."""
     encoder = M.MAVLink(None, srcSystem=draw(st.sampled_from((255, 1, 0, 254))),
-                        srcComponent=190)
+                        srcComponent=190 if key is None else 191)
+    if key is not None:
+        signer = draw(st.sampled_from(("key", "wrong key", "unsigned")))
+        if signer != "unsigned":
+            encoder.signing.secret_key = key if signer == "key" else bytes(31) + b"\x01"
+            encoder.signing.sign_outgoing = True
+            encoder.signing.link_id = draw(st.integers(0, 255))
+            age = draw(st.integers(0, 10**7))  # the draw's bounds fixed: reproducible
+            encoder.signing.timestamp = max(0, newest_timestamp - age)
     wanted = [c for c in MESSAGE_CLASSES if c.msgname in handled]
     out = []
     for _ in range(draw(st.integers(1, 8))):
@@ -115,6 +127,8 @@ def ground_input(draw, handled: tuple[str, ...]) -> list[bytes]:
         except (struct.error, OverflowError, TypeError, ValueError):
             continue  # not packable: what no encoder can send either
         out.append(draw(damaged(frame)) if draw(st.integers(0, 3)) == 0 else frame)
+        if key is not None and draw(st.integers(0, 4)) == 0:
+            out.append(frame)  # a replay
     return out
 
 
@@ -143,6 +157,14 @@ def mavlink_ground(station, datagrams: list[bytes]) -> None:
         client.sock.sendto(data, client.vehicle_address)
     station.server.receive(station.links[0])
     station.server.service()
+    # A fuzzed SETUP_SIGNING from this machine may set a key (or clear it), as it may:
+    # the tool that sent it knows the key, so the barrier PING is signed with it.
+    signing, ours = station.links[0].mav.signing, client.mav.signing
+    if signing.secret_key != ours.secret_key:
+        from autopilot.mavlink.signing import signing_clock_now
+
+        ours.secret_key, ours.sign_outgoing = signing.secret_key, bool(signing.secret_key)
+        ours.timestamp = max(ours.timestamp, signing_clock_now(), signing.timestamp + 1)
     client.sync()  # the barrier PING: answered, so the server is alive
     check_vehicle(station.vehicle)
 

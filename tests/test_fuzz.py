@@ -39,6 +39,36 @@ def test_fuzz_mavlink_into_the_ground_link(station, handled, data):
     fz.mavlink_ground(station, data.draw(fz.ground_input(handled)))
 
 
+SIGNING_KEY = bytes(range(32))
+
+
+@pytest.fixture(scope="module")
+def signed_station():
+    from autopilot.mavlink.signing import signing_clock_now
+    from tests.test_mavlink_server import Station
+
+    s = Station()
+    for mav in (s.links[0].mav, s.client.mav):  # the vehicle signs; so does its tool
+        mav.signing.secret_key = SIGNING_KEY
+        mav.signing.sign_outgoing = True
+        mav.signing.timestamp = signing_clock_now()
+    s.links[0].mav.signing.allow_unsigned_callback = None
+    s.flying()
+    yield s
+    s.close()
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_signed_and_forged_mavlink_into_a_signing_vehicle(signed_station, handled,
+                                                                 data):
+    """Signed with the key, another key or not at all, replayed, damaged: the signing
+    vehicle keeps answering its signed tool and flies on."""
+    newest = signed_station.client.mav.signing.timestamp
+    fz.mavlink_ground(signed_station, data.draw(fz.ground_input(handled, SIGNING_KEY,
+                                                                newest)))
+
+
 @pytest.fixture(scope="module")
 def sim_pair():
     pair = fz.SimLinkPair()

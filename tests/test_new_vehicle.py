@@ -56,9 +56,15 @@ def test_the_same_name_with_other_numbers_is_another_airframe(tmp_path: Path) ->
     assert load_models(None, str(heavier), any_airframe=True).channels
 
 
+# Between machines the identification's numbers differ by more than their last bits:
+# the clustering and least squares amplify the compiled code's rounding (AVX-512 or not).
+# Measured: 1.6e-4 relative at most (theta_f of phi) between an AMD EPYC with AVX-512 and
+# the machine that made the shipped model. Any change to the method moves them by more.
+MODEL_REL_TOL = 1e-3
+
+
 def _assert_same_numbers(mine, shipped, where: str = "") -> None:
-    """Equal structure and text, numbers to 1e-9 (the last bits of a float may differ
-    between machines)."""
+    """Equal structure and text, numbers to MODEL_REL_TOL."""
     if isinstance(mine, dict):
         assert mine.keys() == shipped.keys(), where
         for key in mine:
@@ -68,7 +74,7 @@ def _assert_same_numbers(mine, shipped, where: str = "") -> None:
         for i, (a, b) in enumerate(zip(mine, shipped, strict=True)):
             _assert_same_numbers(a, b, f"{where}[{i}]")
     elif isinstance(mine, float):
-        assert mine == pytest.approx(shipped, rel=1e-9, abs=1e-12), where
+        assert mine == pytest.approx(shipped, rel=MODEL_REL_TOL, abs=1e-12), where
     else:
         assert mine == shipped, where
 

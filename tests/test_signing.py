@@ -134,3 +134,16 @@ def test_a_damaged_state_file_starts_without_it(tmp_path):
     v = Vehicle(path)
     assert "unreadable" in v.said
     v.stop()
+
+
+def test_setup_signing_with_a_timestamp_no_frame_carries_is_refused(tmp_path):
+    v = Vehicle(tmp_path / "signing.json", key=None)
+    handler = v.server.handlers["SETUP_SIGNING"]
+    said = []
+    v.server.send_text = lambda _link, _severity, text, _address=None: said.append(text)
+    handler(v.link, ("127.0.0.1", 14550), M.MAVLink_setup_signing_message(
+        1, 1, list(KEY), 2**64 - 1), 0.0)
+    assert v.link.mav.signing.secret_key is None  # nothing changed
+    assert said == ["SETUP_SIGNING refused: initial_timestamp 18446744073709551615 is not "
+                    "a 48-bit signing timestamp"]
+    v.stop()

@@ -349,8 +349,12 @@ class MavlinkServer:
             self.send_text(link, 4, "SETUP_SIGNING refused: only over a signed link or from "
                            "this machine", address)
             return
-        text = apply_setup_signing([lk.mav.signing for lk in self.links],
-                                   bytes(msg.secret_key), msg.initial_timestamp)
+        try:
+            text = apply_setup_signing([lk.mav.signing for lk in self.links],
+                                       bytes(msg.secret_key), msg.initial_timestamp)
+        except ValueError as exc:
+            self.send_text(link, 4, str(exc), address)
+            return
         self.send_text(link, 5, text, address)
 
     def save_signing(self, force: bool = False) -> None:

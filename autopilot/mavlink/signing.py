@@ -104,9 +104,17 @@ def is_local(address: tuple[str, int] | None) -> bool:
         return False
 
 
+MAX_SIGNING_TIMESTAMP = 2**48 - 1  # a frame carries 48 bits of it (10 us since 2015)
+
+
 def apply_setup_signing(signings: list[mavlink.MAVLinkSigning], key: bytes,
                         initial_timestamp: int) -> str:
-    """SETUP_SIGNING's key on every link; all zeros turns signing off. Says what it did."""
+    """SETUP_SIGNING's key on every link; all zeros turns signing off. Says what it did.
+    A timestamp a frame cannot carry is refused (ValueError): the vehicle could not sign
+    with it (found by the fuzz run: 2**64 - 1 broke every frame the vehicle sent)."""
+    if not 0 <= int(initial_timestamp) <= MAX_SIGNING_TIMESTAMP:
+        raise ValueError(f"SETUP_SIGNING refused: initial_timestamp {initial_timestamp} is "
+                         "not a 48-bit signing timestamp")
     if not any(key):
         for signing in signings:
             signing.secret_key = None

@@ -29,7 +29,11 @@ QUANTITIES = ("rmse", "max_abs")
 # 1 % leaves room for another CPU's or library's last-bit float differences growing
 # through a 20 s closed loop, while a 10 % regression of any axis still fails.
 GOLDEN_REL = 0.01
-GOLDEN_ABS = 1e-6
+# Errors this small are the rounding of a controller that knows the plant exactly (SMC's
+# psi): the same code gave rmse 2.36e-5 / max 2.76e-4 rad on one machine and 2.55e-5 /
+# 2.98e-4 on an AMD EPYC with AVX-512. Absolute floors per quantity cover that spread
+# (a single sample, the max, spreads more); anything larger is held to GOLDEN_REL.
+GOLDEN_ABS = {"rmse": 5e-6, "max_abs": 5e-5}
 
 
 def run_key(plant: str, scenario: str, controller: str) -> str:
@@ -82,7 +86,7 @@ def write_golden(runs: dict[str, Any], path: Path = GOLDEN_PATH) -> None:
                     "(ground.inprocess.run_inprocess, PAPER airframe, shipped fuzzy models); "
                     "run keys are plant/scenario/controller",
             "checked_by": f"tests/test_scenarios.py, pytest.approx(rel={GOLDEN_REL:g}, "
-                          f"abs={GOLDEN_ABS:g})",
+                          f"abs={GOLDEN_ABS})",
             "versions": {"python": sys.version.split()[0], "numpy": numpy.__version__,
                          "numba": numba.__version__},
         },
@@ -113,7 +117,7 @@ def differences(golden: dict[str, Any], fresh: dict[str, Any]) -> list[str]:
                     if want is not got:
                         lines.append(f"{key} {axis} {q}: golden {want}, got {got}")
                     continue
-                if got != pytest.approx(want, rel=GOLDEN_REL, abs=GOLDEN_ABS):
+                if got != pytest.approx(want, rel=GOLDEN_REL, abs=GOLDEN_ABS[q]):
                     change = f" ({(got - want) / abs(want):+.1%})" if want else ""
                     lines.append(f"plant={plant} scenario={scenario} controller={controller} "
                                  f"axis={axis} {q}: golden {want:.6g}, got {got:.6g}{change}")

@@ -224,6 +224,8 @@ def soak(args: argparse.Namespace) -> None:
                                                    for n in procs)
                       + f"  param {'ok' if param_ok else 'NOT acked'}"
                       f"  wind {'ok' if wind_ok else 'NOT acked'}", flush=True)
+        except SystemExit:  # SIGTERM: the summary of the minutes so far, then out
+            print(f"stopped by a signal after {len(rows)} minutes", flush=True)
         finally:
             station.stop()
             tool.close()

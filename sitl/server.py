@@ -162,6 +162,14 @@ class Simulator(PacedProcess):
         self._acceleration = np.zeros(3)
         self._server: socket.socket | None = None
         self.started = not config.hold
+        # The compiled code now, not in the first step, and before the Zenoh session:
+        # a run releases the simulator once it is heard, and its clock must not start
+        # behind. Then what exists (about 120,000 objects: numba, scipy, Zenoh) is frozen
+        # out of the collector's sight: unfrozen, a full collection every minute or two
+        # took 17-52 ms, stalling the real-time loop.
+        preload_compiled_code()
+        gc.collect()
+        gc.freeze()
         self.node = TelemetryNode(config.zenoh, config.vehicle_id, SITL, self.log)
         self._state_pub = self.node.publisher("state")
         self._event_pub = self.node.publisher("perturbation")
@@ -288,12 +296,6 @@ class Simulator(PacedProcess):
 
     # -- the link ------------------------------------------------------------------------
     def start_up(self) -> None:
-        # The compiled code now, not in the first step; then what exists (about 120,000
-        # objects: numba, scipy, Zenoh) is frozen out of the collector's sight. Unfrozen,
-        # a full collection every minute or two took 17-31 ms, stalling a real-time loop.
-        preload_compiled_code()
-        gc.collect()
-        gc.freeze()
         self._server = socket.create_server((self.config.host, self.config.port),
                                             reuse_port=False)
         self._server.settimeout(0.2)

@@ -19,8 +19,8 @@ from contracts.arguments import (  # noqa: E402
     RATE_HZ,
     RT_PRIORITY,
     VEHICLE_ID,
+    add_vehicle_process_arguments,
     address,
-    cpu_list,
     number,
 )
 from contracts.frames import home_argument  # noqa: E402
@@ -94,9 +94,6 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--rt-priority", type=RT_PRIORITY, default=50, metavar="N",
                    help="real time: SCHED_FIFO priority of the control loop (1-99; 0: "
                         "normal scheduling; needs CAP_SYS_NICE, else normal with a note)")
-    p.add_argument("--rt-cpus", type=cpu_list, metavar="LIST",
-                   help="keep the process on these CPUs (0, 0-1, 0,2): with `ivfm shield` "
-                        "on the same list, CPUs nothing else runs on (docs/realtime.md)")
     p.add_argument("--signing-state", type=Path, metavar="FILE",
                    help="where the MAVLink signing clock and stream timestamps are kept "
                         "across restarts, so a replay of frames from before one is refused "
@@ -110,10 +107,6 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--reference-option", action="append", default=[], metavar="NAME=VALUE",
                    help="another reference field (yaw_rad, amplitude, hold_start_s, "
                         "hold_end_s, seed; repeatable)")
-    p.add_argument("--perturbations", action="store_true",
-                   help="take perturbation requests over Zenoh (scenario runs pass it); "
-                        "without it they are refused, so that nobody blows wind at or kicks "
-                        "a vehicle that did not ask for it")
     p.add_argument("--schedule", type=Path,
                    help="perturbation schedule JSON (sim time); the autopilot takes the kicks")
     p.add_argument("--arm-in-reference", action="store_true",
@@ -132,6 +125,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                    help="where on Earth the local frame is: degrees, degrees, metres AMSL "
                         "(default: the simulator's first HIL_STATE_QUATERNION, as PX4 "
                         "takes it); south or west: --home=-33.86,151.21,40")
+    add_vehicle_process_arguments(p)
     add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT, identity="vehicle", vehicle=True)
     return p
 

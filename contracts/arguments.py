@@ -90,6 +90,18 @@ def cpu_list(text: str) -> frozenset[int]:
     return frozenset(cpus)
 
 
+def add_vehicle_process_arguments(parser: argparse.ArgumentParser) -> None:
+    """The options the simulator and the autopilot share beyond Zenoh's."""
+    parser.add_argument("--perturbations", action="store_true",
+                        help="take perturbation requests over Zenoh (scenario runs pass it); "
+                             "without it they are refused, so that nobody blows wind at or "
+                             "kicks a vehicle that did not ask for it")
+    parser.add_argument("--rt-cpus", type=cpu_list, metavar="LIST",
+                        help="keep the process on these CPUs (0, 0-1, 0,2): with `ivfm "
+                             "shield` on the same list, CPUs nothing else runs on "
+                             "(docs/realtime.md)")
+
+
 def address(text: str) -> tuple[str, int] | None:
     """HOST:PORT (HOST default 127.0.0.1), or "none"."""
     if text.lower() == "none":

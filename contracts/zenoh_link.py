@@ -136,20 +136,32 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, listen: list[str],
                    help=f"endpoint to connect to (repeatable; 'none' for none; "
                         f"default {' '.join(connect) or 'none'})")
     g.add_argument("--no-zenoh", action="store_true", help="no telemetry, no requests")
-    g.add_argument("--zenoh-tls", type=Path, metavar="FOLDER",
-                   help="mutual TLS: FOLDER holds ca.pem, IDENTITY.pem and IDENTITY-key.pem "
-                        "(test ones: ivfm ground certs); needed for tls/ endpoints")
-    g.add_argument("--zenoh-identity", default=identity, metavar="NAME",
-                   help=f"whose certificate in --zenoh-tls is this process's (default "
-                        f"{identity})")
-    g.add_argument("--zenoh-insecure", action="store_true",
-                   help="allow clear-text tcp/udp endpoints beyond this machine")
+    add_security_arguments(g, identity)
     if vehicle:
         g.add_argument("--zenoh-commander", action="append", metavar="NAME",
                        help="with --zenoh-tls: a certificate name that may send requests "
                             "(perturbations, start); repeatable; default "
                             + " ".join(DEFAULT_COMMANDERS))
     parser.set_defaults(_zenoh_listen_default=listen, _zenoh_connect_default=connect)
+
+
+def add_security_arguments(group: Any, identity: str) -> None:
+    """--zenoh-tls, --zenoh-identity, --zenoh-insecure (every Zenoh command, the router's
+    too)."""
+    group.add_argument("--zenoh-tls", type=Path, metavar="FOLDER",
+                       help="mutual TLS: FOLDER holds ca.pem, IDENTITY.pem and "
+                            "IDENTITY-key.pem (test ones: ivfm ground certs); needed for "
+                            "tls/ endpoints")
+    group.add_argument("--zenoh-identity", default=identity, metavar="NAME",
+                       help=f"whose certificate in --zenoh-tls is this process's (default "
+                            f"{identity})")
+    group.add_argument("--zenoh-insecure", action="store_true",
+                       help="allow clear-text tcp/udp endpoints beyond this machine")
+
+
+def tls_from_args(args: argparse.Namespace) -> TlsIdentity | None:
+    return (TlsIdentity.from_folder(args.zenoh_tls, args.zenoh_identity)
+            if args.zenoh_tls is not None else None)
 
 
 def zenoh_options_from_args(args: argparse.Namespace) -> ZenohOptions:
@@ -160,8 +172,7 @@ def zenoh_options_from_args(args: argparse.Namespace) -> ZenohOptions:
     listen = pick(args.zenoh_listen, args._zenoh_listen_default)
     if args.zenoh_mode == "client" and args.zenoh_listen is None:
         listen = []
-    tls = (TlsIdentity.from_folder(args.zenoh_tls, args.zenoh_identity)
-           if args.zenoh_tls is not None else None)
+    tls = tls_from_args(args)
     commanders = None
     if hasattr(args, "zenoh_commander"):
         commanders = tuple(args.zenoh_commander or DEFAULT_COMMANDERS)

@@ -232,7 +232,7 @@ def _build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 def _ground_parsers(ground: argparse.ArgumentParser) -> None:
     from contracts.perturbations import KINDS
     from contracts.telemetry import AUTOPILOT, DEFAULT_GROUND_ENDPOINT, DEFAULT_PORT, SITL
-    from contracts.zenoh_link import add_zenoh_arguments
+    from contracts.zenoh_link import add_security_arguments, add_zenoh_arguments
 
     sub = ground.add_subparsers(dest="ground_command", required=True)
     log = sub.add_parser("log", help="record all telemetry to MCAP (docs/telemetry.md)")
@@ -280,11 +280,7 @@ def _ground_parsers(ground: argparse.ArgumentParser) -> None:
                              "repeatable")
     router.add_argument("--connect", action="append", metavar="ENDPOINT",
                         help="other routers (repeatable)")
-    router.add_argument("--zenoh-tls", type=Path, metavar="FOLDER",
-                        help="mutual TLS: ca.pem, IDENTITY.pem, IDENTITY-key.pem")
-    router.add_argument("--zenoh-identity", default="ground", metavar="NAME")
-    router.add_argument("--zenoh-insecure", action="store_true",
-                        help="allow clear-text links beyond this machine")
+    add_security_arguments(router, "ground")
 
     certs = sub.add_parser("certs", help="make test certificates for mutual TLS",
                            description="A certificate authority and one certificate per "

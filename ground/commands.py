@@ -354,10 +354,9 @@ def ground_router_command(args: argparse.Namespace) -> int:
     import threading
 
     from contracts.telemetry import DEFAULT_PORT
-    from contracts.zenoh_link import TlsIdentity, ZenohOptions, open_session
+    from contracts.zenoh_link import ZenohOptions, open_session, tls_from_args
 
-    tls = (TlsIdentity.from_folder(args.zenoh_tls, args.zenoh_identity)
-           if args.zenoh_tls is not None else None)
+    tls = tls_from_args(args)
     default = f"{'tls' if tls else 'tcp'}/0.0.0.0:{DEFAULT_PORT}"
     options = ZenohOptions("router", listen=args.listen or [default],
                            connect=args.connect or [], tls=tls, insecure=args.zenoh_insecure)

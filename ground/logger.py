@@ -241,6 +241,7 @@ class Logger:
         self._file: McapFile | None = None
         self._index = 0
         self._flushed_records = 0  # counters.records at the last flush that worked
+        self._flushed_per_key: dict[str, int] = {}  # and counters.per_key
         self._warned: dict[str, float] = {}
 
     def stop(self, *_args: Any) -> None:
@@ -271,6 +272,7 @@ class Logger:
         try:
             self._file.flush()
             self._flushed_records = self.counters.records
+            self._flushed_per_key = dict(self.counters.per_key)  # at most MAX_KEYS
             if (self._file.size >= self.config.rotate_bytes
                     or self._file.chunks >= self.config.rotate_chunks):
                 self._rotate()
@@ -284,6 +286,8 @@ class Logger:
         # The records since the last flush were in the chunk the disk refused.
         c.unwritten += c.records - self._flushed_records
         c.records = self._flushed_records
+        c.per_key.clear()
+        c.per_key.update(self._flushed_per_key)
         c.write_error = f"{exc.strerror or exc} ({self._file.active_path.name})"
         c.last_error = f"logging stopped: {c.write_error}"
         self._file.abandon()

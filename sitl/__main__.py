@@ -22,7 +22,7 @@ from contracts.arguments import (  # noqa: E402
     SEED,
     SIM_RATE_HZ,
     VEHICLE_ID,
-    cpu_list,
+    add_vehicle_process_arguments,
 )
 from contracts.frames import DEFAULT_HOME, home_argument  # noqa: E402
 from contracts.mavlink import SIM_TCP_PORT  # noqa: E402
@@ -70,19 +70,13 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--sensors", default="ideal", type=profile_argument,
                    help="sensor profile: ideal, typical, degraded or a .toml file "
                         "(docs/sensors.md)")
-    p.add_argument("--perturbations", action="store_true",
-                   help="take perturbation requests over Zenoh (scenario runs pass it); "
-                        "without it they are refused, so that nobody blows wind at or kicks "
-                        "a vehicle that did not ask for it")
     p.add_argument("--rt-priority", type=RT_PRIORITY, default=40, metavar="N",
                    help="real time: SCHED_FIFO priority (1-99; 0: normal scheduling)")
-    p.add_argument("--rt-cpus", type=cpu_list, metavar="LIST",
-                   help="keep the process on these CPUs (0, 0-1, 0,2): with `ivfm shield` "
-                        "on the same list, CPUs nothing else runs on (docs/realtime.md)")
     p.add_argument("--home", type=home_argument, default=DEFAULT_HOME, metavar="LAT,LON,ALT",
                    help="where on Earth the vehicle starts: degrees, degrees, metres AMSL "
                         "(default: PX4's SITL home, 47.397742,8.545594,488); south or west: "
                         "--home=-33.86,151.21,40")
+    add_vehicle_process_arguments(p)
     add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT, identity="vehicle", vehicle=True)
     return p
 

@@ -164,7 +164,7 @@ class Simulator(PacedProcess):
         self.started = not config.hold
         # The compiled code now, not in the first step, and before the Zenoh session:
         # a run releases the simulator once it is heard, and its clock must not start
-        # behind. Then what exists (about 120,000 objects: numba, scipy, Zenoh) is frozen
+        # behind. Then what exists (about 120,000 objects: numba, numpy, scipy) is frozen
         # out of the collector's sight: unfrozen, a full collection every minute or two
         # took 17-52 ms, stalling the real-time loop.
         preload_compiled_code()

@@ -137,6 +137,7 @@ def test_a_logger_out_of_space_stops_writing_says_so_and_leaves_a_readable_file(
     assert stopped["last_error"].startswith("logging stopped: File too large")
     assert 0 < stopped["records"] < 4000 and stopped["unwritten"] > 0
     assert stopped["records"] + stopped["unwritten"] == 4000  # every record accounted for
+    assert sum(stopped["per_key"].values()) == stopped["records"]  # per key as well
     assert "logging stopped after" in text and "Traceback" not in text
     (active,) = out.glob("*.mcap.active")
     assert active.stat().st_size <= 64 * 1024

@@ -39,6 +39,7 @@ class Watch:
         self.armed = False
         self.in_air = False
         self.progress: list[tuple[int, int]] = []
+        self.time_s: float | None = None
 
     async def follow(self, telem: TelemetryAsync, mission: MissionAsync | None = None) -> None:
         async def position():
@@ -65,6 +66,11 @@ class Watch:
                     self.progress.append((p.current, p.total))
         await asyncio.gather(position(), mode(), armed(), in_air(),
                              *([progress()] if mission is not None else []))
+
+    async def follow_clock(self, telem: TelemetryAsync) -> None:
+        """The vehicle's sim time, from ATTITUDE (20 Hz)."""
+        async for euler in telem.subscribe_attitude_euler():
+            self.time_s = 1e-6 * euler.timestamp_us
 
 
 def _fly(tmp_path, session, timeout_s: float) -> dict:
@@ -234,23 +240,29 @@ async def _follow_me_session(port: int) -> dict:
                                           5.0, 180.0))
         await follow_me.start()
         await until(lambda: watch.mode == FlightMode.FOLLOW_ME, 5.0, "FOLLOW_ME")
-        start = time.monotonic()
+        # The target walks on the vehicle's clock (ATTITUDE's time_boot_ms), not the test's:
+        # a simulator that stalls under load re-anchors behind the wall clock, and a target
+        # placed on the wall clock would then leap ahead of the vehicle's time.
+        clock = asyncio.ensure_future(watch.follow_clock(telem))
+        await until(lambda: watch.time_s is not None, 5.0, "the vehicle's clock")
+        start = watch.time_s
 
         def target_ned(t_s: float) -> np.ndarray:
             return np.array([5.0, 1.5 * t_s, 0.0])
 
-        while time.monotonic() - start < 16.0:
-            t = time.monotonic() - start
+        while watch.time_s - start < 16.0:
+            t = watch.time_s - start
             lat, lon, alt = DEFAULT_HOME.geodetic_from_ned(*target_ned(t))
             await follow_me.set_target_location(TargetLocation(lat, lon, alt, 0.0, 1.5, 0.0))
             if t > 10.0:  # caught up: the station moves with the target
                 for _ in range(10):
-                    now = time.monotonic() - start
+                    now = watch.time_s - start
                     out["track"].append(np.concatenate((watch.ned - target_ned(now),
                                                         watch.velocity)))
                     await asyncio.sleep(0.1)
             else:
                 await asyncio.sleep(1.0)
+        clock.cancel()
         out["active"] = await follow_me.is_active()
         await follow_me.stop()
         await until(lambda: watch.mode == FlightMode.HOLD, 5.0, "HOLD after stop")
@@ -265,10 +277,14 @@ def test_mavsdk_follow_me_keeps_station_behind_a_walking_target(tmp_path):
     assert got["active"]
     track = np.array(got["track"])
     rel, velocity = track[:, 0:3], track[:, 3:6]
-    # Across the track and in height: centimetres. Along it, the telemetry's age (up to
-    # 0.1 s at 10 Hz, 0.15 m at 1.5 m/s) against a target placed on the wall clock: the
-    # vehicle shows 0.14-0.21 m further back than 5 m (measured).
+    # Across the track and in height: centimetres. Along it, the position's age against
+    # the vehicle's clock (10 Hz against 20 Hz telemetry) and the report's delivery: the
+    # vehicle shows 0.14-0.25 m further back than 5 m (measured).
     assert np.abs(rel[:, 0]).max() < 0.1
     assert np.abs(rel[:, 1] + 5.0).max() < 0.3
     assert np.abs(rel[:, 2] + 8.0).max() < 0.1
-    assert np.abs(velocity[:, 1] - 1.5).max() < 0.1
+    # At the target's speed on average; sample by sample within the swing that the
+    # reports' delivery time gives (each report is taken as current on arrival, as PX4
+    # does): 0.03 m/s on a quiet machine, 0.18 m/s beside two CPU-bound neighbours.
+    assert abs(velocity[:, 1].mean() - 1.5) < 0.03
+    assert np.abs(velocity[:, 1] - 1.5).max() < 0.2

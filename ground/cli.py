@@ -245,8 +245,8 @@ def _ground_parsers(ground: argparse.ArgumentParser) -> None:
                      help="close a chunk at least this often [s], 0.01-60")
     log.add_argument("--rotate-mib", type=number(1, 1_000_000, integer=True), default=512,
                      help="start a new file past this [MiB]")
-    log.add_argument("--rotate-chunks", type=number(1, 10_000_000, integer=True),
-                     default=2048,
+    log.add_argument("--rotate-chunks", type=number(16, 10_000_000, integer=True),
+                     default=512,
                      help="... or past this many chunks (bounds the logger's memory)")
     log.add_argument("--compression", default="zstd", choices=["zstd", "lz4", "none"])
     add_zenoh_arguments(log, [DEFAULT_GROUND_ENDPOINT], [])

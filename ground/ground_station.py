@@ -15,9 +15,12 @@ act as they would in the field.
     start_s = 10.0
     end_s = 16.0
 
-Times are seconds after the vehicle is released, on the wall clock, as a ground tool's
-are; the failsafes time them on the wall clock too. Fly such a scenario in real time
-(``--realtime``), so that they match the run's sim time.
+Times are seconds after the vehicle is released, on the wall clock as a ground tool's
+are (the failsafes time them on the wall clock too), but never ahead of the vehicle's own
+clock as its telemetry shows it (``time_boot_ms``): a simulator that took its first step
+late, or stalled and went on behind the wall clock, would otherwise see the plan's events
+early in sim time, where the run's expectations judge them. Fly such a scenario in real
+time (``--realtime``), so that they match the run's sim time.
 """
 
 from __future__ import annotations
@@ -187,11 +190,15 @@ class GroundStation:
             self._stop.wait(0.005)
 
     def _read(self) -> None:
-        """Take what the vehicle sent (so the socket never fills); note the mode's ack."""
+        """Take what the vehicle sent (so the socket never fills); note the mode's ack;
+        hold the plan's clock back to the vehicle's."""
         for _ in range(200):  # a budget: the vehicle streams telemetry at up to 50 Hz
             msg = self.conn.recv_match(blocking=False)
             if msg is None:
                 return
+            boot_ms = getattr(msg, "time_boot_ms", None)
+            if boot_ms is not None and msg.get_srcSystem() == self.target:
+                self._t0 = max(self._t0, time.monotonic() - boot_ms / 1e3)
             if msg.get_type() == "COMMAND_ACK" and \
                     msg.command == mavlink.MAV_CMD_DO_SET_MODE and \
                     msg.result == mavlink.MAV_RESULT_ACCEPTED:

@@ -61,6 +61,7 @@ MAX_KEYS = 1024
 MAX_KEY_CHARS = 256
 MAX_INBOX = 200_000
 MAX_QUERIES = 64  # status queries waiting for the loop
+SILENCE_S = 1.0  # records had been coming (250 Hz and more) and none for this long: say so
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 
 
@@ -73,7 +74,7 @@ class LoggerConfig:
     chunk_bytes: int = 256 * 1024
     flush_period_s: float = 0.25
     rotate_bytes: int = 512 * 1024 * 1024
-    rotate_chunks: int = 2048  # ~2 MB of chunk index; at 4 chunks/s, a file per 8.5 min
+    rotate_chunks: int = 512  # ~0.7 MB of chunk index; at 4 chunks/s, a file per 2 min
     compression: str = "zstd"
 
     def __post_init__(self) -> None:
@@ -92,6 +93,29 @@ class LoggerConfig:
                              f"{self.rotate_chunks}")
         if self.compression not in ("zstd", "lz4", "none"):
             raise ValueError(f"compression must be zstd, lz4 or none, got {self.compression!r}")
+
+
+class SilenceWatch:
+    """Says when records stop coming (a vehicle, or the Zenoh link or router between it
+    and the logger, is down) and when they come again: once each, on an injected clock."""
+
+    def __init__(self, log: Callable[[str], None], silence_s: float = SILENCE_S) -> None:
+        self.log = log
+        self.silence_s = silence_s
+        self.last_s: float | None = None  # the last record's arrival (none yet: quiet)
+        self.silent = False
+
+    def update(self, now_s: float, records: int) -> None:
+        if records:
+            if self.silent:
+                self.log(f"records again after {now_s - self.last_s:.1f} s of silence")
+                self.silent = False
+            self.last_s = now_s
+        elif (not self.silent and self.last_s is not None
+              and now_s - self.last_s >= self.silence_s):
+            self.silent = True
+            self.log(f"no records for {self.silence_s:g} s: the vehicles, or the Zenoh link "
+                     "(or router) between them and this logger, are down")
 
 
 @dataclass
@@ -408,11 +432,13 @@ class Logger:
         if ready is not None:
             ready()
         next_flush = time.monotonic() + self.config.flush_period_s
+        silence = SilenceWatch(self.log)
         try:
             while not self._stop.is_set():
                 wrote = self._drain()
                 self._answer_queries()
                 now = time.monotonic()
+                silence.update(now, wrote)
                 if now >= next_flush:
                     self._flush()
                     next_flush = now + self.config.flush_period_s

@@ -14,7 +14,7 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from contracts.zenoh_link import ZenohOptions
-from ground.logger import LoggerConfig, McapFile, salvage
+from ground.logger import LoggerConfig, McapFile, SilenceWatch, salvage
 
 
 def test_the_private_mcap_calls_the_flush_relies_on_are_there():
@@ -145,3 +145,20 @@ def test_a_logger_out_of_space_stops_writing_says_so_and_leaves_a_readable_file(
     with open(done, "rb") as fh:
         seqs = [m.sequence for _s, _c, m in make_reader(fh).iter_messages()]
     assert seqs == list(range(stopped["records"]))  # every record it counted, in order
+
+
+def test_the_logger_says_once_when_records_stop_and_once_when_they_come_again():
+    said: list[str] = []
+    watch = SilenceWatch(said.append, silence_s=2.0)  # the default is 1 s
+    watch.update(0.0, 0)
+    watch.update(10.0, 0)
+    assert said == []  # nothing heard yet: a logger waiting for its vehicles is quiet
+    watch.update(10.5, 3)
+    watch.update(12.4, 0)
+    assert said == []
+    watch.update(12.5, 0)
+    watch.update(20.0, 0)
+    assert len(said) == 1 and said[0].startswith("no records for 2 s")
+    watch.update(21.0, 1)
+    watch.update(21.1, 1)
+    assert said[1:] == ["records again after 10.5 s of silence"]

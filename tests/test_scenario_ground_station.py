@@ -132,6 +132,31 @@ def test_the_ground_station_sends_what_its_plan_says_and_falls_silent():
     assert times("COMMAND_LONG")[0] == pytest.approx(0.2, abs=0.05)
 
 
+def test_the_ground_station_keeps_its_plan_on_the_vehicles_clock():
+    """A vehicle whose telemetry says it is 0.3 s behind the wall clock (a simulator that
+    started late): the switch to OFFBOARD planned at 0.5 s comes at 0.8 s."""
+    from pymavlink import mavutil
+
+    vehicle = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=1)
+    port = vehicle.port.getsockname()[1]
+    gcs = GroundStation(parse_ground_station({"offboard_at_s": 0.5}, 10.0), port, 1,
+                        (0.0, 0.0, -2.0), 0.0)
+    gcs.start()
+    start = time.monotonic()
+    switched = None
+    try:
+        while time.monotonic() - start < 1.2 and switched is None:
+            msg = vehicle.recv_match(blocking=True, timeout=0.02)
+            now = time.monotonic() - start
+            if msg is not None and msg.get_type() == "COMMAND_LONG":
+                switched = now
+            vehicle.mav.attitude_send(max(0, round(1e3 * (now - 0.3))), 0, 0, 0, 0, 0, 0)
+    finally:
+        gcs.stop()
+        vehicle.close()
+    assert switched == pytest.approx(0.8, abs=0.05)
+
+
 def test_a_ground_station_to_nobody_keeps_going():
     """No vehicle on the port (ICMP unreachable on loopback): the sends fail quietly and
     the thread runs on until stopped."""

@@ -427,10 +427,11 @@ class MavlinkServer:
                             "peers": len(link.peers)} for link in self.links}
 
     def telemetry(self, msg_id: int, boot_ms: int | None = None):
-        """A telemetry message; ``boot_ms`` defaults to the link clock (the Zenoh mirror
-        passes sim time)."""
+        """A telemetry message; its ``time_boot_ms`` is the vehicle's sim time, as PX4
+        SITL's clock is the simulator's, so that a tool times the flight as the vehicle
+        flies it (a simulator that started late or stalled runs behind the wall clock)."""
         if boot_ms is None:
-            boot_ms = int((self.clock() - self.boot_s) * 1000) & 0xFFFFFFFF
+            boot_ms = round(self.vehicle.sim_t_s * 1000) & 0xFFFFFFFF
         drop = max((ln.drop_rate for ln in self.links), default=0.0)
         errors = sum(ln.counters.rejected for ln in self.links)
         return telemetry_message(msg_id, self.vehicle, self.flavour, boot_ms, drop, errors)

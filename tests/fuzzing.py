@@ -25,6 +25,7 @@ Targets and what each must survive, with the answer it must give:
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import math
 import select
@@ -49,10 +50,14 @@ INT_RANGES = {"int8_t": (-128, 127), "uint8_t": (0, 255), "int16_t": (-2**15, 2*
 MESSAGE_CLASSES = sorted({cls for cls in M.mavlink_map.values()}, key=lambda c: c.msgname)
 
 
+# Strategies are built once (functools.cache): building them per draw costs hypothesis
+# more than most targets take to run.
+@functools.cache
 def hostile_float() -> st.SearchStrategy[float]:
     return st.one_of(st.sampled_from(HOSTILE_FLOATS), st.floats(width=32))
 
 
+@functools.cache
 def _field(name: str, kind: str, length: int) -> st.SearchStrategy:
     if kind == "char":
         return st.binary(max_size=max(1, length))
@@ -187,9 +192,15 @@ class SimLinkPair:
         self.peer, _ = self.server.accept()
 
     def feed(self, data: bytes) -> list:
+        """What the link makes of ``data``: on loopback a sendall has reached the other
+        side's buffer when it returns, so the link reads until that is empty."""
+        if not data:
+            return []
         self.peer.sendall(data)
         readings: list = []
-        while select.select([self.link.sock], [], [], 0.02)[0]:
+        timeout_s = 1.0  # the first read: the data is there long before
+        while select.select([self.link.sock], [], [], timeout_s)[0]:
+            timeout_s = 0.0
             got = self.link.read()
             if got is None:
                 break
@@ -229,6 +240,7 @@ def actuators(simulator, msg) -> None:
         assert simulator.stats.bad_messages > 0
 
 
+@functools.cache
 def json_values() -> st.SearchStrategy:
     scalars = st.one_of(st.none(), st.booleans(), st.integers(), hostile_float(),
                         st.text(max_size=20), st.sampled_from(("now", "wind", "kick", "gust",
@@ -247,12 +259,21 @@ def perturbation_request(draw) -> Any:
     if draw(st.booleans()):
         return draw(json_values())
     kind = draw(st.sampled_from(sorted(KINDS)))
-    fields = {name: draw(st.one_of(hostile_float(), st.lists(hostile_float(), max_size=4),
-                                   json_values()))
-              for name in KINDS[kind].params if draw(st.booleans())}
-    extra = {k: draw(st.one_of(hostile_float(), json_values(), st.just("now")))
-             for k in ("start_s", "end_s", "duration_s", "id", "op") if draw(st.booleans())}
+    fields = {name: draw(_request_field()) for name in KINDS[kind].params
+              if draw(st.booleans())}
+    extra = {k: draw(_request_extra()) for k in ("start_s", "end_s", "duration_s", "id", "op")
+             if draw(st.booleans())}
     return {"kind": kind, **fields, **extra}
+
+
+@functools.cache
+def _request_field() -> st.SearchStrategy:
+    return st.one_of(hostile_float(), st.lists(hostile_float(), max_size=4), json_values())
+
+
+@functools.cache
+def _request_extra() -> st.SearchStrategy:
+    return st.one_of(hostile_float(), json_values(), st.just("now"))
 
 
 def perturbation(book, request: Any, now_s: float) -> None:

@@ -7,8 +7,9 @@ For every cell it checks, as a user would from the processes' own words and file
 * the other processes are still running 3 s later;
 * they said what happened (the documented message of each loss, below);
 * with a ground tool on the link (armed on the ground, mid-mission), the vehicle did what
-  the docs say: the simulator's loss is the LAND failsafe; a logger's or router's loss
-  changes nothing (still armed, still flying the mission);
+  the docs say: the simulator's loss is the link-loss failsafe (LAND in the air, disarmed
+  on the ground); a logger's or router's loss changes nothing (still armed, still flying
+  the mission);
 * a killed process, started again, rejoins (the autopilot reconnects to a new simulator,
   the simulator takes a new autopilot, a new logger hears both vehicle processes, the
   logger hears records again through a new router);
@@ -18,8 +19,9 @@ For every cell it checks, as a user would from the processes' own words and file
     python tests/stress/kill_matrix.py            # 48 cells, about 20 minutes
     python tests/stress/kill_matrix.py --only router --markdown docs-table.md
 
-The router's cells run with a router between the vehicles and the logger (as across
-machines); the others with the vehicles connected to the logger. Loopback only; prints a
+The router's cells run with the vehicles and the logger as Zenoh clients of a router (all
+their traffic through it, as across machines); the others with the vehicles connected to
+the logger. Loopback only; prints a
 table (Markdown) and exits 1 if any cell failed.
 """
 
@@ -122,16 +124,34 @@ class Run:
     stage: str
     via_router: bool = False
     endpoint: str = field(default_factory=lambda: f"tcp/127.0.0.1:{free_tcp_port()}")
-    logger_endpoint: str = field(default_factory=lambda: f"tcp/127.0.0.1:{free_tcp_port()}")
     sim_port: int = field(default_factory=free_tcp_port)
     gcs_port: int = field(default_factory=free_tcp_port)
     procs: dict[str, subprocess.Popen] = field(default_factory=dict)
     loggers: list[LoggerProcess] = field(default_factory=list)
     starts: dict[str, int] = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
-        if not self.via_router:  # the vehicles connect to the logger's endpoint
-            self.logger_endpoint = self.endpoint
+    def zenoh(self) -> list[str]:
+        """How a process joins: a client of the router, or a peer of the logger."""
+        return (["--zenoh-mode", "client"] if self.via_router else []) + \
+            ["--zenoh-connect", self.endpoint]
+
+    def session(self):
+        return open_session(ZenohOptions("client" if self.via_router else "peer",
+                                         connect=[self.endpoint]))
+
+    def wait_for_logger(self, timeout_s: float = 30.0) -> None:
+        """Until the newest logger answers (through the router) or listens."""
+        session = self.session()
+        try:
+            if not self.via_router:
+                self.loggers[-1].wait_listening(session, timeout_s)
+                return
+            deadline = time.monotonic() + timeout_s
+            while self.loggers[-1].status(session) is None:
+                if time.monotonic() > deadline:
+                    raise RuntimeError("the logger did not answer through the router")
+        finally:
+            session.close()
 
     @property
     def order(self) -> tuple[str, ...]:
@@ -146,15 +166,16 @@ class Run:
         n = self.starts.get(name, 0)
         self.starts[name] = n + 1
         if name == "logger":
-            extra = ["--zenoh-connect", self.endpoint] if self.via_router else []
+            extra = self.zenoh() if self.via_router else []
             if self.stage == "during log rotation":
                 extra += ["--rotate-chunks", "16", "--flush-s", "0.05"]
-            logger = LoggerProcess(self.out / f"log-{n}", self.logger_endpoint,
+            logger = LoggerProcess(self.out / f"log-{n}",
+                                   "none" if self.via_router else self.endpoint,
                                    self.out / f"logger-{n}.txt", extra=extra)
             self.loggers.append(logger)
             self.procs[name] = logger.proc
             return
-        zenoh = ["--zenoh-connect", self.endpoint, "--perturbations"]
+        zenoh = [*self.zenoh(), "--perturbations"]
         on_ground = self.stage in GROUND_TOOL_STAGES
         if name == "router":
             cmd = [sys.executable, "-m", "ground.cli", "ground", "router",
@@ -239,7 +260,7 @@ def get_going(run: Run, tool: GroundTool | None) -> str | None:
         return None if tool.mode == FlightMode.MISSION else f"in {tool.mode}, not MISSION"
     time.sleep(3.0)
     if run.stage == "during a perturbation":
-        s = open_session(ZenohOptions(connect=[run.endpoint]))
+        s = run.session()
         PerturbationClient(session=s, timeout_s=10.0).perturb(
             1, "wind", duration_s=10.0, ned_mps=[2.0, 0.0, 0.0])
         time.sleep(1.0)
@@ -266,9 +287,7 @@ def cell(process: str, stage: str, sig: str, tmp: Path) -> list[str]:
                 time.sleep(0.5)
                 break
             if name == "logger":
-                session = open_session(ZenohOptions(connect=[run.logger_endpoint]))
-                run.loggers[0].wait_listening(session, 30.0)
-                session.close()
+                run.wait_for_logger()
         if stage != "start-up":
             missing = get_going(run, tool)
             if missing:
@@ -296,8 +315,11 @@ def cell(process: str, stage: str, sig: str, tmp: Path) -> list[str]:
             now = (tool.mode, tool.armed)
             if process in ("logger", "router") and now != before:
                 failed.append(f"the vehicle went from {before} to {now}")
-            if process == "sitl" and sig == "KILL" and tool.mode != FlightMode.LAND:
-                failed.append(f"no LAND failsafe: in {tool.mode}")
+            if process == "sitl" and sig == "KILL":  # the link-loss failsafe
+                if stage == "armed on the ground" and tool.armed:
+                    failed.append("not disarmed on the ground")
+                if stage == "mid-mission" and tool.mode != FlightMode.LAND:
+                    failed.append(f"no LAND failsafe: in {tool.mode}")
         if sig == "KILL":
             run.start(process)
         if stage == "start-up":  # the rest comes up after it, and the flight must start
@@ -312,7 +334,7 @@ def cell(process: str, stage: str, sig: str, tmp: Path) -> list[str]:
                 failed.append(f"a new {process} did not rejoin ({who}: '{text}' "
                               f"{run.log(who).count(text)} times, not {times})")
         if sig == "KILL" and process == "logger":
-            session = open_session(ZenohOptions(connect=[run.logger_endpoint]))
+            session = run.session()
             try:
                 run.loggers[-1].wait_until(
                     session, [vehicle_key(1, p, "status") for p in (SITL, AUTOPILOT)],

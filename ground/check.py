@@ -170,6 +170,7 @@ class CheckOptions:
     keep_passed: bool = False
     warm: bool = True  # each job's processes kept warm between its scenarios
     figures: bool = False  # each run folder's figures (ivfm report's)
+    rt_cpus: frozenset[int] | None = None  # the vehicle processes' CPUs (None: any)
 
 
 def check_one(scenario: Scenario, options: CheckOptions,
@@ -184,7 +185,8 @@ def check_one(scenario: Scenario, options: CheckOptions,
     result = ScenarioResult(scenario, run_dir)
     start = time.perf_counter()
     try:
-        plan = plan_flight(scenario, overrides or Overrides(realtime=options.realtime))
+        plan = plan_flight(scenario, overrides or Overrides(realtime=options.realtime,
+                                                            rt_cpus=options.rt_cpus))
         result.metrics = fly_processes(plan, run_dir, figures=options.figures, quiet=True,
                                        warm=warm)
     except (ProcessRunError, ValueError, OSError) as exc:

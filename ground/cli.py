@@ -43,9 +43,7 @@ def _run_parser(run: argparse.ArgumentParser) -> None:
                       help="the two processes paced to the wall clock (default: lockstep)")
     run.add_argument("--rate-hz", type=RATE_HZ, default=100.0,
                      help="control rate, 1-1000 Hz (default 100)")
-    run.add_argument("--rt-cpus", type=cpu_list, metavar="LIST",
-                     help="keep the simulator and autopilot on these CPUs (with `ivfm "
-                          "shield`: CPUs nothing else runs on; docs/realtime.md)")
+    _add_rt_cpus(run)
     run.add_argument("--state-source", choices=list(STATE_SOURCES),
                      help="what the autopilot flies on: the simulator's truth (auto, odometry, "
                           "hil-state) or its estimator on the sensors (default: the "
@@ -86,6 +84,7 @@ def _check_parser(check: argparse.ArgumentParser) -> None:
                        help="scenarios at a time, 1-64 (default 1)")
     check.add_argument("--realtime", action="store_true",
                        help="pace to the wall clock (default: lockstep)")
+    _add_rt_cpus(check)
     check.add_argument("--cold", action="store_true",
                        help="new processes for every scenario (default: kept warm)")
     check.add_argument("--keep", action="store_true",
@@ -114,6 +113,13 @@ def _rehearse_parser(p: argparse.ArgumentParser) -> None:
                    help="rehearsal folder (default: a new one under runs/)")
     p.add_argument("--junit", type=Path, metavar="FILE",
                    help="also write the JUnit XML here (it is always in the folder)")
+    _add_rt_cpus(p)
+
+
+def _add_rt_cpus(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--rt-cpus", type=cpu_list, metavar="LIST",
+                   help="keep the simulator and autopilot on these CPUs (with `ivfm "
+                        "shield`: CPUs nothing else runs on; docs/realtime.md)")
 
 
 def _report_parser(rep: argparse.ArgumentParser) -> None:

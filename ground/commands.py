@@ -87,7 +87,8 @@ def check_command(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     results = run_check(scenarios, CheckOptions(out, realtime=args.realtime, jobs=args.jobs,
                                                 baseline=baseline, tolerance=args.tolerance,
-                                                keep_passed=args.keep, warm=not args.cold),
+                                                keep_passed=args.keep, warm=not args.cold,
+                                                rt_cpus=args.rt_cpus),
                         Progress(len(scenarios)))
     wall_s = time.perf_counter() - start
     print(results_table(results))
@@ -114,7 +115,8 @@ def rehearse_command(args: argparse.Namespace) -> int:
     print(f"ivfm rehearse: {args.airframe}, profile {profile.name} ({len(profile.flights)} "
           f"flights), control at {args.rate_hz:g} Hz; folder {out}", file=sys.stderr)
     result = rehearse(args.airframe, profile, out, model=args.model, rate_hz=args.rate_hz,
-                      sensors=args.sensors, parameters=dict(args.param), say=print_progress)
+                      sensors=args.sensors, parameters=dict(args.param), say=print_progress,
+                      rt_cpus=args.rt_cpus)
     print("\n".join(summary_lines(result)))
     print(f"wrote {out / 'rehearsal.html'}, rehearsal.md, rehearsal.xml, parameters.params")
     if args.junit is not None:

@@ -133,7 +133,8 @@ def resolve_model(airframe: str, model: Path | None, out_dir: Path,
 def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None = None,
              rate_hz: float = 100.0, sensors: str | None = None,
              parameters: dict[str, float] | None = None,
-             say: Callable[[str], None] = lambda text: None) -> Rehearsal:
+             say: Callable[[str], None] = lambda text: None,
+             rt_cpus: frozenset[int] | None = None) -> Rehearsal:
     """Run every check of ``profile`` on ``airframe``; ValueError on bad input (an
     unreadable airframe file, a parameter out of its range, a bad model)."""
     from autopilot.parameters import airframe_parameters, validate_parameters
@@ -167,7 +168,8 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
                     f"{scenario.duration_s:g} s)")
                 overrides = Overrides(airframe=airframe, sensors=sensors,
                                       parameters=given, model_path=model_path,
-                                      rate_hz=rate_hz, realtime=flight.realtime)
+                                      rate_hz=rate_hz, realtime=flight.realtime,
+                                      rt_cpus=rt_cpus)
                 result = check_one(scenario, options, warm, overrides)
                 rehearsal.flights.append(FlightResult(flight, result))
                 held = sum(o.passed for o in result.outcomes)

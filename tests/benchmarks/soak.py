@@ -66,7 +66,11 @@ def threads(pid: int) -> int:
 
 
 def set_parameter(conn, value: float, timeout_s: float = 2.0) -> bool:
-    """PARAM_SET as a ground tool sends it; True when the vehicle echoes the value."""
+    """PARAM_SET as a ground tool sends it; True when the vehicle echoes the value.
+    First the telemetry of the minute since the last one is read: a tool that never reads
+    has a full socket buffer, and the kernel drops the echo (3 of 30 were lost so)."""
+    while conn.recv_match(blocking=False) is not None:
+        pass
     conn.mav.param_set_send(1, 1, PARAM, value, mavlink.MAV_PARAM_TYPE_REAL32)
     end = time.monotonic() + timeout_s
     while time.monotonic() < end:

@@ -130,8 +130,8 @@ def dataset_from_log(log: Path, vehicle: int, airframe: Airframe, skip_s: float 
     f_i = acceleration - b_i u_i, the paper's drift the IVFM learns.
     """
     r = control_records(log, vehicle)
-    if len(r["missing"]):
-        raise ValueError(f"the log lacks {len(r['missing'])} control records of vehicle "
+    if r["missing_count"]:
+        raise ValueError(f"the log lacks {r['missing_count']} control records of vehicle "
                          f"{vehicle}; identification needs an unbroken flight")
     t = r["sim_time_us"] / 1e6
     keep = t >= t[0] + skip_s

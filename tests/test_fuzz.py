@@ -230,3 +230,17 @@ def test_the_logger_bounds_its_keys(tmp_path):
     assert c.per_key["ivfm/vehicle/1/junk/k0"] == 2
     assert lg.status()["keys_over_limit"] == 501
     lg._file.finish()
+
+
+# -- what the long run (tests/stress/fuzz_long.py) found, pinned ---------------------------
+
+def test_missing_records_are_counted_without_listing_a_damaged_range():
+    """The long fuzz run's find: a damaged record's sequence number 2**62 made the report
+    list the range between (48 TiB)."""
+    import numpy as np
+
+    from ground.run_files import missing_count
+
+    assert missing_count(np.array([0, 1, 2, 4, 7])) == 3
+    assert missing_count(np.array([5])) == 0
+    assert missing_count(np.array([0, 1, 2**62], dtype=np.uint64)) == 2**62 - 2

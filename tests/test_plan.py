@@ -78,6 +78,19 @@ def test_a_plan_the_vehicle_would_refuse_is_refused_before_upload(tmp_path, chan
         read_plan(path)
 
 
+def test_a_folder_named_as_the_plan_is_refused_naming_it(tmp_path):
+    """The long fuzz run's find: a scenario's ``plan = ""`` named the scenario's folder,
+    and reading it raised IsADirectoryError out of the scenario loader."""
+    from ground.scenarios import load_scenario
+
+    with pytest.raises(PlanError, match="cannot read it: Is a directory"):
+        read_plan(tmp_path)
+    scenario = tmp_path / "s.toml"
+    scenario.write_text('name = "s"\nduration_s = 5.0\n[mission]\nplan = ""\n')
+    with pytest.raises(ValueError, match="cannot read it"):
+        load_scenario(scenario)
+
+
 @pytest.mark.process
 def test_ivfm_plan_uploads_a_plan_that_the_vehicle_then_holds(tmp_path, capsys):
     path = tmp_path / "mine.plan"

@@ -51,7 +51,7 @@ def test_two_lockstep_runs_log_identical_records(tmp_path):
     fly(scenario, IVFC, tmp_path / "a")
     fly(scenario, IVFC, tmp_path / "b")
     first, second = control_records(tmp_path / "a", 1), control_records(tmp_path / "b", 1)
-    assert len(first["seq"]) == 1400 and len(first["missing"]) == 0
+    assert len(first["seq"]) == 1400 and first["missing_count"] == 0
     for field, values in first.items():
         if field != "log_time_ns":  # the wall clock of arrival
             np.testing.assert_array_equal(values, second[field], err_msg=field)

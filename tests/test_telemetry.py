@@ -287,7 +287,7 @@ def test_three_vehicles_into_one_logger_separated_by_vehicle(tmp_path, session):
         assert logger.stop() == 0
     records = {v: control_records(tmp_path / "log", v) for v in (1, 2, 3)}
     for v in (1, 2, 3):
-        assert len(records[v]["seq"]) == 400 and len(records[v]["missing"]) == 0
+        assert len(records[v]["seq"]) == 400 and records[v]["missing_count"] == 0
     # 1 and 3 flew the same unperturbed flight; 2 carried 20 % more mass from t = 1 s.
     np.testing.assert_array_equal(records[1]["measurement"], records[3]["measurement"])
     assert np.max(np.abs(records[1]["measurement"] - records[2]["measurement"])) > 1e-4

@@ -39,6 +39,8 @@ def read_plan(path: Path) -> dict[int, tuple[MissionItem, ...]]:
         data = json.loads(Path(path).read_text())
     except FileNotFoundError:
         raise PlanError(f"{path}: no such file") from None
+    except OSError as exc:  # a folder (an empty name), no permission
+        raise PlanError(f"{path}: cannot read it: {exc.strerror}") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise PlanError(f"{path}: not JSON: {exc}") from None
     if not isinstance(data, dict) or data.get("fileType") != "Plan":

@@ -59,7 +59,9 @@ def _run_parser(run: argparse.ArgumentParser) -> None:
                           "south or west: --home=-33.86,151.21,40")
     run.add_argument("--controller", choices=CONTROLLERS, help="(default: the scenario's)")
     run.add_argument("--plant", choices=list(FIDELITIES), help="(default: the scenario's)")
-    run.add_argument("--out", type=Path, required=True, help="output directory (run folder)")
+    run.add_argument("--out", type=Path, default=None,
+                     help="the run folder (default: a new one under runs/ named after the "
+                          "scenario)")
     run.add_argument("--no-figures", action="store_true")
     _add_common(run)
     run.set_defaults(airframe=None)
@@ -132,7 +134,8 @@ def _compare_parser(compare: argparse.ArgumentParser) -> None:
     from ground.scenarios import PAPER_SCENARIOS
     from sitl.dynamics import FIDELITIES
 
-    compare.add_argument("--out", type=Path, required=True)
+    compare.add_argument("--out", type=Path, default=None,
+                         help="the comparison's folder (default: a new one under runs/)")
     compare.add_argument("--scenarios", nargs="+", default=list(PAPER_SCENARIOS))
     compare.add_argument("--controllers", nargs="+", default=list(CONTROLLERS))
     compare.add_argument("--plants", nargs="+", default=list(FIDELITIES))

@@ -20,6 +20,17 @@ class UsageError(Exception):
     """Bad input from the command line: reported in one line, exit code 2."""
 
 
+def fresh_folder(name: str, parent: Path = Path("runs")) -> Path:
+    """``runs/NAME-YYYYMMDD-HHMMSS`` (and ``-2``, ``-3``... if that one exists): where a
+    command writes when it is given no ``--out``, so that no run overwrites another."""
+    base = parent / time.strftime(f"{name}-%Y%m%d-%H%M%S")
+    folder, n = base, 1
+    while folder.exists():
+        n += 1
+        folder = base.with_name(f"{base.name}-{n}")
+    return folder
+
+
 def run_command(args: argparse.Namespace) -> int:
     from contracts.timeline import process_start_s
     from ground.flights import Overrides, fly_inprocess, fly_processes, plan_flight
@@ -27,6 +38,8 @@ def run_command(args: argparse.Namespace) -> int:
 
     started_s = process_start_s()
     scenario = scenario_by_name(args.scenario)
+    if args.out is None:
+        args.out = fresh_folder(scenario.name)
     plan = plan_flight(scenario, Overrides(
         controller=args.controller, plant=args.plant, airframe=args.airframe,
         sensors=args.sensors, state_source=args.state_source, parameters=dict(args.param),
@@ -38,7 +51,7 @@ def run_command(args: argparse.Namespace) -> int:
                  "the simulator's truth")
     print(f"ivfm: {scenario.name} with {plan.controller} on the {plan.plant} plant, "
           f"{plan.sensors} sensors, flying on {flying_on} ({scenario.duration_s:g} s sim, "
-          f"{how})", file=sys.stderr)
+          f"{how}); run folder {args.out}", file=sys.stderr)
     if args.inprocess:
         metrics = fly_inprocess(plan, args.out, figures=not args.no_figures)
     else:
@@ -78,7 +91,7 @@ def check_command(args: argparse.Namespace) -> int:
 
     scenarios = collect(args.paths)
     baseline = read_baseline(args.baseline) if args.baseline is not None else None
-    out = args.out or Path("runs") / time.strftime("check-%Y%m%d-%H%M%S")
+    out = args.out or fresh_folder("check")
     summary = args.summary or (Path(os.environ["GITHUB_STEP_SUMMARY"])
                                if os.environ.get("GITHUB_STEP_SUMMARY") else None)
     mode = "real time" if args.realtime else "lockstep"
@@ -111,7 +124,7 @@ def rehearse_command(args: argparse.Namespace) -> int:
     from ground.rehearsal import print_progress, rehearse, summary_lines
 
     profile = load_profile(args.profile)
-    out = args.out or Path("runs") / time.strftime("rehearse-%Y%m%d-%H%M%S")
+    out = args.out or fresh_folder("rehearse")
     print(f"ivfm rehearse: {args.airframe}, profile {profile.name} ({len(profile.flights)} "
           f"flights), control at {args.rate_hz:g} Hz; folder {out}", file=sys.stderr)
     result = rehearse(args.airframe, profile, out, model=args.model, rate_hz=args.rate_hz,
@@ -180,7 +193,7 @@ def compare_command(args: argparse.Namespace) -> int:
     parameters = validate_parameters(dict(args.param))
     models = load_models(args.model, args.airframe, args.any_airframe_model)
     return run_comparison(args.scenarios, args.controllers, args.plants, args.airframe, models,
-                          parameters, args.out)
+                          parameters, args.out or fresh_folder("compare"))
 
 
 def identify_command(args: argparse.Namespace) -> int:

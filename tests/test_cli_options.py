@@ -144,3 +144,27 @@ def test_cpu_lists_the_machine_lacks_are_refused(text, message, monkeypatch):
     monkeypatch.setattr("os.cpu_count", lambda: 2)
     with pytest.raises(argparse.ArgumentTypeError, match=re.escape(message)):
         cpu_list(text)
+
+
+def test_a_run_without_out_writes_a_fresh_folder_under_runs(tmp_path, monkeypatch, capsys):
+    """``ivfm run attitude-sine`` alone: a new folder under runs/ named after the scenario,
+    said at the start; a second run beside it (in the same second, or not) gets its own."""
+    monkeypatch.chdir(tmp_path)
+    for _ in range(2):
+        assert main(["run", "attitude-sine", "--inprocess", "--no-figures"]) == 0
+    folders = sorted((tmp_path / "runs").iterdir())
+    assert len(folders) == 2, folders
+    assert all(f.name.startswith("attitude-sine-") and (f / "metrics.json").is_file()
+               for f in folders)
+    assert "run folder runs/attitude-sine-" in capsys.readouterr().err
+
+
+def test_a_fresh_folder_never_reuses_one_that_exists(tmp_path, monkeypatch):
+    from ground.commands import fresh_folder
+
+    monkeypatch.setattr("time.strftime", lambda fmt: fmt.replace("%Y%m%d-%H%M%S", "T"))
+    first = fresh_folder("x", tmp_path)
+    assert first == tmp_path / "x-T"
+    first.mkdir()
+    (tmp_path / "x-T-2").mkdir()
+    assert fresh_folder("x", tmp_path) == tmp_path / "x-T-3"

@@ -97,8 +97,8 @@ def add_vehicle_process_arguments(parser: argparse.ArgumentParser) -> None:
                              "without it they are refused, so that nobody blows wind at or "
                              "kicks a vehicle that did not ask for it")
     parser.add_argument("--rt-cpus", type=cpu_list, metavar="LIST",
-                        help="keep the process on these CPUs (0, 0-1, 0,2): with `ivfm "
-                             "shield` on the same list, CPUs nothing else runs on "
+                        help="keep the process on these CPUs (0, 0-1, 0,2): with 'ivfm "
+                             "shield' on the same list, CPUs nothing else runs on "
                              "(docs/realtime.md)")
 
 

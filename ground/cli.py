@@ -120,8 +120,8 @@ def _rehearse_parser(p: argparse.ArgumentParser) -> None:
 
 def _add_rt_cpus(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rt-cpus", type=cpu_list, metavar="LIST",
-                   help="keep the simulator and autopilot on these CPUs (with `ivfm "
-                        "shield`: CPUs nothing else runs on; docs/realtime.md)")
+                   help="keep the simulator and autopilot on these CPUs (with 'ivfm "
+                        "shield': CPUs nothing else runs on; docs/realtime.md)")
 
 
 def _report_parser(rep: argparse.ArgumentParser) -> None:
@@ -229,7 +229,7 @@ def _build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     compiled code); without a known command, every one does."""
     args = list(sys.argv[1:] if argv is None else argv)
     named = args[0] if args and args[0] in {c[0] for c in _COMMANDS} else None
-    parser = argparse.ArgumentParser(prog="ivfm", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="ivfm", description=__doc__.splitlines()[0].replace("``", ""))
     sub = parser.add_subparsers(dest="command", required=True)
     for name, help_text, description, add_arguments in _COMMANDS:
         p = sub.add_parser(name, help=help_text, description=description)

@@ -168,3 +168,11 @@ def test_a_fresh_folder_never_reuses_one_that_exists(tmp_path, monkeypatch):
     first.mkdir()
     (tmp_path / "x-T-2").mkdir()
     assert fresh_folder("x", tmp_path) == tmp_path / "x-T-3"
+
+
+@pytest.mark.parametrize("base", COMMANDS, ids=[" ".join(b[:_depth(b)]) for b in COMMANDS])
+def test_help_reads_as_plain_text(base):
+    """No reStructuredText (``ivfm``, `name`) in what --help prints."""
+    for parser in (_build_parser(base), _subparser(base)):
+        text = parser.format_help()
+        assert "`" not in text, [line for line in text.splitlines() if "`" in line]

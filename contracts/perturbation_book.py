@@ -7,6 +7,7 @@ both answer a request the same way; a refused request changes nothing.
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 from contracts.perturbations import Perturbation, parse_request, resolve_now
@@ -29,6 +30,8 @@ class PerturbationBook:
         self._next_id = 0
 
     def handle(self, data: Any, now_s: float) -> dict[str, Any]:
+        if not math.isfinite(now_s):  # sim time; "now" from an infinite clock is no time
+            raise ValueError(f"the vehicle's clock reads {now_s!r}: no request is taken")
         if not isinstance(data, dict):
             raise ValueError("a request is a JSON object")
         data = dict(data)

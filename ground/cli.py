@@ -229,7 +229,8 @@ def _build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
     compiled code); without a known command, every one does."""
     args = list(sys.argv[1:] if argv is None else argv)
     named = args[0] if args and args[0] in {c[0] for c in _COMMANDS} else None
-    parser = argparse.ArgumentParser(prog="ivfm", description=__doc__.splitlines()[0].replace("``", ""))
+    parser = argparse.ArgumentParser(prog="ivfm",
+                                     description=__doc__.splitlines()[0].replace("``", ""))
     sub = parser.add_subparsers(dest="command", required=True)
     for name, help_text, description, add_arguments in _COMMANDS:
         p = sub.add_parser(name, help=help_text, description=description)

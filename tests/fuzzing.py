@@ -281,7 +281,8 @@ def _request_extra() -> st.SearchStrategy:
 
 
 def perturbation(book, request: Any, now_s: float) -> None:
-    """The book answers or refuses with ValueError; what it holds stays valid."""
+    """The book answers or refuses with ValueError; what it holds stays valid (whatever
+    its clock reads: the long run found an infinite one turning "now" into t = inf)."""
     from contracts.perturbations import KINDS
 
     with contextlib.suppress(ValueError):

@@ -4,6 +4,7 @@ failure reproduces). The long run is ``python tests/stress/fuzz_long.py``."""
 
 from __future__ import annotations
 
+import math
 import os
 
 import pytest
@@ -120,7 +121,7 @@ def test_fuzz_perturbation_requests(requests, now_s):
     for target in ("sitl", "autopilot"):
         book = PerturbationBook(target)
         for request in requests:
-            fz.perturbation(book, request, now_s if now_s == now_s else 0.0)
+            fz.perturbation(book, request, now_s)  # NaN and inf: refused
 
 
 @pytest.fixture(scope="module")
@@ -244,3 +245,15 @@ def test_missing_records_are_counted_without_listing_a_damaged_range():
     assert missing_count(np.array([0, 1, 2, 4, 7])) == 3
     assert missing_count(np.array([5])) == 0
     assert missing_count(np.array([0, 1, 2**62], dtype=np.uint64)) == 2**62 - 2
+
+
+def test_a_book_whose_clock_is_not_finite_takes_no_request():
+    """The long fuzz run's find: at now_s = inf, a baro drift starting "now" was taken
+    with start_s = inf."""
+    from contracts.perturbation_book import PerturbationBook
+
+    for now_s in (math.inf, -math.inf, math.nan):
+        book = PerturbationBook("autopilot")
+        with pytest.raises(ValueError, match="clock reads"):
+            book.handle({"kind": "baro_drift", "rate_mps": 0.0, "start_s": "now"}, now_s)
+        assert book.entries == []

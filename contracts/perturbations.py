@@ -282,7 +282,7 @@ def parse_request(data: Any, default_id: str = "") -> Perturbation:
     if not isinstance(data, dict):
         raise ValueError(f"a perturbation is a table of fields, got {type(data).__name__}")
     kind_name = data.get("kind")
-    if kind_name not in KINDS:
+    if not isinstance(kind_name, str) or kind_name not in KINDS:  # [] is not hashable
         raise ValueError(f"unknown perturbation kind {kind_name!r}; known: "
                          f"{', '.join(KINDS)}")
     kind = KINDS[kind_name]

@@ -257,3 +257,13 @@ def test_a_book_whose_clock_is_not_finite_takes_no_request():
         with pytest.raises(ValueError, match="clock reads"):
             book.handle({"kind": "baro_drift", "rate_mps": 0.0, "start_s": "now"}, now_s)
         assert book.entries == []
+
+
+def test_a_request_whose_kind_is_not_text_is_refused():
+    """The long fuzz run's find: {"kind": []} raised TypeError (unhashable) out of the
+    book, past the processes' handlers, which catch ValueError."""
+    from contracts.perturbation_book import PerturbationBook
+
+    for kind in ([], {}, 1, None):
+        with pytest.raises(ValueError, match="unknown perturbation kind"):
+            PerturbationBook("sitl").handle({"kind": kind}, 0.0)

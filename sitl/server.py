@@ -261,6 +261,9 @@ class Simulator(PacedProcess):
             except ValueError as exc:
                 self.log(f"refused {request.topic} request: {exc}")
                 request.reply(False, error=str(exc))
+            except Exception as exc:  # noqa: BLE001 (a defect here must not end the loop)
+                self.log(f"refused {request.topic} request on an internal error: {exc!r}")
+                request.reply(False, error=f"internal error: {type(exc).__name__}")
 
     def _answer_request(self, request: Request) -> None:
         if request.topic == "start":

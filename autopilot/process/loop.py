@@ -203,6 +203,10 @@ class Autopilot(PacedProcess):
                 self.log(f"refused {request.topic} request: {exc}")
                 request.reply(False, error=str(exc))
                 continue
+            except Exception as exc:  # noqa: BLE001 (a defect here must not end the loop)
+                self.log(f"refused {request.topic} request on an internal error: {exc!r}")
+                request.reply(False, error=f"internal error: {type(exc).__name__}")
+                continue
             self.log(f"perturbation request answered: {answer}")
             request.reply(True, sim_time_us=round(now_s * 1e6), **answer)
 

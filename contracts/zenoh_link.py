@@ -322,6 +322,17 @@ class Request:
             pass  # the asker has gone: nothing to tell
         self.answered.set()
 
+    def refuse(self, exc: Exception, log: Callable[[str], None]) -> None:
+        """Refuse with the reason: a ValueError's message (bad input), or any other
+        exception as an internal error, so that a defect in a handler refuses one request
+        instead of ending the process's loop. Said in the process's log too."""
+        if isinstance(exc, ValueError):
+            log(f"refused {self.topic} request: {exc}")
+            self.reply(False, error=str(exc))
+        else:
+            log(f"refused {self.topic} request on an internal error: {exc!r}")
+            self.reply(False, error=f"internal error: {type(exc).__name__}")
+
 
 # Bounds on what askers can queue in a vehicle process (the loop answers a few per step).
 MAX_REQUEST_BYTES = 64 * 1024

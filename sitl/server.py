@@ -258,12 +258,8 @@ class Simulator(PacedProcess):
                 return
             try:
                 self._answer_request(request)
-            except ValueError as exc:
-                self.log(f"refused {request.topic} request: {exc}")
-                request.reply(False, error=str(exc))
-            except Exception as exc:  # noqa: BLE001 (a defect here must not end the loop)
-                self.log(f"refused {request.topic} request on an internal error: {exc!r}")
-                request.reply(False, error=f"internal error: {type(exc).__name__}")
+            except Exception as exc:  # noqa: BLE001 (bad input, or a defect: refused)
+                request.refuse(exc, self.log)
 
     def _answer_request(self, request: Request) -> None:
         if request.topic == "start":

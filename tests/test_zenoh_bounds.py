@@ -53,3 +53,35 @@ def test_pending_requests_and_payload_sizes_are_bounded():
     finally:
         asker.close()
         node.close()
+
+
+def test_a_refused_request_says_why_and_a_defect_is_an_internal_error():
+    """Request.refuse, as both vehicle loops use it: a ValueError's reason goes back to the
+    asker; any other exception (a defect in a handler) is refused as an internal error
+    instead of ending the loop. Both are said in the process's log."""
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    said: list[str] = []
+    node = TelemetryNode(ZenohOptions(listen=[endpoint]), 1, "sitl", log=lambda text: None)
+    node.serve("perturb")
+    asker = open_session(ZenohOptions(connect=[endpoint]))
+    key = vehicle_key(1, "sitl", "perturb")
+    try:
+        answers = []
+        for exc in (ValueError("unknown perturbation kind 'x'"), TypeError("unhashable")):
+            replies = None
+            deadline = time.monotonic() + 5.0
+            while node.requests.qsize() == 0 and time.monotonic() < deadline:  # route up
+                replies = asker.get(key, payload=b'{"kind": "x"}', timeout=2.0)
+                time.sleep(0.02)
+            node.requests.get_nowait().refuse(exc, said.append)
+            while not node.requests.empty():  # asked again while the route came up
+                node.requests.get_nowait().refuse(exc, lambda text: None)
+            answers.append(_answers(replies)[0])
+        assert answers[0] == {"ok": False, "error": "unknown perturbation kind 'x'"}
+        assert answers[1] == {"ok": False, "error": "internal error: TypeError"}
+        assert said == ["refused perturb request: unknown perturbation kind 'x'",
+                        "refused perturb request on an internal error: "
+                        "TypeError('unhashable')"]
+    finally:
+        asker.close()
+        node.close()

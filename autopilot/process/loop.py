@@ -199,13 +199,8 @@ class Autopilot(PacedProcess):
             now_s = self.vehicle.sim_t_s
             try:
                 answer = self.vehicle.perturbations.handle(request.data, now_s)
-            except ValueError as exc:
-                self.log(f"refused {request.topic} request: {exc}")
-                request.reply(False, error=str(exc))
-                continue
-            except Exception as exc:  # noqa: BLE001 (a defect here must not end the loop)
-                self.log(f"refused {request.topic} request on an internal error: {exc!r}")
-                request.reply(False, error=f"internal error: {type(exc).__name__}")
+            except Exception as exc:  # noqa: BLE001 (bad input, or a defect: refused)
+                request.refuse(exc, self.log)
                 continue
             self.log(f"perturbation request answered: {answer}")
             request.reply(True, sim_time_us=round(now_s * 1e6), **answer)

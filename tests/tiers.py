@@ -67,8 +67,10 @@ def install() -> None:
     if _ORIGINALS:
         return
     # Libraries that start a process once, when first imported (numpy.testing runs lscpu
-    # to probe the CPU; scipy imports it): imported here, before the guard, so that the
+    # to probe the CPU; scipy imports it; matplotlib's font manager runs fc-list to build
+    # its font cache on a fresh machine): imported here, before the guard, so that the
     # first test to import them lazily is not refused for it.
+    import matplotlib.font_manager  # noqa: F401
     import numpy.testing  # noqa: F401
 
     _ORIGINALS.append((subprocess.Popen, "__init__", subprocess.Popen.__init__))

@@ -161,7 +161,7 @@ def run(args: argparse.Namespace) -> int:
                              duration_s=args.duration, sysid=check_vehicle_id(args.sysid),
                              rt_priority=args.rt_priority,
                              zenoh=zenoh_options_from_args(args), home=args.home,
-                             perturbations=args.perturbations)
+                             perturbations=args.perturbations, airframe=args.airframe)
     airframe = airframe_by_name(args.airframe)
     # The airframe file's own defaults, then the command line's.
     parameters = validate_parameters({**airframe_parameters(args.airframe), **dict(args.param)})

@@ -10,6 +10,8 @@ key                                    encoding  what
 ``ivfm/vehicle/V/autopilot/timing``    CDR       loop period, compute time, misses, each step
 ``ivfm/vehicle/V/{proc}/perturbation`` JSON      a perturbation took effect / ended
 ``ivfm/vehicle/V/{proc}/status``       JSON      1 Hz (wall) and final: counters per topic
+``ivfm/vehicle/V/autopilot/scene``     JSON      what to draw: airframe, home, mission, fence,
+                                                 rally (on change and 1 Hz wall)
 ``mavlink/V/C/MSG``                    MAVLink   raw MAVLink 2 frames the autopilot produced
 ``ivfm/vehicle/V/{proc}/perturb``      query     perturbation requests (acknowledged)
 ``ivfm/vehicle/V/sitl/start``          query     release a held lockstep simulator
@@ -240,7 +242,7 @@ CDR_TOPICS: dict[tuple[str, str], RecordSchema] = {
     (SITL, "state"): STATE, (AUTOPILOT, "control"): CONTROL, (AUTOPILOT, "timing"): TIMING,
     (AUTOPILOT, "estimate"): ESTIMATE,
 }
-JSON_TOPICS = ("status", "perturbation")
+JSON_TOPICS = ("status", "perturbation", "scene")
 
 # Record modes by index (contracts.mavlink.FlightMode order) and flag bits.
 FLAG_ARMED, FLAG_FAILSAFE = 1, 4

@@ -31,6 +31,7 @@ def _run_parser(run: argparse.ArgumentParser) -> None:
     from autopilot.control.factory import CONTROLLERS
     from contracts.frames import home_argument
     from contracts.mavlink import STATE_SOURCES
+    from ground.live_view import view_address
     from ground.scenarios import shipped_names
     from sitl.dynamics import FIDELITIES
     from sitl.sensors import profile_argument
@@ -44,6 +45,9 @@ def _run_parser(run: argparse.ArgumentParser) -> None:
     run.add_argument("--rate-hz", type=RATE_HZ, default=100.0,
                      help="control rate, 1-1000 Hz (default 100)")
     _add_rt_cpus(run)
+    run.add_argument("--view", type=view_address, metavar="[HOST:]PORT",
+                     help="serve the flight live to Foxglove on this WebSocket port while it "
+                          "flies (e.g. 8765; docs/telemetry.md#foxglove)")
     run.add_argument("--state-source", choices=list(STATE_SOURCES),
                      help="what the autopilot flies on: the simulator's truth (auto, odometry, "
                           "hil-state) or its estimator on the sensors (default: the "
@@ -243,6 +247,7 @@ def _ground_parsers(ground: argparse.ArgumentParser) -> None:
     from contracts.perturbations import KINDS
     from contracts.telemetry import AUTOPILOT, DEFAULT_GROUND_ENDPOINT, DEFAULT_PORT, SITL
     from contracts.zenoh_link import add_security_arguments, add_zenoh_arguments
+    from ground.live_view import DEFAULT_VIEW_PORT, add_view_arguments, view_address
 
     sub = ground.add_subparsers(dest="ground_command", required=True)
     log = sub.add_parser("log", help="record all telemetry to MCAP (docs/telemetry.md)")
@@ -259,7 +264,24 @@ def _ground_parsers(ground: argparse.ArgumentParser) -> None:
                      default=512,
                      help="... or past this many chunks (bounds the logger's memory)")
     log.add_argument("--compression", default="zstd", choices=["zstd", "lz4", "none"])
+    log.add_argument("--view", type=view_address, metavar="[HOST:]PORT",
+                     help="also serve the flight live to Foxglove on this WebSocket port "
+                          f"(e.g. {DEFAULT_VIEW_PORT})")
+    add_view_arguments(log)
+    log.add_argument("--no-foxglove", action="store_true",
+                     help="write only the records, not what Foxglove draws beside them")
     add_zenoh_arguments(log, [DEFAULT_GROUND_ENDPOINT], [])
+
+    view = sub.add_parser("view", help="the flight live in Foxglove (WebSocket)",
+                          description="Serves the telemetry of every vehicle heard over "
+                                      "Zenoh to Foxglove (open connection, Foxglove "
+                                      "WebSocket, ws://HOST:PORT; docs/telemetry.md#foxglove)."
+                                      " A slow or absent viewer never slows the vehicles.")
+    view.add_argument("--view", type=view_address, default=("127.0.0.1", DEFAULT_VIEW_PORT),
+                      metavar="[HOST:]PORT",
+                      help=f"where to serve it (default 127.0.0.1:{DEFAULT_VIEW_PORT})")
+    add_view_arguments(view)
+    add_zenoh_arguments(view, [], [DEFAULT_GROUND_ENDPOINT])
 
     kinds = "; ".join(f"{k}: {', '.join(v.params) or '-'} ({v.target})"
                       for k, v in KINDS.items())
@@ -322,6 +344,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             "check": commands.check_command,
             "rehearse": commands.rehearse_command,
             "ground log": commands.ground_log_command,
+            "ground view": commands.ground_view_command,
             "ground perturb": commands.ground_perturb_command,
             "ground router": commands.ground_router_command,
             "ground certs": commands.ground_certs_command,

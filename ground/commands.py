@@ -52,6 +52,8 @@ def run_command(args: argparse.Namespace) -> int:
     print(f"ivfm: {scenario.name} with {plan.controller} on the {plan.plant} plant, "
           f"{plan.sensors} sensors, flying on {flying_on} ({scenario.duration_s:g} s sim, "
           f"{how}); run folder {args.out}", file=sys.stderr)
+    if args.inprocess and args.view is not None:
+        raise UsageError("--view serves the telemetry of the processes: not with --inprocess")
     if args.inprocess:
         metrics = fly_inprocess(plan, args.out, figures=not args.no_figures)
     else:
@@ -61,8 +63,11 @@ def run_command(args: argparse.Namespace) -> int:
         # code while the others load theirs and the run folder is prepared.
         warm = WarmProcesses(start=True)
         try:
+            if args.view is not None:
+                print(f"ivfm: live view on ws://{args.view[0]}:{args.view[1]} (Foxglove: "
+                      "open connection, Foxglove WebSocket)", file=sys.stderr)
             metrics = fly_processes(plan, args.out, figures=not args.no_figures, warm=warm,
-                                    started_s=started_s)
+                                    started_s=started_s, view=args.view)
         finally:
             warm.close()
         telemetry = metrics["telemetry"]
@@ -304,8 +309,25 @@ def ground_log_command(args: argparse.Namespace) -> int:
                           prefix=args.prefix, chunk_bytes=args.chunk_kib * 1024,
                           flush_period_s=args.flush_s, rotate_bytes=args.rotate_mib * 2**20,
                           rotate_chunks=args.rotate_chunks,
-                          compression=args.compression)
-    return Logger(config).run()
+                          compression=args.compression, foxglove=not args.no_foxglove,
+                          view_rate_hz=args.view_rate_hz)
+    if args.view is None:
+        return Logger(config).run()
+    from ground.live_view import LiveView
+
+    live = LiveView(*args.view)
+    print(f"logger: serving the live view on {live.url}", file=sys.stderr, flush=True)
+    try:
+        return Logger(config, live=live.publish).run()
+    finally:
+        live.close()
+
+
+def ground_view_command(args: argparse.Namespace) -> int:
+    from contracts.zenoh_link import zenoh_options_from_args
+    from ground.live_view import serve_view
+
+    return serve_view(zenoh_options_from_args(args), *args.view, rate_hz=args.view_rate_hz)
 
 
 def _perturb_value(text: str) -> Any:

@@ -95,11 +95,13 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
 
 def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
                   quiet: bool = False, warm: WarmProcesses | None = None,
-                  started_s: float | None = None) -> dict[str, Any]:
+                  started_s: float | None = None,
+                  view: tuple[str, int] | None = None) -> dict[str, Any]:
     """Fly through the processes into ``out_dir`` (run.json, scenario copy, log, process
     logs); returns metrics.json's content. ``quiet``: no progress on stderr; ``warm``:
     runs of these warm processes (ground/processes.py) instead of new processes;
-    ``started_s``: when the command started (time.monotonic), for the run's timeline."""
+    ``started_s``: when the command started (time.monotonic), for the run's timeline;
+    ``view``: (host, port) of a live view the logger serves."""
     from ground import run_timeline
     from ground.processes import RunSettings, run_processes
     from ground.run_files import RUN_FILE, SCENARIO_FILE, write_json
@@ -112,7 +114,7 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
                            seed=plan.seed, any_airframe_model=plan.any_airframe_model,
                            home=plan.home, rt_cpus=plan.rt_cpus)
     accounting = run_processes(scenario, settings, out_dir, quiet=quiet, warm=warm,
-                               started_s=started_s)
+                               started_s=started_s, view=view)
     timing = accounting.pop("timing")
     shutil.copyfile(scenario.source, out_dir / SCENARIO_FILE)
     if scenario.plan is not None and scenario.plan.is_relative_to(scenario.source.parent):

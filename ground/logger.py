@@ -14,6 +14,9 @@
   so the chunk cap is what keeps the logger's memory flat over a long run.
 * A record that does not fit its key's schema is refused (counted, reported on stderr and
   in the status reply), not written.
+* Beside the records, what Foxglove draws (``ground/foxglove_view.py``: transforms, the
+  scene, the path, plot-ready controller and estimator channels, the vehicle's texts as
+  logs), decimated on sim time; the same messages go to a live view when one is attached.
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ from contracts.telemetry import (
     schema_for_key,
 )
 from contracts.zenoh_link import ZenohOptions, open_session
+from ground.foxglove_view import FoxgloveView, Output, encode, json_schema
 from ground.run_files import iter_messages
 
 ACTIVE_SUFFIX = ".mcap.active"
@@ -76,6 +80,8 @@ class LoggerConfig:
     rotate_bytes: int = 512 * 1024 * 1024
     rotate_chunks: int = 512  # ~0.7 MB of chunk index; at 4 chunks/s, a file per 2 min
     compression: str = "zstd"
+    foxglove: bool = True  # write what Foxglove draws beside the records
+    view_rate_hz: float = 50.0  # ... decimated to this rate of sim time
 
     def __post_init__(self) -> None:
         for label, value in (("name", self.name), ("prefix", self.prefix)):
@@ -128,6 +134,8 @@ class Counters:
     last_error: str = ""
     keys_over_limit: int = 0  # records refused on a new key past MAX_KEYS (or too long)
     inbox_dropped: int = 0  # records dropped with MAX_INBOX waiting (the writer behind)
+    view_messages: int = 0  # Foxglove messages written beside the records
+    view_refused: int = 0  # records whose content the view could not draw (said, skipped)
     write_error: str = ""  # the disk refused a write (full): logging stopped
     unwritten: int = 0  # records that came after it
     files: list[str] = field(default_factory=list)
@@ -166,6 +174,25 @@ class McapFile:
             schema_id, encoding = 0, "application/octet-stream"
         channel_id = self.writer.register_channel(key, encoding, schema_id)
         self.channels[key] = channel_id
+        return channel_id
+
+    def view_channel(self, output: Output) -> int:
+        """The channel of a Foxglove topic: protobuf with Foxglove's schema, or JSON with
+        a schema naming the record's fields."""
+        channel_id = self.channels.get(output.topic)
+        if channel_id is not None:
+            return channel_id
+        message = output.message
+        if isinstance(message, dict):
+            schema_id = self._schema(f"ivfm.view{output.topic.replace('/', '.')}",
+                                     "jsonschema", json.dumps(json_schema(message)).encode())
+            encoding = "json"
+        else:
+            schema = type(message).get_schema()
+            schema_id = self._schema(schema.name, schema.encoding, bytes(schema.data))
+            encoding = schema.encoding
+        channel_id = self.writer.register_channel(output.topic, encoding, schema_id)
+        self.channels[output.topic] = channel_id
         return channel_id
 
     def _schema(self, name: str, encoding: str, data: bytes) -> int:
@@ -254,8 +281,12 @@ def salvage(active_path: Path, log: Callable[[str], None] = print) -> Path:
 
 
 class Logger:
-    def __init__(self, config: LoggerConfig, log: Callable[[str], None] | None = None) -> None:
+    def __init__(self, config: LoggerConfig, log: Callable[[str], None] | None = None,
+                 live: Callable[[Output], None] | None = None) -> None:
         self.config = config
+        self.view = (FoxgloveView(config.view_rate_hz)
+                     if config.foxglove or live is not None else None)
+        self.live = live  # a live view's publish (ground/live_view.py), or None
         self.log = log or (lambda text: print(f"logger: {text}", file=sys.stderr, flush=True))
         self.counters = Counters()
         self._inbox: collections.deque[tuple[str, bytes, bytes | None, int]] = \
@@ -365,6 +396,32 @@ class Logger:
             return
         c.records += 1
         c.per_key[key] += 1
+        if self.view is not None:
+            self._draw(key, payload, attachment, log_time_ns)
+
+    def _draw(self, key: str, payload: bytes, attachment: bytes | None,
+              log_time_ns: int) -> None:
+        """What Foxglove draws of this record, into the file and to the live view."""
+        c = self.counters
+        try:
+            outputs = self.view.feed(key, payload, attachment)
+        except (ValueError, TypeError, KeyError) as exc:
+            c.view_refused += 1
+            self._refuse_view(key, str(exc))
+            return
+        f = self._file
+        for output in outputs:
+            if self.live is not None:
+                self.live(output)
+            if not self.config.foxglove:
+                continue
+            try:
+                f.add(f.view_channel(output), log_time_ns, output.sim_time_ns, 0,
+                      encode(output.message))
+            except OSError as exc:
+                self._write_failed(exc)
+                return
+            c.view_messages += 1
 
     def _check(self, key: str, schema: RecordSchema | str | None, payload: bytes,
                attachment: bytes | None) -> tuple[int, int]:
@@ -403,6 +460,13 @@ class Logger:
             self.log(f"refused a record on {key}: {reason} "
                      f"({c.rejected_per_key[key]} so far on this key)")
 
+    def _refuse_view(self, key: str, reason: str) -> None:
+        now = time.monotonic()
+        if now - self._warned.get("view " + key, -10.0) > 5.0:
+            self._warned["view " + key] = now
+            self.log(f"cannot draw a record on {key}: {reason} (logged as it came; "
+                     f"{self.counters.view_refused} so far)")
+
     def status(self) -> dict[str, Any]:
         c = self.counters
         return {"name": self.config.name, "records": c.records, "rejected": c.rejected,
@@ -410,6 +474,7 @@ class Logger:
                 "last_error": c.last_error, "heard": c.heard,
                 "keys_over_limit": c.keys_over_limit, "inbox_dropped": c.inbox_dropped,
                 "write_error": c.write_error, "unwritten": c.unwritten,
+                "view_messages": c.view_messages, "view_refused": c.view_refused,
                 "file": str(self._file.active_path) if self._file else None,
                 "finished_files": c.files}
 

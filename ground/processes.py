@@ -311,10 +311,12 @@ def clear_run_folder(out_dir: Path) -> None:
 
 def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
                   quiet: bool = False, warm: WarmProcesses | None = None,
-                  started_s: float | None = None) -> dict[str, Any]:
+                  started_s: float | None = None,
+                  view: tuple[str, int] | None = None) -> dict[str, Any]:
     """Fly ``scenario`` through the processes; returns the telemetry accounting (records
     published and logged per key) and the autopilot's timing summary. ``quiet``: no
-    progress on stderr; ``warm``: runs of warm processes instead of new ones. Every
+    progress on stderr; ``warm``: runs of warm processes instead of new ones; ``view``:
+    (host, port) where the logger serves the flight live to Foxglove. Every
     process marks its phases into the run folder's ``timeline.json``, from ``started_s``
     (when the command started, on time.monotonic; default: now)."""
     clear_run_folder(out_dir)
@@ -328,7 +330,8 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
     gcs_port = free_udp_port() if scenario.ground_station is not None else 0
     sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint, gcs_port)
     ground_station = None
-    logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm, env=env)
+    logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm, env=env,
+                           extra=["--view", f"{view[0]}:{view[1]}"] if view else None)
     run_timeline.mark(out_dir, "logger started")
     procs: dict[str, subprocess.Popen | WarmProcess] = {}
     outs = []
@@ -455,11 +458,12 @@ def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen | WarmProc
         sub.undeclare()
 
 
-def fly(scenario: Scenario, settings: RunSettings, out_dir: Path):
+def fly(scenario: Scenario, settings: RunSettings, out_dir: Path,
+        view: tuple[str, int] | None = None):
     """Run the processes and read the run back from its log: (RunRecord, accounting)."""
     from ground.run_files import record_from_log
 
-    accounting = run_processes(scenario, settings, out_dir)
+    accounting = run_processes(scenario, settings, out_dir, view=view)
     record = record_from_log(out_dir, settings.vehicle, scenario, settings.controller,
                              settings.plant, settings.rate_hz,
                              with_truth=settings.state_source == "estimator")

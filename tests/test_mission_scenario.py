@@ -4,28 +4,46 @@ of ground/metrics.py."""
 
 from __future__ import annotations
 
+import base64
 import json
+import threading
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
+from mcap.records import Schema
+from mcap_protobuf.decoder import DecoderFactory
 
+from autopilot.navigator.plan_file import read_plan
+from contracts.frames import DEFAULT_HOME
 from ground.metrics import compute_metrics, distance_to_path
-from ground.processes import RunSettings, fly
+from ground.processes import RunSettings, fly, free_tcp_port
+from ground.run_files import log_files
 from ground.scenarios import load_scenario, scenario_by_name
+from tests.foxglove_client import collect
 
 
 @pytest.fixture(scope="module")
 def six_waypoint_runs(tmp_path_factory):
-    """The shipped six-waypoint mission flown twice."""
+    """The shipped six-waypoint mission flown twice; the first with a Foxglove viewer
+    connected to the live view all along (tests/foxglove_client.py)."""
     scenario = scenario_by_name("mission-six-waypoints")
     settings = RunSettings("ivfc", scenario.plant, scenario.airframe)
     out = tmp_path_factory.mktemp("missions")
-    return scenario, fly(scenario, settings, out / "a")[0], fly(scenario, settings, out / "b")[0]
+    port = free_tcp_port()
+    viewer: dict = {}
+    watch = threading.Thread(target=lambda: viewer.update(
+        received=collect(f"ws://127.0.0.1:{port}", seconds=300.0)), daemon=True)
+    watch.start()
+    a = fly(scenario, settings, out / "a", view=("127.0.0.1", port))[0]
+    watch.join(timeout=30.0)
+    b = fly(scenario, settings, out / "b")[0]
+    return scenario, a, b, out / "a", viewer.get("received")
 
 
 @pytest.mark.process
 def test_six_waypoints_at_5_mps_in_lockstep(six_waypoint_runs):
-    scenario, record, _ = six_waypoint_runs
+    scenario, record, *_ = six_waypoint_runs
     metrics = compute_metrics(record, scenario, "paper")
     path = metrics["path"]
     assert path["all_reached"] and path["items"] == [0, 1, 2, 3, 4, 5, 6]
@@ -44,9 +62,89 @@ def test_six_waypoints_at_5_mps_in_lockstep(six_waypoint_runs):
 
 @pytest.mark.process
 def test_a_mission_repeats_bit_for_bit_in_lockstep(six_waypoint_runs):
-    _, a, b = six_waypoint_runs
+    _, a, b, *_ = six_waypoint_runs  # a with a viewer connected, b without
     np.testing.assert_array_equal(a.measurement, b.measurement)
     np.testing.assert_array_equal(a.motor_commands, b.motor_commands)
+
+
+def _planned_waypoints(scenario) -> np.ndarray:
+    """The plan's six waypoints (between the take-off and the landing, which are drawn
+    where the vehicle is) north and east of the run's home [m]."""
+    items = read_plan(scenario.plan)[0][1:-1]
+    home = scenario.home or DEFAULT_HOME
+    return np.array([home.ned_from_geodetic(i.x * 1e-7, i.y * 1e-7, home.alt_amsl_m)[:2]
+                     for i in items])
+
+
+def _scene_waypoints(scene) -> np.ndarray:
+    mission = next(e for e in scene.entities if e.id == "mission")
+    assert [t.text for t in mission.texts] == [str(i) for i in range(8)]  # item numbers
+    return np.array([(s.pose.position.x, s.pose.position.y) for s in mission.spheres])[1:-1]
+
+
+@pytest.mark.process
+def test_the_live_view_serves_the_mission_flight_to_a_foxglove_client(six_waypoint_runs):
+    scenario, record, _, _, received = six_waypoint_runs
+    assert received is not None and received.server_info["name"] == "ivfm-sitl"
+    schemas = {c["topic"]: c["schemaName"] for c in received.channels.values()}
+    assert schemas == {
+        "/tf": "foxglove.FrameTransforms", "/vehicle1/scene": "foxglove.SceneUpdate",
+        "/vehicle1/path": "foxglove.PosesInFrame",
+        "/vehicle1/reference_path": "foxglove.PosesInFrame",
+        "/vehicle1/reference": "foxglove.PoseInFrame", "/log": "foxglove.Log",
+        "/vehicle1/controller": "ivfm.view.vehicle1.controller",
+        "/vehicle1/tracking": "ivfm.view.vehicle1.tracking"}
+    # Rates in sim time (the view decimates on it): transforms and plots at 50 Hz, the
+    # path at 2 Hz, without a gap to the flight's end. (A channel is advertised with its
+    # first message; what comes before the viewer's subscription reaches it is not sent:
+    # in lockstep at about 9x real time, up to a second of sim time.)
+    for topic, hz in (("/tf", 50), ("/vehicle1/controller", 50), ("/vehicle1/path", 2)):
+        stamps = np.array([t for t, _ in received.messages[topic]]) / 1e9
+        assert stamps[0] < 5.0 and stamps[-1] > 79.0, topic
+        assert np.diff(stamps) == pytest.approx(1 / hz, abs=1e-6), topic
+    # The scene update carries the mission's waypoints where the plan puts them.
+    channel = next(c for c in received.channels.values() if c["topic"] == "/vehicle1/scene")
+    decoder = DecoderFactory().decoder_for("protobuf", Schema(
+        id=1, name=channel["schemaName"], encoding="protobuf",
+        data=base64.b64decode(channel["schema"])))
+    scenes = [decoder(payload) for _, payload in received.messages["/vehicle1/scene"]]
+    np.testing.assert_allclose(_scene_waypoints(scenes[-1]), _planned_waypoints(scenario),
+                               atol=1e-3)
+    # Plot-ready internals: the mission flown armed, disarmed on landing at its end.
+    controller = [json.loads(p) for _, p in received.messages["/vehicle1/controller"]]
+    assert {c["mode"] for c in controller} == {"MISSION"}
+    assert controller[0]["armed"] and not controller[-1]["armed"]
+    assert set(controller[0]["phi"]) >= {"reference", "measured", "error", "sliding_surface",
+                                         "f_hat", "u_eq", "u_s", "control", "theta_g"}
+
+
+@pytest.mark.process
+def test_the_log_holds_foxgloves_scene_transforms_and_path(six_waypoint_runs):
+    scenario, record, _, folder, _ = six_waypoint_runs
+    decoded: dict[str, list] = {}
+    with open(log_files(folder)[0], "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for schema, channel, message, proto in reader.iter_decoded_messages(
+                topics=["/tf", "/vehicle1/scene", "/vehicle1/path"]):
+            decoded.setdefault(schema.name, []).append((message.publish_time, proto))
+    assert set(decoded) == {"foxglove.FrameTransforms", "foxglove.SceneUpdate",
+                            "foxglove.PosesInFrame"}
+    # The body's transform is the truth the autopilot flew on at the same sim time (as
+    # ODOMETRY's float32 carried it).
+    t_ns, tf = decoded["foxglove.FrameTransforms"][1000]
+    body = next(t for t in tf.transforms if t.child_frame_id == "vehicle1")
+    assert body.parent_frame_id == "ned"
+    i = int(np.searchsorted(record.sim_time_us, t_ns // 1000))
+    assert record.sim_time_us[i] * 1000 == t_ns == 20_000_000_000
+    np.testing.assert_allclose([body.translation.x, body.translation.y, body.translation.z],
+                               record.measurement[i, 0:3], atol=1e-5)
+    assert {t.child_frame_id for t in tf.transforms} == {
+        "ned", "vehicle1", *(f"vehicle1/rotor{k}" for k in range(1, 5))}
+    _, scene = decoded["foxglove.SceneUpdate"][-1]
+    np.testing.assert_allclose(_scene_waypoints(scene), _planned_waypoints(scenario),
+                               atol=1e-3)
+    _, path = decoded["foxglove.PosesInFrame"][-1]
+    assert path.frame_id == "ned" and len(path.poses) == 600  # the last 60 s at 10 Hz
 
 
 def test_the_cross_track_of_a_path_is_the_distance_to_its_nearest_leg():

@@ -37,6 +37,7 @@ from autopilot.process.telemetry import TelemetryPublisher
 from autopilot.process.warm_up import load_compiled_code
 from autopilot.refusal import RefusedError
 from contracts import timeline
+from contracts.airframe_file import read_airframe
 from contracts.arguments import CONTROL_RATE_RANGE_HZ
 from contracts.frames import Home
 from contracts.mavlink import (
@@ -76,6 +77,7 @@ class AutopilotConfig:
     rt_priority: int = 50  # SCHED_FIFO priority of the real-time loop (0: normal)
     zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(enabled=False))
     home: Home | None = None  # None: the simulator's first position, as PX4 takes it
+    airframe: str = ""  # shipped name or file: drawn by viewers (the scene record)
 
     def __post_init__(self) -> None:
         low, high = CONTROL_RATE_RANGE_HZ
@@ -89,6 +91,14 @@ class AutopilotConfig:
         if self.state_source not in STATE_SOURCES:
             raise ValueError(f"unknown state source {self.state_source!r}; known: "
                              f"{', '.join(STATE_SOURCES)}")
+
+
+def airframe_rotors(airframe: str) -> tuple[str, tuple[tuple[float, ...], ...]] | None:
+    """The airframe's name and rotors (x, y, z [m] body FRD, spin) for the scene record."""
+    if not airframe:
+        return None
+    spec = read_airframe(airframe)
+    return spec.name, tuple((*r.position_m, r.spin) for r in spec.rotors)
 
 
 class Autopilot(PacedProcess):
@@ -118,7 +128,8 @@ class Autopilot(PacedProcess):
         self.node = TelemetryNode(config.zenoh, config.sysid, AUTOPILOT, self.log)
         self.telemetry = TelemetryPublisher(self.node, config.sysid, vehicle, ground,
                                             self.timing, self.navigation.estimator,
-                                            config.lockstep, self.log)
+                                            config.lockstep, self.log,
+                                            airframe_rotors(config.airframe))
         self.node.serve("perturb", None if config.perturbations else PERTURBATIONS_OFF)
         self.steps = 0
         self.max_steps = (math.inf if math.isinf(config.duration_s)

@@ -3,7 +3,9 @@
 Each control step: the control record (the controller's internals), the timing record,
 the estimate record (on the estimator), perturbation events as they happen, and the
 MAVLink mirror: the motor command, a few telemetry streams on sim time, and the
-announcements and acknowledgements sent to ground tools; once a second, the status.
+announcements and acknowledgements sent to ground tools; once a second, the status and
+the scene (what a viewer draws: airframe, home, mission, fence, rally), and the scene
+again whenever the mission lists or home change.
 The control loop says when; this class knows what goes into each record.
 """
 
@@ -17,6 +19,9 @@ import numpy as np
 from autopilot.commander.commander import Commander
 from autopilot.estimation.estimator import Estimator, EstimatorStatus
 from autopilot.mavlink.server import MavlinkServer
+from autopilot.navigator.geofence import zones_from_items
+from autopilot.navigator.mission_runner import item_position_ned
+from autopilot.navigator.mission_store import FENCE, MISSION, RALLY, WITHOUT_POSITION
 from contracts.mavlink import AUTOPILOT_COMPID, mavlink, new_mavlink
 from contracts.modes import FlightMode
 from contracts.realtime import LoopTiming
@@ -31,7 +36,7 @@ from contracts.telemetry import (
     TIMING,
     json_record,
 )
-from contracts.vectors import CHANNEL_INTERNALS
+from contracts.vectors import CHANNEL_INTERNALS, MEASUREMENT
 from contracts.zenoh_link import TelemetryNode
 
 MODE_INDEX = {mode: i for i, mode in enumerate(FlightMode)}
@@ -52,7 +57,9 @@ class TelemetryPublisher:
 
     def __init__(self, node: TelemetryNode, sysid: int, vehicle: Commander,
                  ground: MavlinkServer, timing: LoopTiming, estimator: Estimator | None,
-                 lockstep: bool, log: Callable[[str], None]) -> None:
+                 lockstep: bool, log: Callable[[str], None],
+                 airframe_rotors: tuple[tuple[str, tuple[tuple[float, ...], ...]], ...] | None
+                 = None) -> None:
         self.node = node
         self.sysid = sysid
         self.vehicle = vehicle
@@ -73,6 +80,11 @@ class TelemetryPublisher:
         self._mirror_mav = new_mavlink(sysid, AUTOPILOT_COMPID)
         self._mirror_due_us = [0] * len(MIRROR_STREAMS_US)
         self._previous_control_wall: float | None = None
+        self.scene_pub = node.publisher("scene")
+        self._airframe = ({"name": airframe_rotors[0],
+                           "rotors": [list(r) for r in airframe_rotors[1]]}
+                          if airframe_rotors else {"name": "", "rotors": []})
+        self._scene_of: tuple | None = None  # the lists and home the last scene drew
         if node.enabled:
             ground.on_sent = self.mirror_tool_message
             # Declared now: a first declaration inside the loop would cost a deadline.
@@ -150,12 +162,65 @@ class TelemetryPublisher:
             self.node.mirror(self.sysid, AUTOPILOT_COMPID, kind, frame,
                              round(self.vehicle.sim_t_s * 1e6))
 
+    def scene(self, due: bool) -> None:
+        """The scene record when ``due`` (with the status) or when what it draws changed
+        (the stored lists are replaced whole, so identity tells)."""
+        if not self.node.enabled:
+            return
+        v = self.vehicle
+        lists = v.mission.lists
+        drawn = (lists[MISSION], lists[FENCE], lists[RALLY], v.home, v.mission.current)
+        if not due and self._scene_of is not None and all(
+                a is b or a == b for a, b in zip(drawn, self._scene_of, strict=True)):
+            return
+        self._scene_of = drawn
+        self.scene_pub.put(json_record(self.scene_pub.count, round(v.sim_t_s * 1e6),
+                                       **scene_fields(v, self._airframe)))
+
     def status(self, steps: int, final: bool = False) -> None:
         """The status record, when due (once a second) or ``final``."""
-        if not self.node.status_due(final):
+        due = self.node.status_due(final)
+        self.scene(due)
+        if not due:
             return  # asked every 5 ms, published once a second: gather nothing till then
         # The timing summary only goes into the final status (it reads whole histograms).
         summary = self.timing.summary() if final and not self.lockstep else {}
         self.node.status(round(self.vehicle.sim_t_s * 1e6), final=final, steps=steps,
                          armed=self.vehicle.armed, mode=self.vehicle.mode.value,
                          timing=summary, links=self.ground.link_status())
+
+
+def scene_fields(vehicle: Commander, airframe: dict) -> dict:
+    """What a viewer draws, in local NED around home [m]: the airframe's rotors (body
+    FRD, with their spin), the positioned mission items and rally points (each
+    ``[seq, n, e, d]``), the fence's zones, and the mission's current item
+    (ground/foxglove_view.py reads it)."""
+    home = vehicle.home
+    here = (np.zeros(3) if vehicle.measurement is None  # before the first sample
+            else vehicle.measurement[MEASUREMENT.position_ned_m])
+    lists = vehicle.mission.lists
+
+    def positions(items: tuple) -> list[list[float]]:
+        """[seq, north, east, down] of each positioned item."""
+        out = []
+        for item in items:
+            if item.command in WITHOUT_POSITION:
+                continue
+            p = item_position_ned(item, here, home)
+            if np.all(np.isfinite(p)):
+                out.append([item.seq, *(round(float(x), 3) for x in p)])
+        return out
+
+    fence = []
+    for zone in zones_from_items(lists[FENCE], home):
+        if zone.vertices is not None:
+            fence.append({"inclusion": zone.inclusion,
+                          "polygon": [[round(float(n), 3), round(float(e), 3)]
+                                      for n, e in zone.vertices]})
+        else:
+            fence.append({"inclusion": zone.inclusion,
+                          "centre": [round(float(c), 3) for c in zone.centre],
+                          "radius_m": float(zone.radius_m)})
+    return {"airframe": airframe, "home": list(home), "mission": positions(lists[MISSION]),
+            "current": vehicle.mission.current, "fence": fence,
+            "rally": positions(lists[RALLY])}

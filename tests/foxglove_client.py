@@ -1,0 +1,75 @@
+"""A Foxglove WebSocket client, as Foxglove's app connects to a live view: it takes the
+advertised channels, subscribes to all of them and collects what arrives (protocol
+``foxglove.sdk.v1``: JSON control messages, binary message data)."""
+
+from __future__ import annotations
+
+import json
+import struct
+import time
+from collections import defaultdict
+from dataclasses import dataclass, field
+from typing import Any
+
+from websockets.exceptions import ConnectionClosed
+from websockets.sync.client import connect
+
+SUBPROTOCOL = "foxglove.sdk.v1"  # the SDK server refuses the older foxglove.websocket.v1
+MESSAGE_DATA = 0x01
+
+
+@dataclass
+class Received:
+    channels: dict[int, dict[str, Any]] = field(default_factory=dict)  # id -> advertisement
+    messages: dict[str, list[tuple[int, bytes]]] = field(
+        default_factory=lambda: defaultdict(list))  # topic -> (log time ns, payload)
+    server_info: dict[str, Any] | None = None
+
+    def topics(self) -> set[str]:
+        return {c["topic"] for c in self.channels.values()}
+
+
+def connect_when_up(url: str, timeout_s: float = 30.0):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        try:
+            return connect(url, subprotocols=[SUBPROTOCOL], open_timeout=2.0)
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+
+
+def collect(url: str, seconds: float, until: Any = None,
+            timeout_s: float = 30.0) -> Received:
+    """Subscribe to every channel advertised (now or later) and collect for ``seconds``
+    of wall time, or until ``until(received)`` is true, or the server closes."""
+    got = Received()
+    subscription_topic: dict[int, str] = {}
+    with connect_when_up(url, timeout_s) as ws:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            try:
+                frame = ws.recv(timeout=max(0.01, end - time.monotonic()))
+            except TimeoutError:
+                break
+            except ConnectionClosed:
+                break
+            if isinstance(frame, str):
+                message = json.loads(frame)
+                if message["op"] == "serverInfo":
+                    got.server_info = message
+                elif message["op"] == "advertise":
+                    subscriptions = []
+                    for channel in message["channels"]:
+                        got.channels[channel["id"]] = channel
+                        sub_id = len(subscription_topic) + 1
+                        subscription_topic[sub_id] = channel["topic"]
+                        subscriptions.append({"id": sub_id, "channelId": channel["id"]})
+                    ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+            elif frame and frame[0] == MESSAGE_DATA:
+                sub_id, log_time_ns = struct.unpack_from("<IQ", frame, 1)
+                got.messages[subscription_topic[sub_id]].append((log_time_ns, frame[13:]))
+            if until is not None and until(got):
+                break
+    return got

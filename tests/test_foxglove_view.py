@@ -1,0 +1,156 @@
+"""What Foxglove draws of the telemetry (ground/foxglove_view.py): frames, decimation on
+sim time, the scene from the autopilot's scene record, and bad scene records refused."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from mcap.records import Schema
+from mcap_protobuf.decoder import DecoderFactory
+
+from contracts.frames import quat_from_euler, rotation_from_quat
+from contracts.telemetry import CONTROL, STATE
+from ground.foxglove_view import FoxgloveView, encode, json_schema
+
+STATE_KEY = "ivfm/vehicle/1/sitl/state"
+CONTROL_KEY = "ivfm/vehicle/1/autopilot/control"
+SCENE_KEY = "ivfm/vehicle/1/autopilot/scene"
+ROTORS = [[0.23, 0.0, 0.0, 1.0], [0.0, 0.23, 0.0, -1.0], [-0.23, 0.0, 0.0, 1.0],
+          [0.0, -0.23, 0.0, -1.0]]
+
+
+def state_payload(t_us: int, position=(1.0, 2.0, -3.0), euler=(0.1, -0.2, 0.3)) -> bytes:
+    record = STATE.buffer()
+    record["seq"], record["sim_time_us"] = t_us // 1000, t_us
+    record["position_ned_m"], record["quaternion"] = position, quat_from_euler(*euler)
+    record["euler_rad"] = euler
+    return record.encode()
+
+
+def scene_payload(**fields) -> bytes:
+    scene = {"airframe": {"name": "paper", "rotors": ROTORS}, "home": [47.0, 8.0, 400.0],
+             "mission": [[0, 0.0, 0.0, -5.0], [1, 30.0, 0.0, -5.0]], "current": 1,
+             "fence": [{"inclusion": True, "centre": [0.0, 0.0], "radius_m": 25.0},
+                       {"inclusion": False, "polygon": [[1, 1], [1, 2], [2, 2]]}],
+             "rally": [[0, 5.0, 5.0, 0.0]]}
+    scene.update(fields)
+    # As a peer could send it: json.dumps lets NaN through, json_record would not.
+    return json.dumps({"seq": 0, "sim_time_us": 1_000_000, **scene}).encode()
+
+
+_DECODERS: dict[str, object] = {}
+
+
+def decoded(message):
+    """A Foxglove message read back from its protobuf (the SDK's objects are write-only),
+    as a log reader decodes it."""
+    schema = type(message).get_schema()
+    decoder = _DECODERS.get(schema.name)
+    if decoder is None:
+        decoder = _DECODERS[schema.name] = DecoderFactory().decoder_for(
+            "protobuf", Schema(id=len(_DECODERS) + 1, name=schema.name, encoding="protobuf",
+                               data=bytes(schema.data)))
+    return decoder(message.encode())
+
+
+def transforms(outputs) -> dict[str, object]:
+    (tf,) = [decoded(o.message) for o in outputs if o.topic == "/tf"]
+    return {t.child_frame_id: t for t in tf.transforms}
+
+
+def test_the_body_sits_in_ned_which_sits_in_east_north_up():
+    view = FoxgloveView()
+    view.feed(SCENE_KEY, scene_payload())
+    tf = transforms(view.feed(STATE_KEY, state_payload(0)))
+    assert set(tf) == {"ned", "vehicle1", *(f"vehicle1/rotor{i}" for i in range(1, 5))}
+    body = tf["vehicle1"]
+    assert (body.parent_frame_id, body.translation.x, body.translation.z) == ("ned", 1.0, -3.0)
+    q = quat_from_euler(0.1, -0.2, 0.3)
+    assert [body.rotation.w, body.rotation.x, body.rotation.y, body.rotation.z] == \
+        pytest.approx(list(q))
+    # ned in world: north is world y, east world x, down world -z.
+    r = tf["ned"].rotation
+    ned_in_world = rotation_from_quat(np.array([r.w, r.x, r.y, r.z]))
+    np.testing.assert_allclose(ned_in_world, [[0, 1, 0], [1, 0, 0], [0, 0, -1]], atol=1e-12)
+    assert tf["vehicle1/rotor2"].translation.y == 0.23
+
+
+def test_outputs_are_decimated_on_sim_time_whatever_the_record_rate():
+    view = FoxgloveView(rate_hz=50.0, path_hz=2.0)
+    counts: dict[str, int] = {}
+    for t_us in range(0, 2_000_000, 1000):  # a 1 kHz simulator for 2 s
+        for out in view.feed(STATE_KEY, state_payload(t_us)):
+            counts[out.topic] = counts.get(out.topic, 0) + 1
+            assert out.sim_time_ns == t_us * 1000
+    assert counts == {"/tf": 100, "/vehicle1/path": 4, "/vehicle1/reference_path": 4}
+
+
+def test_the_path_keeps_the_last_minute_at_10_hz():
+    view = FoxgloveView(rate_hz=10.0, path_hz=1.0)
+    last = None
+    for t_us in range(0, 90_000_000, 100_000):
+        outs = view.feed(STATE_KEY, state_payload(t_us, position=(t_us / 1e6, 0.0, 0.0)))
+        last = next((decoded(o.message) for o in outs if o.topic == "/vehicle1/path"), last)
+    assert len(last.poses) == 600
+    assert last.poses[0].position.x == pytest.approx(29.1)  # 600 samples up to 89.0 s
+    assert last.poses[-1].position.x == pytest.approx(89.0)
+
+
+def test_the_scene_draws_the_vehicle_mission_fence_home_and_rally():
+    (out,) = FoxgloveView().feed(SCENE_KEY, scene_payload())
+    entities = {e.id: e for e in decoded(out.message).entities}
+    assert set(entities) == {"vehicle", "home", "mission", "fence", "rally"}
+    vehicle = entities["vehicle"]
+    assert vehicle.frame_id == "vehicle1" and len(vehicle.cylinders) == 4
+    mission = entities["mission"]
+    assert [(s.pose.position.x, s.pose.position.z) for s in mission.spheres] == \
+        [(0.0, -5.0), (30.0, -5.0)]
+    assert [s.size.x for s in mission.spheres] == [0.5, 0.8]  # the current item larger
+    circle, polygon = entities["fence"].lines
+    assert len(circle.points) == 64 and len(polygon.points) == 3
+    radii = [math.hypot(p.x, p.y) for p in circle.points]
+    assert radii == pytest.approx([25.0] * 64)
+
+
+@pytest.mark.parametrize("fields, error", [
+    ({"mission": [[0, 1.0, math.nan, 0.0]]}, "finite"),
+    ({"mission": "all of them"}, "mission must be a list"),
+    ({"mission": [[0, 1.0]]}, "expected 4 numbers"),
+    ({"mission": [[i, 0.0, 0.0, 0.0] for i in range(600)]}, "at most 512"),
+    ({"fence": [{"inclusion": "yes", "centre": [0, 0], "radius_m": 5}]}, "boolean"),
+    ({"fence": [{"inclusion": True, "centre": [0, 0], "radius_m": -5}]}, "radius"),
+    ({"airframe": {"rotors": [[0, 0, 0, 1]] * 17}}, "at most 16"),
+    ({"current": 1.5}, "whole number"),
+])
+def test_a_bad_scene_record_is_refused_and_changes_nothing(fields, error):
+    view = FoxgloveView()
+    view.feed(SCENE_KEY, scene_payload())
+    payload = scene_payload(**fields)
+    with pytest.raises(ValueError, match=error):
+        view.feed(SCENE_KEY, payload)
+    assert len(view.vehicles[1].rotors_m) == 4  # the good record's rotors stay
+
+
+def test_plot_ready_channels_name_every_internal_and_encode_as_json():
+    record = CONTROL.buffer()
+    record["seq"], record["sim_time_us"], record["flags"] = 0, 20_000, 1
+    record["theta_g"] = np.nan  # PID: no weights; plotted as gaps
+    payload = record.encode(((0.1, 0.2), (), ()))
+    outputs = {o.topic: o.message for o in FoxgloveView().feed(CONTROL_KEY, payload)}
+    controller = outputs["/vehicle1/controller"]
+    assert controller["armed"] and controller["theta_g"]["phi"] is None
+    assert controller["phi"]["theta_f_norm"] == pytest.approx(math.hypot(0.1, 0.2))
+    assert controller["theta"]["theta_f_norm"] is None
+    assert json.loads(encode(controller)) == controller
+    schema = json_schema(controller)
+    assert schema["properties"]["phi"]["properties"]["sliding_surface"]["type"] == \
+        ["number", "null"]
+    assert decoded(outputs["/vehicle1/reference"]).frame_id == "ned"
+
+
+def test_records_too_short_to_hold_their_time_are_refused():
+    with pytest.raises(ValueError, match="too short"):
+        FoxgloveView().feed(STATE_KEY, b"\x00\x01\x00\x00" + b"\x00" * 10)

@@ -124,7 +124,7 @@ def test_the_log_holds_foxgloves_scene_transforms_and_path(six_waypoint_runs):
     decoded: dict[str, list] = {}
     with open(log_files(folder)[0], "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
-        for schema, channel, message, proto in reader.iter_decoded_messages(
+        for schema, _channel, message, proto in reader.iter_decoded_messages(
                 topics=["/tf", "/vehicle1/scene", "/vehicle1/path"]):
             decoded.setdefault(schema.name, []).append((message.publish_time, proto))
     assert set(decoded) == {"foxglove.FrameTransforms", "foxglove.SceneUpdate",

@@ -3,6 +3,7 @@ motor commands. Written as PNG with matplotlib's non-interactive backend."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -21,11 +22,33 @@ from ground.scenarios import Scenario  # noqa: E402
 UNITS = {"x": "m", "y": "m", "z": "m", "phi": "rad", "theta": "rad", "psi": "rad"}
 
 
-def _save(fig: plt.Figure, path: Path, top_in: float = 0.45, hgap_in: float = 0.3) -> Path:
+@dataclass(frozen=True)
+class Marks:
+    """What happened when, drawn on every time plot: perturbation windows (shaded, from
+    the time each took effect to its end) and events (thin lines), in the plots' time."""
+
+    windows: tuple[tuple[float, float, str], ...] = ()  # start, end [s], what
+    events: tuple[tuple[float, str], ...] = ()  # t [s], what
+
+    def draw(self, fig: plt.Figure) -> None:
+        for ax in fig.axes:
+            for start, end, _what in self.windows:
+                ax.axvspan(start, end, color="C1", alpha=0.15, lw=0)
+            for t, _what in self.events:
+                ax.axvline(t, color="C2", lw=0.7, alpha=0.8)
+
+
+NO_MARKS = Marks()
+
+
+def _save(fig: plt.Figure, path: Path, top_in: float = 0.45, hgap_in: float = 0.3,
+          marks: Marks = NO_MARKS) -> Path:
     """Margins fixed in inches (room for tick labels, axis labels and titles) instead of
     ``tight_layout``, which draws every figure twice: the report's figures take half the
     time. ``top_in``: room above the axes (a suptitle needs more); ``hgap_in``: between
-    rows (titles or x labels on every row need more)."""
+    rows (titles or x labels on every row need more); ``marks``: perturbations and events
+    on every axis (all of them plot against time)."""
+    marks.draw(fig)
     width_in, height_in = fig.get_size_inches()
     rows, cols = fig.axes[0].get_subplotspec().get_gridspec().get_geometry()
     left_in, right_in, bottom_in, wgap_in = 1.0, 0.2, 0.5, 1.1
@@ -39,7 +62,8 @@ def _save(fig: plt.Figure, path: Path, top_in: float = 0.45, hgap_in: float = 0.
     return path
 
 
-def plot_tracking(record: RunRecord, scenario: Scenario, out_dir: Path) -> Path:
+def plot_tracking(record: RunRecord, scenario: Scenario, out_dir: Path,
+                  marks: Marks = NO_MARKS) -> Path:
     axes = scenario.axes
     fig, plots = plt.subplots(len(axes), 2, figsize=(11, 2.2 * len(axes)), squeeze=False)
     t = record.time_s
@@ -60,10 +84,10 @@ def plot_tracking(record: RunRecord, scenario: Scenario, out_dir: Path) -> Path:
     plots[-1, 0].set_xlabel("t [s]")
     plots[-1, 1].set_xlabel("t [s]")
     fig.suptitle(f"{scenario.name}: {record.controller} on the {record.plant} plant")
-    return _save(fig, out_dir / "tracking.png", top_in=0.55)
+    return _save(fig, out_dir / "tracking.png", top_in=0.55, marks=marks)
 
 
-def plot_sliding(record: RunRecord, out_dir: Path) -> Path:
+def plot_sliding(record: RunRecord, out_dir: Path, marks: Marks = NO_MARKS) -> Path:
     fig, ax = plt.subplots(figsize=(9, 3.5))
     for ch, name in enumerate(CHANNELS):
         series = record.channel_telemetry[:, ch, TEL_ES]
@@ -74,10 +98,10 @@ def plot_sliding(record: RunRecord, out_dir: Path) -> Path:
     ax.set_ylabel("sliding surface e_s")
     ax.legend(ncol=3, fontsize=8)
     ax.set_title(f"Sliding surfaces ({record.controller})")
-    return _save(fig, out_dir / "sliding.png")
+    return _save(fig, out_dir / "sliding.png", marks=marks)
 
 
-def plot_adaptive(record: RunRecord, out_dir: Path) -> Path | None:
+def plot_adaptive(record: RunRecord, out_dir: Path, marks: Marks = NO_MARKS) -> Path | None:
     if not record.theta_f:
         return None
     fig, plots = plt.subplots(2, 2, figsize=(11, 6))
@@ -97,10 +121,10 @@ def plot_adaptive(record: RunRecord, out_dir: Path) -> Path | None:
     ax.set_title("theta_g / initial", fontsize=9)
     ax.legend(ncol=3, fontsize=8)
     ax.set_xlabel("t [s]")
-    return _save(fig, out_dir / "adaptive.png", top_in=0.3, hgap_in=0.75)
+    return _save(fig, out_dir / "adaptive.png", top_in=0.3, hgap_in=0.75, marks=marks)
 
 
-def plot_motors(record: RunRecord, out_dir: Path) -> Path:
+def plot_motors(record: RunRecord, out_dir: Path, marks: Marks = NO_MARKS) -> Path:
     fig, ax = plt.subplots(figsize=(9, 3.5))
     for i in range(4):
         ax.plot(record.time_s, record.motor_commands[:, i], lw=0.8, label=f"motor {i + 1}")
@@ -109,10 +133,11 @@ def plot_motors(record: RunRecord, out_dir: Path) -> Path:
     ax.set_ylabel("command W_i / W_max")
     ax.legend(ncol=4, fontsize=8)
     ax.set_title(f"Motor commands ({record.controller})")
-    return _save(fig, out_dir / "motors.png")
+    return _save(fig, out_dir / "motors.png", marks=marks)
 
 
-def plot_estimation(record: RunRecord, scenario: Scenario, out_dir: Path) -> Path:
+def plot_estimation(record: RunRecord, scenario: Scenario, out_dir: Path,
+                    marks: Marks = NO_MARKS) -> Path:
     """What the vehicle believed against what was: position, velocity and attitude, the
     estimate over the truth, and the error beside each."""
     rows = (("north", 0, "m"), ("east", 1, "m"), ("altitude", 2, "m"), ("v north", 3, "m/s"),
@@ -136,15 +161,16 @@ def plot_estimation(record: RunRecord, scenario: Scenario, out_dir: Path) -> Pat
     plots[-1, 0].set_xlabel("t [s]")
     plots[-1, 1].set_xlabel("t [s]")
     fig.suptitle(f"{scenario.name}: onboard estimate against the simulator's truth")
-    return _save(fig, out_dir / "estimation.png", top_in=0.55)
+    return _save(fig, out_dir / "estimation.png", top_in=0.55, marks=marks)
 
 
-def plot_run(record: RunRecord, scenario: Scenario, out_dir: Path) -> list[Path]:
-    paths = [plot_tracking(record, scenario, out_dir), plot_sliding(record, out_dir),
-             plot_motors(record, out_dir)]
+def plot_run(record: RunRecord, scenario: Scenario, out_dir: Path,
+             marks: Marks = NO_MARKS) -> list[Path]:
+    paths = [plot_tracking(record, scenario, out_dir, marks),
+             plot_sliding(record, out_dir, marks), plot_motors(record, out_dir, marks)]
     if record.truth is not None:
-        paths.append(plot_estimation(record, scenario, out_dir))
-    adaptive = plot_adaptive(record, out_dir)
+        paths.append(plot_estimation(record, scenario, out_dir, marks))
+    adaptive = plot_adaptive(record, out_dir, marks)
     if adaptive is not None:
         paths.append(adaptive)
     return paths

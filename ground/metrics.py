@@ -77,9 +77,9 @@ def distance_to_path(points: np.ndarray, path: np.ndarray) -> np.ndarray:
     return best
 
 
-def path_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
-    """How the vehicle followed its mission: arrival at each positioned item, cross-track
-    error along the planned legs (PATH_DEFINITION)."""
+def planned_legs(scenario: Scenario) -> tuple[list[np.ndarray], list[float], list[int]]:
+    """The mission's positioned items in local NED around home (from the take-off point),
+    with each one's acceptance radius [m] and its item number."""
     from autopilot.navigator.mission_runner import WAYPOINT_COMMANDS, item_position_ned
     from autopilot.parameters import validate_parameters
     from contracts.mavlink import mavlink
@@ -94,6 +94,16 @@ def path_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
         given = item.params[1] if item.command == mavlink.MAV_CMD_NAV_WAYPOINT else 0.0
         radii.append(given if np.isfinite(given) and given > 0 else p["NAV_ACC_RAD"])
         seqs.append(item.seq)
+    return legs, radii, seqs
+
+
+def path_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
+    """How the vehicle followed its mission: arrival at each positioned item, cross-track
+    error along the planned legs (PATH_DEFINITION)."""
+    from autopilot.parameters import validate_parameters
+
+    p = validate_parameters(scenario.parameters)
+    legs, radii, seqs = planned_legs(scenario)
     position = record.true_state[:, 0:3]
     arrivals: list[float | None] = []
     index = 0
@@ -114,7 +124,7 @@ def path_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
     if len(legs) >= 2 and arrivals[0] is not None:
         end = arrivals[-1] if arrivals[-1] is not None else record.time_s[-1]
         window = (record.time_s >= arrivals[0]) & (record.time_s <= end)
-        deviation = distance_to_path(position[window], np.array([start_ned, *legs]))
+        deviation = distance_to_path(position[window], np.array([np.zeros(3), *legs]))
         if deviation.size:
             out["cross_track_rmse_m"] = float(np.sqrt(np.mean(deviation**2)))
             out["cross_track_max_m"] = float(np.max(deviation))

@@ -11,10 +11,13 @@ import json
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from contracts.vectors import MEAS_Z
 from ground.events import run_events
-from ground.figures import plot_run
-from ground.metrics import compute_metrics
+from ground.expectations import COMPLETED, evaluate
+from ground.figures import Marks, plot_run
+from ground.metrics import compute_metrics, planned_legs
 from ground.run_files import (
     METRICS_FILE,
     RUN_FILE,
@@ -24,8 +27,11 @@ from ground.run_files import (
     record_from_log,
     write_json,
 )
+from ground.run_page import marks_of, path_figure, run_page
 from ground.run_timeline import figures as timeline_figures
-from ground.scenarios import load_scenario
+from ground.scenarios import Scenario, load_scenario
+
+PAGE_FILE = "report.html"
 
 
 def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunRecord]:
@@ -58,5 +64,24 @@ def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunReco
     metrics.update(timeline_figures(run_dir))  # the loop's speed, the command's wall time
     write_json(run_dir / METRICS_FILE, metrics)
     if figures:
-        plot_run(record, scenario, run_dir)
+        marks = marks_of(metrics, record.sim_time_us, record.time_s)
+        plot_run(record, scenario, run_dir, marks)
+        write_page(run_dir, metrics, run, record, scenario, marks)
     return metrics, record
+
+
+def write_page(run_dir: Path, metrics: dict[str, Any], run: dict[str, Any], record: RunRecord,
+               scenario: Scenario, marks: Marks) -> Path:
+    """report.html: the run on one self-contained page (ground/run_page.py)."""
+    planned = None
+    if metrics.get("path"):
+        planned = np.array(planned_legs(scenario)[0])
+    truth = record.true_state
+    path_png = (path_figure(truth[:, 0:3], record.reference[:, 0:3], planned)
+                if scenario.plan is not None or np.ptp(truth[:, 0:2]) > 0.5 else None)
+    outcomes = None
+    if scenario.expect.names() != [COMPLETED]:
+        outcomes = [(o.name, o.passed, o.message) for o in evaluate(scenario.expect, metrics)]
+    page = run_dir / PAGE_FILE
+    page.write_text(run_page(run_dir, metrics, run, marks, path_png, outcomes))
+    return page

@@ -46,7 +46,7 @@ def marks_of(metrics: dict[str, Any], sim_time_us: np.ndarray, time_s: np.ndarra
     for e in metrics.get("perturbations_applied", []):
         t = e["sim_time_us"] / 1e6 - offset_s
         what = f"{e['kind']} {e['id']}"
-        if e["event"] == "started":
+        if e["event"] == "start":
             started[e["id"]] = (t, what)
         elif e["id"] in started:
             begin, what = started.pop(e["id"])

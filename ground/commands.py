@@ -64,8 +64,11 @@ def run_command(args: argparse.Namespace) -> int:
         warm = WarmProcesses(start=True)
         try:
             if args.view is not None:
+                from ground.live_view import LAYOUT_FILE
+
                 print(f"ivfm: live view on ws://{args.view[0]}:{args.view[1]} (Foxglove: "
-                      "open connection, Foxglove WebSocket)", file=sys.stderr)
+                      f"open connection, Foxglove WebSocket; layout {LAYOUT_FILE})",
+                      file=sys.stderr)
             metrics = fly_processes(plan, args.out, figures=not args.no_figures, warm=warm,
                                     started_s=started_s, view=args.view)
         finally:

@@ -22,6 +22,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import foxglove
@@ -33,6 +34,9 @@ from contracts.zenoh_link import ZenohOptions, open_session
 from ground.foxglove_view import DEFAULT_RATE_HZ, FoxgloveView, Output, encode, json_schema
 
 DEFAULT_VIEW_PORT = 8765
+# Foxglove's layout for these topics (3D, tracking, motors, adaptation, estimator, log):
+# in Foxglove, Layouts, Import from file.
+LAYOUT_FILE = Path(__file__).parent / "layouts" / "ivfm-sitl.foxglove-layout.json"
 MAX_INBOX = 50_000
 SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
 
@@ -138,7 +142,8 @@ def serve_view(options: ZenohOptions, host: str, port: int, rate_hz: float = DEF
     subscribers = [session.declare_subscriber(k, on_sample) for k in SUBSCRIBED]
     log(f"serving the live view on {live.url} (Foxglove: open connection, Foxglove "
         "WebSocket); telemetry from "
-        f"{', '.join(options.connect or options.listen) or 'this machine'}")
+        f"{', '.join(options.connect or options.listen) or 'this machine'}; layout "
+        f"{LAYOUT_FILE}")
     if ready is not None:
         ready(live)
     try:

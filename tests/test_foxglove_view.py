@@ -154,3 +154,34 @@ def test_plot_ready_channels_name_every_internal_and_encode_as_json():
 def test_records_too_short_to_hold_their_time_are_refused():
     with pytest.raises(ValueError, match="too short"):
         FoxgloveView().feed(STATE_KEY, b"\x00\x01\x00\x00" + b"\x00" * 10)
+
+
+def test_every_plot_of_the_shipped_layout_names_a_field_the_view_writes():
+    """The Foxglove layout (ground/layouts) plots fields by path: each must exist."""
+    import re
+    from importlib.resources import files
+
+    from contracts.telemetry import ESTIMATE
+
+    layout = json.loads(files("ground").joinpath(
+        "layouts/ivfm-sitl.foxglove-layout.json").read_text())
+    view = FoxgloveView()
+    control = CONTROL.buffer()
+    control["sim_time_us"] = 0
+    estimate = ESTIMATE.buffer()
+    outputs = view.feed(STATE_KEY, state_payload(0))
+    outputs += view.feed(CONTROL_KEY, control.encode(((), (), ())))
+    outputs += view.feed("ivfm/vehicle/1/autopilot/estimate", estimate.encode())
+    records = {o.topic: o.message for o in outputs}
+    paths = [p["value"] for panel in layout["configById"].values() for p in panel.get("paths", [])]
+    assert len(paths) == 28
+    for path in paths:
+        topic, _, fields = path.partition(".")
+        value = records[topic]
+        for name, index in re.findall(r"([A-Za-z_]+)(?:\[(\d+)\])?", fields):
+            value = value[name]
+            if index:
+                value = value[int(index)]
+        assert value is None or isinstance(value, float), path
+    topics = set(layout["configById"]["3D!scene"]["topics"]) | {"/log"}
+    assert topics <= set(records) | {"/vehicle1/scene", "/log"}

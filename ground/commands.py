@@ -161,6 +161,10 @@ def format_metrics(metrics: dict[str, Any]) -> str:
              f"{metrics['sim_time_s']:.1f} s sim in {metrics['wall_time_s']:.2f} s wall "
              f"({metrics['real_time_factor']:.0f}x real time)"
              + (" | DIVERGED" if metrics["diverged"] else "")]
+    if metrics.get("startup_wall_s", 0.0) > 1.0:
+        lines.append(f"  the first step loaded the compiled numerical core in "
+                     f"{metrics['startup_wall_s']:.1f} s (compiling it: a fresh install; "
+                     "cached after), not counted above")
     if "loop_real_time_factor" in metrics:
         lines.append(f"  loop {metrics['loop_real_time_factor']:.1f}x real time after warm-up; "
                      f"whole command {metrics.get('command_wall_time_s', math.nan):.2f} s wall")
@@ -230,7 +234,15 @@ def identify_command(args: argparse.Namespace) -> int:
     else:
         print(f"ivfm: flying the excitation ({args.samples} samples, seed {args.seed})",
               file=sys.stderr)
-        dataset = excitation_dataset(airframe, n_samples=args.samples, seed=args.seed)
+        from ground.progress import ProgressLine
+
+        line = ProgressLine("  excitation", args.samples * 0.01)
+        line.loading()
+        try:
+            dataset = excitation_dataset(airframe, n_samples=args.samples, seed=args.seed,
+                                         progress=line.update)
+        finally:
+            line.done()
     models = identify_dataset(dataset, n_clusters=n_clusters, seed=args.seed,
                               metadata=model_airframe_metadata(args.airframe))
     elapsed = time.perf_counter() - start

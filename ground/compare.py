@@ -18,6 +18,7 @@ from contracts.frames import altitude_m  # noqa: E402
 from ground.inprocess import run_inprocess  # noqa: E402
 from ground.metrics import AXES, axis_error, compute_metrics  # noqa: E402
 from ground.paper_tables import PAPER_MSE_BY_SCENARIO  # noqa: E402
+from ground.progress import ProgressLine
 from ground.run_files import write_json  # noqa: E402
 from ground.scenarios import scenario_by_name  # noqa: E402
 
@@ -43,8 +44,13 @@ def run_comparison(
         for name in scenarios:
             scenario = scenario_by_name(name)
             for controller in controllers:
-                record = run_inprocess(scenario, controller, plant, airframe, models,
-                                       parameters=parameters)
+                line = ProgressLine(f"[{done + 1:>3}/{total}] {plant} {name} {controller}",
+                                    scenario.duration_s)
+                try:
+                    record = run_inprocess(scenario, controller, plant, airframe, models,
+                                           parameters=parameters, progress=line.update)
+                finally:
+                    line.done()
                 metrics = compute_metrics(record, scenario, airframe_name)
                 results.append(metrics)
                 records[(plant, name, controller)] = record

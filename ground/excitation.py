@@ -8,6 +8,7 @@ along with the accelerations and inputs a flight log would hold.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -84,9 +85,11 @@ def excitation_dataset(
     period_s: float = 0.01,
     noise_fraction: float = 0.05,
     seed: int = 0,
+    progress: Callable[[float], None] | None = None,
 ) -> Dataset:
     """Fly the excitation and return the samples (noise: fraction of each output's
-    amplitude max |y|, Gaussian, seeded)."""
+    amplitude max |y|, Gaussian, seeded). ``progress`` hears the sim time [s] every tenth
+    of a sim second."""
     if n_samples < MIN_SAMPLES:
         raise ValueError(f"n_samples must be at least {MIN_SAMPLES}, got {n_samples}")
     if not 0.0 <= noise_fraction < 1.0:
@@ -100,8 +103,11 @@ def excitation_dataset(
     b = airframe.input_gains
     ref = np.zeros(REF_SIZE)
     ref[REF_POS + 2] = -10.0
+    progress_every = max(1, round(0.1 / period_s))
     for k in range(-WARM_UP_SAMPLES, n_samples):
         t = k * period_s
+        if progress is not None and k % progress_every == 0 and k >= 0:
+            progress(t)
         for axis in range(3):
             ref[REF_EULER + axis], ref[REF_EULER_RATE + axis], ref[REF_EULER_ACC + axis] = (
                 evaluate_multisine(sines[axis], t))

@@ -143,15 +143,22 @@ def fly_inprocess(plan: FlightPlan, out_dir: Path, figures: bool = True) -> dict
     from ground.figures import plot_run
     from ground.inprocess import run_inprocess
     from ground.metrics import compute_metrics
+    from ground.progress import ProgressLine
     from ground.run_files import write_json
 
     scenario = plan.scenario
     models = (load_models(plan.model_path, plan.airframe, plan.any_airframe_model)
               if plan.controller in ("ivfc", "t1fc") else None)
-    record = run_inprocess(scenario, plan.controller, plan.plant,
-                           airframe_by_name(plan.airframe), models, period_s=1.0 / plan.rate_hz,
-                           parameters=plan.parameters, sensors=plan.sensors,
-                           state_source=plan.state_source, seed=plan.seed, home=plan.home)
+    line = ProgressLine(scenario.name, scenario.duration_s)
+    line.loading()
+    try:
+        record = run_inprocess(scenario, plan.controller, plan.plant,
+                               airframe_by_name(plan.airframe), models,
+                               period_s=1.0 / plan.rate_hz, parameters=plan.parameters,
+                               sensors=plan.sensors, state_source=plan.state_source,
+                               seed=plan.seed, home=plan.home, progress=line.update)
+    finally:
+        line.done()
     metrics = compute_metrics(record, scenario, plan.airframe)
     metrics["mode"] = "inprocess"
     metrics["sensors"], metrics["state_source"] = plan.sensors, plan.state_source

@@ -7,6 +7,7 @@ same arguments give the same arrays bit for bit.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -50,11 +51,14 @@ def run_inprocess(
     state_source: str = "auto",
     seed: int = 0,
     home: Home = DEFAULT_HOME,
+    progress: Callable[[float], None] | None = None,
 ) -> RunRecord:
     """The scenario flown in one process. ``state_source`` "estimator" flies on the onboard
     estimator fed by the ``sensors`` profile's readings (one sample per control period,
     seeded as the simulator seeds them), as the processes do; otherwise on the plant's
-    truth."""
+    truth. ``progress`` hears the sim time [s] every tenth of a sim second. The first
+    step loads (or compiles) the numerical core: its time is ``startup_wall_s``, not part
+    of ``wall_time_s``."""
     if scenario.plan is not None:
         raise ValueError(f"{scenario.name} flies a mission: the vehicle's modes and navigator "
                          "run in the autopilot process (run it without --inprocess)")
@@ -97,8 +101,15 @@ def run_inprocess(
     active = Perturbations()
     diverged = False
     start = time.perf_counter()
+    startup_wall_s = 0.0
+    progress_every = max(1, round(0.1 / period_s))
     for k in range(n):
+        if k == 1:  # the first step loaded the compiled code
+            startup_wall_s = time.perf_counter() - start
+            start = time.perf_counter()
         t = k * period_us / 1e6
+        if progress is not None and k % progress_every == 0:
+            progress(t)
         wanted = scenario.plant_perturbations_at(t)
         if wanted != active:
             plant.set_perturbations(wanted)
@@ -134,6 +145,7 @@ def run_inprocess(
         kick=kick_log[:n], motor_commands=cmd_log[:n], channel_telemetry=tel_log[:n],
         theta_g=theta_g_log[:n], theta_f=[t[:n] for t in theta_f_log], wall_time_s=wall,
         diverged=diverged, truth=None if onboard is None else truth_log[:n],
+        startup_wall_s=startup_wall_s,
     )
 
 

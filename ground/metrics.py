@@ -171,6 +171,7 @@ def compute_metrics(record: RunRecord, scenario: Scenario, airframe_name: str) -
         "sim_time_s": sim_time,
         "wall_time_s": record.wall_time_s,
         "real_time_factor": sim_time / record.wall_time_s if record.wall_time_s > 0 else None,
+        **({"startup_wall_s": record.startup_wall_s} if record.startup_wall_s else {}),
         "transient_s": scenario.transient_s,
         "diverged": record.diverged,
         "axes": axes,

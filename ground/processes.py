@@ -37,6 +37,7 @@ from contracts.zenoh_link import ZenohOptions, open_session
 from ground import run_timeline
 from ground.ground_station import GroundStation
 from ground.perturb import PerturbationClient, PerturbationError
+from ground.progress import ProgressLine
 from ground.scenarios import Scenario
 
 LOG_PREFIX = "telemetry"
@@ -429,22 +430,19 @@ def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen | WarmProc
             vehicle: int,
             duration_s: float, timeout_s: float, logs: dict[str, Path],
             quiet: bool = False) -> None:
-    """Wait for the vehicle processes, echoing progress from the simulator's status."""
-    shown = [0.0]
+    """Wait for the vehicle processes, showing progress from the simulator's status (on a
+    terminal: ground/progress.py)."""
+    line = ProgressLine("  flying", duration_s)
 
     def on_status(sample: zenoh.Sample) -> None:
-        if quiet:
-            return
         try:
             t = json.loads(sample.payload.to_bytes())["sim_time_us"] / 1e6
         except (ValueError, KeyError, TypeError):
             return
-        if t >= shown[0] + 0.1 * duration_s or t >= duration_s > shown[0]:
-            shown[0] = t
-            print(f"  {min(100.0, 100 * t / duration_s):3.0f} % ({t:.1f} s of "
-                  f"{duration_s:g} s sim)", file=sys.stderr, flush=True)
+        line.update(t)
 
-    sub = session.declare_subscriber(vehicle_key(vehicle, SITL, "status"), on_status)
+    sub = None if quiet else session.declare_subscriber(
+        vehicle_key(vehicle, SITL, "status"), on_status)
     deadline = time.monotonic() + timeout_s
     try:
         while any(p.poll() is None for p in procs.values()):
@@ -455,7 +453,9 @@ def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen | WarmProc
                 return
             time.sleep(0.01)
     finally:
-        sub.undeclare()
+        if sub is not None:
+            sub.undeclare()
+        line.done()
 
 
 def fly(scenario: Scenario, settings: RunSettings, out_dir: Path,

@@ -55,6 +55,9 @@ class RunRecord:
     sim_time_us: np.ndarray | None = None
     mode_index: np.ndarray | None = None
     flags: np.ndarray | None = None
+    # In process: the first step's wall time, which loads (or compiles) the numerical core
+    # and is not part of wall_time_s.
+    startup_wall_s: float = 0.0
 
     @property
     def true_state(self) -> np.ndarray:

@@ -11,7 +11,7 @@ key                                    encoding  what
 ``ivfm/vehicle/V/{proc}/perturbation`` JSON      a perturbation took effect / ended
 ``ivfm/vehicle/V/{proc}/status``       JSON      1 Hz (wall) and final: counters per topic
 ``ivfm/vehicle/V/autopilot/scene``     JSON      what to draw: airframe, home, mission, fence,
-                                                 rally (on change and 1 Hz wall)
+                                                 rally (on change and 1 Hz sim time)
 ``mavlink/V/C/MSG``                    MAVLink   raw MAVLink 2 frames the autopilot produced
 ``ivfm/vehicle/V/{proc}/perturb``      query     perturbation requests (acknowledged)
 ``ivfm/vehicle/V/sitl/start``          query     release a held lockstep simulator

@@ -68,6 +68,7 @@ DEFAULT_RATE_HZ = 50.0
 DEFAULT_PATH_HZ = 2.0
 TRAIL_S = 60.0  # the path and reference trail drawn
 TRAIL_SAMPLE_S = 0.1  # one pose of the trail every this much sim time
+MATCH_WINDOW = 64  # truths kept, estimates waiting, to pair them by sim time
 MAX_SCENE_ITEMS = 512  # waypoints / fence vertices drawn from one scene record
 TF_TOPIC = "/tf"
 LOG_TOPIC = "/log"
@@ -159,8 +160,14 @@ class _Vehicle:
     path: deque = field(default_factory=lambda: deque(maxlen=int(TRAIL_S / TRAIL_SAMPLE_S)))
     reference_path: deque = field(
         default_factory=lambda: deque(maxlen=int(TRAIL_S / TRAIL_SAMPLE_S)))
+    next_reference_path_us: int = -1
     rotors_m: tuple[tuple[float, float, float], ...] = ()
-    truth: dict[str, Any] | None = None  # the last decoded truth state
+    # Truth states drawn (by sim time) and estimates waiting for the truth of their time:
+    # the two streams arrive in their own order, so an estimate is drawn once the truth
+    # has reached its time, against the latest truth at or before it (the same pairs on
+    # every run).
+    truths: deque = field(default_factory=lambda: deque(maxlen=MATCH_WINDOW))
+    estimates: deque = field(default_factory=lambda: deque(maxlen=MATCH_WINDOW))
     statustext: dict[int, list[str]] = field(default_factory=dict)  # id -> chunks
 
 
@@ -217,8 +224,8 @@ class FoxgloveView:
         pos, q = s["position_ned_m"], s["quaternion"]
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(q))):
             return []
-        v.truth = s
-        out = []
+        v.truths.append(s)
+        out = self._matched_estimates(vehicle, v)
         stamp = timestamp(t_us)
         if t_us >= v.next_tf_us:
             v.next_tf_us = t_us - t_us % self.period_us + self.period_us
@@ -242,9 +249,6 @@ class FoxgloveView:
             out.append(Output(vehicle_topic(vehicle, "path"), t_us * 1000,
                               fg.PosesInFrame(timestamp=stamp, frame_id=FRAME_NED,
                                               poses=list(v.path))))
-            out.append(Output(vehicle_topic(vehicle, "reference_path"), t_us * 1000,
-                              fg.PosesInFrame(timestamp=stamp, frame_id=FRAME_NED,
-                                              poses=list(v.reference_path))))
         return out
 
     # -- the controller: reference pose, plot-ready internals ----------------------------
@@ -267,6 +271,12 @@ class FoxgloveView:
             if t_us >= v.next_reference_trail_us:
                 v.next_reference_trail_us = t_us + round(TRAIL_SAMPLE_S * 1e6)
                 v.reference_path.append(pose)
+        if t_us >= v.next_reference_path_us:  # on the control records' own clock
+            v.next_reference_path_us = (t_us - t_us % self.path_period_us
+                                        + self.path_period_us)
+            out.append(Output(vehicle_topic(vehicle, "reference_path"), t_us * 1000,
+                              fg.PosesInFrame(timestamp=stamp, frame_id=FRAME_NED,
+                                              poses=list(v.reference_path))))
         mode_index = int(c["mode"])
         flags = int(c["flags"])
         controller: dict[str, Any] = {
@@ -297,11 +307,26 @@ class FoxgloveView:
     def _estimate(self, vehicle: int, payload: bytes) -> list[Output]:
         v = self._vehicle(vehicle)
         t_us = _sim_time_us(payload, ESTIMATE)
-        if t_us < v.next_estimate_us or v.truth is None:
+        if t_us < v.next_estimate_us:
             return []
         v.next_estimate_us = t_us - t_us % self.period_us + self.period_us
-        e = ESTIMATE.decode(payload)
-        truth = v.truth
+        v.estimates.append(ESTIMATE.decode(payload))
+        return self._matched_estimates(vehicle, v)
+
+    def _matched_estimates(self, vehicle: int, v: _Vehicle) -> list[Output]:
+        """The waiting estimates whose time the truth has reached."""
+        out = []
+        while v.estimates and v.truths and \
+                int(v.truths[-1]["sim_time_us"]) >= int(v.estimates[0]["sim_time_us"]):
+            e = v.estimates.popleft()
+            t_us = int(e["sim_time_us"])
+            before = [s for s in v.truths if int(s["sim_time_us"]) <= t_us]
+            if before:
+                out.append(self._estimate_record(vehicle, t_us, e, before[-1]))
+        return out
+
+    def _estimate_record(self, vehicle: int, t_us: int, e: dict[str, Any],
+                         truth: dict[str, Any]) -> Output:
         error = e["position_ned_m"] - truth["position_ned_m"]
         velocity_error = e["velocity_ned_mps"] - truth["velocity_ned_mps"]
         attitude_error = wrap_pi_array(euler_from_quat(e["quaternion"])
@@ -323,7 +348,7 @@ class FoxgloveView:
             "gps_test_ratio": _number(e["gps_test_ratio"]),
             "flags": int(e["flags"]),
         }
-        return [Output(vehicle_topic(vehicle, "estimator"), t_us * 1000, record)]
+        return Output(vehicle_topic(vehicle, "estimator"), t_us * 1000, record)
 
     # -- the scene: vehicle model, home, mission, fence, rally ----------------------------
     def _scene(self, vehicle: int, record: dict[str, Any]) -> list[Output]:

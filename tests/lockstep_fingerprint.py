@@ -1,7 +1,8 @@
 """Fingerprints of lockstep logs: proof that a refactoring changed no flight.
 
 A lockstep run through the processes is reproducible bit for bit, so the records its MCAP
-log holds (everything but the wall-clock channels: loop timing and status) hash to the
+log holds (everything but the wall-clock channels: loop timing and status; and Foxglove's
+view of them, beside the records, the same way) hash to the
 same digest run after run. Before a change meant to move nothing, save the digests of the
 paper scenarios and the mission scenario; after it, compare:
 
@@ -27,8 +28,11 @@ from pathlib import Path
 
 from mcap.reader import make_reader
 
-# Channels carrying wall-clock readings (loop timing, status records with uptimes).
+# Channels carrying wall-clock readings (loop timing, status records with uptimes), and
+# Foxglove's log of the vehicle's texts (stamped at wall-timed moments; its texts are the
+# STATUSTEXT channel's, compared there).
 WALL_CLOCK_SUFFIXES = ("/timing", "/status")
+SKIPPED_TOPICS = ("/log",)
 # Mirrored messages sent to ground tools at wall-clock moments.
 WALL_TIMED_SUFFIXES = ("/STATUSTEXT", "/COMMAND_ACK")
 SCENARIOS = ("attitude-sine", "attitude-hold", "position-sine", "attitude-jr-10",
@@ -50,7 +54,8 @@ def log_digests(run_dir: Path) -> dict[str, str]:
     for path in sorted(run_dir.glob("*.mcap")):
         with open(path, "rb") as f:
             for _, channel, message in make_reader(f).iter_messages(log_time_order=False):
-                if channel.topic.endswith(WALL_CLOCK_SUFFIXES):
+                if channel.topic.endswith(WALL_CLOCK_SUFFIXES) or \
+                        channel.topic in SKIPPED_TOPICS:
                     continue
                 time_ns, sequence, data = message.publish_time, message.sequence, message.data
                 if channel.message_encoding == "mavlink":

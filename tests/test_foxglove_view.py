@@ -85,7 +85,7 @@ def test_outputs_are_decimated_on_sim_time_whatever_the_record_rate():
         for out in view.feed(STATE_KEY, state_payload(t_us)):
             counts[out.topic] = counts.get(out.topic, 0) + 1
             assert out.sim_time_ns == t_us * 1000
-    assert counts == {"/tf": 100, "/vehicle1/path": 4, "/vehicle1/reference_path": 4}
+    assert counts == {"/tf": 100, "/vehicle1/path": 4}
 
 
 def test_the_path_keeps_the_last_minute_at_10_hz():
@@ -185,3 +185,33 @@ def test_every_plot_of_the_shipped_layout_names_a_field_the_view_writes():
         assert value is None or isinstance(value, float), path
     topics = set(layout["configById"]["3D!scene"]["topics"]) | {"/log"}
     assert topics <= set(records) | {"/vehicle1/scene", "/log"}
+
+
+def _estimate_payload(t_us: int, north_m: float) -> bytes:
+    from contracts.telemetry import ESTIMATE
+
+    record = ESTIMATE.buffer()
+    record["sim_time_us"] = t_us
+    record["position_ned_m"] = (north_m, 2.0, -3.0)
+    record["quaternion"] = quat_from_euler(0.1, -0.2, 0.3)
+    return record.encode()
+
+
+@pytest.mark.parametrize("estimates_first", [True, False])
+def test_the_estimate_is_drawn_against_the_truth_of_its_time_in_any_arrival_order(
+        estimates_first):
+    """The truth and the estimate come on two streams: whichever comes first, each
+    estimate is paired with the truth at its own sim time (a lockstep log is the same
+    on every run)."""
+    view = FoxgloveView(rate_hz=50.0)
+    truths = [(STATE_KEY, state_payload(t, position=(t / 1e6, 2.0, -3.0)))
+              for t in range(0, 200_000, 20_000)]
+    estimates = [("ivfm/vehicle/1/autopilot/estimate", _estimate_payload(t, t / 1e6 + 0.5))
+                 for t in range(0, 200_000, 20_000)]
+    order = estimates + truths if estimates_first else \
+        [r for pair in zip(truths, estimates, strict=True) for r in pair]
+    drawn = [o.message for key, payload in order for o in view.feed(key, payload)
+             if o.topic == "/vehicle1/estimator"]
+    assert [d["t_s"] for d in drawn] == pytest.approx([k * 0.02 for k in range(10)])
+    assert [d["position_error_m"]["n"] for d in drawn] == pytest.approx([0.5] * 10)
+    assert all(d["truth_age_s"] == 0 for d in drawn)

@@ -3,9 +3,9 @@
 Each control step: the control record (the controller's internals), the timing record,
 the estimate record (on the estimator), perturbation events as they happen, and the
 MAVLink mirror: the motor command, a few telemetry streams on sim time, and the
-announcements and acknowledgements sent to ground tools; once a second, the status and
-the scene (what a viewer draws: airframe, home, mission, fence, rally), and the scene
-again whenever the mission lists or home change.
+announcements and acknowledgements sent to ground tools; once a second of wall time,
+the status; once a second of sim time and whenever the mission lists or home change,
+the scene (what a viewer draws: airframe, home, mission, fence, rally).
 The control loop says when; this class knows what goes into each record.
 """
 
@@ -85,6 +85,7 @@ class TelemetryPublisher:
                            "rotors": [list(r) for r in airframe_rotors[1]]}
                           if airframe_rotors else {"name": "", "rotors": []})
         self._scene_of: tuple | None = None  # the lists and home the last scene drew
+        self._scene_due_us = 0  # the next sim time a scene goes out unchanged
         if node.enabled:
             ground.on_sent = self.mirror_tool_message
             # Declared now: a first declaration inside the loop would cost a deadline.
@@ -120,6 +121,7 @@ class TelemetryPublisher:
         record["compute_s"] = compute_s
         record["period_s"] = math.nan if previous is None else start_wall_s - previous
         self.timing_pub.put(record.encode())
+        self.scene(time_us)
         if self.estimate_pub is not None and v.estimator_status is not None:
             self._publish_estimate(time_us, v.estimator_status)
         if v.perturbations.entries:
@@ -162,26 +164,24 @@ class TelemetryPublisher:
             self.node.mirror(self.sysid, AUTOPILOT_COMPID, kind, frame,
                              round(self.vehicle.sim_t_s * 1e6))
 
-    def scene(self, due: bool) -> None:
-        """The scene record when ``due`` (with the status) or when what it draws changed
-        (the stored lists are replaced whole, so identity tells)."""
-        if not self.node.enabled:
-            return
+    def scene(self, time_us: int) -> None:
+        """The scene record once a second of sim time (for viewers that join late), and
+        at once when what it draws changed (the stored lists are replaced whole, so
+        identity tells). On sim time, so a lockstep log is the same on every run."""
         v = self.vehicle
         lists = v.mission.lists
         drawn = (lists[MISSION], lists[FENCE], lists[RALLY], v.home, v.mission.current)
-        if not due and self._scene_of is not None and all(
+        if time_us < self._scene_due_us and self._scene_of is not None and all(
                 a is b or a == b for a, b in zip(drawn, self._scene_of, strict=True)):
             return
         self._scene_of = drawn
-        self.scene_pub.put(json_record(self.scene_pub.count, round(v.sim_t_s * 1e6),
+        self._scene_due_us = time_us - time_us % 1_000_000 + 1_000_000
+        self.scene_pub.put(json_record(self.scene_pub.count, time_us,
                                        **scene_fields(v, self._airframe)))
 
     def status(self, steps: int, final: bool = False) -> None:
         """The status record, when due (once a second) or ``final``."""
-        due = self.node.status_due(final)
-        self.scene(due)
-        if not due:
+        if not self.node.status_due(final):
             return  # asked every 5 ms, published once a second: gather nothing till then
         # The timing summary only goes into the final status (it reads whole histograms).
         summary = self.timing.summary() if final and not self.lockstep else {}

@@ -21,9 +21,9 @@ topic                          schema              what
 ``/vehicleV/path``             PosesInFrame        the path flown (last TRAIL_S seconds)
 ``/vehicleV/reference_path``   PosesInFrame        the reference over the same time
 ``/vehicleV/reference``        PoseInFrame         the reference now
-``/vehicleV/controller``       JSON                per channel: sliding surface, f_hat,
-                                                   u_eq, u_s, control, theta_g; motors
-``/vehicleV/tracking``         JSON                per channel: reference, measured, error
+``/vehicleV/controller``       JSON                per channel: reference, measured,
+                                                   error, sliding surface, f_hat, u_eq,
+                                                   u_s, control, theta_g; motors, mode
 ``/vehicleV/estimator``        JSON                estimate against the truth (on the
                                                    estimator)
 ``/log``                       Log                 STATUSTEXT and perturbation events
@@ -79,7 +79,7 @@ INTERNAL_NAMES = {"ref": "reference", "y": "measured", "e": "error",
                   "e_s": "sliding_surface", "e_eps": "boundary_layer_distance",
                   "f_hat": "f_hat", "u_eq": "u_eq", "u_s": "u_s", "v": "control",
                   "theta_g_channel": "theta_g"}
-TRACKING = ("ref", "y", "e")
+INTERNAL_FIELDS = tuple(INTERNAL_NAMES[name] for name in CHANNEL_INTERNALS)
 SEVERITY_LEVEL = {0: fg.LogLevel.Fatal, 1: fg.LogLevel.Fatal, 2: fg.LogLevel.Fatal,
                   3: fg.LogLevel.Error, 4: fg.LogLevel.Warning, 5: fg.LogLevel.Info,
                   6: fg.LogLevel.Info, 7: fg.LogLevel.Debug}
@@ -279,28 +279,23 @@ class FoxgloveView:
                                               poses=list(v.reference_path))))
         mode_index = int(c["mode"])
         flags = int(c["flags"])
+        # One conversion of the 6 x 10 internals to Python numbers (NaN as None).
+        table = _numbers(np.stack([c[f"ch_{name}"] for name in CHANNEL_INTERNALS], axis=1))
+        theta_f = [c[name] for name in ("theta_f_phi", "theta_f_theta", "theta_f_psi")]
+        norms = _numbers(np.array([np.sqrt(w @ w) if len(w) else np.nan for w in theta_f]))
         controller: dict[str, Any] = {
             "t_s": t_us / 1e6,
             "mode": _MODES[mode_index].name if 0 <= mode_index < len(_MODES) else "",
             "armed": bool(flags & FLAG_ARMED), "failsafe": bool(flags & FLAG_FAILSAFE),
-            "motors": [_number(m) for m in c["motor_commands"]]}
-        tracking: dict[str, Any] = {"t_s": t_us / 1e6}
+            "motors": _numbers(c["motor_commands"]),
+            "speed_mps": _number(np.sqrt(meas[MEASUREMENT.velocity_ned_mps]
+                                         @ meas[MEASUREMENT.velocity_ned_mps]))}
         for i, channel in enumerate(CHANNELS):
-            internals = {INTERNAL_NAMES[name]: _number(c[f"ch_{name}"][i])
-                         for name in CHANNEL_INTERNALS}
-            controller[channel] = internals
-            tracking[channel] = {INTERNAL_NAMES[name]: internals[INTERNAL_NAMES[name]]
-                                 for name in TRACKING}
-        controller["theta_g"] = {ch: _number(g) for ch, g in zip(CHANNELS, c["theta_g"],
-                                                                   strict=True)}
-        for i, name in enumerate(("theta_f_phi", "theta_f_theta", "theta_f_psi")):
-            weights = c[name]
-            controller[CHANNELS[i]]["theta_f_norm"] = (
-                _number(float(np.linalg.norm(weights))) if len(weights) else None)
-        velocity = meas[MEASUREMENT.velocity_ned_mps]
-        tracking["speed_mps"] = _number(float(np.linalg.norm(velocity)))
+            controller[channel] = dict(zip(INTERNAL_FIELDS, table[i], strict=True))
+            if i < 3:
+                controller[channel]["theta_f_norm"] = norms[i]
+        controller["theta_g"] = dict(zip(CHANNELS, _numbers(c["theta_g"]), strict=True))
         out.append(Output(vehicle_topic(vehicle, "controller"), t_us * 1000, controller))
-        out.append(Output(vehicle_topic(vehicle, "tracking"), t_us * 1000, tracking))
         return out
 
     # -- the estimator against the truth --------------------------------------------------
@@ -442,6 +437,11 @@ def _sim_time_us(payload: bytes, schema: Any) -> int:
     if len(payload) < schema.fixed_size:
         raise ValueError(f"{schema.name}: payload of {len(payload)} bytes is too short")
     return _SIM_TIME.unpack_from(payload, 12)[0]
+
+
+def _numbers(values: np.ndarray) -> list:
+    """Python numbers of an array (nested lists for 2-D), NaN and infinities as None."""
+    return np.where(np.isfinite(values), values, None).tolist()
 
 
 def _number(x: Any) -> float | None:

@@ -92,8 +92,7 @@ def test_the_live_view_serves_the_mission_flight_to_a_foxglove_client(six_waypoi
         "/vehicle1/path": "foxglove.PosesInFrame",
         "/vehicle1/reference_path": "foxglove.PosesInFrame",
         "/vehicle1/reference": "foxglove.PoseInFrame", "/log": "foxglove.Log",
-        "/vehicle1/controller": "ivfm.view.vehicle1.controller",
-        "/vehicle1/tracking": "ivfm.view.vehicle1.tracking"}
+        "/vehicle1/controller": "ivfm.view.vehicle1.controller"}
     # Rates in sim time (the view decimates on it): transforms and plots at 50 Hz, the
     # path at 2 Hz, without a gap to the flight's end. (A channel is advertised with its
     # first message; what comes before the viewer's subscription reaches it is not sent:

@@ -197,6 +197,21 @@ def _no_arguments(_p: argparse.ArgumentParser) -> None:
     pass
 
 
+def _campaign_parser(p: argparse.ArgumentParser) -> None:
+    p.add_argument("campaign", help="a shipped campaign (ivfm campaigns) or a campaign .toml")
+    p.add_argument("--out", type=Path,
+                   help="the campaign folder (default runs/NAME; the same folder resumes)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="a running Dask scheduler (tcp://HOST:8786) instead of a "
+                        "LocalCluster on this machine")
+    p.add_argument("--workers", type=number(1, 1024, integer=True),
+                   help="LocalCluster workers (default: one per CPU)")
+    p.add_argument("--runs", type=number(1, 100_000, integer=True),
+                   help="draws per scenario (default: the file's)")
+    p.add_argument("--report-only", action="store_true",
+                   help="write the report from the runs in the folder, fly nothing")
+
+
 # (command, help, description, what adds its arguments): in the order ``ivfm --help`` lists.
 _COMMANDS: tuple[tuple[str, str, str | None, Callable[[argparse.ArgumentParser], None]], ...] = (
     ("run", "run one scenario and write metrics.json and figures", None, _run_parser),
@@ -222,7 +237,13 @@ _COMMANDS: tuple[tuple[str, str, str | None, Callable[[argparse.ArgumentParser],
      "later inherits it), so that the simulator and autopilot started with --rt-cpus on "
      "the same list have them to themselves. Needs root (CAP_SYS_NICE) for other users' "
      "processes. --off lifts it.", _shield_parser),
+    ("campaign", "many randomized flights on Dask, summarised with statistics",
+     "Fly every draw of a campaign file with every controller it names, on a Dask cluster "
+     "(a LocalCluster on this machine unless --scheduler), streaming results into the "
+     "folder; a rerun skips finished runs. Writes results.csv, runs/*.json, report.md, "
+     "report.json and figures (docs/campaigns.md).", _campaign_parser),
     ("scenarios", "list the scenarios", None, _no_arguments),
+    ("campaigns", "list the shipped campaign files", None, _no_arguments),
     ("params", "list the controller parameters with defaults", None, _no_arguments),
 )
 
@@ -353,6 +374,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             "compare": commands.compare_command,
             "identify": commands.identify_command,
             "scenarios": commands.scenarios_command,
+            "campaign": commands.campaign_command,
+            "campaigns": commands.campaigns_command,
             "shield": commands.shield_command,
             "params": commands.params_command,
             "sitl": commands.sitl_command,

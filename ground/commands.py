@@ -295,6 +295,45 @@ def scenarios_command(args: argparse.Namespace) -> int:
     return 0
 
 
+def campaigns_command(args: argparse.Namespace) -> int:
+    from ground.campaign.spec import read_campaign, shipped_campaigns
+
+    for name in shipped_campaigns():
+        c = read_campaign(name)
+        print(f"{c.name:<22} {c.description} ({c.tasks} runs; {c.source})")
+    return 0
+
+
+def campaign_command(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from ground.campaign.report import markdown, write_report
+    from ground.campaign.run import read_rows, run_campaign
+    from ground.campaign.spec import read_campaign
+
+    campaign = read_campaign(args.campaign)
+    if args.runs is not None:
+        campaign = dataclasses.replace(campaign, runs=args.runs)
+    out = args.out or Path("runs") / campaign.name
+    if not args.report_only:
+        try:
+            counts = run_campaign(campaign, out, scheduler=args.scheduler,
+                                  workers=args.workers)
+        except KeyboardInterrupt:
+            print("ivfm: campaign stopped; its finished runs are in "
+                  f"{out}; the same command goes on from there", file=sys.stderr)
+            return 130
+        print(f"ivfm: {counts['flown']} runs flown ({counts['failed']} failed), "
+              f"{counts['skipped']} done before, of {counts['total']}", file=sys.stderr)
+    rows = read_rows(out)
+    if not rows:
+        raise UsageError(f"{out} holds no finished runs")
+    report = write_report(out, campaign.name, campaign.kind, campaign.controllers, rows)
+    print(markdown(campaign.name, campaign.kind, report))
+    print(f"wrote {out / 'report.md'}, report.json, results.csv and figures")
+    return 0
+
+
 def params_command(args: argparse.Namespace) -> int:
     from autopilot.parameters import PARAMETERS
 

@@ -196,7 +196,7 @@ def test_a_campaign_on_a_local_cluster_survives_a_killed_worker_and_resumes(tmp_
 
     def kill_one(row, client):
         if not killed:
-            pids = [w["pid"] for w in client.scheduler_info()["workers"].values()]
+            pids = list(client.run(os.getpid).values())
             victim = next(p for p in pids if p != row["worker_pid"]) if len(pids) > 1 \
                 else pids[0]
             os.kill(victim, signal.SIGKILL)

@@ -107,7 +107,7 @@ def model_file_name(airframe: str, seed: int, clusters: int = DEFAULT_CLUSTERS) 
     return f"{Path(airframe).stem}-seed{seed}-c{clusters}.json"
 
 
-@functools.lru_cache(maxsize=8)
+@functools.lru_cache(maxsize=64)  # ~50 KB each: every seed of a campaign, once per worker
 def identified_model_json(airframe: str, seed: int, clusters: int = DEFAULT_CLUSTERS) -> str:
     """The model file's text of an identification with this excitation seed (kept per
     worker: every controller and scenario of a draw flies the same one)."""

@@ -155,14 +155,18 @@ def flight_figures(rows: list[dict[str, Any]], controllers: tuple[str, ...],
                     for c in controllers]
             plots[0, col].boxplot(data, showfliers=True)
             plots[0, col].set_xticks(range(1, len(controllers) + 1), controllers)
-            plots[0, col].set_yscale("log")
+            every = np.concatenate([np.asarray(v, dtype=float) for v in data if v])
+            spread = every.max() / every.min() if every.size and every.min() > 0 else 1.0
+            scale = "log" if spread > 10 else "linear"  # decades apart, or close together
+            plots[0, col].set_yscale(scale)
             plots[0, col].set_title(f"{axis} RMSE", fontsize=9)
             for c, values in zip(controllers, data, strict=True):
                 if values:
                     v = np.sort(values)
                     plots[1, col].step(v, np.arange(1, v.size + 1) / v.size, where="post",
                                        label=c)
-            plots[1, col].set_xscale("log")
+            plots[1, col].set_xscale(scale)
+            plots[1, col].tick_params(axis="x", labelsize=7)
             plots[1, col].set_xlabel(f"{axis} RMSE")
         plots[1, 0].set_ylabel("fraction of draws")
         plots[1, 0].legend(fontsize=8)
@@ -178,19 +182,21 @@ def flight_figures(rows: list[dict[str, Any]], controllers: tuple[str, ...],
         factors = [f for f in factors if np.ptp([r.get(f, 0.0) for r in mine]) > 0][:4]
         if not factors:
             continue
-        worst = max(axes, key=lambda a: np.median([r[f"{a}_rmse"] for r in mine]))
-        fig, plots = plt.subplots(1, len(factors), figsize=(3.6 * len(factors), 3.4),
+        fig, plots = plt.subplots(len(axes), len(factors),
+                                  figsize=(3.2 * len(factors), 2.4 * len(axes)),
                                   squeeze=False)
-        for col, factor in enumerate(factors):
-            for c in controllers:
-                chosen = [r for r in mine if r["controller"] == c]
-                plots[0, col].scatter([r[factor] for r in chosen],
-                                      [r[f"{worst}_rmse"] for r in chosen], s=8, label=c)
-            plots[0, col].set_yscale("log")
-            plots[0, col].set_xlabel(factor)
-        plots[0, 0].set_ylabel(f"{worst} RMSE")
-        plots[0, 0].legend(fontsize=8)
-        fig.suptitle(f"{scenario}: {worst} RMSE against what was drawn")
+        for row, axis in enumerate(axes):
+            for col, factor in enumerate(factors):
+                for c in controllers:
+                    chosen = [r for r in mine if r["controller"] == c]
+                    plots[row, col].scatter([r[factor] for r in chosen],
+                                            [r[f"{axis}_rmse"] for r in chosen], s=6, label=c)
+                plots[row, col].tick_params(labelsize=7)
+                if row == len(axes) - 1:
+                    plots[row, col].set_xlabel(factor)
+            plots[row, 0].set_ylabel(f"{axis} RMSE")
+        plots[0, 0].legend(fontsize=7)
+        fig.suptitle(f"{scenario}: RMSE against what was drawn")
         fig.tight_layout()
         path = out_dir / f"{scenario}-factors.png"
         fig.savefig(path, dpi=100)

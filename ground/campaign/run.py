@@ -1,9 +1,10 @@
 """Running a campaign on Dask distributed (docs/campaigns.md).
 
 The client (``ivfm campaign``) turns the campaign into tasks, one per (scenario, draw,
-controller) or, for an identification campaign, one per draw, and sends them to a Dask
-cluster: a LocalCluster sized to this machine by default, or the scheduler given. Each
-task is a whole flight (in process, or through the three processes) and returns one row.
+controller) or, for an identification campaign, one per (seed, clusters), and sends
+them to a Dask cluster in small batches: a LocalCluster sized to this machine by
+default, or the scheduler given. Each task is a whole flight (in process, or through the
+three processes) and gives one row.
 
 Results stream into the campaign folder as tasks finish: ``runs/ID.json`` per run
 (written whole, then renamed: a crash or Ctrl-C loses no finished run), and
@@ -173,6 +174,36 @@ def run_task(task: dict[str, Any]) -> dict[str, Any]:
     return row
 
 
+def run_batch(tasks: list[dict[str, Any]], out_dir: str | None = None) -> list[dict[str, Any]]:
+    """Several tasks on one worker, in turn. With ``out_dir`` (a folder the worker shares
+    with the client: a LocalCluster), each run is saved there as soon as it is flown, so a
+    Ctrl-C or a crash of the client loses no finished run of a batch still flying."""
+    rows = []
+    for task in tasks:
+        row = run_task(task)
+        if out_dir is not None and Path(out_dir).is_dir():
+            save_row(Path(out_dir), task, dict(row))
+        rows.append(row)
+    return rows
+
+
+def save_row(out_dir: Path, task: dict[str, Any], row: dict[str, Any]) -> None:
+    """runs/ID.json, written whole then renamed (and the model a draw identified)."""
+    model_json = row.pop("model_json", None)
+    if model_json is not None:
+        path = out_dir / MODELS_DIR / task["model_file"]
+        if not path.exists():
+            tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+            tmp.write_text(model_json)
+            os.replace(tmp, path)
+    _write_json(out_dir / RUNS_DIR / f"{row['id']}.json", row)
+
+
+def batch_size(tasks: int, workers: int) -> int:
+    """Up to 4 runs a batch, keeping at least 4 batches a worker (to balance the load)."""
+    return max(1, min(4, tasks // max(1, 4 * workers)))
+
+
 def _fly(task: dict[str, Any]) -> dict[str, Any]:
     from ground.flights import Overrides, plan_flight
     from ground.metrics import compute_metrics
@@ -292,7 +323,7 @@ class CampaignProgress:
 
 
 def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(path.name + ".tmp")
+    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # client and worker may both
     tmp.write_text(json.dumps(data, indent=1, default=float))
     os.replace(tmp, path)
 
@@ -380,28 +411,29 @@ def run_campaign(campaign: Campaign, out_dir: Path, scheduler: str | None = None
     say(f"{campaign.name}: {len(todo)} runs to fly ({counts['skipped']} done before) on "
         f"{n_workers} Dask worker(s) at {client.scheduler.address}; results in {out_dir}")
     progress = CampaignProgress(len(tasks), counts["skipped"], stream)
-    futures = client.map(run_task, todo, pure=False,
-                         key=[f"{campaign.name}-{t['id']}" for t in todo])
-    task_of = {f.key: t for f, t in zip(futures, todo, strict=True)}
+    # A few runs per Dask task: Dask's own cost per task (scheduler, client, messages)
+    # is then paid once per batch (throughput 0.76 -> 0.82 of 2 x one plain process here).
+    size = batch_size(len(todo), n_workers)
+    batches = [todo[i:i + size] for i in range(0, len(todo), size)]
+    shared = str(out_dir.resolve()) if scheduler is None else None  # workers see the folder
+    futures = client.map(run_batch, batches, [shared] * len(batches), pure=False,
+                         key=[f"{campaign.name}-{b[0]['id']}-x{len(b)}" for b in batches])
+    batch_of = {f.key: b for f, b in zip(futures, batches, strict=True)}
     try:
         for future in as_completed(futures):
+            batch = batch_of[future.key]
             try:
-                row = future.result()
+                rows = future.result()
             except Exception as exc:  # noqa: BLE001 (a task Dask gave up on: KilledWorker)
-                task = task_of[future.key]
-                row = {"id": task["id"], "kind": task["kind"], "draw": task["draw"],
-                       **task["values"], "error": f"{type(exc).__name__}: {exc}"[:500]}
-            model_json = row.pop("model_json", None)
-            if model_json is not None:
-                path = out_dir / MODELS_DIR / task_of[future.key]["model_file"]
-                if not path.exists():
-                    path.write_text(model_json)
-            _write_json(out_dir / RUNS_DIR / f"{row['id']}.json", row)
-            counts["flown"] += 1
-            counts["failed"] += bool(row.get("error"))
-            progress.update(bool(row.get("error")))
-            if on_result is not None:
-                on_result(row, client)
+                rows = [{"id": t["id"], "kind": t["kind"], "draw": t["draw"], **t["values"],
+                         "error": f"{type(exc).__name__}: {exc}"[:500]} for t in batch]
+            for task, row in zip(batch, rows, strict=True):
+                save_row(out_dir, task, row)
+                counts["flown"] += 1
+                counts["failed"] += bool(row.get("error"))
+                progress.update(bool(row.get("error")))
+                if on_result is not None:
+                    on_result(row, client)
     except KeyboardInterrupt:
         say(f"stopped: {counts['flown']} runs finished this time are kept; run the same "
             "command again to fly the rest")

@@ -216,3 +216,29 @@ def test_a_campaign_on_a_local_cluster_survives_a_killed_worker_and_resumes(tmp_
     assert {r["id"]: r["phi_rmse"] for r in read_rows(tmp_path) if r["id"] in first} == first
     assert json.loads((tmp_path / "runs" / "attitude-jr-20-d00006-t1fc.json").read_text())[
         "draw"] == 6
+
+
+@pytest.mark.process
+def test_ctrl_c_keeps_every_finished_run_and_the_rerun_flies_only_the_rest(tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "smoke"
+    argv = [sys.executable, "-m", "ground.cli", "campaign", "smoke", "--runs", "20", "--out",
+            str(out), "--workers", "2"]
+    first = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while len(list((out / "runs").glob("*.json"))) < 6 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    first.send_signal(signal.SIGINT)
+    _, err = first.communicate(timeout=60)
+    assert first.returncode == 130, err
+    assert "finished runs are in" in err
+    kept = {p.stem for p in (out / "runs").glob("*.json")}
+    assert 6 <= len(kept) < 40
+    again = subprocess.run(argv, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 0, again.stderr
+    assert f"{40 - len(kept)} runs flown (0 failed), {len(kept)} done before, of 40" in \
+        again.stderr
+    assert len(read_rows(out)) == 40

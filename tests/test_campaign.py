@@ -227,7 +227,10 @@ def test_ctrl_c_keeps_every_finished_run_and_the_rerun_flies_only_the_rest(tmp_p
     out = tmp_path / "smoke"
     argv = [sys.executable, "-m", "ground.cli", "campaign", "smoke", "--runs", "20", "--out",
             str(out), "--workers", "2"]
-    first = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # Ctrl-C as a terminal sends it (SIGINT handled: a shell's background job has it
+    # ignored, and the child would inherit that).
+    first = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while len(list((out / "runs").glob("*.json"))) < 6 and time.monotonic() < deadline:
         time.sleep(0.05)

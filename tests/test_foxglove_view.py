@@ -215,3 +215,48 @@ def test_the_estimate_is_drawn_against_the_truth_of_its_time_in_any_arrival_orde
     assert [d["t_s"] for d in drawn] == pytest.approx([k * 0.02 for k in range(10)])
     assert [d["position_error_m"]["n"] for d in drawn] == pytest.approx([0.5] * 10)
     assert all(d["truth_age_s"] == 0 for d in drawn)
+
+
+@pytest.mark.process
+def test_ivfm_ground_view_serves_what_it_hears_over_zenoh(tmp_path):
+    """`ivfm ground view` as a process: records published on a real Zenoh session reach a
+    WebSocket client as Foxglove messages; a hostile scene record is said and skipped."""
+    import signal
+    import subprocess
+    import sys
+    import threading
+    import time
+
+    from contracts.zenoh_link import ZenohOptions, open_session
+    from ground.processes import free_tcp_port
+    from tests.foxglove_client import collect
+
+    endpoint, port = f"tcp/127.0.0.1:{free_tcp_port()}", free_tcp_port()
+    session = open_session(ZenohOptions("peer", listen=[endpoint], connect=[]))
+    view = subprocess.Popen([sys.executable, "-m", "ground.cli", "ground", "view", "--view",
+                             f"127.0.0.1:{port}", "--zenoh-connect", endpoint],
+                            stderr=subprocess.PIPE, text=True,  # stops on SIGINT, as Ctrl-C
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    got: dict = {}
+    watcher = threading.Thread(target=lambda: got.update(received=collect(
+        f"ws://127.0.0.1:{port}", 20.0, until=lambda r: len(r.messages["/tf"]) >= 40)))
+    try:
+        watcher.start()
+        time.sleep(1.0)  # the viewer connected, the view's session linked
+        session.put(SCENE_KEY, scene_payload(mission=[[0, 1.0, 0.0, 0.0]] * 600))  # refused
+        for t_us in range(0, 4_000_000, 10_000):  # 100 Hz for 4 s of sim time
+            session.put(STATE_KEY, state_payload(t_us))
+            if t_us % 500_000 == 0:
+                session.put(SCENE_KEY, scene_payload())
+            time.sleep(0.002)
+        watcher.join(timeout=30)
+    finally:
+        session.close()
+        view.send_signal(signal.SIGINT)
+        _, err = view.communicate(timeout=20)
+    received = got["received"]
+    assert {"/tf", "/vehicle1/scene", "/vehicle1/path"} <= received.topics()
+    stamps = np.array([t for t, _ in received.messages["/tf"]])
+    assert len(stamps) >= 40 and np.all(np.diff(stamps) == 20_000_000)  # 50 Hz of sim time
+    assert "cannot draw a record on ivfm/vehicle/1/autopilot/scene" in err
+    assert "at most 512" in err and view.returncode == 0

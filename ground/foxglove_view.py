@@ -48,7 +48,7 @@ from foxglove import messages as fg
 
 from contracts import AUTOPILOT, SITL
 from contracts.frames import euler_from_quat, quat_from_euler, wrap_pi_array
-from contracts.mavlink import mavlink
+from contracts.mavlink import StatustextAssembler, mavlink
 from contracts.modes import FlightMode
 from contracts.telemetry import (
     CONTROL,
@@ -168,7 +168,7 @@ class _Vehicle:
     # every run).
     truths: deque = field(default_factory=lambda: deque(maxlen=MATCH_WINDOW))
     estimates: deque = field(default_factory=lambda: deque(maxlen=MATCH_WINDOW))
-    statustext: dict[int, list[str]] = field(default_factory=dict)  # id -> chunks
+    statustext: StatustextAssembler = field(default_factory=StatustextAssembler)
 
 
 class FoxgloveView:
@@ -414,22 +414,13 @@ class FoxgloveView:
             return []
         if msg.get_type() != "STATUSTEXT":
             return []
-        text = msg.text if isinstance(msg.text, str) else bytes(msg.text).decode(
-            "utf-8", "replace")
-        text = text.rstrip("\x00")
-        v = self._vehicle(vehicle)
-        if msg.id:  # chunked (MAVLink 2): gathered until the chunk that ends it
-            chunks = v.statustext.setdefault(msg.id, [])
-            if len(v.statustext) > 16:
-                v.statustext.pop(next(iter(v.statustext)))
-            chunks.append(text)
-            if len(text) == 50 and len(chunks) < 8:
-                return []
-            text = "".join(v.statustext.pop(msg.id, chunks))
+        text = self._vehicle(vehicle).statustext.add(msg)  # chunks joined, as tools do
+        if text is None:
+            return []
         return [Output(LOG_TOPIC, t_us * 1000, fg.Log(
             timestamp=timestamp(t_us), level=SEVERITY_LEVEL.get(msg.severity,
                                                                 fg.LogLevel.Info),
-            message=text, name=body_frame(vehicle)))]
+            message=text.rstrip("\x00"), name=body_frame(vehicle)))]
 
 
 def _sim_time_us(payload: bytes, schema: Any) -> int:

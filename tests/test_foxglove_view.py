@@ -260,3 +260,19 @@ def test_ivfm_ground_view_serves_what_it_hears_over_zenoh(tmp_path):
     assert len(stamps) >= 40 and np.all(np.diff(stamps) == 20_000_000)  # 50 Hz of sim time
     assert "cannot draw a record on ivfm/vehicle/1/autopilot/scene" in err
     assert "at most 512" in err and view.returncode == 0
+
+
+def test_a_long_statustext_is_one_log_message_when_its_chunks_are_in():
+    from contracts.mavlink import new_mavlink, statustext_messages
+    from contracts.telemetry import MIRROR_ATTACHMENT
+
+    mav = new_mavlink(1, 1)
+    text = "geofence breached: 31.2 m from home, beyond 30 m; GF_ACTION hold" * 2
+    view = FoxgloveView()
+    logs = []
+    for i, msg in enumerate(statustext_messages(4, text, 7)):
+        logs += view.feed("mavlink/1/1/STATUSTEXT", msg.pack(mav),
+                          MIRROR_ATTACHMENT.pack(i, 5_000_000))
+    (log,) = logs
+    assert log.topic == "/log" and log.sim_time_ns == 5_000_000_000
+    assert decoded(log.message).message == text

@@ -130,8 +130,7 @@ def _distribution(name: str, data: Any, low: float, high: float, where: str) -> 
             raise ValueError(f"{where}.{name}.normal: mean {numbers[0]:g} out of "
                              f"[{low:g}, {high:g}]")
     else:
-        checked = numbers if kind != "uniform" else numbers
-        for n in checked:
+        for n in numbers:
             if not low <= n <= high:
                 raise ValueError(f"{where}.{name}: {n:g} is out of [{low:g}, {high:g}]")
         if kind in ("uniform", "integers") and numbers[0] > numbers[1]:

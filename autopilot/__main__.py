@@ -173,7 +173,8 @@ def run(args: argparse.Namespace) -> int:
         options = {}
         for item in args.reference_option:
             name, _, value = item.partition("=")
-            if name not in ("yaw_rad", "amplitude", "hold_start_s", "hold_end_s", "seed"):
+            if name not in ("yaw_rad", "amplitude", "hold_start_s", "hold_end_s", "seed",
+                            "rate_rad_s"):
                 raise ValueError(f"--reference-option: unknown field {name!r}")
             try:
                 options[name] = float(value)

@@ -32,7 +32,9 @@ SHIPPED_DIR = "airframes"
 COMMAND_MAPS = ("speed", "thrust")  # c -> W = c W_max (jMAVSim, Gazebo) / T = c T_max (SIH)
 SPINS = {"cw": 1.0, "ccw": -1.0}
 _TOP_KEYS = {"name", "description", "mass_kg", "inertia_kgm2", "linear_drag_nspm",
-             "command_map", "rotor", "parameters"}
+             "command_map", "rotor", "parameters", "envelope"}
+_ENVELOPE_KEYS = ("attitude_rad", "rate_rad_s", "yaw_rate_rad_s")
+ENVELOPE_LIMITS = {"attitude_rad": 1.2, "rate_rad_s": 5.0, "yaw_rate_rad_s": 5.0}
 _ROTOR_KEYS = {"position_m", "spin", "thrust_coeff_ns2", "moment_coeff_nms2", "max_rad_s",
                "time_constant_s", "inertia_kgm2"}
 
@@ -66,6 +68,10 @@ class AirframeSpec:
     # values checked by the autopilot's parameter table where they are used; not part of
     # the fingerprint (a model identified on the vehicle does not depend on them).
     parameters: tuple[tuple[str, float], ...] = ()
+    # [envelope]: the roll/pitch attitude [rad], roll/pitch rate and yaw rate [rad/s] the
+    # vehicle flies, which its identification must cover (ivfm identify); None: the
+    # paper's. Not part of the fingerprint either.
+    envelope: tuple[float, float, float] | None = None
 
     def fingerprint(self) -> str:
         """A short hash of everything that makes the vehicle fly as it does (not its name
@@ -144,6 +150,7 @@ def parse_airframe(data: dict[str, Any], where: str = "airframe",
         rotors=tuple(_rotor(r, f"{where}: rotor[{i + 1}]") for i, r in enumerate(rotors)),
         source=where,
         parameters=_parameters(data.get("parameters", {}), where),
+        envelope=_envelope(data["envelope"], where) if "envelope" in data else None,
     )
     if controllable:
         check_controllable(spec, where)
@@ -164,6 +171,15 @@ def _parameters(value: Any, where: str) -> tuple[tuple[str, float], ...]:
                                 f"{number!r}")
         out.append((name, float(number)))
     return tuple(out)
+
+
+def _envelope(value: Any, where: str) -> tuple[float, float, float]:
+    """[envelope] attitude_rad, rate_rad_s, yaw_rate_rad_s: all three, each positive."""
+    if not isinstance(value, dict) or set(value) != set(_ENVELOPE_KEYS):
+        raise AirframeError(f"{where}: envelope must be a table of exactly "
+                            f"{', '.join(_ENVELOPE_KEYS)}")
+    return tuple(_number(value[k], f"{where}: envelope.{k}", 0.0, ENVELOPE_LIMITS[k],
+                         positive=True) for k in _ENVELOPE_KEYS)  # type: ignore[return-value]
 
 
 def _number(value: Any, what: str, low: float, high: float, positive: bool = False) -> float:

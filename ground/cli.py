@@ -163,6 +163,29 @@ def _identify_parser(ident: argparse.ArgumentParser) -> None:
                        help="fuzzy clusters per model, 2-20 (default: the airframe's)")
     ident.add_argument("--airframe", default="paper", type=airframe_argument,
                        help="shipped airframe name or airframe .toml file")
+    ident.add_argument("--envelope", type=envelope_argument, default=None,
+                       metavar="ATTITUDE_RAD,RATE_RAD_S[,YAW_RATE_RAD_S]",
+                       help="what the model will fly, which the data must cover (default: "
+                            "the airframe file's [envelope], else 1 rad, 1 rad/s, 0.5 rad/s)")
+    ident.add_argument("--allow-narrow", action="store_true",
+                       help="write the model even if the data does not cover the envelope")
+
+
+def envelope_argument(text: str) -> tuple[float, ...]:
+    """ATTITUDE_RAD,RATE_RAD_S[,YAW_RATE_RAD_S], each positive and bounded."""
+    from contracts.airframe_file import ENVELOPE_LIMITS
+
+    parts = text.split(",")
+    if len(parts) not in (2, 3):
+        raise argparse.ArgumentTypeError(
+            f"expected ATTITUDE_RAD,RATE_RAD_S[,YAW_RATE_RAD_S], got {text!r}")
+    values = []
+    for part, (name, high) in zip(parts, ENVELOPE_LIMITS.items(), strict=False):
+        try:
+            values.append(number(0.0, high, low_open=True)(part.strip()))
+        except argparse.ArgumentTypeError as exc:
+            raise argparse.ArgumentTypeError(f"{name} {exc}") from None
+    return tuple(values) if len(values) == 3 else (*values, 0.5 * values[1])
 
 
 def _sitl_parser(p: argparse.ArgumentParser) -> None:

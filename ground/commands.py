@@ -210,14 +210,19 @@ def compare_command(args: argparse.Namespace) -> int:
 
 def identify_command(args: argparse.Namespace) -> int:
     from autopilot.control.factory import model_airframe_metadata
+    from autopilot.flight_tasks.reference import Envelope
+    from autopilot.identification.coverage import coverage, coverage_metadata, format_coverage
     from autopilot.identification.dataset import read_dataset, write_dataset
     from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
     from autopilot.models.model_file import save_model
     from contracts.airframe import airframe_by_name
+    from contracts.airframe_file import read_airframe
     from ground.excitation import excitation_dataset
     from ground.paper_tables import TABLE_2_VALIDATION_RMSE
 
     airframe = airframe_by_name(args.airframe)
+    spec_envelope = read_airframe(args.airframe).envelope
+    envelope = Envelope(*(args.envelope or spec_envelope or Envelope()))
     n_clusters = DEFAULT_N_CLUSTERS if args.clusters is None else args.clusters
     start = time.perf_counter()
     if args.data is not None and args.log is not None:
@@ -232,25 +237,37 @@ def identify_command(args: argparse.Namespace) -> int:
         dataset = read_dataset(args.data)
         print(f"ivfm: identifying from {args.data} ({dataset.n_rows} samples)", file=sys.stderr)
     else:
-        print(f"ivfm: flying the excitation ({args.samples} samples, seed {args.seed})",
-              file=sys.stderr)
+        print(f"ivfm: flying the excitation ({args.samples} samples, seed {args.seed}) for "
+              f"the envelope {envelope.attitude_rad:g} rad, {envelope.rate_rad_s:g} rad/s "
+              f"(yaw {envelope.yaw_rate_rad_s:g} rad/s)", file=sys.stderr)
         from ground.progress import ProgressLine
 
         line = ProgressLine("  excitation", args.samples * 0.01)
         line.loading()
         try:
             dataset = excitation_dataset(airframe, n_samples=args.samples, seed=args.seed,
-                                         progress=line.update)
+                                         progress=line.update, envelope=envelope)
         finally:
             line.done()
-    models = identify_dataset(dataset, n_clusters=n_clusters, seed=args.seed,
-                              metadata=model_airframe_metadata(args.airframe))
-    elapsed = time.perf_counter() - start
-    print(format_table_2(models, TABLE_2_VALIDATION_RMSE))
-    print(f"identification took {elapsed:.2f} s")
     if args.write_data is not None:
         write_dataset(args.write_data, dataset)
         print(f"wrote {args.write_data}")
+    reach = coverage(dataset, envelope)
+    print(format_coverage(reach))
+    if not all(c.covered for c in reach):
+        advice = ("the data does not cover the envelope: the model would extrapolate where "
+                  "it is flown")
+        if not args.allow_narrow:
+            raise UsageError(f"{advice}. Fly a wider excitation, identify for the envelope "
+                             f"the data covers (--envelope), or accept it (--allow-narrow); "
+                             f"no model written")
+        print(f"ivfm: warning: {advice} (--allow-narrow)", file=sys.stderr)
+    models = identify_dataset(dataset, n_clusters=n_clusters, seed=args.seed,
+                              metadata={**model_airframe_metadata(args.airframe),
+                                        **coverage_metadata(envelope, reach)})
+    elapsed = time.perf_counter() - start
+    print(format_table_2(models, TABLE_2_VALIDATION_RMSE))
+    print(f"identification took {elapsed:.2f} s")
     if args.out is not None:
         save_model(args.out, models)
         print(f"wrote {args.out}")

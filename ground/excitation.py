@@ -14,7 +14,12 @@ from pathlib import Path
 import numpy as np
 
 from autopilot.control.factory import make_controller
-from autopilot.flight_tasks.reference import evaluate_multisine, excitation_sines
+from autopilot.flight_tasks.reference import (
+    PAPER_ENVELOPE,
+    Envelope,
+    evaluate_multisine,
+    excitation_sines,
+)
 from autopilot.identification.dataset import ALL_COLUMNS, CHANNEL_INPUT, Dataset
 from contracts.airframe import (
     Airframe,
@@ -86,16 +91,17 @@ def excitation_dataset(
     noise_fraction: float = 0.05,
     seed: int = 0,
     progress: Callable[[float], None] | None = None,
+    envelope: Envelope = PAPER_ENVELOPE,
 ) -> Dataset:
-    """Fly the excitation and return the samples (noise: fraction of each output's
-    amplitude max |y|, Gaussian, seeded). ``progress`` hears the sim time [s] every tenth
-    of a sim second."""
+    """Fly the excitation designed for ``envelope`` and return the samples (noise: fraction
+    of each output's amplitude max |y|, Gaussian, seeded). ``progress`` hears the sim time
+    [s] every tenth of a sim second."""
     if n_samples < MIN_SAMPLES:
         raise ValueError(f"n_samples must be at least {MIN_SAMPLES}, got {n_samples}")
     if not 0.0 <= noise_fraction < 1.0:
         raise ValueError(f"noise_fraction must be in [0, 1), got {noise_fraction}")
     rng = np.random.default_rng(seed)
-    sines = excitation_sines(rng)
+    sines = excitation_sines(rng, envelope)
     plant = Plant(airframe, "paper", position_ned_m=(0.0, 0.0, -10.0),
                   rotor_rad_s=hover_rotor_speeds(airframe))
     controller = make_controller("smc", airframe, period_s)
@@ -123,7 +129,8 @@ def excitation_dataset(
     columns = _columns(rows)
     _add_output_noise(columns, noise_fraction, rng)
     return Dataset(columns,
-                   source=f"excitation(seed={seed}, n={n_samples}, noise={noise_fraction})")
+                   source=f"excitation(seed={seed}, n={n_samples}, noise={noise_fraction}, "
+                          f"envelope={envelope.attitude_rad:g} rad, {envelope.rate_rad_s:g} rad/s)")
 
 
 def dataset_from_log(log: Path, vehicle: int, airframe: Airframe, skip_s: float = 2.0,

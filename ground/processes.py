@@ -113,7 +113,8 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
                  "--reference-option", f"amplitude={ref.amplitude!r}",
                  "--reference-option", f"hold_start_s={ref.hold_start_s!r}",
                  "--reference-option", f"hold_end_s={ref.hold_end_s!r}",
-                 "--reference-option", f"seed={ref.seed!r}", "--arm-in-reference"]
+                 "--reference-option", f"seed={ref.seed!r}",
+                 "--reference-option", f"rate_rad_s={ref.rate_rad_s!r}", "--arm-in-reference"]
     autopilot = [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{sim_port}", *pace,
                  "--rate-hz", str(settings.rate_hz), "--state-source", settings.state_source,
                  "--controller", settings.controller, "--airframe", settings.airframe,

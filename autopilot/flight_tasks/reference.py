@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -27,21 +28,38 @@ from contracts.vectors import (
 
 REFERENCE_KINDS = ("attitude-sine", "attitude-hold", "position-sine", "hover", "excitation")
 
-# The excitation for identification: seeded multisines on the three attitude angles.
-N_SINES = 4
-ATTITUDE_AMPLITUDE_RAD = 0.5
-YAW_AMPLITUDE_RAD = 0.4
+# The excitation for identification: multisines on the three attitude angles, designed so
+# that roll and pitch get matched spectra and the flight covers the envelope the model
+# will fly (docs/mathematics.md, "The excitation").
+EXCITATION_RECORD_S = 40.0  # the paper's record, 4000 x 0.01 s: half identifies, half validates
+# Harmonics of twice the record: over the record their odd ones are orthogonal, and its
+# halves differ (with the record as the period, odd harmonics make one half the other's
+# mirror image, and validation would be on points the model never saw).
+EXCITATION_BASE_PERIOD_S = 2.0 * EXCITATION_RECORD_S
+EXCITATION_BAND_RAD_S = (0.4, 3.0)
+EXCITATION_MARGIN = 1.1  # the reference aims this far past the envelope: tracking is not exact
+MAX_EXCITATION_ATTITUDE_RAD = 1.2  # beyond, roll and pitch together leave no thrust to spare
+MAX_EXCITATION_RATE_RAD_S = 5.0
+PHASE_CANDIDATES = 32  # phase sets drawn; the one that overshoots the envelope least is kept
+COVERAGE_TAIL = 0.005  # the envelope counts as reached when 0.5 % of the samples lie beyond it
 
 
-def multisine(rng: np.random.Generator, amplitude: float) -> tuple[np.ndarray, ...]:
-    """Frequencies [rad/s], phases and amplitudes of one seeded multisine."""
-    freqs = rng.uniform(0.4, 3.0, N_SINES)
-    phases = rng.uniform(0.0, 2.0 * np.pi, N_SINES)
-    amps = amplitude * rng.dirichlet(np.ones(N_SINES))
-    return freqs, phases, amps
+class Envelope(NamedTuple):
+    """The attitude and rates a model will fly: what its identification data must cover.
+
+    The default is the paper's attitude-sine (1 rad at 1 rad/s on roll and pitch)."""
+
+    attitude_rad: float = 1.0  # roll and pitch
+    rate_rad_s: float = 1.0  # roll and pitch rates
+    yaw_rate_rad_s: float = 0.5
 
 
-def evaluate_multisine(sines: tuple[np.ndarray, ...], t: float) -> tuple[float, float, float]:
+PAPER_ENVELOPE = Envelope()
+
+Multisine = tuple[np.ndarray, np.ndarray, np.ndarray]  # frequencies [rad/s], phases, amplitudes
+
+
+def evaluate_multisine(sines: Multisine, t: float) -> tuple[float, float, float]:
     """Value and two derivatives at t."""
     freqs, phases, amps = sines
     arg = freqs * t + phases
@@ -49,15 +67,62 @@ def evaluate_multisine(sines: tuple[np.ndarray, ...], t: float) -> tuple[float, 
             float(-np.sum(amps * freqs**2 * np.sin(arg))))
 
 
-def excitation_sines(rng: np.random.Generator) -> list[tuple[np.ndarray, ...]]:
-    """Roll, pitch and yaw multisines, drawn in that order from ``rng``."""
-    return [multisine(rng, ATTITUDE_AMPLITUDE_RAD), multisine(rng, ATTITUDE_AMPLITUDE_RAD),
-            multisine(rng, YAW_AMPLITUDE_RAD)]
+def tail_reach(signal: np.ndarray) -> float:
+    """How far the signal reaches on its shorter side, at the coverage tail."""
+    low, high = np.quantile(signal, [COVERAGE_TAIL, 1.0 - COVERAGE_TAIL])
+    return float(min(-low, high))
+
+
+def abs_reach(signal: np.ndarray) -> float:
+    """How far |signal| reaches, at the coverage tail: an attitude counts either way."""
+    return float(np.quantile(np.abs(signal), 1.0 - 2.0 * COVERAGE_TAIL))
+
+
+def excitation_sines(rng: np.random.Generator, envelope: Envelope = PAPER_ENVELOPE
+                     ) -> list[Multisine]:
+    """Roll, pitch and yaw multisines (phases drawn from ``rng``).
+
+    Roll and pitch share the odd harmonics of the base period inside the band, with the
+    same amplitudes and phases; pitch is roll's quadrature (each sine a cosine), so the two
+    have the same spectrum and are uncorrelated over the record. Every harmonic has the
+    same rate amplitude. The scale makes the half of the record that identifies reach past
+    the envelope (rates on both sides, attitudes either way); of PHASE_CANDIDATES seeded
+    phase sets, the one whose peaks then overshoot the envelope least is kept. Yaw gets
+    the even harmonics, scaled to its rate."""
+    w0 = 2.0 * math.pi / EXCITATION_BASE_PERIOD_S
+    harmonics = np.arange(math.ceil(EXCITATION_BAND_RAD_S[0] / w0),
+                          math.floor(EXCITATION_BAND_RAD_S[1] / w0) + 1)
+    t = np.arange(0.0, EXCITATION_RECORD_S, 0.01)
+    half = len(t) // 2
+
+    freqs = harmonics[harmonics % 2 == 1] * w0
+    unit = 1.0 / freqs  # angle amplitudes for a rate amplitude of 1
+    best = None
+    for _ in range(PHASE_CANDIDATES):
+        phases = rng.uniform(0.0, 2.0 * np.pi, len(freqs))
+        sin, cos = np.sin(np.outer(t, freqs) + phases), np.cos(np.outer(t, freqs) + phases)
+        attitudes = (sin @ unit, cos @ unit)  # roll, pitch
+        rates = (cos @ (unit * freqs), -sin @ (unit * freqs))
+        scale = EXCITATION_MARGIN * max(
+            envelope.attitude_rad / min(abs_reach(x[:half]) for x in attitudes),
+            envelope.rate_rad_s / min(tail_reach(x[:half]) for x in rates))
+        overshoot = scale * max(max(np.max(np.abs(x)) for x in attitudes) / envelope.attitude_rad,
+                                max(np.max(np.abs(x)) for x in rates) / envelope.rate_rad_s)
+        if best is None or overshoot < best[0]:
+            best = (overshoot, phases, scale)
+    _, phases, scale = best
+
+    yaw_freqs = harmonics[harmonics % 2 == 0] * w0
+    yaw_phases = rng.uniform(0.0, 2.0 * np.pi, len(yaw_freqs))
+    yaw_rate = np.cos(np.outer(t[:half], yaw_freqs) + yaw_phases).sum(axis=1)
+    yaw_scale = EXCITATION_MARGIN * envelope.yaw_rate_rad_s / tail_reach(yaw_rate)
+    return [(freqs, phases, scale * unit), (freqs, phases + 0.5 * np.pi, scale * unit),
+            (yaw_freqs, yaw_phases, yaw_scale / yaw_freqs)]
 
 
 @functools.lru_cache(maxsize=8)
-def _seeded_excitation(seed: int) -> list[tuple[np.ndarray, ...]]:
-    return excitation_sines(np.random.default_rng(seed))
+def _seeded_excitation(seed: int, envelope: Envelope) -> list[Multisine]:
+    return excitation_sines(np.random.default_rng(seed), envelope)
 
 
 @dataclass(frozen=True)
@@ -67,10 +132,11 @@ class Reference:
     kind: str
     altitude_m: float = 1.0
     yaw_rad: float = 0.2
-    amplitude: float = 1.0  # rad for attitude, m for position
+    amplitude: float = 1.0  # rad for attitude, m for position; excitation: attitude envelope
     hold_start_s: float = 10.0
     hold_end_s: float = 12.0
     seed: float = 0.0  # excitation: the multisines' seed (a whole number)
+    rate_rad_s: float = 1.0  # excitation: roll and pitch rate envelope (yaw: half of it)
 
     def __post_init__(self) -> None:
         if self.kind not in REFERENCE_KINDS:
@@ -78,11 +144,28 @@ class Reference:
                 f"unknown reference kind {self.kind!r}; known: {', '.join(REFERENCE_KINDS)}"
             )
         for name in ("altitude_m", "yaw_rad", "amplitude", "hold_start_s", "hold_end_s",
-                     "seed"):
+                     "seed", "rate_rad_s"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"reference {name} must be finite")
         if self.seed != int(self.seed) or self.seed < 0:
             raise ValueError(f"reference seed must be a whole number >= 0, got {self.seed!r}")
+        if self.kind == "excitation":
+            if not 0.0 < self.amplitude <= MAX_EXCITATION_ATTITUDE_RAD:
+                raise ValueError(f"excitation amplitude (the attitude envelope) must be in "
+                                 f"(0, {MAX_EXCITATION_ATTITUDE_RAD}] rad, got "
+                                 f"{self.amplitude!r}")
+            if not 0.0 < self.rate_rad_s <= MAX_EXCITATION_RATE_RAD_S:
+                raise ValueError(f"excitation rate_rad_s must be in "
+                                 f"(0, {MAX_EXCITATION_RATE_RAD_S}] rad/s, got "
+                                 f"{self.rate_rad_s!r}")
+
+        if self.kind == "excitation":  # designed now (0.2 s), not in the control loop
+            _seeded_excitation(int(self.seed), self.envelope)
+
+    @property
+    def envelope(self) -> Envelope:
+        """The excitation's envelope: attitude ``amplitude``, rates ``rate_rad_s``."""
+        return Envelope(self.amplitude, self.rate_rad_s, 0.5 * self.rate_rad_s)
 
     @property
     def position_mode(self) -> bool:
@@ -102,7 +185,7 @@ class Reference:
             ref[REF_VEL], ref[REF_VEL + 1] = a * c, -a * c
             ref[REF_ACC], ref[REF_ACC + 1] = -a * s, a * s
         elif self.kind == "excitation":
-            for axis, sines in enumerate(_seeded_excitation(int(self.seed))):
+            for axis, sines in enumerate(_seeded_excitation(int(self.seed), self.envelope)):
                 (ref[REF_EULER + axis], ref[REF_EULER_RATE + axis],
                  ref[REF_EULER_ACC + axis]) = evaluate_multisine(sines, t_s)
         elif self.kind in ("attitude-sine", "attitude-hold"):

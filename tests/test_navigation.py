@@ -96,8 +96,8 @@ def test_mission_corners_are_rounded_at_a_reduced_speed_not_stopped_at(six):
         closest.append(float(d[i]))
         speeds.append(float(speed(log)[i]))
     # Turns of 90, 90, 45, 90 and 162 degrees, then the landing point.
-    assert closest == pytest.approx([0.475, 0.474, 0.415, 0.470, 0.301, 0.052], abs=0.01)
-    assert speeds == pytest.approx([1.40, 1.42, 2.38, 1.39, 0.10, 0.05], abs=0.03)
+    assert closest == pytest.approx([0.479, 0.479, 0.416, 0.473, 0.302, 0.053], abs=0.01)
+    assert speeds == pytest.approx([1.41, 1.41, 2.39, 1.40, 0.11, 0.05], abs=0.03)
     landed_s = log[np.argmax((log[:, 3] == 0.0) & (log[:, 0] > 10.0)), 0]
     assert landed_s == pytest.approx(61.0, abs=0.1)  # 73.6 s when it stopped at each
 
@@ -209,7 +209,7 @@ def far_away():
 def test_go_to_reaches_the_position_and_holds_it(far_away):
     f = far_away
     assert f.vehicle.mode == FlightMode.HOLD
-    assert np.linalg.norm(f.log[-1, POS] - (50, 0, -5)) == pytest.approx(0.0002, abs=0.001)
+    assert np.linalg.norm(f.log[-1, POS] - (50, 0, -5)) == pytest.approx(0.0012, abs=0.001)
     assert f.log[-1, 9] == pytest.approx(math.pi / 2, abs=1e-3)  # the yaw it asked for
 
 
@@ -223,7 +223,7 @@ def test_return_from_50_m_lands_at_home_and_disarms(far_away):
     f.run(40.0)
     log = f.since(start)
     assert not f.vehicle.armed and f.vehicle.mode == FlightMode.HOLD
-    assert np.hypot(*log[-1, 1:3]) == pytest.approx(0.0002, abs=0.001)  # target: <= 1 m
+    assert np.hypot(*log[-1, 1:3]) == pytest.approx(0.0017, abs=0.001)  # target: <= 1 m
     assert -log[:, 3].min() == pytest.approx(10.0, abs=0.01)  # RTL_RETURN_ALT
     assert "landed: disarmed" in [text for _, text in f.vehicle.messages]
 

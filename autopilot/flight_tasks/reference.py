@@ -78,6 +78,23 @@ def abs_reach(signal: np.ndarray) -> float:
     return float(np.quantile(np.abs(signal), 1.0 - 2.0 * COVERAGE_TAIL))
 
 
+def _without_drift(phases: np.ndarray, weights: np.ndarray) -> np.ndarray | None:
+    """The phases with the two lowest harmonics' chosen so that sum w_k exp(i phi_k) = 0
+    (None if no choice does): the horizontal velocity, the integral of the tilt (g tan of
+    it), then starts with no constant part and the vehicle does not drift away. Roll's
+    integral has the real part as constant, pitch's (the quadrature) the imaginary."""
+    rest = np.sum(weights[2:] * np.exp(1j * phases[2:]))
+    target, (c0, c1) = -rest, weights[:2]
+    d = abs(target)
+    if not abs(c0 - c1) <= d <= c0 + c1 or d == 0.0:
+        return None
+    alpha = math.acos(np.clip((c0 * c0 + d * d - c1 * c1) / (2.0 * c0 * d), -1.0, 1.0))
+    out = phases.copy()
+    out[0] = np.angle(target) + alpha
+    out[1] = np.angle(target - c0 * np.exp(1j * out[0]))
+    return out
+
+
 def excitation_sines(rng: np.random.Generator, envelope: Envelope = PAPER_ENVELOPE
                      ) -> list[Multisine]:
     """Roll, pitch and yaw multisines (phases drawn from ``rng``).
@@ -99,7 +116,9 @@ def excitation_sines(rng: np.random.Generator, envelope: Envelope = PAPER_ENVELO
     unit = 1.0 / freqs  # angle amplitudes for a rate amplitude of 1
     best = None
     for _ in range(PHASE_CANDIDATES):
-        phases = rng.uniform(0.0, 2.0 * np.pi, len(freqs))
+        phases = _without_drift(rng.uniform(0.0, 2.0 * np.pi, len(freqs)), unit / freqs)
+        if phases is None:
+            continue
         sin, cos = np.sin(np.outer(t, freqs) + phases), np.cos(np.outer(t, freqs) + phases)
         attitudes = (sin @ unit, cos @ unit)  # roll, pitch
         rates = (cos @ (unit * freqs), -sin @ (unit * freqs))

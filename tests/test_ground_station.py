@@ -286,13 +286,15 @@ def test_ground_perturb_command_against_live_vehicle_processes(tmp_path):
 # `ivfm identify --log` on the shipped excitation flight (42 s under SMC through the
 # processes, lockstep, so deterministic; 2 s skipped, 3999 samples, 2000 + 1999 split):
 # validation RMSE (T1FM, IVFM) and input gains (T1FM, IVFM), produced by the commit that
-# added this test. f here is measured: forward-differenced logged rates minus b u, no noise.
-LOG_TABLE_2 = {"phi": (0.0513363, 0.0511086), "theta": (0.0414684, 0.0351500)}
-LOG_GAINS = {"phi": (1.22637, 1.20818), "theta": (1.27841, 1.27217), "psi": (11.1111, 11.1111)}
+# designed the excitation for an envelope. f here is measured: forward-differenced logged
+# rates minus b u, no noise.
+LOG_TABLE_2 = {"phi": (0.0936714, 0.0872090), "theta": (0.0743244, 0.0564336)}
+LOG_GAINS = {"phi": (1.26661, 1.26987), "theta": (1.26656, 1.26991), "psi": (11.1111, 11.1111)}
 # f_psi is identically 0 on the paper airframe (Ixx = Iyy); what is left is the float32
-# quantisation of the link's rates differentiated over 10 ms (measured 9.3e-7 rad/s^2 for
-# both models, ~5.6e-7 per sample from rounding the psi rate alone).
-LOG_PSI_RMSE_BOUND = 1.5e-6
+# quantisation of the link's rates differentiated over 10 ms, which grows with the rates
+# flown: measured 1.75e-6 rad/s^2 for both models with rates to 1.4 rad/s (9.3e-7 with
+# the earlier excitation's 0.8 rad/s).
+LOG_PSI_RMSE_BOUND = 2.5e-6
 LOG_REL = 0.02  # deterministic run; room for another CPU's last-bit differences only
 
 
@@ -347,17 +349,17 @@ def test_identify_from_a_logged_excitation_flight_closes_the_loop(tmp_path):
     psi = models.channels["psi"]
     assert 0.0 < psi.rmse_valid_ivfm < LOG_PSI_RMSE_BOUND
     assert 0.0 < psi.rmse_valid_t1fm < LOG_PSI_RMSE_BOUND
-    # The interval model is the better one on theta by a margin (on phi they are within
-    # 0.5 %, an ordering this test does not rely on).
-    theta = models.channels["theta"]
+    # The interval model is the better one: on theta by 24 %, on phi by 7 %.
+    theta, phi = models.channels["theta"], models.channels["phi"]
     assert theta.rmse_valid_ivfm < 0.9 * theta.rmse_valid_t1fm
-    # The input gains: b2 and b3 within 1 % of the airframe's, b1 below it (4 % for the
-    # T1FM, 5.5 % for the IVFM: pinned as measured, see LOG_GAINS).
+    assert phi.rmse_valid_ivfm < phi.rmse_valid_t1fm
+    # The input gains: within 1 % of the airframe's b1, b2, b3 (pinned as measured, see
+    # LOG_GAINS; b1 was 4-5.5 % low with the earlier excitation).
     for name, (g_t1, g_iv) in LOG_GAINS.items():
         ch = models.channels[name]
         assert (ch.t1fm.g, ch.ivfm.g) == pytest.approx((g_t1, g_iv), rel=LOG_REL), name
     coeffs = attitude_coefficients(PAPER)
-    for name, b in (("theta", coeffs.b2), ("psi", coeffs.b3)):
+    for name, b in (("phi", coeffs.b1), ("theta", coeffs.b2), ("psi", coeffs.b3)):
         ch = models.channels[name]
         assert ch.t1fm.g == pytest.approx(b, rel=0.01) and ch.ivfm.g == pytest.approx(b, rel=0.01)
     # The controller built on the logged flight's model flies the paper's attitude test.
@@ -365,7 +367,8 @@ def test_identify_from_a_logged_excitation_flight_closes_the_loop(tmp_path):
     record = run_inprocess(scenario, "ivfc", "paper", PAPER, models)
     axes = compute_metrics(record, scenario, "paper")["axes"]
     assert not record.diverged
-    assert axes["phi"]["rmse"] < 0.01 and axes["theta"]["rmse"] < 0.01
+    # Measured 0.00067 / 0.00038 rad (the paper's target: 0.01).
+    assert axes["phi"]["rmse"] < 0.001 and axes["theta"]["rmse"] < 0.001
     assert main(["identify", "--log", str(tmp_path / "nothing-here")]) == 2
 
 

@@ -1,9 +1,10 @@
 """The paper's excitation data: an attitude flight of the simulated quadrotor, recorded as
 input-output samples for identification (4000 samples at T = 0.01 s, 5 % output noise).
 
-The vehicle flies in one process under the SMC baseline, tracking random multi-sine
-attitude references (seeded); the simulator hands over f_i(x) itself, as in the paper,
-along with the accelerations and inputs a flight log would hold.
+The vehicle flies in one process under the SMC baseline, tracking the seeded multisine
+attitude references designed for an envelope (``excitation_sines``); the simulator hands
+over f_i(x) itself, as in the paper, along with the accelerations and inputs a flight log
+would hold.
 """
 
 from __future__ import annotations

@@ -10,7 +10,8 @@ theta, then the median theta/phi ratio and how often theta is worse.
     python tests/benchmarks/bench_roll_pitch_gap.py --seeds 8
 
 It uses only ``excitation_dataset`` and ``identify_dataset``, so it also runs on an
-earlier commit (``git worktree add /tmp/old COMMIT`` and ``PYTHONPATH=/tmp/old``).
+earlier commit: ``git worktree add /tmp/old COMMIT``, copy this file to
+``/tmp/old/tests/benchmarks/`` and run it from there (it imports the tree it is in).
 Asserts nothing: the figures are for docs/reproducing.md.
 """
 
@@ -22,8 +23,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).parents[2]
-if str(ROOT) not in sys.path:
-    sys.path.append(str(ROOT))
+sys.path.insert(0, str(ROOT))
 
 from autopilot.identification.identify import identify_dataset  # noqa: E402
 from contracts.airframe import PAPER  # noqa: E402

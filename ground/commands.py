@@ -216,13 +216,12 @@ def identify_command(args: argparse.Namespace) -> int:
     from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
     from autopilot.models.model_file import save_model
     from contracts.airframe import airframe_by_name
-    from contracts.airframe_file import read_airframe
-    from ground.excitation import excitation_dataset
+    from ground.excitation import airframe_envelope, excitation_dataset
     from ground.paper_tables import TABLE_2_VALIDATION_RMSE
 
     airframe = airframe_by_name(args.airframe)
-    spec_envelope = read_airframe(args.airframe).envelope
-    envelope = Envelope(*(args.envelope or spec_envelope or Envelope()))
+    envelope = (Envelope(*args.envelope) if args.envelope else
+                airframe_envelope(args.airframe))
     n_clusters = DEFAULT_N_CLUSTERS if args.clusters is None else args.clusters
     start = time.perf_counter()
     if args.data is not None and args.log is not None:

@@ -85,6 +85,14 @@ def _sample(t_s: float, euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray, w_r
 MIN_SAMPLES = 20  # fewer cannot fit the clusters
 
 
+def airframe_envelope(airframe: str) -> Envelope:
+    """The envelope an airframe file names in ``[envelope]``, else the paper's."""
+    from contracts.airframe_file import read_airframe
+
+    named = read_airframe(airframe).envelope
+    return PAPER_ENVELOPE if named is None else Envelope(*named)
+
+
 def excitation_dataset(
     airframe: Airframe,
     n_samples: int = 4000,

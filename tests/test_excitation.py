@@ -213,3 +213,17 @@ def test_a_bad_envelope_option_is_refused_naming_the_number(text, message):
     with pytest.raises(argparse.ArgumentTypeError, match=None) as info:
         envelope_argument(text)
     assert message in str(info.value), str(info.value)
+
+
+def test_a_campaign_identifies_on_the_airframes_envelope():
+    """A campaign's model for the quad X 500 is identified for its [envelope], as
+    ``ivfm identify`` does: seed 0 is the shipped model, value for value."""
+    import json
+
+    from ground.campaign.run import identified_model_json
+    from tests.test_new_vehicle import _assert_same_numbers
+
+    mine = json.loads(identified_model_json("quad-x-500", 0))
+    shipped = json.loads(resources.files("autopilot.models").joinpath(
+        "quad-x-500.json").read_text())
+    _assert_same_numbers(mine["channels"], shipped["channels"])

@@ -240,6 +240,8 @@ def test_ctrl_c_keeps_every_finished_run_and_the_rerun_flies_only_the_rest(tmp_p
     assert "finished runs are in" in err
     kept = {p.stem for p in (out / "runs").glob("*.json")}
     assert 6 <= len(kept) < 40
+    # The count said is the runs on disk, with those the workers finished after Ctrl-C.
+    assert f"stopped: {len(kept)} runs finished this time are kept" in err
     again = subprocess.run(argv, capture_output=True, text=True, timeout=300)
     assert again.returncode == 0, again.stderr
     assert f"{40 - len(kept)} runs flown (0 failed), {len(kept)} done before, of 40" in \

@@ -420,6 +420,7 @@ def run_campaign(campaign: Campaign, out_dir: Path, scheduler: str | None = None
     futures = client.map(run_batch, batches, [shared] * len(batches), pure=False,
                          key=[f"{campaign.name}-{b[0]['id']}-x{len(b)}" for b in batches])
     batch_of = {f.key: b for f, b in zip(futures, batches, strict=True)}
+    interrupted = False
     try:
         for future in as_completed(futures):
             batch = batch_of[future.key]
@@ -436,8 +437,7 @@ def run_campaign(campaign: Campaign, out_dir: Path, scheduler: str | None = None
                 if on_result is not None:
                     on_result(row, client)
     except KeyboardInterrupt:
-        say(f"stopped: {counts['flown']} runs finished this time are kept; run the same "
-            "command again to fly the rest")
+        interrupted = True
         client.cancel(futures)
         raise
     finally:
@@ -446,4 +446,8 @@ def run_campaign(campaign: Campaign, out_dir: Path, scheduler: str | None = None
         if cluster is not None:
             cluster.close()
         write_results(out_dir)
+        if interrupted:  # counted on disk: workers save the runs they finish after Ctrl-C
+            kept = len(finished_ids(out_dir)) - counts["skipped"]
+            say(f"stopped: {kept} runs finished this time are kept; run the same command "
+                "again to fly the rest")
     return counts

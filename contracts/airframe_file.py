@@ -22,7 +22,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -33,10 +33,24 @@ COMMAND_MAPS = ("speed", "thrust")  # c -> W = c W_max (jMAVSim, Gazebo) / T = c
 SPINS = {"cw": 1.0, "ccw": -1.0}
 _TOP_KEYS = {"name", "description", "mass_kg", "inertia_kgm2", "linear_drag_nspm",
              "command_map", "rotor", "parameters", "envelope"}
-_ENVELOPE_KEYS = ("attitude_rad", "rate_rad_s", "yaw_rate_rad_s")
+# An envelope's largest values: beyond 1.2 rad, roll and pitch together leave no thrust
+# to spare.
 ENVELOPE_LIMITS = {"attitude_rad": 1.2, "rate_rad_s": 5.0, "yaw_rate_rad_s": 5.0}
 _ROTOR_KEYS = {"position_m", "spin", "thrust_coeff_ns2", "moment_coeff_nms2", "max_rad_s",
                "time_constant_s", "inertia_kgm2"}
+
+
+class Envelope(NamedTuple):
+    """The attitude and rates a vehicle flies, which its identification data must cover
+    (an airframe file's ``[envelope]``). The default is the paper's attitude-sine: 1 rad
+    at 1 rad/s on roll and pitch."""
+
+    attitude_rad: float = 1.0  # roll and pitch
+    rate_rad_s: float = 1.0  # roll and pitch rates
+    yaw_rate_rad_s: float = 0.5
+
+
+PAPER_ENVELOPE = Envelope()
 
 
 class AirframeError(ValueError):
@@ -71,7 +85,7 @@ class AirframeSpec:
     # [envelope]: the roll/pitch attitude [rad], roll/pitch rate and yaw rate [rad/s] the
     # vehicle flies, which its identification must cover (ivfm identify); None: the
     # paper's. Not part of the fingerprint either.
-    envelope: tuple[float, float, float] | None = None
+    envelope: Envelope | None = None
 
     def fingerprint(self) -> str:
         """A short hash of everything that makes the vehicle fly as it does (not its name
@@ -173,13 +187,13 @@ def _parameters(value: Any, where: str) -> tuple[tuple[str, float], ...]:
     return tuple(out)
 
 
-def _envelope(value: Any, where: str) -> tuple[float, float, float]:
+def _envelope(value: Any, where: str) -> Envelope:
     """[envelope] attitude_rad, rate_rad_s, yaw_rate_rad_s: all three, each positive."""
-    if not isinstance(value, dict) or set(value) != set(_ENVELOPE_KEYS):
+    if not isinstance(value, dict) or set(value) != set(Envelope._fields):
         raise AirframeError(f"{where}: envelope must be a table of exactly "
-                            f"{', '.join(_ENVELOPE_KEYS)}")
-    return tuple(_number(value[k], f"{where}: envelope.{k}", 0.0, ENVELOPE_LIMITS[k],
-                         positive=True) for k in _ENVELOPE_KEYS)  # type: ignore[return-value]
+                            f"{', '.join(Envelope._fields)}")
+    return Envelope(*(_number(value[k], f"{where}: envelope.{k}", 0.0, ENVELOPE_LIMITS[k],
+                              positive=True) for k in Envelope._fields))
 
 
 def _number(value: Any, what: str, low: float, high: float, positive: bool = False) -> float:

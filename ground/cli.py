@@ -165,8 +165,9 @@ def _identify_parser(ident: argparse.ArgumentParser) -> None:
                        help="shipped airframe name or airframe .toml file")
     ident.add_argument("--envelope", type=envelope_argument, default=None,
                        metavar="ATTITUDE_RAD,RATE_RAD_S[,YAW_RATE_RAD_S]",
-                       help="what the model will fly, which the data must cover (default: "
-                            "the airframe file's [envelope], else 1 rad, 1 rad/s, 0.5 rad/s)")
+                       help="what the model will fly, which the data must cover; yaw rate "
+                            "half the rate if not given (default: the airframe file's "
+                            "[envelope], else 1 rad, 1 rad/s, 0.5 rad/s)")
     ident.add_argument("--allow-narrow", action="store_true",
                        help="write the model even if the data does not cover the envelope")
 

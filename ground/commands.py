@@ -210,12 +210,12 @@ def compare_command(args: argparse.Namespace) -> int:
 
 def identify_command(args: argparse.Namespace) -> int:
     from autopilot.control.factory import model_airframe_metadata
-    from autopilot.flight_tasks.reference import Envelope
     from autopilot.identification.coverage import coverage, coverage_metadata, format_coverage
     from autopilot.identification.dataset import read_dataset, write_dataset
     from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
     from autopilot.models.model_file import save_model
     from contracts.airframe import airframe_by_name
+    from contracts.airframe_file import Envelope
     from ground.excitation import airframe_envelope, excitation_dataset
     from ground.paper_tables import TABLE_2_VALIDATION_RMSE
 

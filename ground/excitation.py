@@ -15,12 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from autopilot.control.factory import make_controller
-from autopilot.flight_tasks.reference import (
-    PAPER_ENVELOPE,
-    Envelope,
-    evaluate_multisine,
-    excitation_sines,
-)
+from autopilot.flight_tasks.reference import evaluate_multisine, excitation_sines
 from autopilot.identification.dataset import ALL_COLUMNS, CHANNEL_INPUT, Dataset
 from contracts.airframe import (
     Airframe,
@@ -31,6 +26,7 @@ from contracts.airframe import (
     rotor_momentum,
     rotor_speeds,
 )
+from contracts.airframe_file import PAPER_ENVELOPE, Envelope, read_airframe
 from contracts.vectors import (
     MEASUREMENT,
     REF_EULER,
@@ -87,10 +83,7 @@ MIN_SAMPLES = 20  # fewer cannot fit the clusters
 
 def airframe_envelope(airframe: str) -> Envelope:
     """The envelope an airframe file names in ``[envelope]``, else the paper's."""
-    from contracts.airframe_file import read_airframe
-
-    named = read_airframe(airframe).envelope
-    return PAPER_ENVELOPE if named is None else Envelope(*named)
+    return read_airframe(airframe).envelope or PAPER_ENVELOPE
 
 
 def excitation_dataset(

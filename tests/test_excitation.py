@@ -14,7 +14,6 @@ import pytest
 from autopilot.flight_tasks.reference import (
     EXCITATION_MARGIN,
     EXCITATION_RECORD_S,
-    Envelope,
     Reference,
     abs_reach,
     excitation_sines,
@@ -22,7 +21,7 @@ from autopilot.flight_tasks.reference import (
 )
 from autopilot.identification.coverage import coverage, coverage_metadata, format_coverage
 from contracts.airframe import PAPER
-from contracts.airframe_file import AirframeError, parse_airframe, read_airframe
+from contracts.airframe_file import AirframeError, Envelope, parse_airframe, read_airframe
 from ground.excitation import excitation_dataset
 
 T = np.arange(0.0, EXCITATION_RECORD_S, 0.01)

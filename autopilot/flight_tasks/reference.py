@@ -10,11 +10,11 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
 
 import numpy as np
 
 from autopilot.flight_tasks.task import BaseTask, Shaped, TaskOutput
+from contracts.airframe_file import ENVELOPE_LIMITS, PAPER_ENVELOPE, Envelope
 from contracts.modes import FlightMode
 from contracts.vectors import (
     REF_ACC,
@@ -38,23 +38,9 @@ EXCITATION_RECORD_S = 40.0  # the paper's record, 4000 x 0.01 s: half identifies
 EXCITATION_BASE_PERIOD_S = 2.0 * EXCITATION_RECORD_S
 EXCITATION_BAND_RAD_S = (0.4, 3.0)
 EXCITATION_MARGIN = 1.1  # the reference aims this far past the envelope: tracking is not exact
-MAX_EXCITATION_ATTITUDE_RAD = 1.2  # beyond, roll and pitch together leave no thrust to spare
-MAX_EXCITATION_RATE_RAD_S = 5.0
 PHASE_CANDIDATES = 32  # phase sets drawn; the one that overshoots the envelope least is kept
 COVERAGE_TAIL = 0.005  # the envelope counts as reached when 0.5 % of the samples lie beyond it
 
-
-class Envelope(NamedTuple):
-    """The attitude and rates a model will fly: what its identification data must cover.
-
-    The default is the paper's attitude-sine (1 rad at 1 rad/s on roll and pitch)."""
-
-    attitude_rad: float = 1.0  # roll and pitch
-    rate_rad_s: float = 1.0  # roll and pitch rates
-    yaw_rate_rad_s: float = 0.5
-
-
-PAPER_ENVELOPE = Envelope()
 
 Multisine = tuple[np.ndarray, np.ndarray, np.ndarray]  # frequencies [rad/s], phases, amplitudes
 
@@ -171,13 +157,13 @@ class Reference:
         if self.seed != int(self.seed) or self.seed < 0:
             raise ValueError(f"reference seed must be a whole number >= 0, got {self.seed!r}")
         if self.kind == "excitation":
-            if not 0.0 < self.amplitude <= MAX_EXCITATION_ATTITUDE_RAD:
+            top = ENVELOPE_LIMITS["attitude_rad"]
+            if not 0.0 < self.amplitude <= top:
                 raise ValueError(f"excitation amplitude (the attitude envelope) must be in "
-                                 f"(0, {MAX_EXCITATION_ATTITUDE_RAD}] rad, got "
-                                 f"{self.amplitude!r}")
-            if not 0.0 < self.rate_rad_s <= MAX_EXCITATION_RATE_RAD_S:
-                raise ValueError(f"excitation rate_rad_s must be in "
-                                 f"(0, {MAX_EXCITATION_RATE_RAD_S}] rad/s, got "
+                                 f"(0, {top}] rad, got {self.amplitude!r}")
+            top = ENVELOPE_LIMITS["rate_rad_s"]
+            if not 0.0 < self.rate_rad_s <= top:
+                raise ValueError(f"excitation rate_rad_s must be in (0, {top}] rad/s, got "
                                  f"{self.rate_rad_s!r}")
             _seeded_excitation(int(self.seed), self.envelope)  # designed now (60 ms), not
                                                                 # in the control loop

@@ -16,7 +16,8 @@ Topics (``V`` the vehicle id):
 =============================  ==================  ====================================
 topic                          schema              what
 =============================  ==================  ====================================
-``/tf``                        FrameTransforms     world -> ned -> vehicle -> rotors
+``/tf``                        FrameTransforms     world -> ned -> vehicle
+``/vehicleV/rotors``           FrameTransforms     vehicle -> rotors (with each scene)
 ``/vehicleV/scene``            SceneUpdate         vehicle model, home, mission, fence
 ``/vehicleV/path``             PosesInFrame        the path flown (last TRAIL_S seconds)
 ``/vehicleV/reference_path``   PosesInFrame        the reference over the same time
@@ -161,7 +162,6 @@ class _Vehicle:
     reference_path: deque = field(
         default_factory=lambda: deque(maxlen=int(TRAIL_S / TRAIL_SAMPLE_S)))
     next_reference_path_us: int = -1
-    rotors_m: tuple[tuple[float, float, float], ...] = ()
     # Truth states drawn (by sim time) and estimates waiting for the truth of their time:
     # the two streams arrive in their own order, so an estimate is drawn once the truth
     # has reached its time, against the latest truth at or before it (the same pairs on
@@ -235,11 +235,6 @@ class FoxgloveView:
                 fg.FrameTransform(timestamp=stamp, parent_frame_id=FRAME_NED,
                                   child_frame_id=body_frame(vehicle),
                                   translation=_vector(pos), rotation=_quaternion(q))]
-            transforms.extend(
-                fg.FrameTransform(timestamp=stamp, parent_frame_id=body_frame(vehicle),
-                                  child_frame_id=rotor_frame(vehicle, i + 1),
-                                  translation=_vector(r))
-                for i, r in enumerate(v.rotors_m))
             out.append(Output(TF_TOPIC, t_us * 1000, fg.FrameTransforms(transforms=transforms)))
         if t_us >= v.next_trail_us:
             v.next_trail_us = t_us + round(TRAIL_SAMPLE_S * 1e6)
@@ -366,8 +361,6 @@ class FoxgloveView:
         if not isinstance(current, int):
             raise ValueError("scene: current must be a whole number")
         # Checked: take it.
-        v = self._vehicle(vehicle)
-        v.rotors_m = rotors_m
         stamp = timestamp(t_us)
         entities = [_vehicle_model(vehicle, stamp, rotors_m, spins, str(airframe.get("name",
                                                                                       "")))]
@@ -385,8 +378,17 @@ class FoxgloveView:
             spheres=[fg.SpherePrimitive(pose=_text_pose(p), size=fg.Vector3(x=0.5, y=0.5,
                                                                              z=0.5),
                                         color=_color(0.9, 0.5, 0.1)) for p in rally]))
+        # The rotors' frames come with the scene, which carries them, on their own topic:
+        # in /tf, drawn from whichever state record came after the first scene record,
+        # they made the log depend on the order two subscriptions delivered in.
+        rotors = fg.FrameTransforms(transforms=[
+            fg.FrameTransform(timestamp=stamp, parent_frame_id=body_frame(vehicle),
+                              child_frame_id=rotor_frame(vehicle, i + 1),
+                              translation=_vector(r))
+            for i, r in enumerate(rotors_m)])
         return [Output(vehicle_topic(vehicle, "scene"), t_us * 1000,
-                       fg.SceneUpdate(entities=entities))]
+                       fg.SceneUpdate(entities=entities)),
+                Output(vehicle_topic(vehicle, "rotors"), t_us * 1000, rotors)]
 
     # -- events ---------------------------------------------------------------------------
     def _perturbation(self, vehicle: int, process: str, record: dict[str, Any]) -> list[Output]:

@@ -88,7 +88,8 @@ def test_the_live_view_serves_the_mission_flight_to_a_foxglove_client(six_waypoi
     assert received is not None and received.server_info["name"] == "ivfm-sitl"
     schemas = {c["topic"]: c["schemaName"] for c in received.channels.values()}
     assert schemas == {
-        "/tf": "foxglove.FrameTransforms", "/vehicle1/scene": "foxglove.SceneUpdate",
+        "/tf": "foxglove.FrameTransforms", "/vehicle1/rotors": "foxglove.FrameTransforms",
+        "/vehicle1/scene": "foxglove.SceneUpdate",
         "/vehicle1/path": "foxglove.PosesInFrame",
         "/vehicle1/reference_path": "foxglove.PosesInFrame",
         "/vehicle1/reference": "foxglove.PoseInFrame", "/log": "foxglove.Log",
@@ -137,8 +138,15 @@ def test_the_log_holds_foxgloves_scene_transforms_and_path(six_waypoint_runs):
     assert record.sim_time_us[i] * 1000 == t_ns == 20_000_000_000
     np.testing.assert_allclose([body.translation.x, body.translation.y, body.translation.z],
                                record.measurement[i, 0:3], atol=1e-5)
-    assert {t.child_frame_id for t in tf.transforms} == {
-        "ned", "vehicle1", *(f"vehicle1/rotor{k}" for k in range(1, 5))}
+    assert {t.child_frame_id for t in tf.transforms} == {"ned", "vehicle1"}
+    # The rotors' frames, with each scene record, on their own topic.
+    with open(log_files(folder)[0], "rb") as f:
+        rotors = [proto for *_, proto in make_reader(
+            f, decoder_factories=[DecoderFactory()]).iter_decoded_messages(
+                topics=["/vehicle1/rotors"])]
+    assert len(rotors) >= 80  # a scene a second of the 80 s flight, and on changes
+    assert {(t.parent_frame_id, t.child_frame_id) for t in rotors[-1].transforms} == {
+        ("vehicle1", f"vehicle1/rotor{k}") for k in range(1, 5)}
     _, scene = decoded["foxglove.SceneUpdate"][-1]
     np.testing.assert_allclose(_scene_waypoints(scene), _planned_waypoints(scenario),
                                atol=1e-3)

@@ -457,9 +457,7 @@ def ground_perturb_command(args: argparse.Namespace) -> int:
 
 
 def ground_router_command(args: argparse.Namespace) -> int:
-    import signal
-    import threading
-
+    from contracts.stop_request import StopRequest
     from contracts.telemetry import DEFAULT_PORT
     from contracts.zenoh_link import ZenohOptions, open_session, tls_from_args
 
@@ -468,13 +466,12 @@ def ground_router_command(args: argparse.Namespace) -> int:
     options = ZenohOptions("router", listen=args.listen or [default],
                            connect=args.connect or [], tls=tls, insecure=args.zenoh_insecure)
     session = open_session(options, exit_on_listen_failure=True)
-    stop = threading.Event()
-    signal.signal(signal.SIGINT, lambda *_: stop.set())
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop = StopRequest()
+    stop.on_signals()
     print(f"ivfm ground router: listening on {', '.join(options.listen)}"
           + (f", linked to {', '.join(options.connect)}" if options.connect else ""),
           file=sys.stderr, flush=True)
-    stop.wait()
+    stop.wait(poll_s=0.1)
     session.close()
     return 0
 

@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import collections
 import json
-import signal
 import sys
 import threading
 from collections.abc import Callable
@@ -30,6 +29,7 @@ import zenoh
 from foxglove import channels as fg_channels
 
 from contracts.arguments import number
+from contracts.stop_request import StopRequest
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.foxglove_view import DEFAULT_RATE_HZ, FoxgloveView, Output, encode, json_schema
 
@@ -116,16 +116,15 @@ class LiveView:
 
 
 def serve_view(options: ZenohOptions, host: str, port: int, rate_hz: float = DEFAULT_RATE_HZ,
-               stop: threading.Event | None = None,
+               stop: StopRequest | None = None,
                ready: Callable[[LiveView], None] | None = None,
                log: Callable[[str], None] | None = None) -> int:
     """``ivfm ground view``: the telemetry heard on ``options``' session, live, until
     ``stop`` (or SIGINT / SIGTERM)."""
     log = log or (lambda text: print(f"view: {text}", file=sys.stderr, flush=True))
-    stop = stop or threading.Event()
+    stop = stop or StopRequest()
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, lambda *_: stop.set())
-        signal.signal(signal.SIGINT, lambda *_: stop.set())
+        stop.on_signals()
     view = FoxgloveView(rate_hz)
     live = LiveView(host, port)
     inbox: collections.deque[tuple[str, bytes, bytes | None]] = collections.deque()

@@ -43,6 +43,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from contracts import timeline
+from contracts.stop_request import StopRequest
 from contracts.telemetry import (
     JSON_RECORD_SCHEMA,
     MIRROR_ATTACHMENT,
@@ -292,7 +293,7 @@ class Logger:
         self._inbox: collections.deque[tuple[str, bytes, bytes | None, int]] = \
             collections.deque()
         self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
-        self._stop = threading.Event()
+        self._stop = StopRequest()
         self._file: McapFile | None = None
         self._index = 0
         self._flushed_records = 0  # counters.records at the last flush that worked
@@ -482,7 +483,7 @@ class Logger:
     def run(self, ready: Callable[[], None] | None = None) -> int:
         if threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGTERM, self.stop)
-            signal.signal(signal.SIGINT, self.stop)
+            signal.signal(signal.SIGINT, self.stop)  # StopRequest.set: safe in a handler
         session = open_session(self.config.zenoh, exit_on_listen_failure=True)
         timeline.mark(PROCESS, "zenoh session open")
         self._start_files()

@@ -6,8 +6,12 @@ import argparse
 import sys
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from contracts import AUTOPILOT, timeline
+
+if TYPE_CHECKING:
+    from autopilot.flight_tasks.reference import Reference
 
 if __name__ == "__main__":
     timeline.mark(AUTOPILOT, "main")  # before the heavy imports below
@@ -48,6 +52,29 @@ def param_argument(text: str) -> tuple[str, float]:
         return parse_assignment(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def reference_from_options(kind: str, altitude_m: float, options: Sequence[str],
+                           airframe: str) -> Reference:
+    """``--reference KIND --reference-option NAME=VALUE ...``; an excitation given no
+    envelope flies the airframe file's ``[envelope]`` (the paper's when it names none)."""
+    from autopilot.flight_tasks.reference import ENVELOPE_OPTIONS, REFERENCE_OPTIONS, Reference
+    from contracts.airframe_file import airframe_envelope
+
+    fields: dict[str, float] = {}
+    for item in options:
+        name, _, value = item.partition("=")
+        if name not in REFERENCE_OPTIONS:
+            raise ValueError(f"--reference-option: unknown field {name!r}; known: "
+                             f"{', '.join(REFERENCE_OPTIONS)}")
+        try:
+            fields[name] = float(value)
+        except ValueError:
+            raise ValueError(f"--reference-option {name}: {value!r} is not a number") \
+                from None
+    if kind == "excitation" and not fields.keys() & set(ENVELOPE_OPTIONS):
+        fields.update(zip(ENVELOPE_OPTIONS, airframe_envelope(airframe), strict=True))
+    return Reference(kind, altitude_m=altitude_m, **fields)
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
@@ -106,7 +133,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--altitude", type=ALTITUDE_M, default=1.0, help="reference altitude [m]")
     p.add_argument("--reference-option", action="append", default=[], metavar="NAME=VALUE",
                    help="another reference field (yaw_rad, amplitude, hold_start_s, "
-                        "hold_end_s, seed; repeatable)")
+                        "hold_end_s, seed, rate_rad_s, yaw_rate_rad_s; repeatable); an "
+                        "excitation given none of amplitude, rate_rad_s, yaw_rate_rad_s flies "
+                        "the airframe file's [envelope]")
     p.add_argument("--schedule", type=Path,
                    help="perturbation schedule JSON (sim time); the autopilot takes the kicks")
     p.add_argument("--arm-in-reference", action="store_true",
@@ -142,7 +171,6 @@ def preload() -> None:
 def run(args: argparse.Namespace) -> int:
     from autopilot.commander.commander import Commander
     from autopilot.control.factory import load_models, make_controller
-    from autopilot.flight_tasks.reference import Reference
     from autopilot.mavlink.server import MavlinkServer, open_link
     from autopilot.mavlink.signing import SigningState, default_state_path
     from autopilot.parameters import airframe_parameters, validate_parameters
@@ -170,18 +198,8 @@ def run(args: argparse.Namespace) -> int:
     period_s = 1.0 / args.rate_hz
     reference = None
     if args.reference:
-        options = {}
-        for item in args.reference_option:
-            name, _, value = item.partition("=")
-            if name not in ("yaw_rad", "amplitude", "hold_start_s", "hold_end_s", "seed",
-                            "rate_rad_s"):
-                raise ValueError(f"--reference-option: unknown field {name!r}")
-            try:
-                options[name] = float(value)
-            except ValueError:
-                raise ValueError(f"--reference-option {name}: {value!r} is not a number") \
-                    from None
-        reference = Reference(args.reference, altitude_m=args.altitude, **options)
+        reference = reference_from_options(args.reference, args.altitude,
+                                           args.reference_option, args.airframe)
     if args.arm_in_reference and reference is None:
         raise ValueError("--arm-in-reference needs --reference")
     if args.start_mission and args.mission is None:

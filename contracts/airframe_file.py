@@ -122,6 +122,11 @@ def read_airframe(source: str | Path, controllable: bool = True) -> AirframeSpec
                           controllable=controllable)
 
 
+def airframe_envelope(airframe: str | Path) -> Envelope:
+    """The envelope an airframe file names in ``[envelope]``, else the paper's."""
+    return read_airframe(airframe).envelope or PAPER_ENVELOPE
+
+
 def checked_argument(load: Callable[[str], object]) -> Callable[[str], str]:
     """argparse type of ``--airframe NAME|FILE``: ``load`` checks it now (its
     AirframeError is the usage error), the text is passed on as given."""

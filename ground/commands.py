@@ -215,8 +215,8 @@ def identify_command(args: argparse.Namespace) -> int:
     from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
     from autopilot.models.model_file import save_model
     from contracts.airframe import airframe_by_name
-    from contracts.airframe_file import Envelope
-    from ground.excitation import airframe_envelope, excitation_dataset
+    from contracts.airframe_file import Envelope, airframe_envelope
+    from ground.excitation import excitation_dataset
     from ground.paper_tables import TABLE_2_VALIDATION_RMSE
 
     airframe = airframe_by_name(args.airframe)

@@ -26,7 +26,7 @@ from contracts.airframe import (
     rotor_momentum,
     rotor_speeds,
 )
-from contracts.airframe_file import PAPER_ENVELOPE, Envelope, read_airframe
+from contracts.airframe_file import PAPER_ENVELOPE, Envelope
 from contracts.vectors import (
     MEASUREMENT,
     REF_EULER,
@@ -79,11 +79,6 @@ def _sample(t_s: float, euler_rad: np.ndarray, euler_rate_rad_s: np.ndarray, w_r
 
 
 MIN_SAMPLES = 20  # fewer cannot fit the clusters
-
-
-def airframe_envelope(airframe: str) -> Envelope:
-    """The envelope an airframe file names in ``[envelope]``, else the paper's."""
-    return read_airframe(airframe).envelope or PAPER_ENVELOPE
 
 
 def excitation_dataset(

@@ -87,7 +87,8 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
         load_models(model_path, airframe, o.any_airframe_model)
     if not (o.rate_hz > 0.0 and o.rate_hz <= 10_000.0):
         raise ValueError(f"--rate-hz must be in (0, 10000], got {o.rate_hz!r}")
-    return FlightPlan(scenario, controller, o.plant or scenario.plant, airframe, sensors,
+    return FlightPlan(scenario.on_airframe(airframe), controller, o.plant or scenario.plant,
+                      airframe, sensors,
                       state_source, validate_parameters(given), frozenset(given), model_path,
                       o.any_airframe_model, o.rate_hz, o.realtime, o.seed,
                       o.home or scenario.home, o.rt_cpus)

@@ -29,6 +29,7 @@ from typing import Any
 
 import zenoh
 
+from autopilot.flight_tasks.reference import REFERENCE_OPTIONS
 from contracts import timeline
 from contracts.frames import DEFAULT_HOME, Home
 from contracts.telemetry import AUTOPILOT, SITL, logger_key, vehicle_key
@@ -109,12 +110,9 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
         flies = ["--mission", str(scenario.plan), "--start-mission"]
     else:  # armed in the reference from the first sample
         flies = ["--reference", ref.kind, "--altitude", str(ref.altitude_m),
-                 "--reference-option", f"yaw_rad={ref.yaw_rad!r}",
-                 "--reference-option", f"amplitude={ref.amplitude!r}",
-                 "--reference-option", f"hold_start_s={ref.hold_start_s!r}",
-                 "--reference-option", f"hold_end_s={ref.hold_end_s!r}",
-                 "--reference-option", f"seed={ref.seed!r}",
-                 "--reference-option", f"rate_rad_s={ref.rate_rad_s!r}", "--arm-in-reference"]
+                 *(arg for name in REFERENCE_OPTIONS
+                   for arg in ("--reference-option", f"{name}={getattr(ref, name)!r}")),
+                 "--arm-in-reference"]
     autopilot = [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{sim_port}", *pace,
                  "--rate-hz", str(settings.rate_hz), "--state-source", settings.state_source,
                  "--controller", settings.controller, "--airframe", settings.airframe,

@@ -10,11 +10,12 @@ from __future__ import annotations
 import functools
 import math
 import tomllib
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from autopilot.flight_tasks.reference import Reference
+from autopilot.flight_tasks.reference import ENVELOPE_OPTIONS, Reference
+from contracts.airframe_file import airframe_envelope
 from contracts.frames import DEFAULT_HOME, Home
 from contracts.perturbations import (
     Perturbation,
@@ -54,6 +55,16 @@ class Scenario:
     home: Home = DEFAULT_HOME  # where on Earth the local frame is ([plant] home)
     # A ground tool on the vehicle's ground link during the run (ground/ground_station.py).
     ground_station: GroundStationPlan | None = None
+    # An excitation whose [reference] names no envelope flies the airframe's ([envelope]).
+    envelope_from_airframe: bool = False
+
+    def on_airframe(self, airframe: str) -> Scenario:
+        """This scenario as flown on ``airframe``: an excitation that names no envelope
+        takes the airframe file's (or the paper's, when it names none)."""
+        if not self.envelope_from_airframe:
+            return self
+        envelope = dict(zip(ENVELOPE_OPTIONS, airframe_envelope(airframe), strict=True))
+        return replace(self, reference=replace(self.reference, **envelope))
 
     @property
     def mission_items(self) -> tuple:
@@ -120,6 +131,8 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     if "kind" not in ref:
         raise ValueError("reference needs a kind")
     reference = Reference(**{k: v if k == "kind" else float(v) for k, v in ref.items()})
+    envelope_from_airframe = (reference.kind == "excitation"
+                              and not set(ref) & set(ENVELOPE_OPTIONS))
     plant = _table(data, "plant")
     bad = sorted(set(plant) - {"fidelity", "airframe", "sensors", "home"})
     if bad:
@@ -179,7 +192,8 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
                     state_source=state_source,
                     parameters={k: float(v) for k, v in params.items()},
                     model_path=model_path, source=path, plan=plan, expect=expect, home=home,
-                    ground_station=ground_station)
+                    ground_station=ground_station,
+                    envelope_from_airframe=envelope_from_airframe).on_airframe(airframe)
 
 
 def _home(value: Any) -> Home:

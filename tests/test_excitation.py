@@ -21,7 +21,13 @@ from autopilot.flight_tasks.reference import (
 )
 from autopilot.identification.coverage import coverage, coverage_metadata, format_coverage
 from contracts.airframe import PAPER
-from contracts.airframe_file import AirframeError, Envelope, parse_airframe, read_airframe
+from contracts.airframe_file import (
+    PAPER_ENVELOPE,
+    AirframeError,
+    Envelope,
+    parse_airframe,
+    read_airframe,
+)
 from ground.excitation import excitation_dataset
 
 T = np.arange(0.0, EXCITATION_RECORD_S, 0.01)
@@ -104,13 +110,17 @@ def test_the_design_is_seeded_and_the_reference_flies_it():
     assert at[REF_EULER] == pytest.approx(phi, abs=1e-12)
     assert at[REF_EULER_RATE] == pytest.approx(phi_rate, abs=1e-12)
     narrow = Reference("excitation", seed=3.0, amplitude=0.5, rate_rad_s=0.6)
-    assert narrow.envelope == Envelope(0.5, 0.6, 0.3)
+    assert narrow.envelope == Envelope(0.5, 0.6, 0.3)  # yaw: half the rate unless given
+    assert Reference("excitation", rate_rad_s=0.6, yaw_rate_rad_s=0.2).envelope \
+        == Envelope(1.0, 0.6, 0.2)
 
 
 @pytest.mark.parametrize("fields, message", [
     ({"amplitude": 0.0}, "attitude envelope"), ({"amplitude": 1.5}, "attitude envelope"),
     ({"rate_rad_s": -1.0}, "rate_rad_s must be in"), ({"rate_rad_s": math.inf}, "finite"),
-    ({"rate_rad_s": math.nan}, "finite"),
+    ({"rate_rad_s": math.nan}, "finite"), ({"yaw_rate_rad_s": 0.0}, "yaw_rate_rad_s must be"),
+    ({"yaw_rate_rad_s": 6.0}, "yaw_rate_rad_s must be in"),
+    ({"yaw_rate_rad_s": -math.inf}, "finite"),
 ])
 def test_a_bad_excitation_envelope_is_refused(fields, message):
     with pytest.raises(ValueError, match=message):
@@ -226,3 +236,43 @@ def test_a_campaign_identifies_on_the_airframes_envelope():
     shipped = json.loads(resources.files("autopilot.models").joinpath(
         "quad-x-500.json").read_text())
     _assert_same_numbers(mine["channels"], shipped["channels"])
+
+
+def test_an_excitation_naming_no_envelope_flies_the_airframes(tmp_path):
+    """``ivfm run excitation --airframe quad-x-500`` flies the x500's 0.7 rad, not the
+    paper's 1 rad; a scenario that names an envelope keeps it on any airframe."""
+    from ground.flights import Overrides, plan_flight
+    from ground.processes import RunSettings, vehicle_commands
+    from ground.scenarios import load_scenario, scenario_by_name
+
+    shipped = scenario_by_name("excitation")
+    assert shipped.reference.envelope == PAPER_ENVELOPE
+    x500 = plan_flight(shipped, Overrides(airframe="quad-x-500")).scenario
+    assert x500.reference.envelope == read_airframe("quad-x-500").envelope
+    assert plan_flight(shipped).scenario.reference.envelope == PAPER_ENVELOPE
+    # ... and the autopilot is told so
+    _sim, autopilot = vehicle_commands(x500, RunSettings("smc", "paper", "quad-x-500"), 1,
+                                       "tcp/127.0.0.1:1")
+    assert {"amplitude=0.7", "rate_rad_s=1.0", "yaw_rate_rad_s=0.5"} <= set(autopilot)
+    text = shipped.source.read_text().replace('kind = "excitation"',
+                                              'kind = "excitation"\nrate_rad_s = 0.8')
+    (tmp_path / "mine.toml").write_text(text)
+    mine = load_scenario(tmp_path / "mine.toml")
+    assert plan_flight(mine, Overrides(airframe="quad-x-500")).scenario.reference.envelope \
+        == Envelope(1.0, 0.8, 0.4)
+
+
+@pytest.mark.parametrize("options, envelope", [
+    ([], Envelope(0.7, 1.0, 0.5)),  # the airframe file's
+    (["amplitude=0.5"], Envelope(0.5, 1.0, 0.5)),  # given: the reference's defaults
+    (["rate_rad_s=2", "yaw_rate_rad_s=0.3"], Envelope(1.0, 2.0, 0.3)),
+])
+def test_the_autopilots_excitation_takes_the_airframes_envelope_unless_given(options,
+                                                                             envelope):
+    from autopilot.__main__ import reference_from_options
+
+    assert reference_from_options("excitation", 10.0, options, "quad-x-500").envelope \
+        == envelope
+    assert reference_from_options("excitation", 10.0, [], "paper").envelope == PAPER_ENVELOPE
+    with pytest.raises(ValueError, match="unknown field 'rate'; known: yaw_rad"):
+        reference_from_options("excitation", 10.0, ["rate=1"], "quad-x-500")

@@ -17,7 +17,7 @@ import pytest
 from autopilot.parameters import PARAMETERS
 from tests.harness import start_processes
 
-pytestmark = pytest.mark.process
+pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 
 MAVPROXY = Path(sys.executable).parent / "mavproxy.py"
 MODULES = "param,ftp,arm,mode,cmdlong,misc"  # what the flow needs; no GUI modules

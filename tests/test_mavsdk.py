@@ -18,7 +18,7 @@ from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryA
 
 from tests.harness import start_processes
 
-pytestmark = pytest.mark.process
+pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 
 log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
 

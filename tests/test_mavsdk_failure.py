@@ -25,7 +25,7 @@ from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from tests.harness import start_processes
 from tests.test_mavsdk import _near, _until
 
-pytestmark = pytest.mark.process
+pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 
 log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
 

@@ -32,7 +32,7 @@ from contracts.frames import wrap_pi
 from tests.harness import start_processes
 from tests.mavsdk_helpers import until
 
-pytestmark = pytest.mark.process
+pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 
 log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
 

@@ -22,7 +22,7 @@ from tests.harness import start_processes
 from tests.test_ground_station import free_tcp_port
 from tests.test_mavsdk import _near, _until
 
-pytestmark = pytest.mark.process
+pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 
 
 async def _fly(port: int) -> dict:

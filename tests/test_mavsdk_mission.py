@@ -22,7 +22,7 @@ from mavsdk.asyncio.plugins.mission import MissionAsync, MissionPlan
 from tests.harness import start_processes
 from tests.mavsdk_helpers import mission_item
 
-pytestmark = pytest.mark.process
+pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 
 log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
 

@@ -24,7 +24,7 @@ from contracts.frames import DEFAULT_HOME
 from tests.harness import start_processes
 from tests.mavsdk_helpers import mission_item, until
 
-pytestmark = pytest.mark.process
+pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 
 log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and errors only
 

@@ -27,6 +27,11 @@ from contracts.vectors import (
 )
 
 REFERENCE_KINDS = ("attitude-sine", "attitude-hold", "position-sine", "hover", "excitation")
+# A Reference's fields besides kind and altitude_m (the autopilot's --reference-option).
+REFERENCE_OPTIONS = ("yaw_rad", "amplitude", "hold_start_s", "hold_end_s", "seed",
+                     "rate_rad_s", "yaw_rate_rad_s")
+# Those that hold the excitation's envelope, in the order of Envelope's fields.
+ENVELOPE_OPTIONS = ("amplitude", "rate_rad_s", "yaw_rate_rad_s")
 
 # The excitation for identification: multisines on the three attitude angles, designed so
 # that roll and pitch get matched spectra and the flight covers the envelope the model
@@ -143,35 +148,37 @@ class Reference:
     hold_start_s: float = 10.0
     hold_end_s: float = 12.0
     seed: float = 0.0  # excitation: the multisines' seed (a whole number)
-    rate_rad_s: float = 1.0  # excitation: roll and pitch rate envelope (yaw: half of it)
+    rate_rad_s: float = 1.0  # excitation: roll and pitch rate envelope
+    yaw_rate_rad_s: float | None = None  # excitation: yaw rate envelope (None: half the rate)
 
     def __post_init__(self) -> None:
+        if self.yaw_rate_rad_s is None:
+            object.__setattr__(self, "yaw_rate_rad_s", 0.5 * self.rate_rad_s)
         if self.kind not in REFERENCE_KINDS:
             raise ValueError(
                 f"unknown reference kind {self.kind!r}; known: {', '.join(REFERENCE_KINDS)}"
             )
-        for name in ("altitude_m", "yaw_rad", "amplitude", "hold_start_s", "hold_end_s",
-                     "seed", "rate_rad_s"):
+        for name in ("altitude_m", *REFERENCE_OPTIONS):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"reference {name} must be finite")
         if self.seed != int(self.seed) or self.seed < 0:
             raise ValueError(f"reference seed must be a whole number >= 0, got {self.seed!r}")
         if self.kind == "excitation":
-            top = ENVELOPE_LIMITS["attitude_rad"]
-            if not 0.0 < self.amplitude <= top:
-                raise ValueError(f"excitation amplitude (the attitude envelope) must be in "
-                                 f"(0, {top}] rad, got {self.amplitude!r}")
-            top = ENVELOPE_LIMITS["rate_rad_s"]
-            if not 0.0 < self.rate_rad_s <= top:
-                raise ValueError(f"excitation rate_rad_s must be in (0, {top}] rad/s, got "
-                                 f"{self.rate_rad_s!r}")
+            for what, value, limit in (
+                    ("amplitude (the attitude envelope)", self.amplitude, "attitude_rad"),
+                    ("rate_rad_s", self.rate_rad_s, "rate_rad_s"),
+                    ("yaw_rate_rad_s", self.yaw_rate_rad_s, "yaw_rate_rad_s")):
+                top = ENVELOPE_LIMITS[limit]
+                if not 0.0 < value <= top:
+                    raise ValueError(f"excitation {what} must be in (0, {top}], got {value!r}")
             _seeded_excitation(int(self.seed), self.envelope)  # designed now (60 ms), not
                                                                 # in the control loop
 
     @property
     def envelope(self) -> Envelope:
-        """The excitation's envelope: attitude ``amplitude``, rates ``rate_rad_s``."""
-        return Envelope(self.amplitude, self.rate_rad_s, 0.5 * self.rate_rad_s)
+        """The excitation's envelope: attitude ``amplitude``, rates ``rate_rad_s`` and
+        ``yaw_rate_rad_s``."""
+        return Envelope(self.amplitude, self.rate_rad_s, self.yaw_rate_rad_s)
 
     @property
     def position_mode(self) -> bool:

@@ -116,7 +116,8 @@ def identified_model_json(airframe: str, seed: int, clusters: int = DEFAULT_CLUS
     from autopilot.identification.identify import identify_dataset
     from autopilot.models.model_file import save_model
     from contracts.airframe import airframe_by_name
-    from ground.excitation import airframe_envelope, excitation_dataset
+    from contracts.airframe_file import airframe_envelope
+    from ground.excitation import excitation_dataset
 
     dataset = excitation_dataset(airframe_by_name(airframe), seed=seed,
                                  envelope=airframe_envelope(airframe))

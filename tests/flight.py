@@ -66,6 +66,13 @@ class Flight:
             self.plant.advance(self.period_s)
             self.steps += 1
 
+    def lose(self, periods: int) -> None:
+        """``periods`` control periods with no control step, the last commands holding:
+        a real-time step that came too late (the sim time runs on)."""
+        for _ in range(periods):
+            self.plant.advance(self.period_s)
+            self.steps += 1
+
     def take_off(self, altitude_m: float = 2.5) -> None:
         self.run(0.05)  # the first samples: the simulator link comes up
         self.vehicle.arm(self.t_s)

@@ -316,8 +316,7 @@ class Commander:
         if not self.sim_link_ok:
             self.say("simulator link up", 6)
         self.sim_link_ok = True
-        self.state.sim_t_s = sim_t_s
-        self.state.measurement = measurement
+        self.state.new_sample(sim_t_s, measurement)
         self._detect_landing()
         if self.armed and not self.landed and self.row.geofence:
             self.failsafes.check_geofence()

@@ -134,6 +134,6 @@ class FollowTargetTask(BaseTask):
         FLW_TGT_MAX_VEL round the target."""
         if self._direction_rad is None:
             return wanted_rad
-        step = p["FLW_TGT_MAX_VEL"] / p["FLW_TGT_DST"] * self.state.period_s
+        step = p["FLW_TGT_MAX_VEL"] / p["FLW_TGT_DST"] * self.state.step_s
         error = wrap_pi(wanted_rad - self._direction_rad)
         return wrap_pi(self._direction_rad + max(-step, min(step, error)))

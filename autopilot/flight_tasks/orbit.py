@@ -107,7 +107,7 @@ class OrbitTask(BaseTask):
         speed = min(self.speed_mps, s.limits.xy_vel_max_mps,
                     math.sqrt(CENTRIPETAL_SHARE * s.limits.acc_hor_mps2 * r))
         turn = math.copysign(speed / r, self.radius_m)  # clockwise from above: +angle
-        self._angle_rad = wrap_pi(self._angle_rad + turn * s.period_s)
+        self._angle_rad = wrap_pi(self._angle_rad + turn * s.step_s)
         c, n = math.cos(self._angle_rad), math.sin(self._angle_rad)
         position = self.centre_ned_m + np.array([r * c, r * n, 0.0])
         velocity = np.array([-n, c, 0.0]) * (turn * r)

@@ -39,6 +39,9 @@ if TYPE_CHECKING:
 # A position setpoint's velocity / acceleration feed-forward is the setpoint's own motion:
 # it applies while the streamed position moves, and lapses this long after it stops, so
 # a setpoint that stands still is a place to stop at, not to fly past.
+# The most sim time one control step advances the setpoints by: a longer gap is a stalled
+# simulator or a lost link, which the failsafes handle.
+MAX_SETPOINT_STEP_S = 0.05
 FEED_FORWARD_HOLD_S = 0.5
 
 
@@ -88,6 +91,11 @@ class TaskState:
     def __init__(self, period_s: float, parameters: dict[str, float], max_thrust_n: float,
                  hover_fraction: float, land_detector: LandDetector) -> None:
         self.period_s = period_s
+        # Sim time since the previous sample: what the setpoints advance by this step. In
+        # real time a late step loses whole periods, and setpoints advanced by period_s
+        # would fall behind the vehicle by them (an orbit then slowed the vehicle 3 % for
+        # a second after a 23 ms stall).
+        self.step_s = period_s
         self.parameters = parameters
         self.limits: ShapingLimits = limits_from_parameters(parameters)
         self.max_thrust_n = max_thrust_n
@@ -104,6 +112,18 @@ class TaskState:
         self.takeoff_altitude_m: float | None = None  # climbing to it
         self._tool_position: np.ndarray | None = None
         self._tool_position_moved_s = -math.inf
+
+    def new_sample(self, sim_t_s: float, measurement: np.ndarray) -> None:
+        """The simulator's newest state, and the sim time it moves the setpoints on by:
+        the time since the previous sample (to the microsecond, so that lockstep steps
+        are period_s exactly), one period when the clock did not move on (the same sample
+        again, or a new simulator), at most MAX_SETPOINT_STEP_S."""
+        elapsed_s = round((sim_t_s - self.sim_t_s) * 1e6) / 1e6
+        first = self.measurement is None
+        self.step_s = (self.period_s if first or elapsed_s <= 0.0
+                       else min(elapsed_s, MAX_SETPOINT_STEP_S))
+        self.sim_t_s = sim_t_s
+        self.measurement = measurement
 
     def set_parameters(self, parameters: dict[str, float]) -> None:
         self.parameters = parameters
@@ -204,7 +224,7 @@ class TaskState:
         """The setpoint through the shaper within ``limits`` (the shaper starts from the
         vehicle's own position and velocity when it takes over)."""
         self.start_translation()
-        return self.shaper.step(self.setpoint, limits, self.period_s)
+        return self.shaper.step(self.setpoint, limits, self.step_s)
 
     def start_translation(self) -> None:
         """Start translation shaping from the vehicle's state, unless it is on already."""
@@ -225,11 +245,11 @@ class TaskState:
         ref = self.shaper.step_attitude(
             target.euler_rad, self.limits,
             (p["CMDF_OMEGA"], p["CMDF_ZETA"], p["CMDF_RATE_MAX"], p["CMDF_ACC_MAX"]),
-            self.period_s, target.yaw_rate_rad_s)
+            self.step_s, target.yaw_rate_rad_s)
         ref[REF_POS:REF_POS + 3] = m[MEASUREMENT.position_ned_m]
         if math.isfinite(target.thrust_fraction):
             return TaskOutput(ref, False, target.thrust_fraction * self.max_thrust_n)
-        target.altitude_ref_ned_m -= target.climb_rate_mps * self.period_s
+        target.altitude_ref_ned_m -= target.climb_rate_mps * self.step_s
         ref[REF_POS + 2] = target.altitude_ref_ned_m
         ref[REF_VEL + 2] = -target.climb_rate_mps
         return TaskOutput(ref, False, math.nan)

@@ -96,6 +96,7 @@ class TaskState:
         # would fall behind the vehicle by them (an orbit then slowed the vehicle 3 % for
         # a second after a 23 ms stall).
         self.step_s = period_s
+        self._setpoints_us = 0  # the sim time the setpoints stand at [us]
         self.parameters = parameters
         self.limits: ShapingLimits = limits_from_parameters(parameters)
         self.max_thrust_n = max_thrust_n
@@ -115,13 +116,21 @@ class TaskState:
 
     def new_sample(self, sim_t_s: float, measurement: np.ndarray) -> None:
         """The simulator's newest state, and the sim time it moves the setpoints on by:
-        the time since the previous sample (to the microsecond, so that lockstep steps
-        are period_s exactly), one period when the clock did not move on (the same sample
-        again, or a new simulator), at most MAX_SETPOINT_STEP_S."""
-        elapsed_s = round((sim_t_s - self.sim_t_s) * 1e6) / 1e6
-        first = self.measurement is None
-        self.step_s = (self.period_s if first or elapsed_s <= 0.0
-                       else min(elapsed_s, MAX_SETPOINT_STEP_S))
+        from the sim time they stand at to the sample's, in whole microseconds (so that
+        a lockstep step is period_s exactly), at most MAX_SETPOINT_STEP_S. The same
+        sample again moves them on by a period, and the next sample by that much less."""
+        now_us = round(sim_t_s * 1e6)
+        ahead_us = now_us - self._setpoints_us
+        if self.measurement is None or now_us < round(self.sim_t_s * 1e6):  # a new simulator
+            ahead_us = round(self.period_s * 1e6)
+            self._setpoints_us = now_us - ahead_us
+        elif ahead_us <= 0:
+            ahead_us = round(self.period_s * 1e6)
+        elif ahead_us > round(MAX_SETPOINT_STEP_S * 1e6):  # a stall: start again from now
+            ahead_us = round(MAX_SETPOINT_STEP_S * 1e6)
+            self._setpoints_us = now_us - ahead_us
+        self._setpoints_us += ahead_us
+        self.step_s = ahead_us / 1e6
         self.sim_t_s = sim_t_s
         self.measurement = measurement
 

@@ -58,8 +58,7 @@ def test_a_negative_radius_orbits_counter_clockwise_and_speed_is_capped_by_acc_h
 def test_lost_periods_do_not_put_the_orbit_behind_the_vehicle():
     """A late real-time step loses whole periods while the simulator flies on. The circle
     moves on by sim time, so the vehicle flies on at its speed; moved on by steps, it
-    fell 3 periods behind and slowed the vehicle by 40 mm/s for a second (the MAVSDK orbit
-    test's rare failure, after a 23 ms stall)."""
+    fell 3 periods behind and slowed the vehicle by 40 mm/s for a second."""
     f, _ = _orbit(4.0, 1.5, 0, seconds=20.0)
     orbit = f.vehicle.tasks[FlightMode.ORBIT]
     lost_at, angle = f.t_s, orbit._angle_rad

@@ -93,8 +93,8 @@ class TaskState:
         self.period_s = period_s
         # Sim time since the previous sample: what the setpoints advance by this step. In
         # real time a late step loses whole periods, and setpoints advanced by period_s
-        # would fall behind the vehicle by them (an orbit then slowed the vehicle 3 % for
-        # a second after a 23 ms stall).
+        # would fall behind the vehicle by them (in process, 3 lost periods slowed an
+        # orbit by 40 mm/s for a second).
         self.step_s = period_s
         self._setpoints_us = 0  # the sim time the setpoints stand at [us]
         self.parameters = parameters

@@ -95,7 +95,7 @@ class LiveView:
         # gated on channel.has_sinks(): that read False for good, now and then, for a
         # channel a viewer subscribed to while it was being created (the mission test lost
         # every scene update in 1 run of 5 so; 0 of 8 since). It did again, ungated, in 1
-        # CI run of 4 on 2026-12-04; 140 runs of a synthetic burst did not reproduce it.
+        # CI run of 5 on 2026-12-04; 140 runs of a synthetic burst did not reproduce it.
         # Not traced.
         message = output.message
         channel.log(encode(message) if isinstance(message, dict) else message,

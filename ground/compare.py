@@ -42,7 +42,7 @@ def run_comparison(
     start = time.perf_counter()
     for plant in plants:
         for name in scenarios:
-            scenario = scenario_by_name(name)
+            scenario = scenario_by_name(name).on_airframe(airframe_name)
             for controller in controllers:
                 line = ProgressLine(f"[{done + 1:>3}/{total}] {plant} {name} {controller}",
                                     scenario.duration_s)

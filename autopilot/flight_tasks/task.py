@@ -119,17 +119,16 @@ class TaskState:
         from the sim time they stand at to the sample's, in whole microseconds (so that
         a lockstep step is period_s exactly), at most MAX_SETPOINT_STEP_S. The same
         sample again moves them on by a period, and the next sample by that much less."""
-        now_us = round(sim_t_s * 1e6)
+        now_us, period_us = round(sim_t_s * 1e6), round(self.period_s * 1e6)
         ahead_us = now_us - self._setpoints_us
         if self.measurement is None or now_us < round(self.sim_t_s * 1e6):  # a new simulator
-            ahead_us = round(self.period_s * 1e6)
-            self._setpoints_us = now_us - ahead_us
-        elif ahead_us <= 0:
-            ahead_us = round(self.period_s * 1e6)
-        elif ahead_us > round(MAX_SETPOINT_STEP_S * 1e6):  # a stall: start again from now
-            ahead_us = round(MAX_SETPOINT_STEP_S * 1e6)
-            self._setpoints_us = now_us - ahead_us
-        self._setpoints_us += ahead_us
+            ahead_us = period_us
+        elif ahead_us <= 0:  # the same sample again: a period ahead, made up next time
+            ahead_us = period_us
+            now_us = self._setpoints_us + period_us
+        else:  # a stall: at most the cap, and the setpoints start again from now
+            ahead_us = min(ahead_us, round(MAX_SETPOINT_STEP_S * 1e6))
+        self._setpoints_us = now_us
         self.step_s = ahead_us / 1e6
         self.sim_t_s = sim_t_s
         self.measurement = measurement

@@ -369,7 +369,7 @@ def _tomlable(doc: Any) -> Any:
 def read_file(kind: str, path: Path) -> None:
     """Read a file of ``kind`` as the product does; ValueError is the refusal."""
     if kind == "scenario":
-        from ground.scenarios import load_scenario
+        from ground.scenario.scenario_file import load_scenario
         load_scenario(path)
     elif kind == "airframe":
         from contracts.airframe_file import read_airframe
@@ -384,7 +384,7 @@ def read_file(kind: str, path: Path) -> None:
         from autopilot.models.model_file import load_model
         load_model(path)
     elif kind == "profile":
-        from ground.readiness import load_profile
+        from ground.rehearsal.readiness import load_profile
         load_profile(path)
 
 
@@ -423,7 +423,7 @@ def hostile_log(folder: Path, data: bytes, capsys) -> None:
     reads as diverged); never a traceback."""
     import shutil
 
-    from ground.cli import main
+    from ground.cli.main import main
 
     run = folder / "run"
     shutil.rmtree(run, ignore_errors=True)

@@ -23,7 +23,7 @@ from typing import Any
 GOLDEN_PATH = Path(__file__).with_name("golden_metrics.json")
 UPDATE_COMMAND = ".venv/bin/python -m tests.golden --update"
 PLANTS = ("paper", "rigid-body")
-# Per-axis quantities of ground.metrics.compute_metrics that are pinned.
+# Per-axis quantities of ground.report.metrics.compute_metrics that are pinned.
 QUANTITIES = ("rmse", "max_abs")
 # Runs are bit-for-bit reproducible on one machine (test_runs_are_bit_for_bit_reproducible);
 # 1 % leaves room for another CPU's or library's last-bit float differences growing
@@ -44,9 +44,9 @@ def compute_all_metrics(models: Any = None) -> dict[tuple[str, str, str], dict[s
     """compute_metrics of every (plant, paper scenario, controller), run in process."""
     from autopilot.control.factory import CONTROLLERS, load_models
     from contracts.airframe import PAPER
-    from ground.inprocess import run_inprocess
-    from ground.metrics import compute_metrics
-    from ground.scenarios import PAPER_SCENARIOS, shipped_scenarios
+    from ground.report.metrics import compute_metrics
+    from ground.run.inprocess import run_inprocess
+    from ground.scenario.scenario_file import PAPER_SCENARIOS, shipped_scenarios
 
     if models is None:
         models = load_models(None)
@@ -81,9 +81,10 @@ def write_golden(runs: dict[str, Any], path: Path = GOLDEN_PATH) -> None:
     document = {
         "header": {
             "produced_by": f"cd /work/main && {UPDATE_COMMAND}",
-            "what": "per-axis rmse and max_abs (ground.metrics.compute_metrics) of every "
-                    "(plant, ground.scenarios.PAPER_SCENARIOS, CONTROLLERS) run in process "
-                    "(ground.inprocess.run_inprocess, PAPER airframe, shipped fuzzy models); "
+            "what": "per-axis rmse and max_abs (ground.report.metrics.compute_metrics) of every "
+                    "(plant, ground.scenario.scenario_file.PAPER_SCENARIOS, CONTROLLERS) run in "
+                    "process "
+                    "(ground.run.inprocess.run_inprocess, PAPER airframe, shipped fuzzy models); "
                     "run keys are plant/scenario/controller",
             "checked_by": f"tests/test_scenarios.py, pytest.approx(rel={GOLDEN_REL:g}, "
                           f"abs={GOLDEN_ABS})",

@@ -75,8 +75,8 @@ def log_digests(run_dir: Path) -> dict[str, str]:
 
 def fingerprint(names: tuple[str, ...] = SCENARIOS) -> dict[str, dict[str, str]]:
     """Fly each scenario through the processes in lockstep; {scenario: {topic: digest}}."""
-    from ground.processes import RunSettings, run_processes
-    from ground.scenarios import scenario_by_name
+    from ground.run.processes import RunSettings, run_processes
+    from ground.scenario.scenario_file import scenario_by_name
 
     out: dict[str, dict[str, str]] = {}
     with tempfile.TemporaryDirectory() as tmp:

@@ -352,8 +352,8 @@ def test_airframe_parameters_are_defaults_that_scenarios_and_the_command_line_ov
     import dataclasses
 
     from autopilot.parameters import airframe_parameters
-    from ground.flights import Overrides, plan_flight
-    from ground.scenarios import scenario_by_name
+    from ground.run.flights import Overrides, plan_flight
+    from ground.scenario.scenario_file import scenario_by_name
 
     assert airframe_parameters("quad-x-500") == {"CMDF_ACC_MAX": 20.0}
     assert airframe_parameters("paper") == {}

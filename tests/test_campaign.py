@@ -24,7 +24,7 @@ from ground.campaign.run import (
 )
 from ground.campaign.spec import parse_campaign, read_campaign, shipped_campaigns
 from ground.campaign.stats import paired, summary, verdict
-from ground.scenarios import load_scenario
+from ground.scenario.scenario_file import load_scenario
 
 BASE = {"name": "t", "scenarios": ["attitude-jr-20"], "controllers": ["ivfc", "t1fc"],
         "runs": 4, "seed": 3,
@@ -124,7 +124,7 @@ def test_a_failing_run_is_a_row_with_its_reason():
 
 
 def test_a_flight_task_flies_the_draw_as_ivfm_run_would():
-    from ground.flights import Overrides, fly_inprocess, plan_flight
+    from ground.run.flights import Overrides, fly_inprocess, plan_flight
 
     task = flight_tasks(parse_campaign({**BASE, "draw": {"mass_scale": {"value": 1.1}}}))[0]
     row = run_task(task)

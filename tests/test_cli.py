@@ -120,7 +120,7 @@ def test_identification_reproduces_our_table_2_in_process() -> None:
     claim), and the input gains g close to the airframe's b1, b2, b3."""
     from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
     from contracts.airframe import PAPER, attitude_coefficients
-    from ground.excitation import excitation_dataset
+    from ground.identify.excitation import excitation_dataset
 
     dataset = excitation_dataset(PAPER, seed=0)
     models = identify_dataset(dataset, n_clusters=DEFAULT_N_CLUSTERS, seed=0)

@@ -17,7 +17,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from contracts.arguments import DURATION_S, cpu_list, number
-from ground.cli import _build_parser, main
+from ground.cli.main import build_parser, main
 
 # A command and the positional arguments it needs to parse.
 COMMANDS = (
@@ -35,7 +35,7 @@ UNTYPED = (str, Path, None)
 
 
 def _subparser(argv: list[str]) -> argparse.ArgumentParser:
-    parser = _build_parser(argv)
+    parser = build_parser(argv)
     for name in argv:
         sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
         parser = sub.choices[name]
@@ -160,7 +160,7 @@ def test_a_run_without_out_writes_a_fresh_folder_under_runs(tmp_path, monkeypatc
 
 
 def test_a_fresh_folder_never_reuses_one_that_exists(tmp_path, monkeypatch):
-    from ground.commands import fresh_folder
+    from ground.cli.common import fresh_folder
 
     monkeypatch.setattr("time.strftime", lambda fmt: fmt.replace("%Y%m%d-%H%M%S", "T"))
     first = fresh_folder("x", tmp_path)
@@ -173,6 +173,6 @@ def test_a_fresh_folder_never_reuses_one_that_exists(tmp_path, monkeypatch):
 @pytest.mark.parametrize("base", COMMANDS, ids=[" ".join(b[:_depth(b)]) for b in COMMANDS])
 def test_help_reads_as_plain_text(base):
     """No reStructuredText (``ivfm``, `name`) in what --help prints."""
-    for parser in (_build_parser(base), _subparser(base)):
+    for parser in (build_parser(base), _subparser(base)):
         text = parser.format_help()
         assert "`" not in text, [line for line in text.splitlines() if "`" in line]

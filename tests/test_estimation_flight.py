@@ -14,11 +14,11 @@ import pytest
 from contracts.airframe import PAPER
 from contracts.mavlink import mavlink
 from contracts.telemetry import ESTIMATE, mavlink_key, vehicle_key
-from ground.inprocess import run_inprocess
-from ground.metrics import compute_metrics
-from ground.processes import RunSettings, fly
-from ground.run_files import iter_messages
-from ground.scenarios import scenario_by_name
+from ground.record.run_files import iter_messages
+from ground.report.metrics import compute_metrics
+from ground.run.inprocess import run_inprocess
+from ground.run.processes import RunSettings, fly
+from ground.scenario.scenario_file import scenario_by_name
 from tests.harness import GroundTool, start_processes
 
 M = mavlink
@@ -151,7 +151,7 @@ def test_on_perfect_sensors_the_estimate_is_the_truth_to_millimetres(tmp_path, c
     the truth itself) shows what the filter's own lag costs the position loop."""
     import json
 
-    from ground.cli import main
+    from ground.cli.main import main
 
     assert main(["run", "position-sine", "--inprocess", "--no-figures", "--plant",
                  "rigid-body", "--sensors", "ideal", "--state-source", "estimator", "--out",

@@ -28,7 +28,7 @@ from contracts.airframe_file import (
     parse_airframe,
     read_airframe,
 )
-from ground.excitation import excitation_dataset
+from ground.identify.excitation import excitation_dataset
 
 T = np.arange(0.0, EXCITATION_RECORD_S, 0.01)
 HALF = len(T) // 2
@@ -204,7 +204,7 @@ def test_bad_envelope_tables_are_refused(table, message):
     ("1,1", (1.0, 1.0, 0.5)), ("0.7, 1.0, 0.4", (0.7, 1.0, 0.4)),
 ])
 def test_the_envelope_option_reads_two_or_three_numbers(text, expected):
-    from ground.cli import envelope_argument
+    from ground.cli.identify import envelope_argument
 
     assert envelope_argument(text) == expected
 
@@ -217,7 +217,7 @@ def test_the_envelope_option_reads_two_or_three_numbers(text, expected):
 def test_a_bad_envelope_option_is_refused_naming_the_number(text, message):
     import argparse
 
-    from ground.cli import envelope_argument
+    from ground.cli.identify import envelope_argument
 
     with pytest.raises(argparse.ArgumentTypeError, match=None) as info:
         envelope_argument(text)
@@ -241,9 +241,9 @@ def test_a_campaign_identifies_on_the_airframes_envelope():
 def test_an_excitation_naming_no_envelope_flies_the_airframes(tmp_path):
     """``ivfm run excitation --airframe quad-x-500`` flies the x500's 0.7 rad, not the
     paper's 1 rad; a scenario that names an envelope keeps it on any airframe."""
-    from ground.flights import Overrides, plan_flight
-    from ground.processes import RunSettings, vehicle_commands
-    from ground.scenarios import load_scenario, scenario_by_name
+    from ground.run.flights import Overrides, plan_flight
+    from ground.run.processes import RunSettings, vehicle_commands
+    from ground.scenario.scenario_file import load_scenario, scenario_by_name
 
     shipped = scenario_by_name("excitation")
     assert shipped.reference.envelope == PAPER_ENVELOPE

@@ -14,18 +14,12 @@ import pytest
 
 from contracts.modes import FlightMode
 from contracts.telemetry import FLAG_ARMED, FLAG_FAILSAFE
-from ground.check import (
-    ScenarioResult,
-    collect,
-    compare_baseline,
-    junit_xml,
-    markdown_summary,
-    results_table,
-)
-from ground.cli import main
-from ground.events import step_events
-from ground.expectations import COMPLETED, evaluate, parse_expectations
-from ground.scenarios import (
+from ground.check.checker import ScenarioResult, collect, compare_baseline
+from ground.check.results import junit_xml, markdown_summary, results_table
+from ground.cli.main import main
+from ground.record.events import step_events
+from ground.scenario.expectations import COMPLETED, evaluate, parse_expectations
+from ground.scenario.scenario_file import (
     load_scenario,
     scenario_by_name,
     scenario_from_dict,
@@ -338,7 +332,7 @@ def test_check_refuses_bad_input_before_flying(argv, tmp_path, capsys):
 
 
 def test_a_scenario_from_a_dict_reads_back_with_its_files(tmp_path):
-    plan = Path(__file__).parents[1] / "ground" / "scenario_files"
+    plan = Path(__file__).parents[1] / "ground" / "scenario" / "shipped"
     scenario = scenario_from_dict({"name": "m", "mission": {"plan": "six-waypoints.plan"},
                                    "plant": {"fidelity": "rigid-body"},
                                    "expect": {"path": {"all_reached": True}}},

@@ -1,4 +1,4 @@
-"""What Foxglove draws of the telemetry (ground/foxglove_view.py): frames, decimation on
+"""What Foxglove draws of the telemetry (ground/telemetry/foxglove_view.py): frames, decimation on
 sim time, the scene from the autopilot's scene record, and bad scene records refused."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from contracts.frames import quat_from_euler, rotation_from_quat
 from contracts.telemetry import CONTROL, STATE
-from ground.foxglove_view import FoxgloveView, encode, json_schema
+from ground.telemetry.foxglove_view import FoxgloveView, encode, json_schema
 
 STATE_KEY = "ivfm/vehicle/1/sitl/state"
 CONTROL_KEY = "ivfm/vehicle/1/autopilot/control"
@@ -162,13 +162,13 @@ def test_records_too_short_to_hold_their_time_are_refused():
 
 
 def test_every_plot_of_the_shipped_layout_names_a_field_the_view_writes():
-    """The Foxglove layout (ground/layouts) plots fields by path: each must exist."""
+    """The Foxglove layout (ground/telemetry/layouts) plots fields by path: each must exist."""
     import re
     from importlib.resources import files
 
     from contracts.telemetry import ESTIMATE
 
-    layout = json.loads(files("ground").joinpath(
+    layout = json.loads(files("ground.telemetry").joinpath(
         "layouts/ivfm-sitl.foxglove-layout.json").read_text())
     view = FoxgloveView()
     control = CONTROL.buffer()
@@ -233,7 +233,7 @@ def test_ivfm_ground_view_serves_what_it_hears_over_zenoh(tmp_path):
     import time
 
     from contracts.zenoh_link import ZenohOptions, open_session
-    from ground.processes import free_tcp_port
+    from ground.run.processes import free_tcp_port
     from tests.foxglove_client import collect
 
     endpoint, port = f"tcp/127.0.0.1:{free_tcp_port()}", free_tcp_port()

@@ -127,7 +127,7 @@ def test_fuzz_perturbation_requests(requests, now_s):
 @pytest.fixture(scope="module")
 def logger(tmp_path_factory):
     from contracts.zenoh_link import ZenohOptions
-    from ground.logger import Logger, LoggerConfig
+    from ground.telemetry.logger import Logger, LoggerConfig
 
     out = tmp_path_factory.mktemp("fuzz-logger")
     lg = Logger(LoggerConfig(out, ZenohOptions(enabled=False)), log=lambda text: None)
@@ -155,15 +155,15 @@ def test_fuzz_records_into_the_logger(logger, key, payload, attachment):
 
 ROOT = fz.Path(__file__).parents[1]
 SOURCES = {
-    "scenario": [ROOT / "ground/scenario_files" / f for f in (
+    "scenario": [ROOT / "ground/scenario/shipped" / f for f in (
         "position-kick.toml", "mission-six-waypoints.toml", "gps-outage.toml")]
-    + [ROOT / "ground/readiness/flights/setpoint-loss.toml",
-       ROOT / "ground/readiness/flights/sim-stall.toml"],
+    + [ROOT / "ground/rehearsal/profiles/flights/setpoint-loss.toml",
+       ROOT / "ground/rehearsal/profiles/flights/sim-stall.toml"],
     "airframe": [ROOT / "contracts/airframes/quad-x-500.toml"],
     "sensors": [ROOT / "sitl/sensor_profiles/typical.toml"],
-    "plan": [ROOT / "ground/scenario_files/six-waypoints.plan"],
+    "plan": [ROOT / "ground/scenario/shipped/six-waypoints.plan"],
     "model": [ROOT / "autopilot/models/quad-x-500.json"],
-    "profile": [ROOT / "ground/readiness/default.toml"],
+    "profile": [ROOT / "ground/rehearsal/profiles/default.toml"],
 }
 
 
@@ -180,8 +180,8 @@ def file_folder(tmp_path_factory):
     import shutil
 
     folder = tmp_path_factory.mktemp("fuzz-files")
-    shutil.copy(ROOT / "ground/scenario_files/six-waypoints.plan", folder)
-    shutil.copytree(ROOT / "ground/readiness/flights", folder / "flights")
+    shutil.copy(ROOT / "ground/scenario/shipped/six-waypoints.plan", folder)
+    shutil.copytree(ROOT / "ground/rehearsal/profiles/flights", folder / "flights")
     return folder
 
 
@@ -217,7 +217,7 @@ def test_the_logger_bounds_its_keys(tmp_path):
     """Hostile keys cannot grow the logger's per-key structures past MAX_KEYS: the
     records are refused and counted, and the known keys still log."""
     from contracts.zenoh_link import ZenohOptions
-    from ground.logger import MAX_KEY_CHARS, MAX_KEYS, Logger, LoggerConfig
+    from ground.telemetry.logger import MAX_KEY_CHARS, MAX_KEYS, Logger, LoggerConfig
 
     lg = Logger(LoggerConfig(tmp_path, ZenohOptions(enabled=False)), log=lambda text: None)
     lg._start_files()
@@ -240,7 +240,7 @@ def test_missing_records_are_counted_without_listing_a_damaged_range():
     list the range between (48 TiB)."""
     import numpy as np
 
-    from ground.run_files import missing_count
+    from ground.record.run_files import missing_count
 
     assert missing_count(np.array([0, 1, 2, 4, 7])) == 3
     assert missing_count(np.array([5])) == 0

@@ -27,13 +27,13 @@ from contracts.perturbations import (
 )
 from contracts.telemetry import vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
-from ground.cli import main
-from ground.inprocess import run_inprocess
-from ground.metrics import compute_metrics
-from ground.perturb import PerturbationClient
-from ground.processes import RunSettings, fly, free_tcp_port, vehicle_commands
-from ground.run_files import control_records, perturbation_events
-from ground.scenarios import load_scenario, scenario_by_name
+from ground.cli.main import main
+from ground.record.run_files import control_records, perturbation_events
+from ground.report.metrics import compute_metrics
+from ground.run.inprocess import run_inprocess
+from ground.run.processes import RunSettings, fly, free_tcp_port, vehicle_commands
+from ground.scenario.scenario_file import load_scenario, scenario_by_name
+from ground.uplink.perturb import PerturbationClient
 
 # -- perturbation requests (pure) ---------------------------------------------------------
 
@@ -304,7 +304,7 @@ def _check_model_file_structure(path: Path, run_dir: Path) -> None:
     with input ranges those of the identification half of the logged samples."""
     from autopilot.identification.identify import DEFAULT_N_CLUSTERS
     from autopilot.models.regressors import CHANNEL_REGRESSORS
-    from ground.excitation import dataset_from_log
+    from ground.identify.excitation import dataset_from_log
 
     doc = json.loads(path.read_text())
     assert (doc["format"], doc["version"]) == ("ivfm-fuzzy-model", 1)

@@ -57,7 +57,7 @@ def test_a_bad_home_is_refused_with_what_is_wrong(text, message):
 
 
 def test_home_parses_and_the_scenario_key_is_checked(tmp_path):
-    from ground.scenarios import scenario_from_dict
+    from ground.scenario.scenario_file import scenario_from_dict
 
     assert Home.parse("-33.86,151.21,3") == Home(-33.86, 151.21, 3.0)
     base = {"name": "h", "reference": {"kind": "hover", "altitude_m": 1.0}}

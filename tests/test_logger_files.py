@@ -14,7 +14,8 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from contracts.zenoh_link import ZenohOptions
-from ground.logger import LoggerConfig, McapFile, SilenceWatch, salvage
+from ground.telemetry.logger import LoggerConfig, SilenceWatch
+from ground.telemetry.mcap_file import McapFile, salvage
 
 
 def test_the_private_mcap_calls_the_flush_relies_on_are_there():
@@ -33,7 +34,8 @@ def _file_with(tmp_path, flushed: int, open_after: int):
     open chunk, as a kill would leave it (not finished)."""
     config = LoggerConfig(tmp_path / "out", ZenohOptions(enabled=False))
     config.out_dir.mkdir()
-    f = McapFile(config.out_dir / "telemetry-000.mcap", config)
+    f = McapFile(config.out_dir / "telemetry-000.mcap", config.chunk_bytes,
+                 config.compression)
     channel = f.channel("mavlink/1/1/HEARTBEAT", "mavlink")
     for i in range(flushed):
         f.add(channel, i, i, i, b"\xfd" + bytes(20))
@@ -94,7 +96,7 @@ def test_a_logger_out_of_space_stops_writing_says_so_and_leaves_a_readable_file(
 
     from contracts.telemetry import TIMING, logger_key, vehicle_key
     from contracts.zenoh_link import open_session
-    from ground.processes import free_tcp_port
+    from ground.run.processes import free_tcp_port
 
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     out = tmp_path / "log"

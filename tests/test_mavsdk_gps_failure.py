@@ -77,7 +77,7 @@ def _first(seen: dict, fragment: str) -> float:
 
 
 def test_mavsdk_gps_off_dead_reckons_then_lands_and_the_log_has_it(tmp_path):
-    from ground.events import statustext_events
+    from ground.record.events import statustext_events
 
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     logger = subprocess.Popen(

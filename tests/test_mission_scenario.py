@@ -1,6 +1,6 @@
 """Mission scenarios: a QGroundControl plan flown in AUTO.MISSION from the ground through
 the processes in lockstep (``[mission] plan`` in a scenario file), with the path metrics
-of ground/metrics.py."""
+of ground/report/metrics.py."""
 
 from __future__ import annotations
 
@@ -16,10 +16,10 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from autopilot.navigator.plan_file import read_plan
 from contracts.frames import DEFAULT_HOME
-from ground.metrics import compute_metrics, distance_to_path
-from ground.processes import RunSettings, fly, free_tcp_port
-from ground.run_files import log_files
-from ground.scenarios import load_scenario, scenario_by_name
+from ground.record.run_files import log_files
+from ground.report.metrics import compute_metrics, distance_to_path
+from ground.run.processes import RunSettings, fly, free_tcp_port
+from ground.scenario.scenario_file import load_scenario, scenario_by_name
 from tests.foxglove_client import collect
 
 
@@ -180,7 +180,7 @@ def test_bad_mission_scenarios_are_refused_with_the_field(tmp_path, text, error)
 
 
 def test_a_mission_scenario_is_not_flown_in_process():
-    from ground.inprocess import run_inprocess
+    from ground.run.inprocess import run_inprocess
 
     scenario = scenario_by_name("mission-six-waypoints")
     with pytest.raises(ValueError, match="flies a mission"):

@@ -21,7 +21,7 @@ from autopilot.refusal import RefusedError
 from contracts.frames import DEFAULT_HOME
 from contracts.mavlink import mavlink
 from contracts.modes import FlightMode
-from ground.metrics import distance_to_path
+from ground.report.metrics import distance_to_path
 from tests.flight import Flight, do_item, mission_item
 
 M = mavlink
@@ -459,9 +459,9 @@ def test_path_metrics_of_a_flight_along_the_planned_legs():
     """The six-waypoint plan flown exactly along its legs: every item reached, no
     cross-track error (the planned legs are placed around the scenario's home)."""
     from autopilot.navigator.mission_runner import WAYPOINT_COMMANDS, item_position_ned
-    from ground.metrics import path_metrics
-    from ground.run_files import RunRecord
-    from ground.scenarios import scenario_by_name
+    from ground.record.run_files import RunRecord
+    from ground.report.metrics import path_metrics
+    from ground.scenario.scenario_file import scenario_by_name
 
     scenario = scenario_by_name("mission-six-waypoints")
     corners = [np.zeros(3)]

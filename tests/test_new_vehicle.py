@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from contracts.airframe_file import read_airframe
-from ground.cli import main
+from ground.cli.main import main
 
 
 def test_airframe_file_to_identified_model_to_flight(tmp_path: Path, capsys) -> None:
@@ -119,8 +119,8 @@ def test_an_x_frame_listed_in_another_rotor_order_flies_the_same_closed_loop() -
     from autopilot.control.factory import load_models
     from contracts.airframe import airframe_from_spec
     from contracts.airframe_file import parse_airframe
-    from ground.inprocess import run_inprocess
-    from ground.scenarios import scenario_by_name
+    from ground.run.inprocess import run_inprocess
+    from ground.scenario.scenario_file import scenario_by_name
 
     data = tomllib.loads(resources.files("contracts").joinpath(
         "airframes", "quad-x-500.toml").read_text())

@@ -1,6 +1,6 @@
-"""QGroundControl .plan files (autopilot/navigator/plan_file.py, ground/plan.py): read into mission,
-fence and rally lists, checked as the vehicle checks them, and uploaded by ``ivfm plan``
-to the real processes."""
+"""QGroundControl .plan files (autopilot/navigator/plan_file.py, ground/uplink/plan.py):
+read into mission, fence and rally lists, checked as the vehicle checks them, and uploaded
+by ``ivfm plan`` to the real processes."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ import pytest
 
 from autopilot.navigator.mission_store import FENCE, MISSION, RALLY
 from contracts.mavlink import mavlink
-from ground.cli import main
-from ground.plan import PlanError, read_plan
+from ground.cli.main import main
+from ground.uplink.plan import PlanError, read_plan
 from tests.harness import GroundTool, start_processes
 
 M = mavlink
@@ -81,7 +81,7 @@ def test_a_plan_the_vehicle_would_refuse_is_refused_before_upload(tmp_path, chan
 def test_a_folder_named_as_the_plan_is_refused_naming_it(tmp_path):
     """The long fuzz run's find: a scenario's ``plan = ""`` named the scenario's folder,
     and reading it raised IsADirectoryError out of the scenario loader."""
-    from ground.scenarios import load_scenario
+    from ground.scenario.scenario_file import load_scenario
 
     with pytest.raises(PlanError, match="cannot read it: Is a directory"):
         read_plan(tmp_path)

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 from contracts.airframe import PAPER
-from ground.inprocess import run_inprocess
-from ground.metrics import compute_metrics
-from ground.processes import RunSettings, fly
-from ground.run_files import control_records, perturbation_events
-from ground.scenarios import scenario_by_name
+from ground.record.run_files import control_records, perturbation_events
+from ground.report.metrics import compute_metrics
+from ground.run.inprocess import run_inprocess
+from ground.run.processes import RunSettings, fly
+from ground.scenario.scenario_file import scenario_by_name
 
 pytestmark = pytest.mark.process
 

@@ -1,11 +1,11 @@
-"""The progress line (ground/progress.py): live on a terminal, silent in logs, on an
+"""The progress line (ground/run/progress.py): live on a terminal, silent in logs, on an
 injected clock."""
 
 from __future__ import annotations
 
 import io
 
-from ground.progress import ProgressLine
+from ground.run.progress import ProgressLine
 
 
 class Terminal(io.StringIO):
@@ -51,9 +51,9 @@ def test_in_a_log_nothing_is_printed():
 
 def test_an_inprocess_run_keeps_the_first_steps_load_out_of_its_speed():
     from contracts.airframe import airframe_by_name
-    from ground.inprocess import run_inprocess
-    from ground.metrics import compute_metrics
-    from ground.scenarios import scenario_by_name
+    from ground.report.metrics import compute_metrics
+    from ground.run.inprocess import run_inprocess
+    from ground.scenario.scenario_file import scenario_by_name
 
     heard: list[float] = []
     scenario = scenario_by_name("attitude-sine")

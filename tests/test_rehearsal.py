@@ -16,8 +16,13 @@ import tomli_w
 
 from autopilot.parameters import default_parameters, validate_parameters
 from contracts.airframe_file import AirframeError, read_airframe
-from ground.cli import main
-from ground.readiness import airframe_checks, load_profile, parameter_checks, parse_profile
+from ground.cli.main import main
+from ground.rehearsal.readiness import (
+    airframe_checks,
+    load_profile,
+    parameter_checks,
+    parse_profile,
+)
 
 X500 = Path(__file__).parents[1] / "contracts" / "airframes" / "quad-x-500.toml"
 
@@ -134,7 +139,7 @@ def test_bad_profiles_are_refused_with_the_field_named(data, message):
 
 
 def test_the_shipped_profile_names_flights_that_load():
-    from ground.scenarios import load_scenario
+    from ground.scenario.scenario_file import load_scenario
 
     profile = load_profile()
     assert [f.scenario.stem for f in profile.flights] == [
@@ -202,12 +207,12 @@ def test_the_tilt_rate_metric_catches_the_x500_limit_cycle(tmp_path):
     from autopilot.control.factory import load_models
     from autopilot.parameters import airframe_parameters
     from contracts.airframe import airframe_by_name
-    from ground.inprocess import run_inprocess
-    from ground.metrics import compute_metrics
-    from ground.scenarios import scenario_from_dict
+    from ground.report.metrics import compute_metrics
+    from ground.run.inprocess import run_inprocess
+    from ground.scenario.scenario_file import scenario_from_dict
 
     assert airframe_parameters("quad-x-500") == {"CMDF_ACC_MAX": 20.0}
-    data = tomllib.loads((Path(__file__).parents[1] / "ground/readiness/flights/wind.toml")
+    data = tomllib.loads((Path(__file__).parents[1] / "ground/rehearsal/profiles/flights/wind.toml")
                          .read_text())
     data["perturbation"] = [{"kind": "kick", "theta_rad": 0.3, "start_s": 5.0, "end_s": 5.5}]
     data["transient_s"] = 10.0

@@ -32,7 +32,7 @@ def ivfm(*argv: str, cwd: Path) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def x500_rehearsal(tmp_path_factory):
     folder = tmp_path_factory.mktemp("rehearse")
-    shipped = ROOT / "ground/readiness/default.toml"
+    shipped = ROOT / "ground/rehearsal/profiles/default.toml"
     profile = tomllib.loads(shipped.read_text())
     # The lockstep flights, and of the real-time ones the setpoint loss: its ground station
     # (a real MAVLink client) switches to OFFBOARD, streams and stops; its event windows
@@ -104,7 +104,7 @@ def test_slow_motors_are_a_no_go_on_the_right_checks(tmp_path):
     airframe = tmp_path / "slow-motors.toml"
     airframe.write_text(tomli_w.dumps(data))
     profile = tmp_path / "weak-motor-only.toml"
-    flights = ROOT / "ground/readiness/flights"
+    flights = ROOT / "ground/rehearsal/profiles/flights"
     profile.write_text(f'name = "weak-motor-only"\n[airframe]\n'
                        f'motor_time_constant_max_s = 0.05\nthrust_to_weight_min = 1.5\n'
                        f'[[flight]]\nscenario = "{flights / "weak-motor.toml"}"\n')

@@ -1,4 +1,4 @@
-"""report.html: one self-contained page per run (ground/run_page.py), read as a person
+"""report.html: one self-contained page per run (ground/report/run_page.py), read as a person
 reads it, and rendered by headless Chromium."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ground.report import report
-from ground.run_page import marks_of
+from ground.report.run_page import marks_of
+from ground.report.run_report import report
 
 SHORT_RUN = Path(__file__).parent / "data" / "short-run"  # a 1 s lockstep run's folder
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")

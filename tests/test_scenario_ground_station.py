@@ -1,5 +1,5 @@
 """A scenario's ``[ground_station]``: the table checked, and the ground tool it makes
-(ground/ground_station.py) as a real MAVLink client on a real UDP socket, heard by a
+(ground/scenario/ground_station.py) as a real MAVLink client on a real UDP socket, heard by a
 pymavlink reader standing in the autopilot's ground-link port; and the ``sim_stall``
 perturbation kind's checks. The rehearsal flights that use them run in real time
 (``ivfm rehearse``; docs/rehearsal.md)."""
@@ -14,9 +14,9 @@ import pytest
 from contracts.mavlink import mavlink
 from contracts.modes import PX4_MODES, FlightMode
 from contracts.perturbations import parse_request
-from ground.ground_station import GroundStation, Silence, parse_ground_station
-from ground.inprocess import run_inprocess
-from ground.scenarios import load_scenario
+from ground.run.inprocess import run_inprocess
+from ground.scenario.ground_station import GroundStation, Silence, parse_ground_station
+from ground.scenario.scenario_file import load_scenario
 
 
 @pytest.mark.parametrize("table, error", [
@@ -47,7 +47,7 @@ def test_a_ground_station_table_and_its_defaults():
 
 
 def test_the_shipped_link_flights_load_and_refuse_to_fly_in_one_process():
-    from ground.readiness import load_profile
+    from ground.rehearsal.readiness import load_profile
 
     flights = {f.scenario.stem: f for f in load_profile().flights}
     for name in ("gcs-loss", "setpoint-loss"):

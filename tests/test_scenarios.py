@@ -11,8 +11,8 @@ import pytest
 
 from autopilot.control.factory import CONTROLLERS
 from contracts.airframe import PAPER
-from ground.inprocess import run_inprocess
-from ground.scenarios import PAPER_SCENARIOS, shipped_scenarios
+from ground.run.inprocess import run_inprocess
+from ground.scenario.scenario_file import PAPER_SCENARIOS, shipped_scenarios
 from tests.golden import (
     GOLDEN_ABS,
     GOLDEN_PATH,

@@ -205,7 +205,7 @@ def test_a_fix_off_the_earth_is_refused():
 
 
 def test_a_profile_beside_a_scenario_file_is_found_from_it(tmp_path):
-    from ground.scenarios import load_scenario
+    from ground.scenario.scenario_file import load_scenario
 
     (tmp_path / "noisy.toml").write_text("gyro_noise_rad_s_rthz = 1e-3\n")
     scenario_text = (

@@ -49,11 +49,10 @@ def test_a_chunk_id_out_of_range_is_refused():
 def test_a_chunked_text_in_the_log_is_one_event_at_the_time_it_was_said(tmp_path):
     from contracts.mavlink import AUTOPILOT_COMPID
     from contracts.telemetry import mavlink_key
-    from contracts.zenoh_link import ZenohOptions
-    from ground.events import statustext_events
-    from ground.logger import LoggerConfig, McapFile
+    from ground.record.events import statustext_events
+    from ground.telemetry.mcap_file import McapFile
 
-    log = McapFile(tmp_path / "telemetry-000.mcap", LoggerConfig(tmp_path, ZenohOptions()))
+    log = McapFile(tmp_path / "telemetry-000.mcap", 256 * 1024, "zstd")
     channel = log.channel(mavlink_key(1, AUTOPILOT_COMPID, "STATUSTEXT"), "mavlink")
     tx = new_mavlink(1, AUTOPILOT_COMPID)
     said = [(2_000_000_000, "simulator link up"), (5_500_000_000, "GPS lost: " + "q" * 70)]

@@ -21,16 +21,16 @@ from mcap_ros2.decoder import DecoderFactory
 
 from contracts.telemetry import CONTROL, STATE, TIMING, vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
-from ground.perturb import PerturbationClient, PerturbationError
-from ground.processes import (
+from ground.record.run_files import control_records, iter_messages
+from ground.run.processes import (
     LoggerProcess,
     ProcessRunError,
     RunSettings,
     free_tcp_port,
     vehicle_commands,
 )
-from ground.run_files import control_records, iter_messages
-from ground.scenarios import scenario_by_name
+from ground.scenario.scenario_file import scenario_by_name
+from ground.uplink.perturb import PerturbationClient, PerturbationError
 
 os.environ["MAVLINK20"] = "1"
 from pymavlink import mavutil  # noqa: E402
@@ -336,7 +336,7 @@ def test_vehicle_and_logger_meet_only_through_the_router(tmp_path):
 @pytest.mark.process
 def test_tlog_export_reads_in_pymavlink(tmp_path):
     run_dir = tmp_path / "run"
-    from ground.cli import main
+    from ground.cli.main import main
 
     assert main(["run", "position-kick", "--out", str(run_dir), "--no-figures"]) == 0
     assert main(["ground", "tlog", str(run_dir)]) == 0
@@ -375,7 +375,7 @@ def test_the_logger_starts_a_new_file_past_its_chunk_cap(tmp_path):
     """The MCAP writer keeps each chunk's index in memory until its file is finished: the
     chunk cap is what keeps a long run's logger memory flat. In process, no Zenoh."""
     from contracts.telemetry import json_record
-    from ground.logger import Logger, LoggerConfig
+    from ground.telemetry.logger import Logger, LoggerConfig
 
     config = LoggerConfig(tmp_path, ZenohOptions(enabled=False), rotate_chunks=16)
     logger = Logger(config, log=lambda _text: None)

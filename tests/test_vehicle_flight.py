@@ -15,9 +15,9 @@ from contracts.airframe import PAPER, hover_rotor_speeds, max_thrust_n
 from contracts.frames import wrap_pi
 from contracts.modes import FlightMode
 from contracts.vectors import REF_EULER, REF_POS, REF_SIZE
-from ground.inprocess import run_inprocess
-from ground.metrics import compute_metrics
-from ground.scenarios import shipped_scenarios
+from ground.report.metrics import compute_metrics
+from ground.run.inprocess import run_inprocess
+from ground.scenario.scenario_file import shipped_scenarios
 from sitl.plant import Plant
 from tests.flight import (
     Flight,

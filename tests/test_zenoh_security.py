@@ -17,9 +17,9 @@ from contracts.zenoh_link import (
     open_session,
     session_config,
 )
-from ground.certificates import make_certificates
-from ground.perturb import PerturbationClient, PerturbationError
-from ground.processes import free_tcp_port
+from ground.run.processes import free_tcp_port
+from ground.telemetry.certificates import make_certificates
+from ground.uplink.perturb import PerturbationClient, PerturbationError
 
 
 def test_clear_text_beyond_this_machine_is_refused_unless_asked():

@@ -25,13 +25,13 @@ from __future__ import annotations
 import csv
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from autopilot.models.regressors import current_column_name
+from contracts.atomic_file import atomic_writer
 from contracts.vectors import ATTITUDE_CHANNELS
 
 REQUIRED_COLUMNS: tuple[str, ...] = (
@@ -211,19 +211,9 @@ def write_dataset(path: str | os.PathLike[str], dataset: Dataset) -> None:
     """
     columns = _check_columns(dict(dataset.columns), str(path))
     names = [name for name in ALL_COLUMNS if name in columns]
-    target = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "w", newline="", encoding="utf-8") as fh:
-            writer = csv.writer(fh, lineterminator="\n")
-            writer.writerow(names)
-            table = np.column_stack([columns[name] for name in names])
-            for row in table:
-                writer.writerow([_format(v) for v in row])
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_writer(Path(path), text=True) as fh:
+        writer = csv.writer(fh, lineterminator="\n")
+        writer.writerow(names)
+        table = np.column_stack([columns[name] for name in names])
+        for row in table:
+            writer.writerow([_format(v) for v in row])

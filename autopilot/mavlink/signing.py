@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from contracts.atomic_file import write_atomic
 from contracts.mavlink import mavlink
 
 SIGNING_EPOCH_S = 1420070400  # 2015-01-01, MAVLink's signing clock's origin
@@ -85,10 +86,7 @@ class SigningState:
             return
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            tmp = self.path.with_suffix(".tmp")
-            tmp.write_text(json.dumps(data))
-            os.chmod(tmp, 0o600)
-            tmp.replace(self.path)  # atomic: a crash leaves the old file or the new one
+            write_atomic(self.path, json.dumps(data), private=True)
         except OSError:
             return  # a read-only disk costs the replay protection across restarts only
         self._saved, self._saved_s = data, now_s

@@ -31,7 +31,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +39,7 @@ import numpy as np
 from autopilot.models.membership import Gaussian, interval_holds
 from autopilot.models.regressors import CHANNEL_REGRESSORS, current_column_name
 from autopilot.models.ts_model import ChannelModel, FuzzyModelSet, It2Model, T1Model
+from contracts.atomic_file import write_atomic
 
 FORMAT_NAME = "ivfm-fuzzy-model"
 FORMAT_VERSION = 1
@@ -277,18 +277,7 @@ def save_model(path: str | os.PathLike[str], model: FuzzyModelSet) -> None:
         text = json.dumps(doc, indent=1, allow_nan=False)
     except (TypeError, ValueError) as exc:
         raise ModelFileError(f"{path}.metadata: not JSON-serialisable ({exc})") from None
-    target = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text + "\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, target)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    write_atomic(Path(path), text + "\n")
 
 
 def load_model(path: str | os.PathLike[str]) -> FuzzyModelSet:

@@ -1,6 +1,6 @@
 """QGroundControl ``.plan`` files read into the vehicle's mission, fence and rally lists
 (pure: a file in, checked items out). The autopilot reads a scenario's plan with it
-(``--mission``); ``ivfm plan`` (ground/plan.py) uploads one as a ground tool does.
+(``--mission``); ``ivfm plan`` (ground/uplink/plan.py) uploads one as a ground tool does.
 
 A plan's simple items become MISSION_ITEM_INT as QGroundControl sends them (a DO_JUMP's
 target, given as the target's doJumpId, becomes its sequence number); its fence polygons

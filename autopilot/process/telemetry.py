@@ -194,7 +194,7 @@ def scene_fields(vehicle: Commander, airframe: dict) -> dict:
     """What a viewer draws, in local NED around home [m]: the airframe's rotors (body
     FRD, with their spin), the positioned mission items and rally points (each
     ``[seq, n, e, d]``), the fence's zones, and the mission's current item
-    (ground/foxglove_view.py reads it)."""
+    (ground/telemetry/foxglove_view.py reads it)."""
     home = vehicle.home
     here = (np.zeros(3) if vehicle.measurement is None  # before the first sample
             else vehicle.measurement[MEASUREMENT.position_ned_m])

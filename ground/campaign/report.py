@@ -15,8 +15,9 @@ from typing import Any
 
 import numpy as np
 
+from contracts.atomic_file import write_atomic
 from ground.campaign.stats import paired, summary, verdict
-from ground.figures import plt
+from ground.report.figures import plt
 
 AXES = ("phi", "theta", "psi", "z", "x", "y")
 CHANNELS = ("phi", "theta", "psi")
@@ -210,8 +211,8 @@ def write_report(out_dir: Path, name: str, kind: str, controllers: tuple[str, ..
     """report.json, report.md and the figures in ``out_dir``."""
     report = (identification_report(rows) if kind == "identification"
               else flight_report(rows, controllers))
-    (out_dir / "report.json").write_text(json.dumps(report, indent=1))
-    (out_dir / "report.md").write_text(markdown(name, kind, report))
+    write_atomic(out_dir / "report.json", json.dumps(report, indent=1))
+    write_atomic(out_dir / "report.md", markdown(name, kind, report))
     if kind != "identification":
         flight_figures(rows, controllers, out_dir)
     return report

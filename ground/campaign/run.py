@@ -35,7 +35,9 @@ from typing import Any
 
 import tomli_w
 
+from contracts.atomic_file import atomic_writer, write_atomic
 from ground.campaign.spec import Campaign
+from ground.run.progress import LiveLine
 
 RUNS_DIR, DRAWS_DIR, MODELS_DIR = "runs", "draws", "models"
 RESULTS_FILE = "results.csv"
@@ -50,7 +52,7 @@ def draw_scenario(campaign: Campaign, scenario_name: str, index: int,
     drawn plant perturbations over the whole run, its kicks and steps scaled, the model
     identified with the drawn seed, and no [expect] (the plant is not the one they were
     measured on)."""
-    from ground.scenarios import scenario_by_name
+    from ground.scenario.scenario_file import scenario_by_name
 
     base = scenario_by_name(scenario_name)
     data = tomllib.loads(base.source.read_text())
@@ -117,7 +119,7 @@ def identified_model_json(airframe: str, seed: int, clusters: int = DEFAULT_CLUS
     from autopilot.models.model_file import save_model
     from contracts.airframe import airframe_by_name
     from contracts.airframe_file import airframe_envelope
-    from ground.excitation import excitation_dataset
+    from ground.identify.excitation import excitation_dataset
 
     dataset = excitation_dataset(airframe_by_name(airframe), seed=seed,
                                  envelope=airframe_envelope(airframe))
@@ -132,7 +134,7 @@ def identified_model_json(airframe: str, seed: int, clusters: int = DEFAULT_CLUS
 def flight_tasks(campaign: Campaign) -> list[dict[str, Any]]:
     """Every task of a flight campaign, each draw's controllers together (pairs finish
     close in time)."""
-    from ground.scenarios import scenario_by_name
+    from ground.scenario.scenario_file import scenario_by_name
 
     tasks = []
     for scenario_name in campaign.scenarios:
@@ -195,10 +197,9 @@ def save_row(out_dir: Path, task: dict[str, Any], row: dict[str, Any]) -> None:
     if model_json is not None:
         path = out_dir / MODELS_DIR / task["model_file"]
         if not path.exists():
-            tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-            tmp.write_text(model_json)
-            os.replace(tmp, path)
-    _write_json(out_dir / RUNS_DIR / f"{row['id']}.json", row)
+            write_atomic(path, model_json)
+    write_atomic(out_dir / RUNS_DIR / f"{row['id']}.json",
+                 json.dumps(row, indent=1, default=float))
 
 
 def batch_size(tasks: int, workers: int) -> int:
@@ -207,9 +208,9 @@ def batch_size(tasks: int, workers: int) -> int:
 
 
 def _fly(task: dict[str, Any]) -> dict[str, Any]:
-    from ground.flights import Overrides, plan_flight
-    from ground.metrics import compute_metrics
-    from ground.scenarios import load_scenario
+    from ground.report.metrics import compute_metrics
+    from ground.run.flights import Overrides, plan_flight
+    from ground.scenario.scenario_file import load_scenario
 
     out: dict[str, Any] = {"scenario": task["scenario"], "controller": task["controller"]}
     seed = int(task["values"].get("sensor_seed", 0))
@@ -217,24 +218,24 @@ def _fly(task: dict[str, Any]) -> dict[str, Any]:
         folder = Path(tmp)
         (folder / DRAWS_DIR).mkdir()
         draw = folder / DRAWS_DIR / task["draw_file"]
-        draw.write_text(task["draw_toml"])
+        write_atomic(draw, task["draw_toml"])
         if task["model_file"] is not None:
             (folder / MODELS_DIR).mkdir()
             seed_id = int(task["values"]["identification_seed"])
             text = identified_model_json(task["airframe"], seed_id)
-            (folder / MODELS_DIR / task["model_file"]).write_text(text)
+            write_atomic(folder / MODELS_DIR / task["model_file"], text)
             out["model_json"] = text
         scenario = load_scenario(draw)
         plan = plan_flight(scenario, Overrides(controller=task["controller"],
                                                plant=task["plant"], seed=seed))
         if task["how"] == "processes":
-            from ground.flights import fly_processes
+            from ground.run.flights import fly_processes
 
             metrics = fly_processes(plan, folder / "run", figures=False, quiet=True)
         else:
             from autopilot.control.factory import load_models
             from contracts.airframe import airframe_by_name
-            from ground.inprocess import run_inprocess
+            from ground.run.inprocess import run_inprocess
 
             models = (load_models(plan.model_path, plan.airframe)
                       if plan.controller in ("ivfc", "t1fc") else None)
@@ -263,7 +264,7 @@ def _fly(task: dict[str, Any]) -> dict[str, Any]:
 def _identify(task: dict[str, Any]) -> dict[str, Any]:
     from autopilot.identification.identify import identify_dataset
     from contracts.airframe import airframe_by_name
-    from ground.excitation import excitation_dataset
+    from ground.identify.excitation import excitation_dataset
 
     values = task["values"]
     seed = int(values.get("identification_seed", 0))
@@ -285,11 +286,8 @@ class CampaignProgress:
 
     def __init__(self, total: int, skipped: int, stream: Any = None,
                  clock: Callable[[], float] = time.perf_counter) -> None:
-        from ground.progress import is_terminal
-
         self.total, self.skipped = total, skipped
-        self.stream = stream if stream is not None else sys.stderr
-        self.live = is_terminal(self.stream)
+        self.out = LiveLine(stream, clock)
         self.clock = clock
         self.start = clock()
         self.done = self.failed = 0
@@ -307,27 +305,18 @@ class CampaignProgress:
     def update(self, failed: bool) -> None:
         self.done += 1
         self.failed += failed
-        if self.live:
-            self.stream.write(f"\r\033[K{self.line()}")
-            self.stream.flush()
+        if self.out.live:
+            self.out.draw(self.line())
             return
         todo = self.total - self.skipped
         if todo and self.done * 10 >= self._next_tenth * todo:
             while self.done * 10 >= self._next_tenth * todo:
                 self._next_tenth += 1
-            self.stream.write(self.line() + "\n")
-            self.stream.flush()
+            self.out.log(self.line())
 
     def close(self) -> None:
-        if self.live:
-            self.stream.write("\n")
-            self.stream.flush()
-
-
-def _write_json(path: Path, data: Any) -> None:
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")  # client and worker may both
-    tmp.write_text(json.dumps(data, indent=1, default=float))
-    os.replace(tmp, path)
+        if self.out.shown:
+            self.out.log(self.line())
 
 
 def finished_ids(out_dir: Path) -> set[str]:
@@ -351,12 +340,10 @@ def write_results(out_dir: Path) -> Path:
     for row in rows:
         columns += [k for k in row if k not in columns]
     path = out_dir / RESULTS_FILE
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", newline="") as f:
+    with atomic_writer(path, text=True) as f:
         writer = csv.DictWriter(f, columns)
         writer.writeheader()
         writer.writerows(rows)
-    os.replace(tmp, path)
     return path
 
 
@@ -395,7 +382,7 @@ def run_campaign(campaign: Campaign, out_dir: Path, scheduler: str | None = None
              else flight_tasks(campaign))
     for task in tasks:  # every draw's scenario, for replays
         if "draw_file" in task and not (out_dir / DRAWS_DIR / task["draw_file"]).exists():
-            (out_dir / DRAWS_DIR / task["draw_file"]).write_text(task["draw_toml"])
+            write_atomic(out_dir / DRAWS_DIR / task["draw_file"], task["draw_toml"])
     done = finished_ids(out_dir)
     todo = [t for t in tasks if t["id"] not in done]
     counts = {"total": len(tasks), "skipped": len(tasks) - len(todo), "flown": 0, "failed": 0}

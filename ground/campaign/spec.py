@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ground.expectations import finite_number
+from ground.scenario.expectations import finite_number
 
 KINDS = ("flights", "identification")
 HOW = ("inprocess", "processes")
@@ -147,7 +147,7 @@ def _distribution(name: str, data: Any, low: float, high: float, where: str) -> 
 
 def parse_campaign(data: dict[str, Any], where: str = "campaign",
                    source: Path | None = None) -> Campaign:
-    from ground.scenarios import scenario_by_name
+    from ground.scenario.scenario_file import scenario_by_name
 
     known = {"name", "description", "kind", "scenarios", "controllers", "runs", "seed", "how",
              "plant", "draw", "clusters"}
@@ -223,11 +223,11 @@ def _names(value: Any, where: str) -> tuple[str, ...]:
     return tuple(value)
 
 
-CAMPAIGN_DIR = "campaign_files"
+CAMPAIGN_DIR = Path(__file__).parent / "shipped"
 
 
 def shipped_campaigns() -> list[str]:
-    folder = Path(__file__).parents[1] / CAMPAIGN_DIR
+    folder = CAMPAIGN_DIR
     return sorted(p.stem for p in folder.glob("*.toml"))
 
 
@@ -235,7 +235,7 @@ def read_campaign(name_or_path: str | Path) -> Campaign:
     """A shipped campaign by name, or a campaign file; ValueError naming what is wrong."""
     path = Path(name_or_path)
     if not path.is_file():
-        shipped = Path(__file__).parents[1] / CAMPAIGN_DIR / f"{name_or_path}.toml"
+        shipped = CAMPAIGN_DIR / f"{name_or_path}.toml"
         if not shipped.is_file():
             raise ValueError(f"no campaign {str(name_or_path)!r}: not a file, nor one of "
                              f"{', '.join(shipped_campaigns())}")

@@ -31,9 +31,9 @@ from autopilot.navigator.mission_runner import MissionRunner  # noqa: E402
 from autopilot.parameters import default_parameters  # noqa: E402
 from contracts.airframe import PAPER, hover_rotor_speeds  # noqa: E402
 from contracts.frames import DEFAULT_HOME  # noqa: E402
-from ground.excitation import excitation_dataset  # noqa: E402
-from ground.inprocess import run_inprocess  # noqa: E402
-from ground.scenarios import shipped_scenarios  # noqa: E402
+from ground.identify.excitation import excitation_dataset  # noqa: E402
+from ground.run.inprocess import run_inprocess  # noqa: E402
+from ground.scenario.scenario_file import shipped_scenarios  # noqa: E402
 from sitl.plant import Plant  # noqa: E402
 from tests.flight import mission_item  # noqa: E402
 

@@ -28,8 +28,8 @@ import numpy as np  # noqa: E402
 
 from contracts.telemetry import CONTROL, vehicle_key  # noqa: E402
 from contracts.zenoh_link import ZenohOptions, open_session  # noqa: E402
-from ground.processes import LoggerProcess  # noqa: E402
-from ground.run_files import iter_messages  # noqa: E402
+from ground.record.run_files import iter_messages  # noqa: E402
+from ground.run.processes import LoggerProcess  # noqa: E402
 
 LOAD = """
 import sys, time, json

@@ -36,8 +36,8 @@ from contracts.mavlink import (  # noqa: E402
     sample_messages,
     split_frames,
 )
-from ground.processes import RunSettings, fly  # noqa: E402
-from ground.scenarios import scenario_by_name  # noqa: E402
+from ground.run.processes import RunSettings, fly  # noqa: E402
+from ground.scenario.scenario_file import scenario_by_name  # noqa: E402
 from sitl.plant import Plant
 from sitl.sensors import ideal_readings  # noqa: E402
 

@@ -27,10 +27,10 @@ sys.path.insert(0, str(ROOT))
 
 from autopilot.identification.identify import identify_dataset  # noqa: E402
 from contracts.airframe import PAPER  # noqa: E402
-from ground.excitation import excitation_dataset  # noqa: E402
-from ground.inprocess import run_inprocess  # noqa: E402
-from ground.metrics import compute_metrics  # noqa: E402
-from ground.scenarios import scenario_by_name  # noqa: E402
+from ground.identify.excitation import excitation_dataset  # noqa: E402
+from ground.report.metrics import compute_metrics  # noqa: E402
+from ground.run.inprocess import run_inprocess  # noqa: E402
+from ground.scenario.scenario_file import scenario_by_name  # noqa: E402
 
 
 def main() -> None:

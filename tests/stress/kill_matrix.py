@@ -45,13 +45,13 @@ from contracts.mavlink import mavlink  # noqa: E402
 from contracts.modes import FlightMode, mode_from_px4  # noqa: E402
 from contracts.telemetry import AUTOPILOT, SITL, vehicle_key  # noqa: E402
 from contracts.zenoh_link import ZenohOptions, open_session  # noqa: E402
-from ground.logger import salvage  # noqa: E402
-from ground.perturb import PerturbationClient  # noqa: E402
-from ground.processes import LoggerProcess, free_tcp_port  # noqa: E402
-from ground.run_files import iter_messages  # noqa: E402
+from ground.record.run_files import iter_messages  # noqa: E402
+from ground.run.processes import LoggerProcess, free_tcp_port  # noqa: E402
+from ground.telemetry.mcap_file import salvage  # noqa: E402
+from ground.uplink.perturb import PerturbationClient  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
-PLAN = ROOT / "ground" / "scenario_files" / "six-waypoints.plan"
+PLAN = ROOT / "ground" / "scenario" / "shipped" / "six-waypoints.plan"
 PROCESSES = ("logger", "router", "sitl", "autopilot")
 STAGES = ("start-up", "armed on the ground", "in flight", "mid-mission",
           "during a perturbation", "during log rotation")

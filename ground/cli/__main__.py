@@ -1,0 +1,15 @@
+"""``python -m ground.cli``: the ``ivfm`` command, and the logger of a run kept warm
+(``python -m ground.cli --warm``, see contracts/warm.py)."""
+
+import sys
+
+from contracts.warm import WARM_FLAG, exit_process, serve
+from ground.cli.main import main
+
+
+def _preload_logger() -> None:
+    """What the logger of a run imports, loaded by a warm process before its first run."""
+    import ground.cli.ground_log  # noqa: F401
+
+
+exit_process(serve(main, _preload_logger) if sys.argv[1:] == [WARM_FLAG] else main())

@@ -1,0 +1,128 @@
+"""``ivfm identify``: the IVFM and T1FM identified from input-output data (a flown
+excitation, a dataset file or a logged flight), Table 2 printed beside the paper's."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from autopilot.control.factory import model_airframe_metadata
+from autopilot.identification.coverage import coverage, coverage_metadata, format_coverage
+from autopilot.identification.dataset import read_dataset, write_dataset
+from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
+from autopilot.models.model_file import save_model
+from autopilot.models.ts_model import FuzzyModelSet
+from contracts.airframe import airframe_argument, airframe_by_name
+from contracts.airframe_file import ENVELOPE_LIMITS, Envelope, airframe_envelope
+from contracts.arguments import SEED, VEHICLE_ID, number
+from ground.cli.common import UsageError
+from ground.identify.excitation import MIN_SAMPLES, dataset_from_log, excitation_dataset
+from ground.identify.paper_tables import TABLE_2_VALIDATION_RMSE
+from ground.run.progress import ProgressLine
+
+
+def add_arguments(ident: argparse.ArgumentParser) -> None:
+    ident.add_argument("--data", type=Path, help="dataset CSV (default: fly the excitation)")
+    ident.add_argument("--log", type=Path, metavar="MCAP_OR_RUN_DIR",
+                       help="identify from a logged flight (see docs/scenarios.md)")
+    ident.add_argument("--vehicle", type=VEHICLE_ID, default=1, help="vehicle id in the log")
+    ident.add_argument("--out", type=Path, default=None, help="model JSON to write")
+    ident.add_argument("--write-data", type=Path, help="also save the generated excitation CSV")
+    ident.add_argument("--seed", type=SEED, default=0)
+    ident.add_argument("--samples", type=number(MIN_SAMPLES, 10_000_000, integer=True),
+                       default=4000, help=f"excitation samples, at least {MIN_SAMPLES}")
+    ident.add_argument("--clusters", type=number(2, 20, integer=True), default=None,
+                       help="fuzzy clusters per model, 2-20 (default: the airframe's)")
+    ident.add_argument("--airframe", default="paper", type=airframe_argument,
+                       help="shipped airframe name or airframe .toml file")
+    ident.add_argument("--envelope", type=envelope_argument, default=None,
+                       metavar="ATTITUDE_RAD,RATE_RAD_S[,YAW_RATE_RAD_S]",
+                       help="what the model will fly, which the data must cover; yaw rate "
+                            "half the rate if not given (default: the airframe file's "
+                            "[envelope], else 1 rad, 1 rad/s, 0.5 rad/s)")
+    ident.add_argument("--allow-narrow", action="store_true",
+                       help="write the model even if the data does not cover the envelope")
+
+
+def envelope_argument(text: str) -> tuple[float, ...]:
+    """ATTITUDE_RAD,RATE_RAD_S[,YAW_RATE_RAD_S], each positive and bounded."""
+    parts = text.split(",")
+    if len(parts) not in (2, 3):
+        raise argparse.ArgumentTypeError(
+            f"expected ATTITUDE_RAD,RATE_RAD_S[,YAW_RATE_RAD_S], got {text!r}")
+    values = []
+    for part, (name, high) in zip(parts, ENVELOPE_LIMITS.items(), strict=False):
+        try:
+            values.append(number(0.0, high, low_open=True)(part.strip()))
+        except argparse.ArgumentTypeError as exc:
+            raise argparse.ArgumentTypeError(f"{name} {exc}") from None
+    return tuple(values) if len(values) == 3 else (*values, 0.5 * values[1])
+
+
+def handle(args: argparse.Namespace) -> int:
+    airframe = airframe_by_name(args.airframe)
+    envelope = (Envelope(*args.envelope) if args.envelope else
+                airframe_envelope(args.airframe))
+    n_clusters = DEFAULT_N_CLUSTERS if args.clusters is None else args.clusters
+    start = time.perf_counter()
+    if args.data is not None and args.log is not None:
+        raise UsageError("give --data or --log, not both")
+    if args.log is not None:
+        dataset = dataset_from_log(args.log, args.vehicle, airframe)
+        print(f"ivfm: identifying from the log {args.log} ({dataset.n_rows} samples of "
+              f"vehicle {args.vehicle})", file=sys.stderr)
+    elif args.data is not None:
+        dataset = read_dataset(args.data)
+        print(f"ivfm: identifying from {args.data} ({dataset.n_rows} samples)", file=sys.stderr)
+    else:
+        print(f"ivfm: flying the excitation ({args.samples} samples, seed {args.seed}) for "
+              f"the envelope {envelope.attitude_rad:g} rad, {envelope.rate_rad_s:g} rad/s "
+              f"(yaw {envelope.yaw_rate_rad_s:g} rad/s)", file=sys.stderr)
+        line = ProgressLine("  excitation", args.samples * 0.01)
+        line.loading()
+        try:
+            dataset = excitation_dataset(airframe, n_samples=args.samples, seed=args.seed,
+                                         progress=line.update, envelope=envelope)
+        finally:
+            line.done()
+    if args.write_data is not None:
+        write_dataset(args.write_data, dataset)
+        print(f"wrote {args.write_data}")
+    reach = coverage(dataset, envelope)
+    print(format_coverage(reach))
+    if not all(c.covered for c in reach):
+        advice = ("the data does not cover the envelope: the model would extrapolate where "
+                  "it is flown")
+        if not args.allow_narrow:
+            raise UsageError(f"{advice}. Fly a wider excitation, identify for the envelope "
+                             f"the data covers (--envelope), or accept it (--allow-narrow); "
+                             f"no model written")
+        print(f"ivfm: warning: {advice} (--allow-narrow)", file=sys.stderr)
+    models = identify_dataset(dataset, n_clusters=n_clusters, seed=args.seed,
+                              metadata={**model_airframe_metadata(args.airframe),
+                                        **coverage_metadata(envelope, reach)})
+    elapsed = time.perf_counter() - start
+    print(format_table_2(models, TABLE_2_VALIDATION_RMSE))
+    print(f"identification took {elapsed:.2f} s")
+    if args.out is not None:
+        save_model(args.out, models)
+        print(f"wrote {args.out}")
+    return 0
+
+
+def format_table_2(models: FuzzyModelSet, paper: dict[str, tuple[float, float]]) -> str:
+    """The validation RMSE of each identified function beside the paper's Table 2."""
+    lines = ["Validation RMSE of the identified models (paper's Table 2 beside ours)",
+             f"{'function':<10}{'paper T1FM':>12}{'paper IVFM':>12}{'our T1FM':>12}"
+             f"{'our IVFM':>12}  IVFM better?"]
+    for name, ch in models.channels.items():
+        p_t1, p_iv = paper[name]
+        better = ch.rmse_valid_ivfm < ch.rmse_valid_t1fm
+        verdict = "yes" if better else ("equal" if ch.rmse_valid_ivfm == ch.rmse_valid_t1fm
+                                        else "no")
+        lines.append(f"f_{name:<8}{p_t1:>12.4f}{p_iv:>12.4f}{ch.rmse_valid_t1fm:>12.4f}"
+                     f"{ch.rmse_valid_ivfm:>12.4f}  {verdict}")
+        lines.extend(f"    note: {note}" for note in ch.notes)
+    return "\n".join(lines)

@@ -1,0 +1,171 @@
+"""One scenario flown into a run folder, the way ``ivfm run`` flies it: the scenario's
+choices after overrides, the processes (or the one-process path), the run files, and
+the metrics computed from the log. ``ivfm run``, ``ivfm check`` and the pytest plugin
+all fly through here.
+"""
+
+from __future__ import annotations
+
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from contracts.frames import Home
+from ground.scenario.scenario_file import Scenario
+
+if TYPE_CHECKING:
+    from ground.run.processes import WarmProcesses
+
+
+@dataclass(frozen=True)
+class Overrides:
+    """Command-line choices over the scenario file's (None: the scenario's)."""
+
+    controller: str | None = None
+    plant: str | None = None
+    airframe: str | None = None
+    sensors: str | None = None
+    state_source: str | None = None
+    parameters: dict[str, float] = field(default_factory=dict)
+    model_path: Path | None = None
+    any_airframe_model: bool = False
+    rate_hz: float = 100.0
+    realtime: bool = False
+    seed: int = 0
+    home: Home | None = None
+    rt_cpus: frozenset[int] | None = None  # the vehicle processes' CPUs (None: any)
+
+
+@dataclass(frozen=True)
+class FlightPlan:
+    """Everything a flight needs, resolved and checked."""
+
+    scenario: Scenario
+    controller: str
+    plant: str
+    airframe: str
+    sensors: str
+    state_source: str
+    parameters: dict[str, float]  # every parameter, defaults included
+    given: frozenset[str]  # the names the scenario or the command line set
+    model_path: Path | None
+    any_airframe_model: bool
+    rate_hz: float
+    realtime: bool
+    seed: int
+    home: Home
+    rt_cpus: frozenset[int] | None = None
+
+    @property
+    def how(self) -> str:
+        return ("logger + simulator + autopilot, real time" if self.realtime else
+                "logger + simulator + autopilot, lockstep")
+
+
+def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> FlightPlan:
+    """The scenario's choices after ``overrides``; ValueError on a bad combination
+    (an unknown airframe, a model for another airframe)."""
+    from autopilot.control.factory import load_models
+    from autopilot.parameters import airframe_parameters, validate_parameters
+    from contracts.airframe import airframe_by_name
+    from sitl.sensors import read_profile
+
+    o = overrides or Overrides()
+    controller = o.controller or scenario.controller
+    airframe = o.airframe or scenario.airframe
+    airframe_by_name(airframe)
+    sensors = o.sensors or scenario.sensors
+    state_source = o.state_source or scenario.state_source
+    # The airframe file's own defaults, then the scenario's, then the command line's.
+    given = {**airframe_parameters(airframe), **scenario.parameters, **o.parameters}
+    if state_source == "estimator" and "EKF2_GPS_DELAY" not in given:
+        # The vehicle's estimator is set up for its GPS receiver, as a user would set it.
+        given["EKF2_GPS_DELAY"] = 1000.0 * read_profile(sensors).gps_latency_s
+    model_path = o.model_path or scenario.model_path
+    if controller in ("ivfc", "t1fc"):  # refused now, not in the autopilot's log
+        load_models(model_path, airframe, o.any_airframe_model)
+    if not (o.rate_hz > 0.0 and o.rate_hz <= 10_000.0):
+        raise ValueError(f"--rate-hz must be in (0, 10000], got {o.rate_hz!r}")
+    return FlightPlan(scenario.on_airframe(airframe), controller, o.plant or scenario.plant,
+                      airframe, sensors,
+                      state_source, validate_parameters(given), frozenset(given), model_path,
+                      o.any_airframe_model, o.rate_hz, o.realtime, o.seed,
+                      o.home or scenario.home, o.rt_cpus)
+
+
+def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
+                  quiet: bool = False, warm: WarmProcesses | None = None,
+                  started_s: float | None = None,
+                  view: tuple[str, int] | None = None) -> dict[str, Any]:
+    """Fly through the processes into ``out_dir`` (run.json, scenario copy, log, process
+    logs); returns metrics.json's content. ``quiet``: no progress on stderr; ``warm``:
+    runs of these warm processes (ground/run/processes.py) instead of new processes;
+    ``started_s``: when the command started (time.monotonic), for the run's timeline;
+    ``view``: (host, port) of a live view the logger serves."""
+    from ground.record import timeline as run_timeline
+    from ground.record.run_files import RUN_FILE, SCENARIO_FILE, write_json
+    from ground.run.processes import RunSettings, run_processes
+
+    scenario = plan.scenario
+    settings = RunSettings(plan.controller, plan.plant, plan.airframe, plan.model_path,
+                           {k: v for k, v in plan.parameters.items() if k in plan.given},
+                           realtime=plan.realtime, rate_hz=plan.rate_hz,
+                           state_source=plan.state_source, sensors=plan.sensors,
+                           seed=plan.seed, any_airframe_model=plan.any_airframe_model,
+                           home=plan.home, rt_cpus=plan.rt_cpus)
+    accounting = run_processes(scenario, settings, out_dir, quiet=quiet, warm=warm,
+                               started_s=started_s, view=view)
+    timing = accounting.pop("timing")
+    shutil.copyfile(scenario.source, out_dir / SCENARIO_FILE)
+    if scenario.plan is not None and scenario.plan.is_relative_to(scenario.source.parent):
+        # beside the copy, where its [mission] names it (an absolute name needs no copy)
+        beside = out_dir / scenario.plan.relative_to(scenario.source.parent)
+        beside.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(scenario.plan, beside)
+    write_json(out_dir / RUN_FILE, {
+        "scenario": scenario.name, "controller": plan.controller, "plant": plan.plant,
+        "airframe": plan.airframe, "rate_hz": plan.rate_hz, "vehicle": settings.vehicle,
+        "mode": "realtime" if plan.realtime else "lockstep",
+        "state_source": plan.state_source, "sensors": plan.sensors, "seed": plan.seed,
+        "home": list(plan.home), "parameters": plan.parameters,
+        "model": str(plan.model_path) if plan.model_path else None,
+        "telemetry": accounting, "timing": timing})
+    from ground.report.run_report import report  # imported during the flight (run_processes)
+
+    metrics, _record = report(out_dir, figures=figures)
+    return run_timeline.finish(out_dir, metrics)
+
+
+def fly_inprocess(plan: FlightPlan, out_dir: Path, figures: bool = True) -> dict[str, Any]:
+    """Fly plant and controller in one process; metrics.json (no events: no processes)."""
+    from autopilot.control.factory import load_models
+    from contracts.airframe import airframe_by_name
+    from ground.record.run_files import write_json
+    from ground.report.figures import plot_run
+    from ground.report.metrics import compute_metrics
+    from ground.run.inprocess import run_inprocess
+    from ground.run.progress import ProgressLine
+
+    scenario = plan.scenario
+    models = (load_models(plan.model_path, plan.airframe, plan.any_airframe_model)
+              if plan.controller in ("ivfc", "t1fc") else None)
+    line = ProgressLine(scenario.name, scenario.duration_s)
+    line.loading()
+    try:
+        record = run_inprocess(scenario, plan.controller, plan.plant,
+                               airframe_by_name(plan.airframe), models,
+                               period_s=1.0 / plan.rate_hz, parameters=plan.parameters,
+                               sensors=plan.sensors, state_source=plan.state_source,
+                               seed=plan.seed, home=plan.home, progress=line.update)
+    finally:
+        line.done()
+    metrics = compute_metrics(record, scenario, plan.airframe)
+    metrics["mode"] = "inprocess"
+    metrics["sensors"], metrics["state_source"] = plan.sensors, plan.state_source
+    metrics["seed"] = plan.seed
+    metrics["parameters"] = plan.parameters
+    write_json(out_dir / "metrics.json", metrics)
+    if figures:
+        plot_run(record, scenario, out_dir)
+    return metrics

@@ -1,0 +1,206 @@
+"""The run's ground station as a ground tool: a scenario's ``[ground_station]`` table.
+
+A person's ground tool (QGroundControl, a MAVSDK script) sends the vehicle a heartbeat
+every second and, in offboard, a stream of setpoints; a lost radio or a crashed script
+stops them. A scenario rehearses that: during the run a real MAVLink client on the
+autopilot's ground link sends what the table says, and falls silent in its windows, so
+the vehicle's link failsafes (COM_DL_LOSS_T / NAV_DLL_ACT, COM_OF_LOSS_T / COM_OBL_ACT)
+act as they would in the field.
+
+    [ground_station]
+    heartbeat_hz = 1.0          # a GCS heartbeat (0: none)
+    offboard_at_s = 4.0         # stream the hover point and switch to OFFBOARD at 4 s
+    [[ground_station.silence]]
+    what = "setpoints"          # "heartbeat", "setpoints" or "all" (a lost radio)
+    start_s = 10.0
+    end_s = 16.0
+
+Times are seconds after the vehicle is released, on the wall clock as a ground tool's
+are (the failsafes time them on the wall clock too), but never ahead of the vehicle's own
+clock as its telemetry shows it (``time_boot_ms``): a simulator that took its first step
+late, or stalled and went on behind the wall clock, would otherwise see the plan's events
+early in sim time, where the run's expectations judge them. Fly such a scenario in real
+time (``--realtime``), so that they match the run's sim time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+from contracts.mavlink import mavlink
+from contracts.modes import PX4_MODES, FlightMode
+from ground.scenario.expectations import finite_number
+
+GCS_SYSID = 255  # QGroundControl's system id
+SILENCE_KINDS = ("heartbeat", "setpoints", "all")
+_KEYS = {"heartbeat_hz", "offboard_at_s", "setpoint_hz", "silence"}
+_SILENCE_KEYS = {"what", "start_s", "end_s"}
+# Position only: the rest of SET_POSITION_TARGET_LOCAL_NED is ignored.
+_POSITION_ONLY = 0b0000_1001_1111_1000
+
+
+@dataclass(frozen=True)
+class Silence:
+    """From ``start_s`` to ``end_s`` the ground station does not send ``what``."""
+
+    what: str
+    start_s: float
+    end_s: float
+
+    def covers(self, what: str, t_s: float) -> bool:
+        return self.what in (what, "all") and self.start_s <= t_s < self.end_s
+
+
+@dataclass(frozen=True)
+class GroundStationPlan:
+    heartbeat_hz: float = 1.0
+    offboard_at_s: float | None = None  # when to switch to OFFBOARD (None: never)
+    setpoint_hz: float = 20.0
+    silences: tuple[Silence, ...] = ()
+
+    def silent(self, what: str, t_s: float) -> bool:
+        return any(s.covers(what, t_s) for s in self.silences)
+
+
+def parse_ground_station(table: Any, duration_s: float) -> GroundStationPlan | None:
+    """The ``[ground_station]`` table, checked; None when the scenario has none."""
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise ValueError("[ground_station] must be a table")
+    bad = sorted(set(table) - _KEYS)
+    if bad:
+        raise ValueError(f"ground_station: unknown field(s) {', '.join(bad)}; known: "
+                         f"{', '.join(sorted(_KEYS))}")
+    heartbeat_hz = _number(table, "heartbeat_hz", 1.0, 0.0, 50.0)
+    setpoint_hz = _number(table, "setpoint_hz", 20.0, 2.0, 100.0)
+    offboard = table.get("offboard_at_s")
+    if offboard is not None:
+        offboard = _number(table, "offboard_at_s", 0.0, 0.0, duration_s)
+    silences = table.get("silence", [])
+    if not isinstance(silences, list):
+        raise ValueError("ground_station.silence must be a list of tables ([[...]])")
+    out = []
+    for i, item in enumerate(silences):
+        where = f"ground_station.silence {i}"
+        if not isinstance(item, dict):
+            raise ValueError(f"{where} must be a table")
+        bad = sorted(set(item) - _SILENCE_KEYS)
+        if bad:
+            raise ValueError(f"{where}: unknown field(s) {', '.join(bad)}")
+        what = item.get("what", "all")
+        if what not in SILENCE_KINDS:
+            raise ValueError(f"{where}: what must be one of {', '.join(SILENCE_KINDS)}, "
+                             f"got {what!r}")
+        if what == "setpoints" and offboard is None:
+            raise ValueError(f"{where}: no setpoints to silence (give offboard_at_s)")
+        start = _number(item, "start_s", None, 0.0, duration_s)
+        end = _number(item, "end_s", duration_s, start, math.inf)
+        out.append(Silence(what, start, end))
+    return GroundStationPlan(heartbeat_hz, offboard, setpoint_hz, tuple(out))
+
+
+def _number(table: dict, key: str, default: float | None, low: float, high: float) -> float:
+    value = table.get(key, default)
+    if value is None:
+        raise ValueError(f"ground_station: {key} is required")
+    number = finite_number(value, f"ground_station: {key}", low)
+    if number > high:
+        raise ValueError(f"ground_station: {key} must be at most {high:g}, got {value!r}")
+    return number
+
+
+class GroundStation:
+    """A GCS on a thread: heartbeats, the hover setpoint stream and the switch to
+    OFFBOARD, each silenced in the plan's windows. What it sent is counted in ``sent``."""
+
+    def __init__(self, plan: GroundStationPlan, port: int, vehicle_sysid: int,
+                 hover_ned_m: tuple[float, float, float], yaw_rad: float) -> None:
+        from pymavlink import mavutil
+
+        self.plan = plan
+        self.conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}",
+                                               source_system=GCS_SYSID,
+                                               source_component=mavlink.MAV_COMP_ID_MISSIONPLANNER)
+        self.target = vehicle_sysid
+        self.hover_ned_m = hover_ned_m
+        self.yaw_rad = yaw_rad
+        self.sent = {"heartbeat": 0, "setpoints": 0, "set_mode": 0}
+        self.mode_acked = False
+        self.error: str | None = None  # why the thread stopped early
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="ground-station", daemon=True)
+        self._t0 = 0.0
+
+    def start(self) -> None:
+        self._t0 = time.monotonic()
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+        self.conn.close()
+
+    def _send(self, msg) -> None:
+        with contextlib.suppress(OSError):  # the vehicle is gone: the run's end says so
+            self.conn.mav.send(msg)
+
+    def _run(self) -> None:
+        try:
+            self._loop()
+        except Exception as exc:  # noqa: BLE001 (the run reports it: ``error``)
+            self.error = f"{type(exc).__name__}: {exc}"
+
+    def _loop(self) -> None:
+        plan = self.plan
+        next_beat = next_setpoint = 0.0
+        next_mode = plan.offboard_at_s if plan.offboard_at_s is not None else math.inf
+        while not self._stop.is_set():
+            t = time.monotonic() - self._t0
+            if plan.heartbeat_hz > 0 and t >= next_beat:
+                next_beat += 1.0 / plan.heartbeat_hz
+                if not plan.silent("heartbeat", t):
+                    self._send(mavlink.MAVLink_heartbeat_message(
+                        mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                        mavlink.MAV_STATE_ACTIVE, 3))
+                    self.sent["heartbeat"] += 1
+            if plan.offboard_at_s is not None and t >= next_setpoint:
+                next_setpoint += 1.0 / plan.setpoint_hz
+                if not plan.silent("setpoints", t):
+                    self._send(mavlink.MAVLink_set_position_target_local_ned_message(
+                        int(t * 1000), self.target, 1, mavlink.MAV_FRAME_LOCAL_NED,
+                        _POSITION_ONLY, *self.hover_ned_m, 0, 0, 0, 0, 0, 0,
+                        self.yaw_rad, 0))
+                    self.sent["setpoints"] += 1
+            if t >= next_mode and not self.mode_acked:
+                next_mode = t + 0.5  # again until acknowledged, as ground tools retry
+                if not plan.silent("all", t):
+                    self._send(mavlink.MAVLink_command_long_message(
+                        self.target, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,
+                        mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                        *PX4_MODES[FlightMode.OFFBOARD], 0, 0, 0, 0))
+                    self.sent["set_mode"] += 1
+            self._read()
+            self._stop.wait(0.005)
+
+    def _read(self) -> None:
+        """Take what the vehicle sent (so the socket never fills); note the mode's ack;
+        hold the plan's clock back to the vehicle's."""
+        for _ in range(200):  # a budget: the vehicle streams telemetry at up to 50 Hz
+            msg = self.conn.recv_match(blocking=False)
+            if msg is None:
+                return
+            boot_ms = getattr(msg, "time_boot_ms", None)
+            if boot_ms is not None and msg.get_srcSystem() == self.target:
+                self._t0 = max(self._t0, time.monotonic() - boot_ms / 1e3)
+            if msg.get_type() == "COMMAND_ACK" and \
+                    msg.command == mavlink.MAV_CMD_DO_SET_MODE and \
+                    msg.result == mavlink.MAV_RESULT_ACCEPTED:
+                self.mode_acked = True
+

@@ -1,0 +1,426 @@
+"""The ground logger: every telemetry record it hears, into MCAP (docs/architecture.md).
+
+* One MCAP channel per Zenoh key; the CDR records are written as they arrive with their
+  ``ros2msg`` schema (Foxglove and PlotJuggler decode them), JSON records with a JSON
+  schema, MAVLink mirror frames with message encoding ``mavlink``. ``log_time`` is the
+  wall time of arrival, ``publish_time`` the record's sim time, ``sequence`` its seq.
+* Small chunks: a chunk closes when it reaches ``chunk_bytes`` or ``flush_period_s`` has
+  passed, so a crash loses at most the last fraction of a second.
+* The file being written is ``NAME.mcap.active``; it becomes ``NAME.mcap`` when finished.
+  At start the logger salvages any ``.active`` file left by a crash: every complete record
+  is copied into a finished file.
+* Past ``rotate_bytes``, or ``rotate_chunks`` chunks, the file is finished and the next
+  one started: the writer keeps each chunk's index in memory until its file is finished,
+  so the chunk cap is what keeps the logger's memory flat over a long run.
+* A record that does not fit its key's schema is refused (counted, reported on stderr and
+  in the status reply), not written.
+* Beside the records, what Foxglove draws (``ground/telemetry/foxglove_view.py``: transforms, the
+  scene, the path, plot-ready controller and estimator channels, the vehicle's texts as
+  logs), decimated on sim time; the same messages go to a live view when one is attached.
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import json
+import queue
+import re
+import signal
+import struct
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import zenoh
+
+from contracts import timeline
+from contracts.stop_request import StopRequest
+from contracts.telemetry import (
+    MIRROR_ATTACHMENT,
+    RecordSchema,
+    decode_json_record,
+    logger_key,
+    parse_key,
+    schema_for_key,
+)
+from contracts.zenoh_link import ZenohOptions, open_session
+from ground.telemetry.foxglove_view import FoxgloveView, Output, encode
+from ground.telemetry.mcap_file import ACTIVE_SUFFIX, McapFile, salvage
+
+PROCESS = "logger"  # in the run's timeline
+SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
+# Bounds under hostile traffic (docs/telemetry.md, "Limits"): distinct keys with their
+# own channel and counters, the longest key, and records waiting for the writer.
+MAX_KEYS = 1024
+MAX_KEY_CHARS = 256
+MAX_INBOX = 200_000
+MAX_QUERIES = 64  # status queries waiting for the loop
+SILENCE_S = 1.0  # records had been coming (250 Hz and more) and none for this long: say so
+_NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+
+
+@dataclass
+class LoggerConfig:
+    out_dir: Path
+    zenoh: ZenohOptions
+    name: str = "logger"
+    prefix: str = "telemetry"
+    chunk_bytes: int = 256 * 1024
+    flush_period_s: float = 0.25
+    rotate_bytes: int = 512 * 1024 * 1024
+    rotate_chunks: int = 512  # ~0.7 MB of chunk index; at 4 chunks/s, a file per 2 min
+    compression: str = "zstd"
+    foxglove: bool = True  # write what Foxglove draws beside the records
+    view_rate_hz: float = 50.0  # ... decimated to this rate of sim time
+
+    def __post_init__(self) -> None:
+        for label, value in (("name", self.name), ("prefix", self.prefix)):
+            if not _NAME.match(value):
+                raise ValueError(f"logger {label} must be 1-64 letters, digits, '.', '_' or "
+                                 f"'-', got {value!r}")
+        if not 1024 <= self.chunk_bytes <= 64 * 1024 * 1024:
+            raise ValueError(f"chunk size must be in [1 KiB, 64 MiB], got {self.chunk_bytes}")
+        if not 0.01 <= self.flush_period_s <= 1.0:
+            raise ValueError(f"flush period must be in [0.01, 1] s, got {self.flush_period_s}")
+        if self.rotate_bytes < 1024 * 1024:
+            raise ValueError(f"rotation size must be at least 1 MiB, got {self.rotate_bytes}")
+        if self.rotate_chunks < 16:
+            raise ValueError(f"rotation chunk count must be at least 16, got "
+                             f"{self.rotate_chunks}")
+        if self.compression not in ("zstd", "lz4", "none"):
+            raise ValueError(f"compression must be zstd, lz4 or none, got {self.compression!r}")
+
+
+class SilenceWatch:
+    """Says when records stop coming (a vehicle, or the Zenoh link or router between it
+    and the logger, is down) and when they come again: once each, on an injected clock."""
+
+    def __init__(self, log: Callable[[str], None], silence_s: float = SILENCE_S) -> None:
+        self.log = log
+        self.silence_s = silence_s
+        self.last_s: float | None = None  # the last record's arrival (none yet: quiet)
+        self.silent = False
+
+    def update(self, now_s: float, records: int) -> None:
+        if records:
+            if self.silent:
+                self.log(f"records again after {now_s - self.last_s:.1f} s of silence")
+                self.silent = False
+            self.last_s = now_s
+        elif (not self.silent and self.last_s is not None
+              and now_s - self.last_s >= self.silence_s):
+            self.silent = True
+            self.log(f"no records for {self.silence_s:g} s: the vehicles, or the Zenoh link "
+                     "(or router) between them and this logger, are down")
+
+
+@dataclass
+class Counters:
+    records: int = 0
+    rejected: int = 0
+    per_key: dict[str, int] = field(default_factory=lambda: collections.defaultdict(int))
+    rejected_per_key: dict[str, int] = field(
+        default_factory=lambda: collections.defaultdict(int))
+    last_error: str = ""
+    keys_over_limit: int = 0  # records refused on a new key past MAX_KEYS (or too long)
+    inbox_dropped: int = 0  # records dropped with MAX_INBOX waiting (the writer behind)
+    view_messages: int = 0  # Foxglove messages written beside the records
+    view_refused: int = 0  # records whose content the view could not draw (said, skipped)
+    write_error: str = ""  # the disk refused a write (full): logging stopped
+    unwritten: int = 0  # records that came after it
+    files: list[str] = field(default_factory=list)
+    heard: dict[str, dict[str, Any]] = field(default_factory=dict)  # status key -> record
+
+
+class Logger:
+    def __init__(self, config: LoggerConfig, log: Callable[[str], None] | None = None,
+                 live: Callable[[Output], None] | None = None) -> None:
+        self.config = config
+        self.view = (FoxgloveView(config.view_rate_hz)
+                     if config.foxglove or live is not None else None)
+        self.live = live  # a live view's publish (ground/telemetry/live_view.py), or None
+        self.log = log or (lambda text: print(f"logger: {text}", file=sys.stderr, flush=True))
+        self.counters = Counters()
+        self._inbox: collections.deque[tuple[str, bytes, bytes | None, int]] = \
+            collections.deque()
+        self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
+        self._stop = StopRequest()
+        self._file: McapFile | None = None
+        self._index = 0
+        self._flushed_records = 0  # counters.records at the last flush that worked
+        self._flushed_per_key: dict[str, int] = {}  # and counters.per_key
+        self._warned: dict[str, float] = {}
+
+    def stop(self, *_args: Any) -> None:
+        timeline.mark(PROCESS, "stop asked")
+        self._stop.set()
+
+    # -- files ---------------------------------------------------------------------------
+    def _start_files(self) -> None:
+        out = self.config.out_dir
+        out.mkdir(parents=True, exist_ok=True)
+        for active in sorted(out.glob(f"*{ACTIVE_SUFFIX}")):
+            salvage(active, self.log)
+        taken = [int(m.group(1)) for p in out.glob(f"{self.config.prefix}-*.mcap")
+                 if (m := re.match(rf"{re.escape(self.config.prefix)}-(\d+)", p.name))]
+        self._index = max(taken, default=-1) + 1
+        self._open_next()
+
+    def _open_next(self) -> None:
+        path = self.config.out_dir / f"{self.config.prefix}-{self._index:03d}.mcap"
+        self._index += 1
+        self._file = McapFile(path, self.config.chunk_bytes, self.config.compression)
+        self.log(f"writing {path.name}")
+
+    def _flush(self) -> None:
+        """Close the open chunk; start the next file past the size or chunk limit."""
+        if self.counters.write_error:
+            return
+        try:
+            self._file.flush()
+            self._flushed_records = self.counters.records
+            self._flushed_per_key = dict(self.counters.per_key)  # at most MAX_KEYS
+            if (self._file.size >= self.config.rotate_bytes
+                    or self._file.chunks >= self.config.rotate_chunks):
+                self._rotate()
+        except OSError as exc:
+            self._write_failed(exc)
+
+    def _write_failed(self, exc: OSError) -> None:
+        """A full disk (or a file size limit): stop writing, keep what was flushed, say
+        so; the loop goes on answering status queries, which report it."""
+        c = self.counters
+        # The records since the last flush were in the chunk the disk refused.
+        c.unwritten += c.records - self._flushed_records
+        c.records = self._flushed_records
+        c.per_key.clear()
+        c.per_key.update(self._flushed_per_key)
+        c.write_error = f"{exc.strerror or exc} ({self._file.active_path.name})"
+        c.last_error = f"logging stopped: {c.write_error}"
+        self._file.abandon()
+        self.log(f"cannot write {self._file.active_path}: {exc.strerror or exc}: logging "
+                 f"stopped after {c.records} records; the file keeps the "
+                 f"{self._file.flushed_bytes} bytes flushed before (readable: ivfm report "
+                 "and the next logger salvage it)")
+
+    def _rotate(self) -> None:
+        done = self._file.finish()
+        self.counters.files.append(str(done))
+        self._open_next()
+
+    # -- records -------------------------------------------------------------------------
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        if len(self._inbox) >= MAX_INBOX:
+            self.counters.inbox_dropped += 1
+            return
+        attachment = sample.attachment
+        self._inbox.append((str(sample.key_expr), sample.payload.to_bytes(),
+                            attachment.to_bytes() if attachment is not None else None,
+                            time.time_ns()))
+
+    def _write(self, key: str, payload: bytes, attachment: bytes | None,
+               log_time_ns: int) -> None:
+        c = self.counters
+        if key not in c.per_key and key not in c.rejected_per_key and (
+                len(c.per_key) + len(c.rejected_per_key) >= MAX_KEYS
+                or len(key) > MAX_KEY_CHARS):
+            c.rejected += 1
+            c.keys_over_limit += 1
+            c.last_error = (f"a record on a new key past the {MAX_KEYS}-key limit, or a key "
+                            f"over {MAX_KEY_CHARS} characters ({c.keys_over_limit} so far)")
+            return
+        schema = schema_for_key(key)
+        try:
+            seq, sim_time_us = self._check(key, schema, payload, attachment)
+        except ValueError as exc:
+            self._refuse(key, str(exc))
+            return
+        c = self.counters
+        if c.write_error:
+            c.unwritten += 1
+            return
+        f = self._file
+        try:
+            f.add(f.channel(key, schema), log_time_ns, sim_time_us * 1000, seq, payload)
+        except OSError as exc:  # a chunk filled and the disk refused it
+            self._write_failed(exc)
+            c.unwritten += 1
+            return
+        c.records += 1
+        c.per_key[key] += 1
+        if self.view is not None:
+            self._draw(key, payload, attachment, log_time_ns)
+
+    def _draw(self, key: str, payload: bytes, attachment: bytes | None,
+              log_time_ns: int) -> None:
+        """What Foxglove draws of this record, into the file and to the live view."""
+        c = self.counters
+        try:
+            outputs = self.view.feed(key, payload, attachment)
+        except (ValueError, TypeError, KeyError) as exc:
+            c.view_refused += 1
+            self._refuse_view(key, str(exc))
+            return
+        f = self._file
+        for output in outputs:
+            if self.live is not None:
+                self.live(output)
+            if not self.config.foxglove:
+                continue
+            try:
+                f.add(f.view_channel(output), log_time_ns, output.sim_time_ns, 0,
+                      encode(output.message))
+            except OSError as exc:
+                self._write_failed(exc)
+                return
+            c.view_messages += 1
+
+    def _check(self, key: str, schema: RecordSchema | str | None, payload: bytes,
+               attachment: bytes | None) -> tuple[int, int]:
+        """(seq, sim_time_us) of a record that fits its key; ValueError otherwise."""
+        if isinstance(schema, RecordSchema):
+            schema.check(payload)
+            seq, sim_time_us = struct.unpack_from("<Qq", payload, 4)
+            return seq, sim_time_us
+        if schema == "json":
+            record = decode_json_record(payload)
+            parsed = parse_key(key)
+            if parsed is not None and parsed[2] == "status":
+                if key not in self.counters.heard:
+                    timeline.mark(PROCESS, f"heard {parsed[1]}")
+                if record.get("final"):
+                    timeline.mark(PROCESS, f"final status of {parsed[1]}")
+                self.counters.heard[key] = record
+            return record["seq"], record["sim_time_us"]
+        if schema == "mavlink":
+            if attachment is None or len(attachment) != MIRROR_ATTACHMENT.size:
+                raise ValueError("MAVLink mirror frame without its seq/sim-time attachment")
+            if not payload or payload[0] != 0xFD:
+                raise ValueError("MAVLink mirror frame is not MAVLink 2")
+            return MIRROR_ATTACHMENT.unpack(attachment)
+        return 0, 0  # outside the contract: kept as opaque bytes
+
+    def _refuse(self, key: str, reason: str) -> None:
+        c = self.counters
+        c.rejected += 1
+        c.rejected_per_key[key] += 1
+        c.last_error = f"{key}: {reason}"
+        now = time.monotonic()
+        if now - self._warned.get(key, -10.0) > 5.0:  # one line per key per 5 s (bounded:
+            # only keys under MAX_KEYS get here)
+            self._warned[key] = now
+            self.log(f"refused a record on {key}: {reason} "
+                     f"({c.rejected_per_key[key]} so far on this key)")
+
+    def _refuse_view(self, key: str, reason: str) -> None:
+        now = time.monotonic()
+        if now - self._warned.get("view " + key, -10.0) > 5.0:
+            self._warned["view " + key] = now
+            self.log(f"cannot draw a record on {key}: {reason} (logged as it came; "
+                     f"{self.counters.view_refused} so far)")
+
+    def status(self) -> dict[str, Any]:
+        c = self.counters
+        return {"name": self.config.name, "records": c.records, "rejected": c.rejected,
+                "per_key": dict(c.per_key), "rejected_per_key": dict(c.rejected_per_key),
+                "last_error": c.last_error, "heard": c.heard,
+                "keys_over_limit": c.keys_over_limit, "inbox_dropped": c.inbox_dropped,
+                "write_error": c.write_error, "unwritten": c.unwritten,
+                "view_messages": c.view_messages, "view_refused": c.view_refused,
+                "file": str(self._file.active_path) if self._file else None,
+                "finished_files": c.files}
+
+    # -- the loop ------------------------------------------------------------------------
+    def run(self, ready: Callable[[], None] | None = None) -> int:
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, self.stop)
+            signal.signal(signal.SIGINT, self.stop)  # StopRequest.set: safe in a handler
+        session = open_session(self.config.zenoh, exit_on_listen_failure=True)
+        timeline.mark(PROCESS, "zenoh session open")
+        self._start_files()
+        subscribers = [session.declare_subscriber(k, self._on_sample) for k in SUBSCRIBED]
+        queryable = session.declare_queryable(logger_key(self.config.name, "status"),
+                                              self._on_query)
+        token = session.liveliness().declare_token(logger_key(self.config.name))
+        self.log(f"listening on {', '.join(self.config.zenoh.listen) or 'no endpoint'}"
+                 f"{'; connecting to ' + ', '.join(self.config.zenoh.connect) if self.config.zenoh.connect else ''}"  # noqa: E501
+                 f" ({self.config.zenoh.mode}); logging to {self.config.out_dir}")
+        timeline.mark(PROCESS, "ready")
+        if ready is not None:
+            ready()
+        next_flush = time.monotonic() + self.config.flush_period_s
+        silence = SilenceWatch(self.log)
+        try:
+            while not self._stop.is_set():
+                wrote = self._drain()
+                self._answer_queries()
+                now = time.monotonic()
+                silence.update(now, wrote)
+                if now >= next_flush:
+                    self._flush()
+                    next_flush = now + self.config.flush_period_s
+                if not wrote:
+                    self._stop.wait(0.005)
+        finally:
+            token.undeclare()
+            for sub in subscribers:
+                sub.undeclare()
+            queryable.undeclare()
+            self._drain()
+            self._answer_queries()
+            session.close()
+            timeline.mark(PROCESS, "zenoh session closed")
+            self._close_file()
+        return 0
+
+    def _close_file(self) -> None:
+        """Finish the open file; after a refused write, leave it as the disk allowed."""
+        if not self.counters.write_error:
+            try:
+                done = self._file.finish()
+                timeline.mark(PROCESS, "file closed")
+                self.counters.files.append(str(done))
+                self.log(f"finished {done.name}: {self.counters.records} records, "
+                         f"{self.counters.rejected} refused")
+                return
+            except OSError as exc:  # the summary did not fit
+                self._write_failed(exc)
+        self.log(f"left {self._file.active_path.name} as the disk allowed: "
+                 f"{self.counters.records} records written, {self.counters.unwritten} not")
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        """A status query, answered by the loop; past MAX_QUERIES waiting, refused here."""
+        if self._queries.qsize() >= MAX_QUERIES:
+            with contextlib.suppress(zenoh.ZError):
+                query.reply_err(b'{"ok": false, "error": "busy"}')
+                query.drop()
+            return
+        self._queries.put(query)
+
+    def _drain(self) -> int:
+        n = 0
+        inbox = self._inbox
+        while inbox:
+            self._write(*inbox.popleft())
+            n += 1
+        return n
+
+    def _answer_queries(self) -> None:
+        while True:
+            try:
+                query = self._queries.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                query.reply(query.key_expr, json.dumps(self.status(), default=str).encode())
+                query.drop()
+            except zenoh.ZError:
+                pass
+
+
+# -- reading logs back ------------------------------------------------------------------

@@ -27,6 +27,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from contracts.toml_files import read_named_toml, shipped_names
+from contracts.toml_tables import check_fields, number
 
 SHIPPED_DIR = "airframes"
 COMMAND_MAPS = ("speed", "thrust")  # c -> W = c W_max (jMAVSim, Gazebo) / T = c T_max (SIH)
@@ -142,9 +143,7 @@ def checked_argument(load: Callable[[str], object]) -> Callable[[str], str]:
 
 def parse_airframe(data: dict[str, Any], where: str = "airframe",
                    default_name: str = "airframe", controllable: bool = True) -> AirframeSpec:
-    unknown = sorted(set(data) - _TOP_KEYS)
-    if unknown:
-        raise AirframeError(f"{where}: unknown field(s) {', '.join(unknown)}")
+    check_fields(data, _TOP_KEYS, where, AirframeError)
     for key in ("mass_kg", "inertia_kgm2", "rotor"):
         if key not in data:
             raise AirframeError(f"{where}: {key} is required")
@@ -161,7 +160,7 @@ def parse_airframe(data: dict[str, Any], where: str = "airframe",
     spec = AirframeSpec(
         name=name,
         description=str(data.get("description", "")),
-        mass_kg=_number(data["mass_kg"], f"{where}: mass_kg", 1e-3, 1e3, positive=True),
+        mass_kg=_number(data["mass_kg"], f"{where}: mass_kg", 1e-3, 1e3),
         inertia_kgm2=_inertia(data["inertia_kgm2"], f"{where}: inertia_kgm2"),
         linear_drag_nspm=_number(data.get("linear_drag_nspm", 0.0),
                                  f"{where}: linear_drag_nspm", 0.0, 1e3),
@@ -202,13 +201,7 @@ def _envelope(value: Any, where: str) -> Envelope:
 
 
 def _number(value: Any, what: str, low: float, high: float, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise AirframeError(f"{what} must be a number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value) or not low <= value <= high or (positive and value <= 0.0):
-        bound = "(0" if positive else f"[{low:g}"
-        raise AirframeError(f"{what} must be in {bound}, {high:g}], got {value!r}")
-    return value
+    return number(value, what, low, high, low_open=positive, error=AirframeError)
 
 
 def _inertia(value: Any, what: str) -> np.ndarray:
@@ -227,9 +220,7 @@ def _inertia(value: Any, what: str) -> np.ndarray:
 def _rotor(value: Any, where: str) -> RotorSpec:
     if not isinstance(value, dict):
         raise AirframeError(f"{where} must be a table")
-    unknown = sorted(set(value) - _ROTOR_KEYS)
-    if unknown:
-        raise AirframeError(f"{where}: unknown field(s) {', '.join(unknown)}")
+    check_fields(value, _ROTOR_KEYS, where, AirframeError)
     missing = sorted(k for k in _ROTOR_KEYS - {"time_constant_s", "inertia_kgm2"}
                      if k not in value)
     if missing:

@@ -36,6 +36,7 @@ from contracts.mavlink import (
 )
 from contracts.perturbations import NO_SENSOR_EFFECTS, SensorEffects
 from contracts.toml_files import read_named_toml, shipped_names
+from contracts.toml_tables import check_fields
 from sitl.plant import VehicleState
 
 TEMPERATURE_C = 20.0
@@ -155,9 +156,7 @@ def read_profile(source: str | Path) -> SensorProfile:
 def parse_profile(data: dict[str, Any], where: str = "sensor profile",
                   default_name: str = "custom") -> SensorProfile:
     known = {f.name for f in fields(SensorProfile)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise SensorProfileError(f"{where}: unknown field(s) {', '.join(unknown)}")
+    check_fields(data, known, where, SensorProfileError)
     values: dict[str, Any] = {}
     for key, value in data.items():
         if key in ("name", "description"):

@@ -184,11 +184,11 @@ def test_an_airframe_file_names_its_envelope():
     ({"attitude_rad": 0.7, "rate_rad_s": 1.0, "yaw_rate_rad_s": 0.5, "x": 1},
      "exactly attitude_rad"),
     ({"attitude_rad": 2.0, "rate_rad_s": 1.0, "yaw_rate_rad_s": 0.5},
-     "envelope.attitude_rad must be in (0, 1.2]"),
+     "envelope.attitude_rad must be a number in (0, 1.2]"),
     ({"attitude_rad": 0.7, "rate_rad_s": math.nan, "yaw_rate_rad_s": 0.5},
-     "envelope.rate_rad_s must be in"),
+     "envelope.rate_rad_s must be a number in"),
     ({"attitude_rad": 0.7, "rate_rad_s": 1.0, "yaw_rate_rad_s": 0.0},
-     "envelope.yaw_rate_rad_s must be in (0"),
+     "envelope.yaw_rate_rad_s must be a number in (0"),
     ("fast", "envelope must be a table"),
 ])
 def test_bad_envelope_tables_are_refused(table, message):

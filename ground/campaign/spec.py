@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from ground.scenario.expectations import finite_number
+from contracts.toml_tables import check_fields, number
 
 KINDS = ("flights", "identification")
 HOW = ("inprocess", "processes")
@@ -119,7 +119,7 @@ def _distribution(name: str, data: Any, low: float, high: float, where: str) -> 
     if kind not in ("uniform", "normal", "integers", "choice", "value") or \
             not isinstance(args, list) or not args:
         raise ValueError(f"{where}.{name}: unknown distribution {kind!r} or no values")
-    numbers = tuple(finite_number(a, f"{where}.{name}.{kind}") for a in args)
+    numbers = tuple(number(a, f"{where}.{name}.{kind}") for a in args)
     if kind in ("uniform", "normal", "integers") and len(numbers) != 2:
         raise ValueError(f"{where}.{name}.{kind} takes two numbers, got {len(numbers)}")
     if kind == "normal":
@@ -151,9 +151,7 @@ def parse_campaign(data: dict[str, Any], where: str = "campaign",
 
     known = {"name", "description", "kind", "scenarios", "controllers", "runs", "seed", "how",
              "plant", "draw", "clusters"}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise ValueError(f"{where}: unknown field(s) {', '.join(unknown)}")
+    check_fields(data, known, where)
     name = data.get("name", source.stem if source else "campaign")
     if not isinstance(name, str) or not name.replace("-", "").replace("_", "").isalnum():
         raise ValueError(f"{where}: name must be letters, digits, '-' or '_', got {name!r}")

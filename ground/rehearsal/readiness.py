@@ -31,7 +31,8 @@ import numpy as np
 
 from contracts.airframe_file import AirframeError, AirframeSpec, check_controllable
 from contracts.frames import GRAVITY_MPS2
-from ground.scenario.expectations import Outcome, finite_number, subtable
+from contracts.toml_tables import check_fields, number, subtable
+from ground.scenario.expectations import Outcome
 
 AIRFRAME_LIMITS = {  # key: (what it limits, "min" or "max", unit)
     "thrust_to_weight_min": ("thrust-to-weight", "min", ""),
@@ -98,16 +99,13 @@ def load_profile(source: str | Path | None = None) -> Profile:
 def parse_profile(data: dict[str, Any], path: Path, where: str) -> Profile:
     from autopilot.parameters import PARAMETER_SPECS
 
-    bad = sorted(set(data) - _TOP)
-    if bad:
-        raise ValueError(f"{where}: unknown field(s) {', '.join(bad)}; known: "
-                         f"{', '.join(sorted(_TOP))}")
+    check_fields(data, _TOP, where)
     limits = subtable(data, "airframe", f"{where}: airframe")
     bad = sorted(set(limits) - set(AIRFRAME_LIMITS))
     if bad:
         raise ValueError(f"{where}: airframe: unknown limit(s) {', '.join(bad)}; known: "
                          f"{', '.join(AIRFRAME_LIMITS)}")
-    airframe_limits = {k: finite_number(v, f"{where}: airframe.{k}")
+    airframe_limits = {k: number(v, f"{where}: airframe.{k}")
                        for k, v in limits.items()}
     ranges: dict[str, tuple[float, float]] = {}
     for name, value in subtable(data, "parameters", f"{where}: parameters").items():
@@ -115,7 +113,7 @@ def parse_profile(data: dict[str, Any], path: Path, where: str) -> Profile:
             raise ValueError(f"{where}: parameters.{name}: no such parameter (ivfm params)")
         if not (isinstance(value, list) and len(value) == 2):
             raise ValueError(f"{where}: parameters.{name} must be [min, max]")
-        low, high = (finite_number(v, f"{where}: parameters.{name}") for v in value)
+        low, high = (number(v, f"{where}: parameters.{name}") for v in value)
         if low > high:
             raise ValueError(f"{where}: parameters.{name}: min {low:g} above max {high:g}")
         ranges[name] = (low, high)
@@ -127,10 +125,7 @@ def parse_profile(data: dict[str, Any], path: Path, where: str) -> Profile:
         at = f"{where}: flight {i}"
         if not isinstance(f, dict):
             raise ValueError(f"{at} must be a table")
-        bad = sorted(set(f) - _FLIGHT_KEYS)
-        if bad:
-            raise ValueError(f"{at}: unknown field(s) {', '.join(bad)}; known: "
-                             f"{', '.join(sorted(_FLIGHT_KEYS))}")
+        check_fields(f, _FLIGHT_KEYS, at)
         if not isinstance(f.get("scenario"), str):
             raise ValueError(f"{at}: scenario must be the path of a scenario file")
         realtime = f.get("realtime", False)

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from contracts.modes import FlightMode
+from contracts.toml_tables import check_fields, number, subtable
 
 AXIS_LIMITS = ("rmse_max", "max_abs_max")
 # Section -> the metrics a limit may name ("<metric>_max" or "<metric>_min").
@@ -135,10 +136,7 @@ def parse_expectations(data: Any, axes: tuple[str, ...], duration_s: float) -> E
         return Expectations()
     if not isinstance(data, dict):
         raise ValueError("[expect] must be a table")
-    unknown = sorted(set(data) - _TOP)
-    if unknown:
-        raise ValueError(f"expect: unknown field(s) {', '.join(unknown)}; known: "
-                         f"{', '.join(sorted(_TOP))}")
+    check_fields(data, _TOP, "expect")
     limits: list[Limit] = []
     for axis, table in subtable(data, "axes", "expect.axes").items():
         where = f"expect.axes.{axis}"
@@ -151,7 +149,7 @@ def parse_expectations(data: Any, axes: tuple[str, ...], duration_s: float) -> E
                 raise ValueError(f"{where}: unknown limit {key!r}; known: "
                                  f"{', '.join(AXIS_LIMITS)}")
             limits.append(Limit(("axes", axis, key.removesuffix("_max")), "max",
-                                finite_number(value, f"{where}.{key}")))
+                                number(value, f"{where}.{key}")))
     sections = set()
     for section, known in SECTION_METRICS.items():
         table = subtable(data, section, f"expect.{section}")
@@ -171,7 +169,7 @@ def parse_expectations(data: Any, axes: tuple[str, ...], duration_s: float) -> E
                     f"{where}: unknown limit; known: "
                     f"{', '.join(f'{m}_max' for m in known)}"
                     + (", all_reached" if section == "path" else "") + " (or _min)")
-            limits.append(Limit((section, metric), bound, finite_number(value, where)))
+            limits.append(Limit((section, metric), bound, number(value, where)))
     no_failsafe = data.get("no_failsafe", False)
     if not isinstance(no_failsafe, bool):
         raise ValueError("expect.no_failsafe must be true or false")
@@ -186,10 +184,7 @@ def parse_expectations(data: Any, axes: tuple[str, ...], duration_s: float) -> E
 def _event(data: Any, where: str, duration_s: float) -> EventExpectation:
     if not isinstance(data, dict):
         raise ValueError(f"{where} must be a table")
-    unknown = sorted(set(data) - _EVENT_KEYS)
-    if unknown:
-        raise ValueError(f"{where}: unknown field(s) {', '.join(unknown)}; known: "
-                         f"{', '.join(sorted(_EVENT_KEYS))}")
+    check_fields(data, _EVENT_KEYS, where)
     kind = data.get("kind")
     if kind not in EVENT_KINDS:
         raise ValueError(f"{where}: kind must be one of {', '.join(EVENT_KINDS)}, got {kind!r}")
@@ -204,7 +199,7 @@ def _event(data: Any, where: str, duration_s: float) -> EventExpectation:
         raise ValueError(f"{where}: text (a string) is for statustext events")
     if kind == "statustext" and not text:
         raise ValueError(f"{where}: a statustext event needs the text to look for")
-    times = {k: finite_number(data[k], f"{where}.{k}", low=0.0)
+    times = {k: number(data[k], f"{where}.{k}", low=0.0)
              for k in ("at_s", "within_s", "after_s", "before_s", "by_s") if k in data}
     if "at_s" in times or "within_s" in times:
         if set(times) != {"at_s", "within_s"}:
@@ -226,23 +221,6 @@ def _event(data: Any, where: str, duration_s: float) -> EventExpectation:
     if not isinstance(absent, bool):
         raise ValueError(f"{where}.absent must be true or false")
     return EventExpectation(kind, after, before, mode, text, absent)
-
-
-def finite_number(value: Any, where: str, low: float = -math.inf) -> float:
-    """A TOML number that is finite (and at least ``low``); ValueError names ``where``."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
-            not math.isfinite(value) or value < low:
-        bound = f" >= {low:g}" if math.isfinite(low) else ""
-        raise ValueError(f"{where} must be a finite number{bound}, got {value!r}")
-    return float(value)
-
-
-def subtable(data: dict[str, Any], key: str, where: str) -> dict[str, Any]:
-    """``data[key]`` as a table ({} when absent); ValueError names ``where``."""
-    value = data.get(key, {})
-    if not isinstance(value, dict):
-        raise ValueError(f"{where} must be a table")
-    return value
 
 
 # -- verdicts -------------------------------------------------------------------------------

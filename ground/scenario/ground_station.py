@@ -34,7 +34,7 @@ from typing import Any
 
 from contracts.mavlink import mavlink
 from contracts.modes import PX4_MODES, FlightMode
-from ground.scenario.expectations import finite_number
+from contracts.toml_tables import check_fields, number
 
 GCS_SYSID = 255  # QGroundControl's system id
 SILENCE_KINDS = ("heartbeat", "setpoints", "all")
@@ -73,10 +73,7 @@ def parse_ground_station(table: Any, duration_s: float) -> GroundStationPlan | N
         return None
     if not isinstance(table, dict):
         raise ValueError("[ground_station] must be a table")
-    bad = sorted(set(table) - _KEYS)
-    if bad:
-        raise ValueError(f"ground_station: unknown field(s) {', '.join(bad)}; known: "
-                         f"{', '.join(sorted(_KEYS))}")
+    check_fields(table, _KEYS, "ground_station")
     heartbeat_hz = _number(table, "heartbeat_hz", 1.0, 0.0, 50.0)
     setpoint_hz = _number(table, "setpoint_hz", 20.0, 2.0, 100.0)
     offboard = table.get("offboard_at_s")
@@ -90,9 +87,7 @@ def parse_ground_station(table: Any, duration_s: float) -> GroundStationPlan | N
         where = f"ground_station.silence {i}"
         if not isinstance(item, dict):
             raise ValueError(f"{where} must be a table")
-        bad = sorted(set(item) - _SILENCE_KEYS)
-        if bad:
-            raise ValueError(f"{where}: unknown field(s) {', '.join(bad)}")
+        check_fields(item, _SILENCE_KEYS, where)
         what = item.get("what", "all")
         if what not in SILENCE_KINDS:
             raise ValueError(f"{where}: what must be one of {', '.join(SILENCE_KINDS)}, "
@@ -109,10 +104,7 @@ def _number(table: dict, key: str, default: float | None, low: float, high: floa
     value = table.get(key, default)
     if value is None:
         raise ValueError(f"ground_station: {key} is required")
-    number = finite_number(value, f"ground_station: {key}", low)
-    if number > high:
-        raise ValueError(f"ground_station: {key} must be at most {high:g}, got {value!r}")
-    return number
+    return number(value, f"ground_station: {key}", low, high)
 
 
 class GroundStation:

@@ -8,7 +8,6 @@ describes the format; every field is checked and an error names the file and the
 from __future__ import annotations
 
 import functools
-import math
 import tomllib
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
@@ -25,6 +24,7 @@ from contracts.perturbations import (
     parse_schedule,
     plant_perturbations_at,
 )
+from contracts.toml_tables import check_fields, number, subtable
 from ground.scenario.expectations import Expectations, parse_expectations
 from ground.scenario.ground_station import GroundStationPlan, parse_ground_station
 
@@ -107,9 +107,7 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     from sitl.dynamics import FIDELITIES
     from sitl.sensors import read_profile
 
-    unknown = sorted(set(data) - _TOP)
-    if unknown:
-        raise ValueError(f"unknown field(s) {', '.join(unknown)}")
+    check_fields(data, _TOP, "scenario")
     name = _text(data, "name", path.stem)
     duration = _positive(data, "duration_s", 20.0, 3600.0)
     transient = float(data.get("transient_s", 0.0))
@@ -121,10 +119,7 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     plan = _plan(_table(data, "mission"), path)
     ref = _table(data, "reference")
     ref_fields = {f.name for f in fields(Reference)}
-    bad = sorted(set(ref) - ref_fields)
-    if bad:
-        raise ValueError(f"reference: unknown field(s) {', '.join(bad)}; known: "
-                         f"{', '.join(sorted(ref_fields))}")
+    check_fields(ref, ref_fields, "reference")
     if plan is not None:
         if ref:
             raise ValueError("a scenario flies a [mission] or a [reference], not both")
@@ -135,9 +130,7 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     envelope_from_airframe = (reference.kind == "excitation"
                               and not set(ref) & set(ENVELOPE_OPTIONS))
     plant = _table(data, "plant")
-    bad = sorted(set(plant) - {"fidelity", "airframe", "sensors", "home"})
-    if bad:
-        raise ValueError(f"plant: unknown field(s) {', '.join(bad)}")
+    check_fields(plant, {"fidelity", "airframe", "sensors", "home"}, "plant")
     fidelity = plant.get("fidelity", "paper")
     airframe = plant.get("airframe", "paper")
     sensors = plant.get("sensors", "ideal")
@@ -171,9 +164,7 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     model_path = (path.parent / model) if isinstance(model, str) else None
     if model is not None and model_path is None:
         raise ValueError("controller.model must be a path (relative to the scenario file)")
-    bad = sorted(set(ctrl) - {"name", "parameters", "model", "state_source"})
-    if bad:
-        raise ValueError(f"controller: unknown field(s) {', '.join(bad)}")
+    check_fields(ctrl, {"name", "parameters", "model", "state_source"}, "controller")
     perturbations = parse_schedule(data.get("perturbation", []))
     ground_station = parse_ground_station(data.get("ground_station"), duration)
     if ground_station is not None and ground_station.offboard_at_s is not None and \
@@ -215,9 +206,7 @@ def _plan(mission: dict[str, Any], path: Path) -> Path | None:
     """[mission] plan = "file.plan" (beside the scenario), read and checked now."""
     from autopilot.navigator.plan_file import read_plan
 
-    bad = sorted(set(mission) - {"plan"})
-    if bad:
-        raise ValueError(f"mission: unknown field(s) {', '.join(bad)}")
+    check_fields(mission, {"plan"}, "mission")
     if not mission:
         return None
     name = mission.get("plan")
@@ -237,18 +226,11 @@ def _text(data: dict[str, Any], key: str, default: str) -> str:
 
 
 def _positive(data: dict[str, Any], key: str, default: float, high: float) -> float:
-    value = data.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or \
-            not (math.isfinite(value) and 0.0 < value <= high):
-        raise ValueError(f"{key} must be a number in (0, {high:g}], got {value!r}")
-    return float(value)
+    return number(data.get(key, default), key, 0.0, high, low_open=True)
 
 
 def _table(data: dict[str, Any], key: str) -> dict[str, Any]:
-    value = data.get(key, {})
-    if not isinstance(value, dict):
-        raise ValueError(f"[{key}] must be a table")
-    return value
+    return subtable(data, key, f"[{key}]")
 
 
 PAPER_SCENARIOS = ("attitude-sine", "attitude-hold", "position-sine", "attitude-jr-10",

@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -180,14 +179,10 @@ def _parameters(value: Any, where: str) -> tuple[tuple[str, float], ...]:
     if not isinstance(value, dict):
         raise AirframeError(f"{where}: parameters must be a table of NAME = value")
     out = []
-    for name, number in value.items():
+    for name, given in value.items():
         if not (isinstance(name, str) and 0 < len(name) <= 16):
             raise AirframeError(f"{where}: parameters: {name!r} is not a parameter name")
-        if isinstance(number, bool) or not isinstance(number, (int, float)) or \
-                not math.isfinite(number):
-            raise AirframeError(f"{where}: parameters.{name} must be a finite number, got "
-                                f"{number!r}")
-        out.append((name, float(number)))
+        out.append((name, number(given, f"{where}: parameters.{name}", error=AirframeError)))
     return tuple(out)
 
 

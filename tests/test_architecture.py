@@ -11,6 +11,7 @@ runs on one path.
 from __future__ import annotations
 
 import ast
+import graphlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -180,3 +181,78 @@ def test_the_checker_finds_crafted_bad_imports_inside_functions(tmp_path):
               ("autopilot.navigator.runner", "autopilot.mavlink.server.MavlinkServer", 4)],
         "5": [("autopilot.navigator.runner", "socket", 5)],
     }
+
+
+# -- no import cycle, no oversized class or module -----------------------------------------
+
+MAX_CLASS_LINES = 300
+MAX_MODULE_LINES = 450
+
+
+def project_modules(root: Path = ROOT, packages: tuple[str, ...] = PACKAGES) -> dict[str, Path]:
+    return {module_name(root, path): path for package in packages
+            for path in sorted((root / package).rglob("*.py"))}
+
+
+def module_graph(imports: list[Import], modules: dict[str, Path]) -> dict[str, set[str]]:
+    """importer -> the project modules it imports (``from a import b`` names module ``a.b``
+    when that is a module, else ``a``); every import counts, TYPE_CHECKING ones too."""
+    graph: dict[str, set[str]] = {name: set() for name in modules}
+    for imp in imports:
+        target = imp.imported
+        while target and target not in modules:
+            target = target.rpartition(".")[0]
+        if target and target != imp.importer:
+            graph[imp.importer].add(target)
+    return graph
+
+
+def import_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One cycle of the graph (its modules in order, the first repeated), or None."""
+    try:
+        graphlib.TopologicalSorter(graph).prepare()
+    except graphlib.CycleError as exc:
+        return list(exc.args[1])
+    return None
+
+
+def test_no_import_cycle_anywhere_type_checking_imports_included(imports):
+    cycle = import_cycle(module_graph(imports, project_modules()))
+    assert cycle is None, "import cycle: " + " -> ".join(cycle)
+
+
+def test_the_cycle_finder_sees_a_cycle_made_only_of_type_checking_imports(tmp_path):
+    tree = {"ground/__init__.py": "", "ground/a.py": "from ground.b import B\n",
+            "ground/b.py": ("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                            "    from ground.a import A\n"),
+            "ground/c.py": "from ground import a\n"}
+    for name, text in tree.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    modules = project_modules(tmp_path, ("ground",))
+    cycle = import_cycle(module_graph(all_imports(tmp_path, ("ground",)), modules))
+    assert cycle is not None and set(cycle) == {"ground.a", "ground.b"}
+
+
+def oversized(modules: dict[str, Path]) -> list[str]:
+    found = []
+    for name, path in modules.items():
+        text = path.read_text()
+        if text.count("\n") > MAX_MODULE_LINES:
+            found.append(f"module {name}: {text.count(chr(10))} lines")
+        for node in ast.walk(ast.parse(text)):
+            if isinstance(node, ast.ClassDef):
+                lines = node.end_lineno - node.lineno + 1
+                if lines > MAX_CLASS_LINES:
+                    found.append(f"class {name}.{node.name}: {lines} lines")
+    return found
+
+
+def test_no_class_over_300_lines_and_no_module_over_450():
+    assert oversized(project_modules()) == []
+
+
+def test_the_size_check_sees_a_long_class(tmp_path):
+    (tmp_path / "ground").mkdir()
+    (tmp_path / "ground/big.py").write_text("class Big:\n" + "    x = 1\n" * 300)
+    assert oversized(project_modules(tmp_path, ("ground",))) == ["class ground.big.Big: 301 lines"]

@@ -139,8 +139,8 @@ def test_pytest_collects_scenario_files_and_the_fixture_flies(pytester):
 def test_warm_runs_are_bit_identical_to_a_fresh_process_run(tmp_path):
     """A warm simulator, autopilot and logger fly position-kick after another scenario:
     the log's records are the same bytes as a run of fresh processes."""
+    from ground.run.children import WarmProcesses
     from ground.run.flights import fly_processes, plan_flight
-    from ground.run.processes import WarmProcesses
     from ground.scenario.scenario_file import scenario_by_name
     from tests.lockstep_fingerprint import log_digests
 
@@ -162,7 +162,7 @@ def test_warm_runs_are_bit_identical_to_a_fresh_process_run(tmp_path):
 
 
 def test_a_warm_process_refuses_bad_requests_and_keeps_serving(tmp_path):
-    from ground.run.processes import WarmProcess
+    from ground.run.children import WarmProcess
 
     proc = WarmProcess("sitl")
     try:

@@ -13,7 +13,8 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from contracts.frames import quat_from_euler, rotation_from_quat
 from contracts.telemetry import CONTROL, STATE
-from ground.telemetry.foxglove_view import FoxgloveView, encode, json_schema
+from ground.telemetry.foxglove_scene import encode, json_schema
+from ground.telemetry.foxglove_view import FoxgloveView
 
 STATE_KEY = "ivfm/vehicle/1/sitl/state"
 CONTROL_KEY = "ivfm/vehicle/1/autopilot/control"
@@ -233,7 +234,7 @@ def test_ivfm_ground_view_serves_what_it_hears_over_zenoh(tmp_path):
     import time
 
     from contracts.zenoh_link import ZenohOptions, open_session
-    from ground.run.processes import free_tcp_port
+    from ground.run.children import free_tcp_port
     from tests.foxglove_client import collect
 
     endpoint, port = f"tcp/127.0.0.1:{free_tcp_port()}", free_tcp_port()

@@ -30,8 +30,9 @@ from contracts.zenoh_link import ZenohOptions, open_session
 from ground.cli.main import main
 from ground.record.run_files import control_records, perturbation_events
 from ground.report.metrics import compute_metrics
+from ground.run.children import free_tcp_port
 from ground.run.inprocess import run_inprocess
-from ground.run.processes import RunSettings, fly, free_tcp_port, vehicle_commands
+from ground.run.processes import RunSettings, fly, vehicle_commands
 from ground.scenario.scenario_file import load_scenario, scenario_by_name
 from ground.uplink.perturb import PerturbationClient
 

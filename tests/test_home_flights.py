@@ -14,8 +14,8 @@ HOMES = {"zurich": Home(47.397742, 8.545594, 488.0), "equator": Home(0.0, 0.0, 0
 
 
 def _fly_everywhere(tmp_path, state_source: str) -> dict[str, dict]:
+    from ground.run.children import WarmProcesses
     from ground.run.flights import Overrides, fly_processes, plan_flight
-    from ground.run.processes import WarmProcesses
     from ground.scenario.scenario_file import scenario_by_name
 
     scenario = scenario_by_name("position-kick")

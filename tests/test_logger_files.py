@@ -96,7 +96,7 @@ def test_a_logger_out_of_space_stops_writing_says_so_and_leaves_a_readable_file(
 
     from contracts.telemetry import TIMING, logger_key, vehicle_key
     from contracts.zenoh_link import open_session
-    from ground.run.processes import free_tcp_port
+    from ground.run.children import free_tcp_port
 
     endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     out = tmp_path / "log"

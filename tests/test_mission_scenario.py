@@ -18,7 +18,8 @@ from autopilot.navigator.plan_file import read_plan
 from contracts.frames import DEFAULT_HOME
 from ground.record.run_files import log_files
 from ground.report.metrics import compute_metrics, distance_to_path
-from ground.run.processes import RunSettings, fly, free_tcp_port
+from ground.run.children import free_tcp_port
+from ground.run.processes import RunSettings, fly
 from ground.scenario.scenario_file import load_scenario, scenario_by_name
 from tests.foxglove_client import collect
 

@@ -12,7 +12,7 @@ import time
 import pytest
 
 from contracts.realtime import shield_cpus
-from ground.run.processes import free_tcp_port
+from ground.run.children import free_tcp_port
 
 pytestmark = [pytest.mark.process,
               pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="needs two CPUs")]

@@ -15,7 +15,7 @@ from contracts.zenoh_link import (
     ZenohOptions,
     open_session,
 )
-from ground.run.processes import free_tcp_port
+from ground.run.children import free_tcp_port
 
 
 def _answers(replies) -> list[dict]:

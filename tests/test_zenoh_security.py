@@ -17,7 +17,7 @@ from contracts.zenoh_link import (
     open_session,
     session_config,
 )
-from ground.run.processes import free_tcp_port
+from ground.run.children import free_tcp_port
 from ground.telemetry.certificates import make_certificates
 from ground.uplink.perturb import PerturbationClient, PerturbationError
 

@@ -27,7 +27,7 @@ from ground.scenario.expectations import Outcome, evaluate
 from ground.scenario.scenario_file import Scenario, load_scenario, scenario_by_name, shipped_names
 
 if TYPE_CHECKING:
-    from ground.run.processes import WarmProcesses
+    from ground.run.children import WarmProcesses
 
 RESULTS_FILE = "check.json"
 DEFAULT_TOLERANCE = 0.05
@@ -178,7 +178,7 @@ def check_one(scenario: Scenario, options: CheckOptions,
     """Fly one scenario (as runs of ``warm`` processes, if given; with ``overrides`` of
     its choices, else only ``options.realtime``) and judge it; a failed flight is a
     result, not an exception."""
-    from ground.run.processes import ProcessRunError
+    from ground.run.children import ProcessRunError
 
     run_dir = options.out_dir / scenario.name
     result = ScenarioResult(scenario, run_dir)
@@ -207,7 +207,7 @@ def run_check(scenarios: list[Scenario], options: CheckOptions,
     """Check every scenario, ``options.jobs`` at a time; results in the given order.
     ``progress`` hears each result as it comes, with the count done and what still flies."""
     options.out_dir.mkdir(parents=True, exist_ok=True)
-    from ground.run.processes import WarmProcesses
+    from ground.run.children import WarmProcesses
 
     flying: list[str] = []
     lock = threading.Lock()

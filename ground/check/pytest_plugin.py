@@ -78,7 +78,7 @@ _WARM = pytest.StashKey[Any]()
 def _warm_processes(config: pytest.Config) -> Any:
     """One set of warm processes for the session's flights (ground/run/processes.py)."""
     if _WARM not in config.stash:
-        from ground.run.processes import WarmProcesses
+        from ground.run.children import WarmProcesses
 
         config.stash[_WARM] = WarmProcesses()
     return config.stash[_WARM]

@@ -61,7 +61,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"ivfm: error: {exc}", file=sys.stderr)
         return 2
     except RuntimeError as exc:  # a process of the run failed: said, exit 1
-        from ground.run.processes import ProcessRunError  # only on this path
+        from ground.run.children import ProcessRunError
 
         if not isinstance(exc, ProcessRunError):
             raise

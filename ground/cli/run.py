@@ -14,8 +14,8 @@ from contracts.mavlink import STATE_SOURCES
 from contracts.timeline import process_start_s
 from ground.cli.common import UsageError, add_rt_cpus, add_vehicle_options, fresh_folder
 from ground.report.run_report import format_metrics
+from ground.run.children import WarmProcesses
 from ground.run.flights import Overrides, fly_inprocess, fly_processes, plan_flight
-from ground.run.processes import WarmProcesses
 from ground.scenario.scenario_file import scenario_by_name, shipped_names
 from ground.telemetry.live_view import LAYOUT_FILE, view_address
 from sitl.dynamics import FIDELITIES

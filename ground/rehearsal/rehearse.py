@@ -134,7 +134,7 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
     unreadable airframe file, a parameter out of its range, a bad model)."""
     from autopilot.parameters import airframe_parameters, validate_parameters
     from contracts.airframe_file import read_airframe
-    from ground.run.processes import WarmProcesses
+    from ground.run.children import WarmProcesses
 
     start = time.perf_counter()
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -15,7 +15,7 @@ from contracts.frames import Home
 from ground.scenario.scenario_file import Scenario
 
 if TYPE_CHECKING:
-    from ground.run.processes import WarmProcesses
+    from ground.run.children import WarmProcesses
 
 
 @dataclass(frozen=True)

@@ -15,10 +15,7 @@ from __future__ import annotations
 import importlib
 import json
 import os
-import select
 import shutil
-import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -32,40 +29,23 @@ import zenoh
 from autopilot.flight_tasks.reference import REFERENCE_OPTIONS
 from contracts import timeline
 from contracts.frames import DEFAULT_HOME, Home
-from contracts.telemetry import AUTOPILOT, SITL, logger_key, vehicle_key
-from contracts.warm import WARM_FLAG
+from contracts.telemetry import AUTOPILOT, SITL, vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.record import timeline as run_timeline
+from ground.run.children import (
+    LOG_PREFIX,
+    LoggerProcess,
+    ProcessRunError,
+    WarmProcess,
+    WarmProcesses,
+    free_tcp_port,
+    free_udp_port,
+    tail,
+)
 from ground.run.progress import ProgressLine
 from ground.scenario.ground_station import GroundStation
 from ground.scenario.scenario_file import Scenario
 from ground.uplink.perturb import PerturbationClient, PerturbationError
-
-LOG_PREFIX = "telemetry"
-LOGGER_NAME = "run"
-
-
-class ProcessRunError(RuntimeError):
-    """A process of the run failed; the message carries the tail of its log."""
-
-
-def free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def _tail(path: Path, lines: int = 15) -> str:
-    try:
-        return "\n".join(path.read_text().splitlines()[-lines:])
-    except OSError:
-        return "(no log)"
 
 
 @dataclass
@@ -126,176 +106,6 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
     for name, value in (settings.parameters or {}).items():
         autopilot += ["--param", f"{name}={value!r}"]
     return sim, autopilot
-
-
-class WarmProcess:
-    """A warm process (contracts/warm.py) that runs one command after another; its
-    current run is used as a ``subprocess.Popen`` is (poll, wait, send_signal, kill)."""
-
-    def __init__(self, module: str) -> None:
-        self.module = module
-        self.proc = subprocess.Popen([sys.executable, "-m", module, WARM_FLAG],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=subprocess.DEVNULL, text=True, bufsize=1)
-        self.returncode: int | None = None
-
-    @property
-    def alive(self) -> bool:
-        return self.proc.poll() is None
-
-    def start(self, argv: list[str], log_path: Path,
-              timeline_path: str | None = None) -> WarmProcess:
-        """Begin a run of ``argv`` with its output in ``log_path`` (and its timeline marks
-        in ``timeline_path``)."""
-        self.returncode = None
-        assert self.proc.stdin is not None
-        request = {"argv": argv, "log": str(log_path)}
-        if timeline_path:
-            request["timeline"] = timeline_path
-        self.proc.stdin.write(json.dumps(request) + "\n")
-        self.proc.stdin.flush()
-        return self
-
-    def poll(self, timeout_s: float = 0.0) -> int | None:
-        """The run's exit status once it has ended (waiting up to ``timeout_s``)."""
-        if self.returncode is None:
-            assert self.proc.stdout is not None
-            if select.select([self.proc.stdout], [], [], timeout_s)[0]:
-                line = self.proc.stdout.readline()
-                self.returncode = int(json.loads(line)["rc"]) if line else \
-                    (self.proc.wait() or -1)
-            elif not self.alive:
-                self.returncode = self.proc.returncode
-        return self.returncode
-
-    def wait(self, timeout: float | None = None) -> int:
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while self.poll(0.5 if deadline is None else max(0.0, deadline - time.monotonic())) \
-                is None:
-            if deadline is not None and time.monotonic() >= deadline:
-                raise subprocess.TimeoutExpired(self.module, timeout or 0.0)
-        return self.returncode  # type: ignore[return-value]
-
-    def send_signal(self, sig: int) -> None:
-        self.proc.send_signal(sig)
-
-    def kill(self) -> None:
-        """Ends the warm process itself (a run that would not stop): it is started anew."""
-        self.proc.kill()
-        self.proc.wait()
-        if self.returncode is None:
-            self.returncode = self.proc.returncode
-
-    def close(self) -> None:
-        if self.alive:
-            assert self.proc.stdin is not None
-            self.proc.stdin.close()
-            try:
-                self.proc.wait(timeout=10.0)
-            except subprocess.TimeoutExpired:
-                self.kill()
-
-
-class WarmProcesses:
-    """The three processes of a run (logger, simulator, autopilot), kept warm between
-    runs; one that died is started again for the next run."""
-
-    MODULES = {"logger": "ground.cli", SITL: "sitl", AUTOPILOT: "autopilot"}
-
-    def __init__(self, start: bool = False) -> None:
-        """``start``: start all three now, so they load while the caller prepares a run."""
-        self._procs: dict[str, WarmProcess] = {}
-        if start:
-            for name in self.MODULES:
-                self.get(name)
-
-    def get(self, name: str) -> WarmProcess:
-        proc = self._procs.get(name)
-        if proc is None or not proc.alive:
-            proc = self._procs[name] = WarmProcess(self.MODULES[name])
-        return proc
-
-    def close(self) -> None:
-        for proc in self._procs.values():
-            proc.close()
-        self._procs.clear()
-
-
-class LoggerProcess:
-    """``ivfm ground log`` as a child process (or a run of a warm one), and questions to it
-    over Zenoh."""
-
-    def __init__(self, out_dir: Path, endpoint: str, log_path: Path,
-                 name: str = LOGGER_NAME, extra: list[str] | None = None,
-                 warm: WarmProcesses | None = None, env: dict[str, str] | None = None) -> None:
-        self.name = name
-        self.log_path = log_path
-        argv = ["ground", "log", "--out", str(out_dir), "--name", name, "--prefix", LOG_PREFIX,
-                "--zenoh-listen", endpoint, *(extra or [])]
-        self._out = None
-        self.proc: subprocess.Popen | WarmProcess
-        if warm is not None:
-            self.proc = warm.get("logger").start(argv, log_path, (env or {}).get(timeline.ENV))
-        else:
-            self._out = open(log_path, "w")  # noqa: SIM115 (closed in stop)
-            self.proc = subprocess.Popen([sys.executable, "-m", "ground.cli", *argv],
-                                         stdout=self._out, stderr=subprocess.STDOUT, env=env)
-
-    def status(self, session: zenoh.Session) -> dict[str, Any] | None:
-        for reply in session.get(logger_key(self.name, "status"), timeout=2.0):
-            if reply.ok is not None:
-                return json.loads(reply.ok.payload.to_bytes())
-        return None
-
-    def wait_listening(self, session: zenoh.Session, timeout_s: float) -> None:
-        """Until ``session`` (connecting to the logger's endpoint and nothing else) has
-        reached the logger."""
-        deadline = time.monotonic() + timeout_s
-        while not list(session.info.peers_zid()):
-            if self.proc.poll() is not None:
-                raise ProcessRunError(f"the logger exited ({self.proc.returncode}):\n"
-                                      f"{_tail(self.log_path)}")
-            if time.monotonic() > deadline:
-                raise ProcessRunError(f"the logger did not listen within {timeout_s:g} s\n"
-                                      f"{_tail(self.log_path)}")
-            time.sleep(0.002)
-
-    def wait_until(self, session: zenoh.Session, heard: list[str], final: bool,
-                   timeout_s: float,
-                   others: dict[str, tuple[subprocess.Popen | WarmProcess, Path]] | None = None
-                   ) -> dict[str, Any]:
-        """Until the logger holds a status record (the final one, if asked) from each key;
-        ``others``: processes (name -> process, log) whose early exit ends the wait."""
-        deadline = time.monotonic() + timeout_s
-        status: dict[str, Any] | None = None
-        while time.monotonic() < deadline:
-            if self.proc.poll() is not None:
-                raise ProcessRunError(f"the logger exited ({self.proc.returncode}):\n"
-                                      f"{_tail(self.log_path)}")
-            for name, (proc, log) in (others or {}).items():
-                if proc.poll() is not None:
-                    raise ProcessRunError(f"the {name} exited ({proc.returncode}) before it "
-                                          f"was heard:\n{_tail(log)}")
-            status = self.status(session)
-            if status is not None and all(
-                    key in status["heard"] and (status["heard"][key].get("final") or not final)
-                    for key in heard):
-                return status
-            time.sleep(0.01)
-        raise ProcessRunError(f"the logger did not hear {', '.join(heard)} within "
-                              f"{timeout_s:g} s (last status: {status})\n{_tail(self.log_path)}")
-
-    def stop(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGINT)
-            try:
-                self.proc.wait(timeout=20.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        if self._out is not None:
-            self._out.close()
-        return self.proc.returncode
 
 
 def clear_run_folder(out_dir: Path) -> None:
@@ -383,7 +193,7 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
         final = logger.wait_until(session, status_keys, final=True, timeout_s=30.0)
         run_timeline.mark(out_dir, "logger heard the final status")
     except PerturbationError as exc:
-        raise ProcessRunError(f"{exc}\n{_tail(logs[SITL])}") from None
+        raise ProcessRunError(f"{exc}\n{tail(logs[SITL])}") from None
     finally:
         if ground_station is not None:
             ground_station.stop()
@@ -400,10 +210,10 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
         run_timeline.mark(out_dir, "logger stopped")
     if procs[AUTOPILOT].returncode != 0:
         raise ProcessRunError(f"the autopilot failed (exit {procs['autopilot'].returncode}):\n"
-                              f"{_tail(logs['autopilot'])}\nsimulator log:\n"
-                              f"{_tail(logs[SITL])}")
+                              f"{tail(logs['autopilot'])}\nsimulator log:\n"
+                              f"{tail(logs[SITL])}")
     if logger_rc != 0:
-        raise ProcessRunError(f"the logger failed (exit {logger_rc}):\n{_tail(logs['logger'])}")
+        raise ProcessRunError(f"the logger failed (exit {logger_rc}):\n{tail(logs['logger'])}")
     accounting = telemetry_accounting(final)
     run_timeline.mark(out_dir, "run end")
     steps = round(scenario.duration_s * settings.rate_hz)
@@ -447,7 +257,7 @@ def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen | WarmProc
         while any(p.poll() is None for p in procs.values()):
             if time.monotonic() > deadline:
                 raise ProcessRunError(f"the run did not finish in {timeout_s:.0f} s; autopilot "
-                                      f"log:\n{_tail(logs['autopilot'])}")
+                                      f"log:\n{tail(logs['autopilot'])}")
             if procs[AUTOPILOT].poll() not in (None, 0):
                 return
             time.sleep(0.01)

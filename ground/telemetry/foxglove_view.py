@@ -37,7 +37,6 @@ sim time.
 
 from __future__ import annotations
 
-import json
 import math
 import struct
 from collections import deque
@@ -62,15 +61,34 @@ from contracts.telemetry import (
     parse_key,
 )
 from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT, REFERENCE
+from ground.telemetry.foxglove_scene import (
+    FRAME_NED,
+    FRAME_WORLD,
+    IDENTITY,
+    body_frame,
+    fence_entity,
+    fg_color,
+    fg_pose,
+    fg_quaternion,
+    fg_vector,
+    finite_list,
+    finite_numbers,
+    finite_or_none,
+    item_rows,
+    mission_entity,
+    rotor_frame,
+    text_pose,
+    timestamp,
+    vehicle_model,
+    vehicle_topic,
+    zone_dict,
+)
 
-FRAME_WORLD = "world"
-FRAME_NED = "ned"
 DEFAULT_RATE_HZ = 50.0
 DEFAULT_PATH_HZ = 2.0
 TRAIL_S = 60.0  # the path and reference trail drawn
 TRAIL_SAMPLE_S = 0.1  # one pose of the trail every this much sim time
 MATCH_WINDOW = 64  # truths kept, estimates waiting, to pair them by sim time
-MAX_SCENE_ITEMS = 512  # waypoints / fence vertices drawn from one scene record
 TF_TOPIC = "/tf"
 LOG_TOPIC = "/log"
 # world (ENU) -> ned: x_ned = north = y_enu, y_ned = east = x_enu, z_ned = -z_enu.
@@ -86,58 +104,6 @@ SEVERITY_LEVEL = {0: fg.LogLevel.Fatal, 1: fg.LogLevel.Fatal, 2: fg.LogLevel.Fat
                   6: fg.LogLevel.Info, 7: fg.LogLevel.Debug}
 _SIM_TIME = struct.Struct("<q")  # after the CDR header (4) and seq (8)
 _MODES = tuple(FlightMode)
-
-
-def body_frame(vehicle: int) -> str:
-    return f"vehicle{vehicle}"
-
-
-def rotor_frame(vehicle: int, rotor: int) -> str:
-    return f"vehicle{vehicle}/rotor{rotor}"
-
-
-def vehicle_topic(vehicle: int, name: str) -> str:
-    return f"/vehicle{vehicle}/{name}"
-
-
-def timestamp(sim_time_us: int) -> fg.Timestamp:
-    sec, usec = divmod(int(sim_time_us), 1_000_000)
-    return fg.Timestamp(sec, usec * 1000)
-
-
-def _quaternion(q_wxyz: np.ndarray) -> fg.Quaternion:
-    return fg.Quaternion(x=float(q_wxyz[1]), y=float(q_wxyz[2]), z=float(q_wxyz[3]),
-                         w=float(q_wxyz[0]))
-
-
-def _vector(v: Any) -> fg.Vector3:
-    return fg.Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
-
-
-def _point(v: Any) -> fg.Point3:
-    return fg.Point3(x=float(v[0]), y=float(v[1]), z=float(v[2]) if len(v) > 2 else 0.0)
-
-
-def _pose(position: Any, q_wxyz: np.ndarray) -> fg.Pose:
-    return fg.Pose(position=_vector(position), orientation=_quaternion(q_wxyz))
-
-
-def _color(r: float, g: float, b: float, a: float = 1.0) -> fg.Color:
-    return fg.Color(r=r, g=g, b=b, a=a)
-
-
-IDENTITY = fg.Pose(position=fg.Vector3(x=0, y=0, z=0),
-                   orientation=fg.Quaternion(x=0, y=0, z=0, w=1))
-
-
-def _finite(values: Any, size: int) -> list[float]:
-    """``size`` finite numbers, else ValueError (scene records come over the network)."""
-    if not isinstance(values, list | tuple) or len(values) != size:
-        raise ValueError(f"expected {size} numbers, got {values!r:.60}")
-    out = [float(v) for v in values]
-    if not all(math.isfinite(v) for v in out):
-        raise ValueError(f"expected finite numbers, got {values!r:.60}")
-    return out
 
 
 @dataclass
@@ -234,11 +200,11 @@ class FoxgloveView:
                                   child_frame_id=FRAME_NED, rotation=NED_IN_WORLD),
                 fg.FrameTransform(timestamp=stamp, parent_frame_id=FRAME_NED,
                                   child_frame_id=body_frame(vehicle),
-                                  translation=_vector(pos), rotation=_quaternion(q))]
+                                  translation=fg_vector(pos), rotation=fg_quaternion(q))]
             out.append(Output(TF_TOPIC, t_us * 1000, fg.FrameTransforms(transforms=transforms)))
         if t_us >= v.next_trail_us:
             v.next_trail_us = t_us + round(TRAIL_SAMPLE_S * 1e6)
-            v.path.append(_pose(pos, q))
+            v.path.append(fg_pose(pos, q))
         if t_us >= v.next_path_us:
             v.next_path_us = t_us - t_us % self.path_period_us + self.path_period_us
             out.append(Output(vehicle_topic(vehicle, "path"), t_us * 1000,
@@ -260,7 +226,7 @@ class FoxgloveView:
         stamp = timestamp(t_us)
         out = []
         if np.all(np.isfinite(ref_pos)) and np.all(np.isfinite(ref_q)):
-            pose = _pose(ref_pos, ref_q)
+            pose = fg_pose(ref_pos, ref_q)
             out.append(Output(vehicle_topic(vehicle, "reference"), t_us * 1000,
                               fg.PoseInFrame(timestamp=stamp, frame_id=FRAME_NED, pose=pose)))
             if t_us >= v.next_reference_trail_us:
@@ -275,21 +241,21 @@ class FoxgloveView:
         mode_index = int(c["mode"])
         flags = int(c["flags"])
         # One conversion of the 6 x 10 internals to Python numbers (NaN as None).
-        table = _numbers(np.stack([c[f"ch_{name}"] for name in CHANNEL_INTERNALS], axis=1))
+        table = finite_numbers(np.stack([c[f"ch_{name}"] for name in CHANNEL_INTERNALS], axis=1))
         theta_f = [c[name] for name in ("theta_f_phi", "theta_f_theta", "theta_f_psi")]
-        norms = _numbers(np.array([np.sqrt(w @ w) if len(w) else np.nan for w in theta_f]))
+        norms = finite_numbers(np.array([np.sqrt(w @ w) if len(w) else np.nan for w in theta_f]))
         controller: dict[str, Any] = {
             "t_s": t_us / 1e6,
             "mode": _MODES[mode_index].name if 0 <= mode_index < len(_MODES) else "",
             "armed": bool(flags & FLAG_ARMED), "failsafe": bool(flags & FLAG_FAILSAFE),
-            "motors": _numbers(c["motor_commands"]),
-            "speed_mps": _number(np.sqrt(meas[MEASUREMENT.velocity_ned_mps]
+            "motors": finite_numbers(c["motor_commands"]),
+            "speed_mps": finite_or_none(np.sqrt(meas[MEASUREMENT.velocity_ned_mps]
                                          @ meas[MEASUREMENT.velocity_ned_mps]))}
         for i, channel in enumerate(CHANNELS):
             controller[channel] = dict(zip(INTERNAL_FIELDS, table[i], strict=True))
             if i < 3:
                 controller[channel]["theta_f_norm"] = norms[i]
-        controller["theta_g"] = dict(zip(CHANNELS, _numbers(c["theta_g"]), strict=True))
+        controller["theta_g"] = dict(zip(CHANNELS, finite_numbers(c["theta_g"]), strict=True))
         out.append(Output(vehicle_topic(vehicle, "controller"), t_us * 1000, controller))
         return out
 
@@ -324,18 +290,19 @@ class FoxgloveView:
         record = {
             "t_s": t_us / 1e6,
             "truth_age_s": (t_us - int(truth["sim_time_us"])) / 1e6,
-            "position_error_m": dict(zip("ned", map(_number, error), strict=True)),
-            "horizontal_error_m": _number(float(np.hypot(error[0], error[1]))),
-            "velocity_error_mps": dict(zip("ned", map(_number, velocity_error), strict=True)),
+            "position_error_m": dict(zip("ned", map(finite_or_none, error), strict=True)),
+            "horizontal_error_m": finite_or_none(float(np.hypot(error[0], error[1]))),
+            "velocity_error_mps": dict(zip("ned", map(finite_or_none, velocity_error),
+                                           strict=True)),
             "attitude_error_rad": dict(zip(("roll", "pitch", "yaw"),
-                                           map(_number, attitude_error), strict=True)),
-            "estimate": {"position_ned_m": [_number(x) for x in e["position_ned_m"]],
-                         "velocity_ned_mps": [_number(x) for x in e["velocity_ned_mps"]]},
-            "truth": {"position_ned_m": [_number(x) for x in truth["position_ned_m"]],
-                      "velocity_ned_mps": [_number(x) for x in truth["velocity_ned_mps"]]},
-            "horizontal_sigma_m": _number(e["horizontal_sigma_m"]),
-            "vertical_sigma_m": _number(e["vertical_sigma_m"]),
-            "gps_test_ratio": _number(e["gps_test_ratio"]),
+                                           map(finite_or_none, attitude_error), strict=True)),
+            "estimate": {"position_ned_m": [finite_or_none(x) for x in e["position_ned_m"]],
+                         "velocity_ned_mps": [finite_or_none(x) for x in e["velocity_ned_mps"]]},
+            "truth": {"position_ned_m": [finite_or_none(x) for x in truth["position_ned_m"]],
+                      "velocity_ned_mps": [finite_or_none(x) for x in truth["velocity_ned_mps"]]},
+            "horizontal_sigma_m": finite_or_none(e["horizontal_sigma_m"]),
+            "vertical_sigma_m": finite_or_none(e["vertical_sigma_m"]),
+            "gps_test_ratio": finite_or_none(e["gps_test_ratio"]),
             "flags": int(e["flags"]),
         }
         return Output(vehicle_topic(vehicle, "estimator"), t_us * 1000, record)
@@ -349,42 +316,42 @@ class FoxgloveView:
         rotors = airframe.get("rotors", [])
         if not isinstance(rotors, list) or len(rotors) > 16:
             raise ValueError("scene: airframe rotors must be a list of at most 16")
-        rotors_m = tuple(tuple(_finite(r, 4)[:3]) for r in rotors)
-        spins = [_finite(r, 4)[3] for r in rotors]
-        mission = _items(record.get("mission", []), 4, "mission")  # seq, n, e, d
-        rally = [p[1:] for p in _items(record.get("rally", []), 4, "rally")]
+        rotors_m = tuple(tuple(finite_list(r, 4)[:3]) for r in rotors)
+        spins = [finite_list(r, 4)[3] for r in rotors]
+        mission = item_rows(record.get("mission", []), 4, "mission")  # seq, n, e, d
+        rally = [p[1:] for p in item_rows(record.get("rally", []), 4, "rally")]
         fence = record.get("fence", [])
         if not isinstance(fence, list) or len(fence) > 64:
             raise ValueError("scene: fence must be a list of at most 64 zones")
-        zones = [_zone(z) for z in fence]
+        zones = [zone_dict(z) for z in fence]
         current = record.get("current", -1)
         if not isinstance(current, int):
             raise ValueError("scene: current must be a whole number")
         # Checked: take it.
         stamp = timestamp(t_us)
-        entities = [_vehicle_model(vehicle, stamp, rotors_m, spins, str(airframe.get("name",
+        entities = [vehicle_model(vehicle, stamp, rotors_m, spins, str(airframe.get("name",
                                                                                       "")))]
         entities.append(fg.SceneEntity(
             timestamp=stamp, frame_id=FRAME_NED, id="home",
             spheres=[fg.SpherePrimitive(pose=IDENTITY, size=fg.Vector3(x=0.4, y=0.4, z=0.4),
-                                        color=_color(0.1, 0.8, 0.2))],
-            texts=[fg.TextPrimitive(pose=_text_pose((0, 0, -0.6)), billboard=True,
+                                        color=fg_color(0.1, 0.8, 0.2))],
+            texts=[fg.TextPrimitive(pose=text_pose((0, 0, -0.6)), billboard=True,
                                     font_size=14, scale_invariant=True,
-                                    color=_color(1, 1, 1), text="H")]))
-        entities.append(_mission_entity(stamp, mission, current))
-        entities.append(_fence_entity(stamp, zones))
+                                    color=fg_color(1, 1, 1), text="H")]))
+        entities.append(mission_entity(stamp, mission, current))
+        entities.append(fence_entity(stamp, zones))
         entities.append(fg.SceneEntity(
             timestamp=stamp, frame_id=FRAME_NED, id="rally",
-            spheres=[fg.SpherePrimitive(pose=_text_pose(p), size=fg.Vector3(x=0.5, y=0.5,
+            spheres=[fg.SpherePrimitive(pose=text_pose(p), size=fg.Vector3(x=0.5, y=0.5,
                                                                              z=0.5),
-                                        color=_color(0.9, 0.5, 0.1)) for p in rally]))
+                                        color=fg_color(0.9, 0.5, 0.1)) for p in rally]))
         # The rotors' frames come with the scene, which carries them, on their own topic:
         # in /tf, drawn from whichever state record came after the first scene record,
         # they made the log depend on the order two subscriptions delivered in.
         rotors = fg.FrameTransforms(transforms=[
             fg.FrameTransform(timestamp=stamp, parent_frame_id=body_frame(vehicle),
                               child_frame_id=rotor_frame(vehicle, i + 1),
-                              translation=_vector(r))
+                              translation=fg_vector(r))
             for i, r in enumerate(rotors_m)])
         return [Output(vehicle_topic(vehicle, "scene"), t_us * 1000,
                        fg.SceneUpdate(entities=entities)),
@@ -430,117 +397,3 @@ def _sim_time_us(payload: bytes, schema: Any) -> int:
     if len(payload) < schema.fixed_size:
         raise ValueError(f"{schema.name}: payload of {len(payload)} bytes is too short")
     return _SIM_TIME.unpack_from(payload, 12)[0]
-
-
-def _numbers(values: np.ndarray) -> list:
-    """Python numbers of an array (nested lists for 2-D), NaN and infinities as None."""
-    return np.where(np.isfinite(values), values, None).tolist()
-
-
-def _number(x: Any) -> float | None:
-    """JSON has no NaN: a missing number is null (plots show a gap)."""
-    value = float(x)
-    return value if math.isfinite(value) else None
-
-
-def _items(values: Any, size: int, what: str) -> list[list[float]]:
-    if not isinstance(values, list) or len(values) > MAX_SCENE_ITEMS:
-        raise ValueError(f"scene: {what} must be a list of at most {MAX_SCENE_ITEMS}")
-    return [_finite(p, size) for p in values]
-
-
-def _zone(zone: Any) -> dict[str, Any]:
-    if not isinstance(zone, dict) or not isinstance(zone.get("inclusion"), bool):
-        raise ValueError("scene: a fence zone is an object with a boolean inclusion")
-    if "polygon" in zone:
-        return {"inclusion": zone["inclusion"], "points": _items(zone["polygon"], 2, "polygon")}
-    centre = _finite(zone.get("centre"), 2)
-    radius = _finite([zone.get("radius_m")], 1)[0]
-    if not 0 < radius <= 1e6:
-        raise ValueError("scene: a fence circle's radius must be in (0, 1e6] m")
-    points = [[centre[0] + radius * math.cos(a), centre[1] + radius * math.sin(a)]
-              for a in np.linspace(0, 2 * math.pi, 64, endpoint=False)]
-    return {"inclusion": zone["inclusion"], "points": points}
-
-
-def _text_pose(position: Any) -> fg.Pose:
-    return fg.Pose(position=_vector(position), orientation=fg.Quaternion(x=0, y=0, z=0, w=1))
-
-
-def _vehicle_model(vehicle: int, stamp: fg.Timestamp, rotors_m: tuple, spins: list[float],
-                   name: str) -> fg.SceneEntity:
-    """Arms, rotor discs (cw blue, ccw green), a nose arrow: drawn in the body frame."""
-    arms = []
-    for r in rotors_m:
-        arms.extend([fg.Point3(x=0, y=0, z=0), _point(r)])
-    span = max((math.hypot(r[0], r[1]) for r in rotors_m), default=0.2)
-    disc = max(0.35 * span, 0.05)
-    cylinders = [fg.CylinderPrimitive(
-        pose=_text_pose((r[0], r[1], r[2] - 0.02)), size=fg.Vector3(x=disc, y=disc, z=0.01),
-        bottom_scale=1, top_scale=1,
-        color=_color(0.2, 0.4, 1.0, 0.6) if spin > 0 else _color(0.2, 0.9, 0.3, 0.6))
-        for r, spin in zip(rotors_m, spins, strict=True)]
-    return fg.SceneEntity(
-        timestamp=stamp, frame_id=body_frame(vehicle), id="vehicle", frame_locked=True,
-        metadata=[fg.KeyValuePair(key="airframe", value=name)],
-        lines=[fg.LinePrimitive(type=fg.LinePrimitiveLineType.LineList, pose=IDENTITY,
-                                thickness=0.02, points=arms, color=_color(0.9, 0.9, 0.9))],
-        cylinders=cylinders,
-        arrows=[fg.ArrowPrimitive(pose=IDENTITY, shaft_length=span, shaft_diameter=0.02,
-                                  head_length=0.08, head_diameter=0.06,
-                                  color=_color(1.0, 0.3, 0.2))])
-
-
-def _mission_entity(stamp: fg.Timestamp, mission: list[list[float]],
-                    current: int) -> fg.SceneEntity:
-    """Waypoints (the current one larger), their item numbers, and the legs between
-    them."""
-    spheres, texts = [], []
-    for seq, *p in mission:
-        size = 0.8 if seq == current else 0.5
-        spheres.append(fg.SpherePrimitive(pose=_text_pose(p),
-                                          size=fg.Vector3(x=size, y=size, z=size),
-                                          color=_color(1.0, 0.8, 0.1, 0.9)))
-        texts.append(fg.TextPrimitive(pose=_text_pose((p[0], p[1], p[2] - 0.8)),
-                                      billboard=True, font_size=14, scale_invariant=True,
-                                      color=_color(1, 1, 1), text=str(int(seq))))
-    lines = [fg.LinePrimitive(type=fg.LinePrimitiveLineType.LineStrip, pose=IDENTITY,
-                              thickness=0.05, points=[_point(p[1:]) for p in mission],
-                              color=_color(1.0, 0.8, 0.1, 0.8))] if len(mission) > 1 else []
-    return fg.SceneEntity(timestamp=stamp, frame_id=FRAME_NED, id="mission",
-                          spheres=spheres, texts=texts, lines=lines)
-
-
-def _fence_entity(stamp: fg.Timestamp, zones: list[dict[str, Any]]) -> fg.SceneEntity:
-    """Each zone as a loop on the ground (inclusion green, exclusion red)."""
-    lines = [fg.LinePrimitive(
-        type=fg.LinePrimitiveLineType.LineLoop, pose=IDENTITY, thickness=0.08,
-        points=[fg.Point3(x=n, y=e, z=0.0) for n, e in z["points"]],
-        color=_color(0.2, 0.9, 0.2) if z["inclusion"] else _color(0.9, 0.2, 0.2))
-        for z in zones]
-    return fg.SceneEntity(timestamp=stamp, frame_id=FRAME_NED, id="fence", lines=lines)
-
-
-# -- encoding for MCAP and for JSON channels ----------------------------------------------
-
-def json_schema(message: dict[str, Any]) -> dict[str, Any]:
-    """A JSON schema naming every field of a plot-ready record (numbers, nested objects,
-    arrays of numbers), so tools list them for plotting."""
-    def schema_of(value: Any) -> dict[str, Any]:
-        if isinstance(value, dict):
-            return {"type": "object", "properties": {k: schema_of(v) for k, v in value.items()}}
-        if isinstance(value, bool):
-            return {"type": "boolean"}
-        if isinstance(value, str):
-            return {"type": "string"}
-        if isinstance(value, list):
-            return {"type": "array", "items": {"type": ["number", "null"]}}
-        return {"type": ["number", "null"]}
-    return schema_of(message)
-
-
-def encode(message: Any) -> bytes:
-    """The message as its channel carries it: protobuf for Foxglove schemas, JSON else."""
-    if isinstance(message, dict):
-        return json.dumps(message, allow_nan=False, separators=(",", ":")).encode()
-    return message.encode()

@@ -31,13 +31,8 @@ from foxglove import channels as fg_channels
 from contracts.arguments import number
 from contracts.stop_request import StopRequest
 from contracts.zenoh_link import ZenohOptions, open_session
-from ground.telemetry.foxglove_view import (
-    DEFAULT_RATE_HZ,
-    FoxgloveView,
-    Output,
-    encode,
-    json_schema,
-)
+from ground.telemetry.foxglove_scene import encode, json_schema
+from ground.telemetry.foxglove_view import DEFAULT_RATE_HZ, FoxgloveView, Output
 
 DEFAULT_VIEW_PORT = 8765
 # Foxglove's layout for these topics (3D, tracking, motors, adaptation, estimator, log):

@@ -49,7 +49,8 @@ from contracts.telemetry import (
     schema_for_key,
 )
 from contracts.zenoh_link import ZenohOptions, open_session
-from ground.telemetry.foxglove_view import FoxgloveView, Output, encode
+from ground.telemetry.foxglove_scene import encode
+from ground.telemetry.foxglove_view import FoxgloveView, Output
 from ground.telemetry.mcap_file import ACTIVE_SUFFIX, McapFile, salvage
 
 PROCESS = "logger"  # in the run's timeline

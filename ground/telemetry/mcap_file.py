@@ -15,7 +15,8 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from contracts.telemetry import JSON_RECORD_SCHEMA, RecordSchema
-from ground.telemetry.foxglove_view import Output, json_schema
+from ground.telemetry.foxglove_scene import json_schema
+from ground.telemetry.foxglove_view import Output
 
 ACTIVE_SUFFIX = ".mcap.active"
 

@@ -32,7 +32,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from contracts.mavlink import mavlink, new_mavlink  # noqa: E402
-from ground.run.processes import LoggerProcess, free_tcp_port  # noqa: E402
+from ground.run.children import LoggerProcess, free_tcp_port  # noqa: E402
 
 # name -> (kind, rate per second, ports flooded, source ports)
 ROWS = {

@@ -29,7 +29,7 @@ import numpy as np  # noqa: E402
 from contracts.telemetry import CONTROL, vehicle_key  # noqa: E402
 from contracts.zenoh_link import ZenohOptions, open_session  # noqa: E402
 from ground.record.run_files import iter_messages  # noqa: E402
-from ground.run.processes import LoggerProcess  # noqa: E402
+from ground.run.children import LoggerProcess  # noqa: E402
 
 LOAD = """
 import sys, time, json

@@ -28,7 +28,7 @@ from autopilot.mavlink.server import MavlinkServer, open_link  # noqa: E402
 from autopilot.process.loop import Autopilot, AutopilotConfig  # noqa: E402
 from contracts.airframe import PAPER  # noqa: E402
 from contracts.zenoh_link import ZenohOptions  # noqa: E402
-from ground.run.processes import LoggerProcess  # noqa: E402
+from ground.run.children import LoggerProcess  # noqa: E402
 
 STEPS = 20000
 

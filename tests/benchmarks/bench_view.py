@@ -27,7 +27,7 @@ from pathlib import Path
 ROOT = Path(__file__).parents[2]
 sys.path.insert(0, str(ROOT))
 
-from ground.run.processes import free_tcp_port  # noqa: E402
+from ground.run.children import free_tcp_port  # noqa: E402
 from tests.foxglove_client import collect  # noqa: E402
 
 FIGURES = ("deadline_misses", "jitter_p99_ms", "jitter_max_ms", "compute_p99_ms")

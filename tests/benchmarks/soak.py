@@ -37,12 +37,8 @@ from contracts.mavlink import mavlink  # noqa: E402
 from contracts.realtime import Histogram, shield_cpus  # noqa: E402
 from contracts.telemetry import AUTOPILOT, SITL, TIMING, vehicle_key  # noqa: E402
 from contracts.zenoh_link import ZenohOptions, open_session  # noqa: E402
-from ground.run.processes import (  # noqa: E402
-    LoggerProcess,
-    free_tcp_port,
-    free_udp_port,
-    telemetry_accounting,
-)
+from ground.run.children import LoggerProcess, free_tcp_port, free_udp_port  # noqa: E402
+from ground.run.processes import telemetry_accounting  # noqa: E402
 from ground.scenario.ground_station import GroundStation, GroundStationPlan  # noqa: E402
 from ground.uplink.perturb import PerturbationClient  # noqa: E402
 

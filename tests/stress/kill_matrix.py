@@ -46,7 +46,7 @@ from contracts.modes import FlightMode, mode_from_px4  # noqa: E402
 from contracts.telemetry import AUTOPILOT, SITL, vehicle_key  # noqa: E402
 from contracts.zenoh_link import ZenohOptions, open_session  # noqa: E402
 from ground.record.run_files import iter_messages  # noqa: E402
-from ground.run.processes import LoggerProcess, free_tcp_port  # noqa: E402
+from ground.run.children import LoggerProcess, free_tcp_port  # noqa: E402
 from ground.telemetry.mcap_file import salvage  # noqa: E402
 from ground.uplink.perturb import PerturbationClient  # noqa: E402
 

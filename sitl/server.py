@@ -44,9 +44,9 @@ from contracts.mavlink import (
 )
 from contracts.paced_loop import Deadlines, PacedProcess
 from contracts.perturbation_book import PerturbationBook
+from contracts.perturbation_effects import PLANT_EFFECTS
 from contracts.perturbations import (
     NO_SENSOR_EFFECTS,
-    PLANT_EFFECTS,
     Perturbation,
     Perturbations,
     plant_perturbations_at,

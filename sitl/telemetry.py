@@ -66,6 +66,8 @@ class SimulatorTelemetry:
                                         **entry.to_request()))
 
     def status(self, time_us: int, stats: LinkStats, started: bool) -> None:
+        """The link's counters, at most once a second of wall time: a ground station sees
+        the simulator alive even while sim time stands still."""
         self.node.status(time_us, **_status_fields(stats, started))
 
     def close(self, time_us: int, stats: LinkStats, started: bool) -> None:

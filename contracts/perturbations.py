@@ -7,14 +7,11 @@ is the one validator all of them go through, so a bad request is refused the sam
 everywhere and changes nothing.
 
 Each kind is defined once, in ``KINDS`` below: its parameters and their ranges, the
-process it acts in, what an active entry contributes to the **effects** of that process,
-and whether the one-process runner supports it. Effects are the quantities a process
-applies (the plant's scale factors and forces, the link's noise and delay, the
-autopilot's reference kick); ``EFFECTS`` says how active entries combine into each
-(scale factors and efficiencies multiply, vectors add, noise standard deviations add in
-quadrature, link delay and loss take the largest) and the range a combined plant value
-is clipped to. The plant (sitl/plant.py) and the link (sitl/sensors.py) read effects by
-name; a new kind that acts through existing effects is one entry in ``KINDS``.
+process it acts in, what an active entry contributes to the **effects** of that process
+(``contracts/perturbation_effects.py``: what each is and how contributions combine), and
+whether the one-process runner supports it. A new kind that acts through existing effects
+is one entry in ``KINDS``. ``Perturbations`` and ``SensorEffects`` are the plant's and the
+link's effects in force at one instant, as the simulator applies them.
 """
 
 from __future__ import annotations
@@ -22,16 +19,21 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field, make_dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any
 
 from contracts import AUTOPILOT, SITL
-
-INERTIA_SCALE_RANGE = (0.1, 10.0)
-WIND_RANGE_MPS = (-50.0, 50.0)
-FORCE_RANGE_N = (-1000.0, 1000.0)
-TORQUE_RANGE_NM = (-100.0, 100.0)
+from contracts.perturbation_effects import (
+    EFFECTS,
+    FORCE_RANGE_N,
+    INERTIA_SCALE_RANGE,
+    LINK_EFFECTS,
+    PLANT_EFFECTS,
+    TORQUE_RANGE_NM,
+    WIND_RANGE_MPS,
+    Effect,
+)
 
 
 @dataclass(frozen=True)
@@ -52,86 +54,6 @@ def _vec3(low: float, high: float, required: bool = False) -> Param:
 
 def _needed(low: float, high: float, integer: bool = False) -> Param:
     return Param(low, high, low, integer=integer, required=True)
-
-
-# -- effects: what the processes apply, and how active entries combine into them -------
-
-_COMBINE: dict[str, Callable[[float, float], float]] = {
-    "multiply": lambda a, b: a * b,
-    "add": lambda a, b: a + b,
-    "quadrature": math.hypot,
-    "largest": max,
-}
-
-
-@dataclass(frozen=True)
-class Effect:
-    """One quantity perturbations change: its size (0 = scalar), its value with nothing
-    active, how contributions combine, and (plant effects) the range it is kept in."""
-
-    group: str  # "plant", "link" (what the simulator sends) or "reference" (autopilot)
-    size: int
-    neutral: float
-    combine: str
-    valid: tuple[float, float] | None = None  # combined values are clipped into it
-    integer: bool = False
-
-    @property
-    def neutral_value(self) -> float | tuple[float, ...]:
-        value = int(self.neutral) if self.integer else self.neutral
-        return tuple([value] * self.size) if self.size else value
-
-    def combined(self, current: Any, contribution: Any) -> Any:
-        op = _COMBINE[self.combine]
-        if self.size:
-            return tuple(op(a, b) for a, b in zip(current, contribution, strict=True))
-        return op(current, contribution)
-
-    def clipped(self, value: Any) -> Any:
-        if self.valid is None:
-            return value
-        low, high = self.valid
-        if self.size:
-            return tuple(min(max(v, low), high) for v in value)
-        return min(max(value, low), high)
-
-
-EFFECTS: dict[str, Effect] = {
-    # the plant (sitl/plant.py applies each by name)
-    "inertia_scale": Effect("plant", 0, 1.0, "multiply", INERTIA_SCALE_RANGE),
-    "rotor_inertia_scale": Effect("plant", 0, 1.0, "multiply", INERTIA_SCALE_RANGE),
-    "mass_scale": Effect("plant", 0, 1.0, "multiply", INERTIA_SCALE_RANGE),
-    "motor_efficiency": Effect("plant", 4, 1.0, "multiply", (0.0, 1.0)),
-    "wind_ned_mps": Effect("plant", 3, 0.0, "add", WIND_RANGE_MPS),
-    "force_ned_n": Effect("plant", 3, 0.0, "add", FORCE_RANGE_N),
-    "torque_frd_nm": Effect("plant", 3, 0.0, "add", TORQUE_RANGE_NM),
-    # what the simulator sends (sitl/sensors.py)
-    "noise_position_m": Effect("link", 0, 0.0, "quadrature"),
-    "noise_velocity_mps": Effect("link", 0, 0.0, "quadrature"),
-    "noise_angle_rad": Effect("link", 0, 0.0, "quadrature"),
-    "noise_rate_rad_s": Effect("link", 0, 0.0, "quadrature"),
-    "bias_position_m": Effect("link", 3, 0.0, "add"),
-    "bias_velocity_mps": Effect("link", 3, 0.0, "add"),
-    "bias_angle_rad": Effect("link", 3, 0.0, "add"),
-    "bias_rate_rad_s": Effect("link", 3, 0.0, "add"),
-    "delay_samples": Effect("link", 0, 0, "largest", integer=True),
-    "loss_fraction": Effect("link", 0, 0.0, "largest"),
-    # ... and what the simulator's sensors read (sitl/sensors.py SensorSuite)
-    "gps_outage": Effect("link", 0, 0.0, "largest"),
-    "mag_field_gauss": Effect("link", 3, 0.0, "add"),
-    "gyro_bias_rad_s": Effect("link", 3, 0.0, "add"),
-    "accel_bias_mps2": Effect("link", 3, 0.0, "add"),
-    "baro_drift_mps": Effect("link", 0, 0.0, "add"),
-    # the autopilot's reference (added to the desired roll and pitch)
-    "kick_rad": Effect("reference", 2, 0.0, "add"),
-}
-
-
-def _group(name: str) -> dict[str, Effect]:
-    return {k: e for k, e in EFFECTS.items() if e.group == name}
-
-
-PLANT_EFFECTS, LINK_EFFECTS = _group("plant"), _group("link")
 
 
 # -- kinds ----------------------------------------------------------------------------------
@@ -353,34 +275,68 @@ def resolve_now(entry: Perturbation, now_s: float) -> Perturbation:
 
 # -- effects in force ----------------------------------------------------------------------
 
-def _check_effects(self: Any) -> None:
-    for name, effect in PLANT_EFFECTS.items():
-        value = getattr(self, name)
-        values = value if effect.size else (value,)
-        low, high = effect.valid
-        if len(values) != max(1, effect.size) or not all(
-                math.isfinite(v) and low <= v <= high for v in values):
-            raise ValueError(f"perturbation {name} must be {max(1, effect.size)} value(s) "
-                             f"in [{low:g}, {high:g}], got {value!r}")
+@dataclass(frozen=True)
+class Perturbations:
+    """Changes to the plant in force at one instant (what ``Plant`` applies), validated.
+    One field per plant effect (``PLANT_EFFECTS``), defaulting to its neutral value."""
+
+    inertia_scale: float = 1.0
+    rotor_inertia_scale: float = 1.0
+    mass_scale: float = 1.0
+    motor_efficiency: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
+    wind_ned_mps: tuple[float, ...] = (0.0, 0.0, 0.0)
+    force_ned_n: tuple[float, ...] = (0.0, 0.0, 0.0)
+    torque_frd_nm: tuple[float, ...] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        for name, effect in PLANT_EFFECTS.items():
+            value = getattr(self, name)
+            values = value if effect.size else (value,)
+            low, high = effect.valid
+            if len(values) != max(1, effect.size) or not all(
+                    math.isfinite(v) and low <= v <= high for v in values):
+                raise ValueError(f"perturbation {name} must be {max(1, effect.size)} "
+                                 f"value(s) in [{low:g}, {high:g}], got {value!r}")
 
 
-def _effects_class(name: str, effects: dict[str, Effect], doc: str, **namespace: Any) -> type:
-    """A frozen record with one field per effect, defaulting to its neutral value."""
-    fields = [(n, Any, field(default=e.neutral_value)) for n, e in effects.items()]
-    cls = make_dataclass(name, fields, frozen=True, namespace=namespace)
-    cls.__doc__ = doc
-    cls.__module__ = __name__
-    return cls
+@dataclass(frozen=True)
+class SensorEffects:
+    """What the simulator does to the state it sends (noise standard deviations, biases,
+    delay, loss). One field per link effect (``LINK_EFFECTS``), defaulting to its neutral
+    value."""
+
+    noise_position_m: float = 0.0
+    noise_velocity_mps: float = 0.0
+    noise_angle_rad: float = 0.0
+    noise_rate_rad_s: float = 0.0
+    bias_position_m: tuple[float, ...] = (0.0, 0.0, 0.0)
+    bias_velocity_mps: tuple[float, ...] = (0.0, 0.0, 0.0)
+    bias_angle_rad: tuple[float, ...] = (0.0, 0.0, 0.0)
+    bias_rate_rad_s: tuple[float, ...] = (0.0, 0.0, 0.0)
+    delay_samples: int = 0
+    loss_fraction: float = 0.0
+    gps_outage: float = 0.0
+    mag_field_gauss: tuple[float, ...] = (0.0, 0.0, 0.0)
+    gyro_bias_rad_s: tuple[float, ...] = (0.0, 0.0, 0.0)
+    accel_bias_mps2: tuple[float, ...] = (0.0, 0.0, 0.0)
+    baro_drift_mps: float = 0.0
+
+    @property
+    def idle(self) -> bool:
+        return self == NO_SENSOR_EFFECTS
 
 
-Perturbations = _effects_class(
-    "Perturbations", PLANT_EFFECTS,
-    "Changes to the plant in force at one instant (what ``Plant`` applies), validated.",
-    __post_init__=_check_effects)
-SensorEffects = _effects_class(
-    "SensorEffects", LINK_EFFECTS,
-    "What the simulator does to the state it sends (noise standard deviations, biases, "
-    "delay, loss).", idle=property(lambda self: self == NO_SENSOR_EFFECTS))
+def _check_fields(record: type, effects: dict[str, Effect]) -> None:
+    """A record's fields are its group's effects, in order, each defaulting to the
+    effect's neutral value: the table and the record cannot drift apart unnoticed."""
+    have = [(f.name, f.default) for f in fields(record)]
+    want = [(name, effect.neutral_value) for name, effect in effects.items()]
+    if have != want:
+        raise TypeError(f"{record.__name__} fields {have} do not match the effects {want}")
+
+
+_check_fields(Perturbations, PLANT_EFFECTS)
+_check_fields(SensorEffects, LINK_EFFECTS)
 NO_SENSOR_EFFECTS = SensorEffects()
 
 

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from contracts import AUTOPILOT, SITL
-from contracts.perturbations import PLANT_EFFECTS
+from contracts.perturbation_effects import PLANT_EFFECTS
 from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT, REFERENCE
 
 ROOT = "ivfm"

@@ -15,12 +15,8 @@ start request, so a ground station can deliver a schedule before sim time moves.
 
 from __future__ import annotations
 
-import collections
 import gc
 import math
-import queue
-import selectors
-import socket
 import sys
 import time
 from collections.abc import Callable
@@ -28,45 +24,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from contracts import timeline
-from contracts.airframe import Airframe, airframe_from_spec, hover_rotor_speeds
+from contracts import SITL, timeline
+from contracts.airframe import PAPER, Airframe, airframe_from_spec, hover_rotor_speeds
 from contracts.airframe_file import AirframeSpec
 from contracts.arguments import SIM_RATE_RANGE_HZ
 from contracts.frames import DEFAULT_HOME, Home
-from contracts.mavlink import (
-    SIM_TCP_PORT,
-    SIMULATOR_COMPID,
-    SIMULATOR_SYSID,
-    LinkDataError,
-    commands_from_actuator,
-    new_mavlink,
-    sample_messages,
-)
+from contracts.mavlink import SIM_TCP_PORT, LinkDataError, commands_from_actuator
 from contracts.paced_loop import Deadlines, PacedProcess
-from contracts.perturbation_book import PerturbationBook
-from contracts.perturbations import (
-    NO_SENSOR_EFFECTS,
-    PLANT_EFFECTS,
-    Perturbation,
-    Perturbations,
-    plant_perturbations_at,
-    sensor_effects_at,
-)
-from contracts.realtime import Histogram
-from contracts.telemetry import SITL, STATE, json_record
-from contracts.zenoh_link import PERTURBATIONS_OFF, Request, TelemetryNode, ZenohOptions
-from sitl.plant import Plant, VehicleState
-from sitl.sensors import (
-    SensorProfile,
-    SensorSuite,
-    seen_by_the_gyro,
-    sensed_state,
-    truth_sample,
-)
-
-# STATE record fields that are VehicleState's of the same name (then the plant effects).
-STATE_FROM_PLANT = ("position_ned_m", "velocity_ned_mps", "quaternion", "euler_rad",
-                    "euler_rate_rad_s", "body_rate_rad_s", "rotor_rad_s")
+from contracts.perturbations import Perturbation
+from contracts.zenoh_link import Request, ZenohOptions
+from sitl.link import AutopilotLink, LinkStats, RealtimeConnection
+from sitl.perturbation_service import PerturbationService
+from sitl.plant import Plant
+from sitl.samples import SampleSource
+from sitl.sensors import SensorProfile
+from sitl.telemetry import SimulatorTelemetry
 
 
 @dataclass
@@ -112,17 +84,6 @@ class SimulatorConfig:
                              f"{self.start_altitude_m!r}")
 
 
-@dataclass
-class LinkStats:
-    """What the simulator measures about the autopilot (real time mostly)."""
-
-    samples_sent: int = 0
-    commands_received: int = 0
-    bad_messages: int = 0
-    periods_without_command: int = 0
-    latency: Histogram = field(default_factory=Histogram)  # sample -> its answer [s]
-
-
 CATCH_UP_PERIODS = 2  # real time: behind by more, re-anchor instead of catching up
 
 
@@ -147,20 +108,12 @@ class Simulator(PacedProcess):
         self.period_us = round(1e6 / config.rate_hz)
         self.period_s = self.period_us / 1e6
         self.step_index = 0
-        self.mav = new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID)
         self.stats = LinkStats()
-        self._active = Perturbations()
-        self._sensor = NO_SENSOR_EFFECTS
-        self.book = PerturbationBook(SITL, config.schedule)
-        self.rng = np.random.default_rng(config.seed)
-        self.sensors = SensorSuite(config.sensors, config.rate_hz, config.seed, config.home)
+        self.link = AutopilotLink(config.host, config.port, self.stats, self.log)
         self._state = self.plant.state()
-        self._imu_state = self._state  # what the IMU reads (seen_by_the_gyro)
-        self._history: collections.deque[VehicleState] = collections.deque(maxlen=101)
+        self.samples = SampleSource(config.sensors, config.rate_hz, config.seed, config.home,
+                                    self._state)
         self._commands = np.zeros(4)
-        self._previous_velocity = self._state.velocity_ned_mps
-        self._acceleration = np.zeros(3)
-        self._server: socket.socket | None = None
         self.started = not config.hold
         # The compiled code now, not in the first step, and before the Zenoh session:
         # a run releases the simulator once it is heard, and its clock must not start
@@ -170,12 +123,10 @@ class Simulator(PacedProcess):
         preload_compiled_code()
         gc.collect()
         gc.freeze()
-        self.node = TelemetryNode(config.zenoh, config.vehicle_id, SITL, self.log)
-        self._state_pub = self.node.publisher("state")
-        self._event_pub = self.node.publisher("perturbation")
-        self.node.serve("perturb", None if config.perturbations else PERTURBATIONS_OFF)
-        self.node.serve("start")
-        self._state_record = STATE.buffer()
+        self.telemetry = SimulatorTelemetry(config.zenoh, config.vehicle_id,
+                                            config.perturbations, self.log)
+        self.perturbations = PerturbationService(config.schedule, self.plant,
+                                                 self.telemetry.publish_event, self.log)
 
     @property
     def time_us(self) -> int:
@@ -186,56 +137,13 @@ class Simulator(PacedProcess):
         """Take requests, apply the perturbations in force at this sample's time, publish
         the truth; the bytes to send, or None when the link loses this sample."""
         self._service_requests()
-        if self.book.entries:
-            self._update_perturbations(self.time_us / 1e6)
-        self._publish_state()
-        self.node.status(self.time_us, **self._status_fields())
-        effects = self._sensor
-        readings, fix = self.sensors.sample(self.time_us, self._imu_state, self._acceleration,
-                                            effects)
-        if effects is NO_SENSOR_EFFECTS:
-            truth = truth_sample(self.time_us, self._state, self._acceleration)
-        else:
-            if effects.loss_fraction > 0.0 and self.rng.random() < effects.loss_fraction:
-                return None
-            position, velocity, quaternion, body_rate = sensed_state(
-                self._state, self._history, effects, self.rng)
-            truth = truth_sample(self.time_us, self._state, self._acceleration, position,
-                                 velocity, quaternion, body_rate)
-        msgs = sample_messages(truth, readings, fix, self.config.home)
-        return b"".join(m.pack(self.mav) for m in msgs)
-
-    def _update_perturbations(self, t_s: float) -> None:
-        entries = self.book.entries
-        wanted = plant_perturbations_at(entries, t_s)
-        if wanted != self._active:
-            self.plant.set_perturbations(wanted)
-            self._active = wanted
-        self._sensor = sensor_effects_at(entries, t_s)
-        for event, e in self.book.changes(t_s):
-            self._event_pub.put(json_record(self._event_pub.count, self.time_us, event=event,
-                                            **e.to_request()))
-            self.log(f"t={t_s:.3f} s perturbation {e.id} ({e.kind}) {event}")
-            if event == "start" and e.kind == "sim_stall":
-                self._freeze(e.params["freeze_s"])
-
-    def _freeze(self, freeze_s: float) -> None:
-        """A stalled simulator: the whole process stops (no physics, no samples, no
-        requests served), as a suspended or overloaded one would."""
-        self.log(f"frozen for {freeze_s:g} s of wall time (sim_stall)")
-        time.sleep(freeze_s)
-
-    def _publish_state(self) -> None:
-        if not self.node.enabled:
-            return
-        s, p, record = self._state, self._active, self._state_record
-        record["seq"], record["sim_time_us"] = self._state_pub.count, self.time_us
-        for name in STATE_FROM_PLANT:
-            record[name] = getattr(s, name)
-        for name in PLANT_EFFECTS:
-            record[name] = getattr(p, name)
-        record["motor_commands"] = self._commands
-        self._state_pub.put(record.encode())
+        self.perturbations.update(self.time_us)
+        self.telemetry.publish_state(self.time_us, self._state, self.perturbations.active,
+                                     self._commands)
+        self.telemetry.status(self.time_us, self.stats, self.started)
+        msgs = self.samples.messages(self.time_us, self._state,
+                                     self.perturbations.sensor_effects)
+        return None if msgs is None else self.link.pack(msgs)
 
     def advance(self) -> None:
         """One sample period of plant time with the commands in force."""
@@ -243,42 +151,7 @@ class Simulator(PacedProcess):
         self.plant.advance(self.period_s)
         self.step_index += 1
         self._state = self.plant.state()
-        self._imu_state = seen_by_the_gyro(before, self._state, self.period_s)
-        self._history.append(self._state)
-        velocity = self._state.velocity_ned_mps
-        self._acceleration = (velocity - self._previous_velocity) / self.period_s
-        self._previous_velocity = velocity
-
-    # -- requests over Zenoh -------------------------------------------------------------
-    def _service_requests(self) -> None:
-        while True:
-            try:
-                request = self.node.requests.get_nowait()
-            except queue.Empty:
-                return
-            try:
-                self._answer_request(request)
-            except Exception as exc:  # noqa: BLE001 (bad input, or a defect: refused)
-                request.refuse(exc, self.log)
-
-    def _answer_request(self, request: Request) -> None:
-        if request.topic == "start":
-            if not self.started:
-                timeline.mark(SITL, "released")
-                self.log(f"start requested at t={self.time_us / 1e6:.3f} s")
-            self.started = True
-            request.reply(True, sim_time_us=self.time_us)
-            return
-        answer = self.book.handle(request.data, self.time_us / 1e6)
-        self.log(f"perturbation request answered: {answer}")
-        request.reply(True, sim_time_us=self.time_us, **answer)
-
-    def _status_fields(self) -> dict:
-        return {"samples_sent": self.stats.samples_sent,
-                "commands_received": self.stats.commands_received,
-                "refused": self.stats.bad_messages,
-                "periods_without_command": self.stats.periods_without_command,
-                "started": self.started}
+        self.samples.observe(before, self._state, self.period_s)
 
     def apply_actuators(self, msg) -> int | None:
         """Apply an actuator message; returns the sample time it answers, None if refused."""
@@ -293,39 +166,46 @@ class Simulator(PacedProcess):
         self.stats.commands_received += 1
         return msg.time_usec
 
-    # -- the link ------------------------------------------------------------------------
+    # -- requests over Zenoh -------------------------------------------------------------
+    def _service_requests(self) -> None:
+        while (request := self.telemetry.next_request()) is not None:
+            try:
+                self._answer_request(request)
+            except Exception as exc:  # noqa: BLE001 (bad input, or a defect: refused)
+                request.refuse(exc, self.log)
+
+    def _answer_request(self, request: Request) -> None:
+        if request.topic == "start":
+            if not self.started:
+                timeline.mark(SITL, "released")
+                self.log(f"start requested at t={self.time_us / 1e6:.3f} s")
+            self.started = True
+            request.reply(True, sim_time_us=self.time_us)
+            return
+        self.perturbations.answer(request, self.time_us)
+
+    # -- the process ---------------------------------------------------------------------
     def start_up(self) -> None:
-        self._server = socket.create_server((self.config.host, self.config.port),
-                                            reuse_port=False)
-        self._server.settimeout(0.2)
-        self.log(f"listening on tcp {self.config.host}:{self._server.getsockname()[1]} "
+        port = self.link.listen()
+        self.log(f"listening on tcp {self.config.host}:{port} "
                  f"({'lockstep' if self.config.lockstep else 'real time'}, "
                  f"{self.config.rate_hz:g} Hz, {self.config.fidelity} plant)")
         timeline.mark(SITL, "listening")
 
     def shut_down(self) -> None:
-        self._server.close()
+        self.link.close()
         self._service_requests()
-        self.node.status(self.time_us, final=True, **self._status_fields(),
-                         latency=self._latency_summary())
-        self.node.close()
+        self.telemetry.close(self.time_us, self.stats, self.started)
 
     def report(self) -> None:
         self.log(f"stopped at t={self.time_us / 1e6:.3f} s: {self.stats.samples_sent} samples "
                  f"sent, {self.stats.commands_received} commands, "
                  f"{self.stats.bad_messages} refused")
 
-    def _latency_summary(self) -> dict:
-        h = self.stats.latency
-        if h.n == 0:
-            return {}
-        return {"p50_ms": h.percentile(50) * 1e3, "p99_ms": h.percentile(99) * 1e3,
-                "max_ms": h.max_s * 1e3}
-
     def _idle(self) -> None:
         """While sim time stands still: take requests, say we are here."""
         self._service_requests()
-        self.node.status(self.time_us, **self._status_fields())
+        self.telemetry.status(self.time_us, self.stats, self.started)
 
     def _wait_for_start(self) -> None:
         while not self.started and not self._stop:
@@ -335,42 +215,10 @@ class Simulator(PacedProcess):
     def _finished(self) -> bool:
         return self._stop or self.time_us / 1e6 >= self.config.duration_s
 
-    def _accept(self) -> socket.socket | None:
-        try:
-            conn, peer = self._server.accept()
-        except (TimeoutError, BlockingIOError):
-            return None
-        conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        timeline.mark(SITL, "autopilot connected")
-        self.log(f"autopilot connected from {peer[0]}:{peer[1]} at t={self.time_us / 1e6:.3f} s")
-        # A fresh parser per connection: a half message from the last one must not linger.
-        self.mav = new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID)
-        return conn
-
-    def _read(self, conn: socket.socket) -> list | None:
-        """Messages available now; None when the autopilot has gone."""
-        try:
-            data = conn.recv(65536)
-        except (BlockingIOError, TimeoutError):
-            return []
-        except OSError:
-            return None
-        if not data:
-            return None
-        msgs = self.mav.parse_buffer(data) or []
-        bad = [m for m in msgs if m.get_type() == "BAD_DATA"]
-        if bad:
-            self.stats.bad_messages += len(bad)
-            self.log(f"unreadable bytes from the autopilot: {bad[0].reason}")
-        return [m for m in msgs if m.get_type() != "BAD_DATA"]
-
-    def _lost(self, conn: socket.socket) -> None:
-        conn.close()
-        self.log(f"autopilot disconnected at t={self.time_us / 1e6:.3f} s")
-
+    # -- the loops -----------------------------------------------------------------------
     def run_lockstep(self) -> None:
         while not self._finished():
-            conn = self._accept()
+            conn = self.link.accept(self.time_us)
             if conn is None:
                 self._idle()
                 continue
@@ -391,7 +239,7 @@ class Simulator(PacedProcess):
                     timeline.mark(SITL, "first sample sent")
                 answered = False
                 while not answered and not self._stop:
-                    msgs = self._read(conn)
+                    msgs = self.link.read(conn)
                     if msgs is None:
                         connected = False
                         break
@@ -403,50 +251,50 @@ class Simulator(PacedProcess):
                             answered = True
                 if answered:
                     self.advance()
-            self._lost(conn)
+            self.link.lost(conn, self.time_us)
             if self.config.exit_on_disconnect:
                 return
 
     def run_realtime(self) -> None:
-        self._server.setblocking(False)
-        link = _RealtimeLink()
+        self.link.stop_blocking()
+        peer = RealtimeConnection()
         # Sim time starts with the first autopilot, so a scenario's schedule and the
         # autopilot's reference share an origin; afterwards the world goes on without it.
-        while link.conn is None and not self._finished():
-            link.conn = self._accept()
-            if link.conn is None:
+        while peer.conn is None and not self._finished():
+            peer.conn = self.link.accept(self.time_us)
+            if peer.conn is None:
                 self._idle()
                 time.sleep(0.01)
-        if link.conn is None:
+        if peer.conn is None:
             return
         self._wait_for_start()
-        link.attach(link.conn)
+        peer.attach(peer.conn)
         pace = Deadlines(self.period_s,
                          time.perf_counter() + (self.step_index + 1) * self.period_s)
         while not self._finished():
-            if link.conn is None:
-                conn = self._accept()
+            if peer.conn is None:
+                conn = self.link.accept(self.time_us)
                 if conn is not None:
-                    link.attach(conn)
+                    peer.attach(conn)
             sample = self.next_sample()
-            if link.conn is not None and sample is not None:
+            if peer.conn is not None and sample is not None:
                 try:
-                    link.conn.sendall(sample)
+                    peer.conn.sendall(sample)
                     self.stats.samples_sent += 1
                 except OSError:
                     pass
-            link.got_command = False
-            if link.conn is not None:
-                pace.serve(lambda remaining_s: self._take_commands(link, remaining_s))
-                if link.conn is None and self.config.exit_on_disconnect:
+            peer.got_command = False
+            if peer.conn is not None:
+                pace.serve(lambda remaining_s: self._take_commands(peer, remaining_s))
+                if peer.conn is None and self.config.exit_on_disconnect:
                     return
-            if link.conn is None:
+            if peer.conn is None:
                 pace.sleep()
-            if not link.got_command:
+            if not peer.got_command:
                 self.stats.periods_without_command += 1
-            if (not link.timed_out and self.time_us / 1e6 - link.last_command_s
+            if (not peer.timed_out and self.time_us / 1e6 - peer.last_command_s
                     > self.config.actuator_timeout_s):
-                link.timed_out = True
+                peer.timed_out = True
                 self.plant.set_motor_commands(np.zeros(4))
                 self._commands = np.zeros(4)
                 self.log(f"no actuator commands for {self.config.actuator_timeout_s:g} s at "
@@ -461,60 +309,42 @@ class Simulator(PacedProcess):
             if behind_s:
                 self.log(f"{1e3 * behind_s:.0f} ms behind the wall clock at "
                          f"t={self.time_us / 1e6:.3f} s: resumed from there")
-        if link.conn is not None:
-            link.conn.close()
+        if peer.conn is not None:
+            peer.conn.close()
 
-    def _take_commands(self, link: _RealtimeLink, remaining_s: float) -> bool:
+    def _take_commands(self, peer: RealtimeConnection, remaining_s: float) -> bool:
         """Real time, within a period: apply the actuator messages that arrive in the
         ``remaining_s`` left; False when none came in time or the autopilot went away."""
-        if not link.sel.select(remaining_s):
+        if not peer.sel.select(remaining_s):
             return False
-        msgs = self._read(link.conn)
+        msgs = self.link.read(peer.conn)
         if msgs is None:
-            link.sel.unregister(link.conn)
-            self._lost(link.conn)
-            link.conn = None
+            peer.sel.unregister(peer.conn)
+            self.link.lost(peer.conn, self.time_us)
+            peer.conn = None
             return False
         for msg in msgs:
             if msg.get_type() == "HIL_ACTUATOR_CONTROLS":
                 answered = self.apply_actuators(msg)
                 if answered is not None:
-                    link.got_command = True
-                    link.last_command_s = self.time_us / 1e6
+                    peer.got_command = True
+                    peer.last_command_s = self.time_us / 1e6
                     self.stats.latency.add(max(0, self.time_us - answered) / 1e6)
-                    if link.timed_out:
+                    if peer.timed_out:
                         self.log(f"actuator commands flowing at t={self.time_us / 1e6:.3f} s")
-                        link.timed_out = False
+                        peer.timed_out = False
         return True
-
-
-class _RealtimeLink:
-    """Real time: the autopilot's connection (None while away) and what its commands did."""
-
-    def __init__(self) -> None:
-        self.conn: socket.socket | None = None
-        self.sel = selectors.DefaultSelector()
-        self.got_command = False  # in the period under way
-        self.last_command_s = -math.inf  # sim time
-        self.timed_out = True  # no commands (yet, or for longer than the ESC timeout)
-
-    def attach(self, conn: socket.socket) -> None:
-        conn.setblocking(False)
-        self.sel.register(conn, selectors.EVENT_READ)
-        self.conn = conn
 
 
 def preload_compiled_code() -> None:
     """Load the plant's compiled code (both fidelities) on a scratch plant: a warm process
     started ahead of its run does it before the run (a first call loads from numba's
     cache, about 0.2 s). Nothing outside the scratch plant changes."""
-    from contracts.airframe import airframe_by_name
     from sitl.dynamics import FIDELITIES
 
-    airframe = airframe_by_name("paper")
     for fidelity in FIDELITIES:
-        plant = Plant(airframe, fidelity, position_ned_m=(0.0, 0.0, -1.0),
-                      rotor_rad_s=hover_rotor_speeds(airframe), ground_contact=True)
+        plant = Plant(PAPER, fidelity, position_ned_m=(0.0, 0.0, -1.0),
+                      rotor_rad_s=hover_rotor_speeds(PAPER), ground_contact=True)
         plant.set_motor_commands(np.full(4, 0.5))
         plant.advance(0.002)
         plant.state()

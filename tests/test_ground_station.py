@@ -391,7 +391,7 @@ def test_a_new_kind_through_existing_effects_is_one_registry_entry(monkeypatch):
 
 
 def test_plant_effects_are_the_truth_records_fields_and_clip_to_their_ranges():
-    from contracts.perturbations import PLANT_EFFECTS
+    from contracts.perturbation_effects import PLANT_EFFECTS
     from contracts.telemetry import STATE
 
     names = [name for name, _t, _c in STATE.fields]

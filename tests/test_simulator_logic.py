@@ -49,7 +49,7 @@ def answer(sim: Simulator, commands, armed: bool = True, time_us: int | None = N
     """The actuator message as the simulator's parser gets it off the wire."""
     msg = actuator_message(sim.time_us if time_us is None else time_us,
                            np.asarray(commands, dtype=float), armed, True)
-    (decoded,) = sim.mav.parse_buffer(msg.pack(new_mavlink(1, 1)))
+    (decoded,) = sim.link.mav.parse_buffer(msg.pack(new_mavlink(1, 1)))
     return decoded
 
 
@@ -171,7 +171,7 @@ def test_the_vehicle_flies_the_simulator_through_the_messages_in_lockstep():
         said.extend(text for _s, text in vehicle.messages)
         vehicle.messages.clear()
         reply = actuator_message(odo.time_usec, commands, vehicle.armed, True)
-        (decoded,) = sim.mav.parse_buffer(reply.pack(autopilot_side))
+        (decoded,) = sim.link.mav.parse_buffer(reply.pack(autopilot_side))
         assert sim.apply_actuators(decoded) == odo.time_usec  # the answer is for this sample
         sim.advance()
 

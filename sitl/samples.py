@@ -1,0 +1,69 @@
+"""What the simulator sends the autopilot each sample: the sensors' readings and the truth
+messages, under the sensor and link effects in force.
+
+The readings need more than the plant's state at the sample: the rotation the gyro saw
+over the last period, the acceleration over it, and (for a link delay) the recent states.
+``SampleSource`` keeps that memory; the simulator tells it each state the plant reaches.
+"""
+
+from __future__ import annotations
+
+import collections
+
+import numpy as np
+
+from contracts.frames import Home
+from contracts.mavlink import sample_messages
+from contracts.perturbations import NO_SENSOR_EFFECTS, SensorEffects
+from sitl.plant import VehicleState
+from sitl.sensors import (
+    SensorProfile,
+    SensorSuite,
+    seen_by_the_gyro,
+    sensed_state,
+    truth_sample,
+)
+
+HISTORY_SAMPLES = 101  # the longest link delay (100 samples) and the state at the sample
+
+
+class SampleSource:
+    """The messages of each sample, from the states the plant went through. ``seed``
+    seeds the sensors' noise and, apart, the link's loss and the noise on the state sent,
+    so a run sends the same bytes each time."""
+
+    def __init__(self, profile: SensorProfile, rate_hz: float, seed: int, home: Home,
+                 state: VehicleState) -> None:
+        self.rng = np.random.default_rng(seed)
+        self.sensors = SensorSuite(profile, rate_hz, seed, home)
+        self.home = home
+        self._imu_state = state  # what the IMU reads (seen_by_the_gyro)
+        self._history: collections.deque[VehicleState] = collections.deque(
+            maxlen=HISTORY_SAMPLES)
+        self._previous_velocity = state.velocity_ned_mps
+        self._acceleration = np.zeros(3)
+
+    def observe(self, before: VehicleState, after: VehicleState, period_s: float) -> None:
+        """The plant went from ``before`` to ``after`` over one sample period."""
+        self._imu_state = seen_by_the_gyro(before, after, period_s)
+        self._history.append(after)
+        velocity = after.velocity_ned_mps
+        self._acceleration = (velocity - self._previous_velocity) / period_s
+        self._previous_velocity = velocity
+
+    def messages(self, time_us: int, state: VehicleState,
+                 effects: SensorEffects) -> list | None:
+        """The sample at ``time_us`` (``state``: the plant's then) under ``effects``; None
+        when the link loses it."""
+        readings, fix = self.sensors.sample(time_us, self._imu_state, self._acceleration,
+                                            effects)
+        if effects is NO_SENSOR_EFFECTS:
+            truth = truth_sample(time_us, state, self._acceleration)
+        else:
+            if effects.loss_fraction > 0.0 and self.rng.random() < effects.loss_fraction:
+                return None
+            position, velocity, quaternion, body_rate = sensed_state(
+                state, self._history, effects, self.rng)
+            truth = truth_sample(time_us, state, self._acceleration, position, velocity,
+                                 quaternion, body_rate)
+        return sample_messages(truth, readings, fix, self.home)

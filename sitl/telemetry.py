@@ -1,0 +1,94 @@
+"""The simulator on Zenoh: its truth state each sample, each perturbation as it starts and
+ends, its status (at most once a second, and a final one with the link's latency), and the
+requests it serves (``perturb``, ``start``), queued for the loop to take.
+"""
+
+from __future__ import annotations
+
+import queue
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from contracts import SITL
+from contracts.perturbation_effects import PLANT_EFFECTS
+from contracts.perturbations import Perturbation, Perturbations
+from contracts.telemetry import STATE, json_record
+from contracts.zenoh_link import PERTURBATIONS_OFF, Request, TelemetryNode, ZenohOptions
+from sitl.link import LinkStats
+from sitl.plant import VehicleState
+
+# STATE record fields that are VehicleState's of the same name (then the plant effects).
+STATE_FROM_PLANT = ("position_ned_m", "velocity_ned_mps", "quaternion", "euler_rad",
+                    "euler_rate_rad_s", "body_rate_rad_s", "rotor_rad_s")
+
+
+class SimulatorTelemetry:
+    """The simulator's Zenoh node and its publications. The perturbation service answers
+    every query with an error unless ``serve_perturbations`` (a vehicle started by hand is
+    never blown or kicked by whoever reaches it)."""
+
+    def __init__(self, options: ZenohOptions, vehicle_id: int, serve_perturbations: bool,
+                 log: Callable[[str], None]) -> None:
+        self.node = TelemetryNode(options, vehicle_id, SITL, log)
+        self._state_pub = self.node.publisher("state")
+        self._event_pub = self.node.publisher("perturbation")
+        self.node.serve("perturb", None if serve_perturbations else PERTURBATIONS_OFF)
+        self.node.serve("start")
+        self._state_record = STATE.buffer()  # one record, refilled each sample
+
+    def next_request(self) -> Request | None:
+        """The oldest request not yet taken, or None."""
+        try:
+            return self.node.requests.get_nowait()
+        except queue.Empty:
+            return None
+
+    def publish_state(self, time_us: int, state: VehicleState, active: Perturbations,
+                      motor_commands: np.ndarray) -> None:
+        """The truth at ``time_us``: the plant's state, the plant changes in force and the
+        motor commands applied."""
+        if not self.node.enabled:
+            return
+        record = self._state_record
+        record["seq"], record["sim_time_us"] = self._state_pub.count, time_us
+        for name in STATE_FROM_PLANT:
+            record[name] = getattr(state, name)
+        for name in PLANT_EFFECTS:
+            record[name] = getattr(active, name)
+        record["motor_commands"] = motor_commands
+        self._state_pub.put(record.encode())
+
+    def publish_event(self, time_us: int, event: str, entry: Perturbation) -> None:
+        """A perturbation that started or ended at ``time_us``."""
+        self._event_pub.put(json_record(self._event_pub.count, time_us, event=event,
+                                        **entry.to_request()))
+
+    def status(self, time_us: int, stats: LinkStats, started: bool) -> None:
+        """The link's counters, at most once a second of wall time: a ground station sees
+        the simulator alive even while sim time stands still."""
+        self.node.status(time_us, **_status_fields(stats, started))
+
+    def close(self, time_us: int, stats: LinkStats, started: bool) -> None:
+        """The final status, with the latency of the autopilot's answers; then the session
+        closes."""
+        self.node.status(time_us, final=True, **_status_fields(stats, started),
+                         latency=_latency_summary(stats))
+        self.node.close()
+
+
+def _status_fields(stats: LinkStats, started: bool) -> dict[str, Any]:
+    return {"samples_sent": stats.samples_sent,
+            "commands_received": stats.commands_received,
+            "refused": stats.bad_messages,
+            "periods_without_command": stats.periods_without_command,
+            "started": started}
+
+
+def _latency_summary(stats: LinkStats) -> dict[str, float]:
+    h = stats.latency
+    if h.n == 0:
+        return {}
+    return {"p50_ms": h.percentile(50) * 1e3, "p99_ms": h.percentile(99) * 1e3,
+            "max_ms": h.max_s * 1e3}

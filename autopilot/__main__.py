@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 from contracts import AUTOPILOT, timeline
 
 if TYPE_CHECKING:
-    from autopilot.flight_tasks.reference import Reference
+    from autopilot.trajectories import Reference
 
 if __name__ == "__main__":
     timeline.mark(AUTOPILOT, "main")  # before the heavy imports below
@@ -58,7 +58,7 @@ def reference_from_options(kind: str, altitude_m: float, options: Sequence[str],
                            airframe: str) -> Reference:
     """``--reference KIND --reference-option NAME=VALUE ...``; an excitation given no
     envelope flies the airframe file's ``[envelope]`` (the paper's when it names none)."""
-    from autopilot.flight_tasks.reference import ENVELOPE_OPTIONS, REFERENCE_OPTIONS, Reference
+    from autopilot.trajectories import ENVELOPE_OPTIONS, REFERENCE_OPTIONS, Reference
     from contracts.airframe_file import airframe_envelope
 
     fields: dict[str, float] = {}
@@ -79,7 +79,7 @@ def reference_from_options(kind: str, altitude_m: float, options: Sequence[str],
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     from autopilot.control.factory import CONTROLLERS
-    from autopilot.flight_tasks.reference import REFERENCE_KINDS
+    from autopilot.trajectories import REFERENCE_KINDS
     from contracts.airframe import DEFAULT_AIRFRAME, airframe_argument
     from contracts.mavlink import STATE_SOURCES
 
@@ -163,9 +163,9 @@ def preload() -> None:
     """What a run imports, loaded by a warm process before its first run."""
     import autopilot.commander.commander  # noqa: F401
     import autopilot.control.factory  # noqa: F401
-    import autopilot.flight_tasks.reference  # noqa: F401
     import autopilot.mavlink.server  # noqa: F401
     import autopilot.process.loop  # noqa: F401
+    import autopilot.trajectories  # noqa: F401
 
 
 def run(args: argparse.Namespace) -> int:

@@ -11,7 +11,8 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from autopilot.flight_tasks.reference import (
+from autopilot.identification.coverage import coverage, coverage_metadata, format_coverage
+from autopilot.trajectories import (
     EXCITATION_MARGIN,
     EXCITATION_RECORD_S,
     Reference,
@@ -19,7 +20,6 @@ from autopilot.flight_tasks.reference import (
     excitation_sines,
     tail_reach,
 )
-from autopilot.identification.coverage import coverage, coverage_metadata, format_coverage
 from contracts.airframe import PAPER
 from contracts.airframe_file import (
     PAPER_ENVELOPE,

@@ -20,11 +20,11 @@ from autopilot.commander.commander import Commander
 from autopilot.commander.failsafe import Stream
 from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LANDED_SPEED_MPS
 from autopilot.control.factory import make_controller
-from autopilot.flight_tasks.reference import Reference
 from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.flight_tasks.takeoff import TAKEOFF_REACHED_M
 from autopilot.parameters import default_parameters
 from autopilot.refusal import RefusedError
+from autopilot.trajectories import Reference
 from contracts.airframe import PAPER
 from contracts.frames import quat_from_euler
 from contracts.modes import FlightMode

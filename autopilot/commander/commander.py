@@ -32,7 +32,6 @@ from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LandDetector
 from autopilot.commander.modes import MODES, ModeRow
 from autopilot.control.controller import Controller
 from autopilot.flight_tasks.manager import FlightControl
-from autopilot.flight_tasks.reference import Reference
 from autopilot.flight_tasks.setpoints import checked_attitude_target, checked_position_setpoint
 from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.flight_tasks.sticks import Sticks
@@ -41,6 +40,7 @@ from autopilot.navigator.mission_store import MissionStore
 from autopilot.navigator.navigator import Navigator
 from autopilot.parameters import validate_parameters
 from autopilot.refusal import RefusedError
+from autopilot.trajectories import Reference
 from contracts.airframe import max_thrust_n
 from contracts.frames import DEFAULT_HOME, Home
 from contracts.modes import FlightMode

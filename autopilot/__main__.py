@@ -171,7 +171,8 @@ def preload() -> None:
 def run(args: argparse.Namespace) -> int:
     from autopilot.commander.commander import Commander
     from autopilot.control.factory import load_models, make_controller
-    from autopilot.mavlink.server import MavlinkServer, open_link
+    from autopilot.mavlink.link import open_link
+    from autopilot.mavlink.server import MavlinkServer
     from autopilot.mavlink.signing import SigningState, default_state_path
     from autopilot.parameters import airframe_parameters, validate_parameters
     from autopilot.process.loop import Autopilot, AutopilotConfig

@@ -68,7 +68,7 @@ def make_server(vehicle: Commander, links: list, clock: Clock, flavour: str = "p
 
 
 def open_links(n: int) -> list:
-    from autopilot.mavlink.server import open_link
+    from autopilot.mavlink.link import open_link
 
     return [open_link(name, ("127.0.0.1", 0), None, None, i)
             for i, name in enumerate(("gcs", "api")[:n])]

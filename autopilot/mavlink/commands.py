@@ -22,7 +22,7 @@ from contracts.mavlink import GLOBAL_FRAMES, mavlink, ned_from_global
 from contracts.modes import FlightMode, mode_from_custom, px4_custom_mode_from_command
 
 if TYPE_CHECKING:
-    from autopilot.mavlink.server import GroundLink, MavlinkServer
+    from autopilot.mavlink.link import GroundLink, ServerLink
 
 FORCE_DISARM_MAGIC = 21196
 INT32_MAX = 2**31 - 1
@@ -31,7 +31,7 @@ INT32_MAX = 2**31 - 1
 class CommandProtocol:
     """Maps commands to vehicle calls; a handler returns messages to send after the ACK."""
 
-    def __init__(self, server: MavlinkServer) -> None:
+    def __init__(self, server: ServerLink) -> None:
         self.server = server
         self.handled = 0
         self.table: dict[int, Callable] = {

@@ -17,7 +17,7 @@ from contracts.mavlink import mavlink, ned_from_global
 from contracts.vectors import MEASUREMENT
 
 if TYPE_CHECKING:
-    from autopilot.mavlink.server import GroundLink, MavlinkServer
+    from autopilot.mavlink.link import GroundLink, ServerLink
 
 # Attitude-target type_mask bits (ATTITUDE_TARGET_TYPEMASK).
 BODY_RATES_IGNORE = 0b111
@@ -29,7 +29,7 @@ TARGET_HAS_POSITION, TARGET_HAS_VELOCITY = 1 << 0, 1 << 1
 
 
 class SetpointProtocol:
-    def __init__(self, server: MavlinkServer) -> None:
+    def __init__(self, server: ServerLink) -> None:
         self.server = server
         self._last_refusal_s = -math.inf
 

@@ -265,7 +265,7 @@ def test_arming_in_the_air_is_denied(station):
 
 def test_arming_in_offboard_without_setpoints_is_temporarily_rejected(station):
     station.state_up()
-    station.vehicle.position_setpoint(T0, station.vehicle.setpoint)
+    station.vehicle.inputs.position_setpoint(T0, station.vehicle.setpoint)
     assert station.client.result(SET_MODE, *px4(6))[0] == ACCEPTED
     station.at(T0 + DEFAULTS["COM_OF_LOSS_T"] + EPS)
     assert station.client.result(ARM, 1) == (TEMPORARILY_REJECTED,

@@ -158,14 +158,14 @@ class CommandProtocol:
     def _mission_start(self, link, p, now):
         if not (math.isfinite(p[0]) and p[0] == int(p[0])):
             raise RefusedError(f"mission start: item {p[0]:g} is not a whole number")
-        self.server.vehicle.start_mission(int(p[0]), now)
+        self.server.vehicle.auto.start_mission(int(p[0]), now)
 
     def _return(self, link, p, now):
         self.server.vehicle.set_mode(FlightMode.RTL, now)
 
     def _change_speed(self, link, p, now):
         """DO_CHANGE_SPEED (QGroundControl's "change speed"): param2 in m/s, -1 no change."""
-        self.server.vehicle.change_speed(p[1])
+        self.server.vehicle.auto.change_speed(p[1])
 
     def _reposition(self, link, p, now):
         """DO_REPOSITION (QGroundControl's "go to location", MAVSDK's goto_location):
@@ -185,7 +185,7 @@ class CommandProtocol:
         # param4 in radians, as PX4 and MAVSDK read it (the MAVLink spec said degrees
         # until 2025 and now says radians too); NaN keeps the heading.
         yaw = p[3]
-        self.server.vehicle.reposition(target, yaw, p[0] if math.isfinite(p[0]) else -1.0)
+        self.server.vehicle.auto.reposition(target, yaw, p[0] if math.isfinite(p[0]) else -1.0)
 
     def _orbit(self, link, p, now):
         """DO_ORBIT (MAVSDK's do_orbit): param1 radius [m] (negative: counter-clockwise),

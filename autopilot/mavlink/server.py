@@ -237,7 +237,7 @@ class MavlinkServer:
     def _on_heartbeat(self, link, address, msg, now) -> None:
         if msg.type == mavlink.MAV_TYPE_GCS or msg.get_srcComponent() == \
                 mavlink.MAV_COMP_ID_MISSIONPLANNER:
-            self.vehicle.gcs_heartbeat(now)
+            self.vehicle.inputs.gcs_heartbeat(now)
 
     def _on_ping(self, link, address, msg, now) -> None:
         if msg.target_system == 0:

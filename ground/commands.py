@@ -196,6 +196,7 @@ def compare_command(args: argparse.Namespace) -> int:
     from autopilot.control.factory import load_models
     from autopilot.parameters import validate_parameters
     from contracts.airframe import airframe_by_name
+    from contracts.airframe_file import read_airframe
     from ground.compare import run_comparison
     from ground.scenarios import scenario_by_name
 
@@ -203,7 +204,7 @@ def compare_command(args: argparse.Namespace) -> int:
         scenario_by_name(name)
     airframe_by_name(args.airframe)
     parameters = validate_parameters(dict(args.param))
-    models = load_models(args.model, args.airframe, args.any_airframe_model)
+    models = load_models(args.model, read_airframe(args.airframe), args.any_airframe_model)
     return run_comparison(args.scenarios, args.controllers, args.plants, args.airframe, models,
                           parameters, args.out or fresh_folder("compare"))
 
@@ -215,7 +216,7 @@ def identify_command(args: argparse.Namespace) -> int:
     from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
     from autopilot.models.model_file import save_model
     from contracts.airframe import airframe_by_name
-    from contracts.airframe_file import Envelope, airframe_envelope
+    from contracts.airframe_file import Envelope, airframe_envelope, read_airframe
     from ground.excitation import excitation_dataset
     from ground.paper_tables import TABLE_2_VALIDATION_RMSE
 
@@ -262,7 +263,7 @@ def identify_command(args: argparse.Namespace) -> int:
                              f"no model written")
         print(f"ivfm: warning: {advice} (--allow-narrow)", file=sys.stderr)
     models = identify_dataset(dataset, n_clusters=n_clusters, seed=args.seed,
-                              metadata={**model_airframe_metadata(args.airframe),
+                              metadata={**model_airframe_metadata(read_airframe(args.airframe)),
                                         **coverage_metadata(envelope, reach)})
     elapsed = time.perf_counter() - start
     print(format_table_2(models, TABLE_2_VALIDATION_RMSE))

@@ -12,8 +12,8 @@ from contracts import SITL, timeline
 if __name__ == "__main__":
     timeline.mark(SITL, "main")  # before the heavy imports below
 
-from contracts.airframe import DEFAULT_AIRFRAME, airframe_argument  # noqa: E402
-from contracts.airframe_file import read_airframe  # noqa: E402
+from contracts.airframe import DEFAULT_AIRFRAME  # noqa: E402
+from contracts.airframe_file import spec_argument  # noqa: E402
 from contracts.arguments import (  # noqa: E402
     ALTITUDE_M,
     DURATION_S,
@@ -52,7 +52,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--plant", default="rigid-body", choices=list(FIDELITIES))
     # PX4 SITL's default vehicle is the x500: scripts written against it expect its
     # thrust (the paper's airframe hovers at 22 % and climbs at 2 g on PX4's 0.5-0.6).
-    p.add_argument("--airframe", default=DEFAULT_AIRFRAME, type=airframe_argument,
+    p.add_argument("--airframe", default=DEFAULT_AIRFRAME, type=spec_argument,
                    help="shipped airframe name or airframe .toml file (default: "
                         f"{DEFAULT_AIRFRAME}, the x500-sized quad X; scenarios name theirs)")
     p.add_argument("--start-altitude", type=ALTITUDE_M, default=0.0, metavar="M",
@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
 
         print(f"sitl: {pin_to_cpus(args.rt_cpus)}", file=sys.stderr, flush=True)
     config = SimulatorConfig(
-        airframe=read_airframe(args.airframe), fidelity=args.plant, host=args.host,
+        airframe=args.airframe, fidelity=args.plant, host=args.host,
         port=args.port, lockstep=args.lockstep, rate_hz=args.rate_hz,
         start_altitude_m=args.start_altitude,
         schedule=load_schedule(args.schedule) if args.schedule else (),

@@ -271,8 +271,10 @@ def test_the_autopilots_excitation_takes_the_airframes_envelope_unless_given(opt
                                                                              envelope):
     from autopilot.__main__ import reference_from_options
 
-    assert reference_from_options("excitation", 10.0, options, "quad-x-500").envelope \
+    assert reference_from_options("excitation", 10.0, options,
+                                  read_airframe("quad-x-500")).envelope \
         == envelope
-    assert reference_from_options("excitation", 10.0, [], "paper").envelope == PAPER_ENVELOPE
+    assert reference_from_options("excitation", 10.0, [],
+                                  read_airframe("paper")).envelope == PAPER_ENVELOPE
     with pytest.raises(ValueError, match="unknown field 'rate'; known: yaw_rad"):
-        reference_from_options("excitation", 10.0, ["rate=1"], "quad-x-500")
+        reference_from_options("excitation", 10.0, ["rate=1"], read_airframe("quad-x-500"))

@@ -38,7 +38,7 @@ from autopilot.process.stall_watch import StallWatch
 from autopilot.process.telemetry import TelemetryPublisher
 from autopilot.process.warm_up import load_compiled_code
 from contracts import timeline
-from contracts.airframe_file import read_airframe
+from contracts.airframe_file import AirframeSpec
 from contracts.arguments import CONTROL_RATE_RANGE_HZ
 from contracts.frames import Home
 from contracts.mavlink import (
@@ -76,7 +76,7 @@ class AutopilotConfig:
     rt_priority: int = 50  # SCHED_FIFO priority of the real-time loop (0: normal)
     zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(enabled=False))
     home: Home | None = None  # None: the simulator's first position, as PX4 takes it
-    airframe: str = ""  # shipped name or file: drawn by viewers (the scene record)
+    airframe: AirframeSpec | None = None  # drawn by viewers (the scene record)
 
     def __post_init__(self) -> None:
         low, high = CONTROL_RATE_RANGE_HZ
@@ -92,11 +92,11 @@ class AutopilotConfig:
                              f"{', '.join(STATE_SOURCES)}")
 
 
-def airframe_rotors(airframe: str) -> tuple[str, tuple[tuple[float, ...], ...]] | None:
+def airframe_rotors(spec: AirframeSpec | None
+                    ) -> tuple[str, tuple[tuple[float, ...], ...]] | None:
     """The airframe's name and rotors (x, y, z [m] body FRD, spin) for the scene record."""
-    if not airframe:
+    if spec is None:
         return None
-    spec = read_airframe(airframe)
     return spec.name, tuple((*r.position_m, r.spin) for r in spec.rotors)
 
 

@@ -37,6 +37,7 @@ from contracts.mavlink import (  # noqa: E402
     SIM_TCP_PORT,
 )
 from contracts.modes import FLAVOURS  # noqa: E402
+from contracts.process_main import pin_cpus, run_main, start_process  # noqa: E402
 from contracts.zenoh_link import (  # noqa: E402
     VEHICLE_CONNECT,
     VEHICLE_LISTEN,
@@ -185,9 +186,7 @@ def run(args: argparse.Namespace) -> int:
 
     timeline.mark(AUTOPILOT, "imports done")
     if args.rt_cpus is not None:  # before Zenoh's threads start: they inherit it
-        from contracts.realtime import pin_to_cpus
-
-        print(f"autopilot: {pin_to_cpus(args.rt_cpus)}", file=sys.stderr, flush=True)
+        pin_cpus(AUTOPILOT, args.rt_cpus)
     config = AutopilotConfig(sim_host=args.sim[0], sim_port=args.sim[1], lockstep=args.lockstep,
                              rate_hz=args.rate_hz, state_source=args.state_source,
                              duration_s=args.duration, sysid=check_vehicle_id(args.sysid),
@@ -242,17 +241,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        return run(args)
-    except (ValueError, OSError) as exc:
-        print(f"autopilot: error: {exc}", file=sys.stderr)
-        return 2
+    """The autopilot's command line, run once (contracts/process_main.py)."""
+    return run_main(AUTOPILOT, build_parser, run, argv)
 
 
 if __name__ == "__main__":
-    from contracts.warm import WARM_FLAG, exit_process, serve
-
-    code = serve(main, preload) if sys.argv[1:] == [WARM_FLAG] else main()
-    timeline.mark(AUTOPILOT, "exit")
-    exit_process(code)
+    start_process(AUTOPILOT, main, preload)

@@ -270,6 +270,7 @@ class Commander:
                                                         self.failsafe_view()))
 
     def failsafe_view(self) -> FailsafeView:
+        """The snapshot the failsafes decide on, taken when they look."""
         return FailsafeView(self.armed, self.landed, self.row.stream)
 
     def apply_failsafe(self, decision: FailsafeDecision | None) -> None:

@@ -11,7 +11,8 @@ from typing import TYPE_CHECKING
 from contracts import AUTOPILOT, timeline
 
 if TYPE_CHECKING:
-    from autopilot.flight_tasks.reference import Reference
+    from autopilot.trajectories import Reference
+    from contracts.airframe_file import AirframeSpec
 
 if __name__ == "__main__":
     timeline.mark(AUTOPILOT, "main")  # before the heavy imports below
@@ -36,6 +37,7 @@ from contracts.mavlink import (  # noqa: E402
     SIM_TCP_PORT,
 )
 from contracts.modes import FLAVOURS  # noqa: E402
+from contracts.process_main import pin_cpus, run_main, start_process  # noqa: E402
 from contracts.zenoh_link import (  # noqa: E402
     VEHICLE_CONNECT,
     VEHICLE_LISTEN,
@@ -55,11 +57,11 @@ def param_argument(text: str) -> tuple[str, float]:
 
 
 def reference_from_options(kind: str, altitude_m: float, options: Sequence[str],
-                           airframe: str) -> Reference:
+                           airframe: AirframeSpec) -> Reference:
     """``--reference KIND --reference-option NAME=VALUE ...``; an excitation given no
     envelope flies the airframe file's ``[envelope]`` (the paper's when it names none)."""
-    from autopilot.flight_tasks.reference import ENVELOPE_OPTIONS, REFERENCE_OPTIONS, Reference
-    from contracts.airframe_file import airframe_envelope
+    from autopilot.trajectories import ENVELOPE_OPTIONS, REFERENCE_OPTIONS, Reference
+    from contracts.airframe_file import PAPER_ENVELOPE
 
     fields: dict[str, float] = {}
     for item in options:
@@ -73,14 +75,16 @@ def reference_from_options(kind: str, altitude_m: float, options: Sequence[str],
             raise ValueError(f"--reference-option {name}: {value!r} is not a number") \
                 from None
     if kind == "excitation" and not fields.keys() & set(ENVELOPE_OPTIONS):
-        fields.update(zip(ENVELOPE_OPTIONS, airframe_envelope(airframe), strict=True))
+        envelope = airframe.envelope or PAPER_ENVELOPE
+        fields.update(zip(ENVELOPE_OPTIONS, envelope, strict=True))
     return Reference(kind, altitude_m=altitude_m, **fields)
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     from autopilot.control.factory import CONTROLLERS
-    from autopilot.flight_tasks.reference import REFERENCE_KINDS
-    from contracts.airframe import DEFAULT_AIRFRAME, airframe_argument
+    from autopilot.trajectories import REFERENCE_KINDS
+    from contracts.airframe import DEFAULT_AIRFRAME
+    from contracts.airframe_file import spec_argument
     from contracts.mavlink import STATE_SOURCES
 
     p = parser or argparse.ArgumentParser(prog="python -m autopilot", description=__doc__)
@@ -98,7 +102,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--controller", default="ivfc", choices=CONTROLLERS)
     # PX4 SITL's default vehicle is the x500: scripts written against it expect its
     # thrust (the paper's airframe hovers at 22 % and climbs at 2 g on PX4's 0.5-0.6).
-    p.add_argument("--airframe", default=DEFAULT_AIRFRAME, type=airframe_argument,
+    p.add_argument("--airframe", default=DEFAULT_AIRFRAME, type=spec_argument,
                    help="shipped airframe name or airframe .toml file (default: "
                         f"{DEFAULT_AIRFRAME}, the x500-sized quad X; scenarios name theirs)")
     p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")
@@ -163,43 +167,43 @@ def preload() -> None:
     """What a run imports, loaded by a warm process before its first run."""
     import autopilot.commander.commander  # noqa: F401
     import autopilot.control.factory  # noqa: F401
-    import autopilot.flight_tasks.reference  # noqa: F401
     import autopilot.mavlink.server  # noqa: F401
     import autopilot.process.loop  # noqa: F401
+    import autopilot.trajectories  # noqa: F401
 
 
 def run(args: argparse.Namespace) -> int:
     from autopilot.commander.commander import Commander
     from autopilot.control.factory import load_models, make_controller
-    from autopilot.mavlink.server import MavlinkServer, open_link
+    from autopilot.mavlink.link import open_link
+    from autopilot.mavlink.server import MavlinkServer
     from autopilot.mavlink.signing import SigningState, default_state_path
     from autopilot.parameters import airframe_parameters, validate_parameters
     from autopilot.process.loop import Autopilot, AutopilotConfig
-    from contracts.airframe import airframe_by_name
+    from contracts.airframe import airframe_from_spec
     from contracts.perturbations import load_schedule
     from contracts.telemetry import check_vehicle_id
 
     timeline.mark(AUTOPILOT, "imports done")
     if args.rt_cpus is not None:  # before Zenoh's threads start: they inherit it
-        from contracts.realtime import pin_to_cpus
-
-        print(f"autopilot: {pin_to_cpus(args.rt_cpus)}", file=sys.stderr, flush=True)
+        pin_cpus(AUTOPILOT, args.rt_cpus)
     config = AutopilotConfig(sim_host=args.sim[0], sim_port=args.sim[1], lockstep=args.lockstep,
                              rate_hz=args.rate_hz, state_source=args.state_source,
                              duration_s=args.duration, sysid=check_vehicle_id(args.sysid),
                              rt_priority=args.rt_priority,
                              zenoh=zenoh_options_from_args(args), home=args.home,
                              perturbations=args.perturbations, airframe=args.airframe)
-    airframe = airframe_by_name(args.airframe)
+    spec = args.airframe  # the airframe file, read once by the command line (spec_argument)
+    airframe = airframe_from_spec(spec)
     # The airframe file's own defaults, then the command line's.
-    parameters = validate_parameters({**airframe_parameters(args.airframe), **dict(args.param)})
-    models = (load_models(args.model, args.airframe, args.any_airframe_model)
+    parameters = validate_parameters({**airframe_parameters(spec), **dict(args.param)})
+    models = (load_models(args.model, spec, args.any_airframe_model)
               if args.controller in ("ivfc", "t1fc") else None)
     period_s = 1.0 / args.rate_hz
     reference = None
     if args.reference:
         reference = reference_from_options(args.reference, args.altitude,
-                                           args.reference_option, args.airframe)
+                                           args.reference_option, spec)
     if args.arm_in_reference and reference is None:
         raise ValueError("--arm-in-reference needs --reference")
     if args.start_mission and args.mission is None:
@@ -237,17 +241,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        return run(args)
-    except (ValueError, OSError) as exc:
-        print(f"autopilot: error: {exc}", file=sys.stderr)
-        return 2
+    """The autopilot's command line, run once (contracts/process_main.py)."""
+    return run_main(AUTOPILOT, build_parser, run, argv)
 
 
 if __name__ == "__main__":
-    from contracts.warm import WARM_FLAG, exit_process, serve
-
-    code = serve(main, preload) if sys.argv[1:] == [WARM_FLAG] else main()
-    timeline.mark(AUTOPILOT, "exit")
-    exit_process(code)
+    start_process(AUTOPILOT, main, preload)

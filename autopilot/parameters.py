@@ -14,6 +14,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from contracts.airframe_file import AirframeSpec
 
 
 @dataclass(frozen=True)
@@ -162,14 +166,11 @@ def default_parameters() -> dict[str, float]:
     return {spec.name: spec.default for spec in PARAMETERS}
 
 
-def airframe_parameters(airframe: str | None) -> dict[str, float]:
+def airframe_parameters(spec: AirframeSpec | None) -> dict[str, float]:
     """An airframe file's own parameter defaults ([parameters]), checked against the
-    table; {} for none."""
-    if airframe is None:
+    table; {} for none. The spec is read by the caller (once, at its edge)."""
+    if spec is None:
         return {}
-    from contracts.airframe_file import read_airframe
-
-    spec = read_airframe(airframe, controllable=False)
     own = dict(spec.parameters)
     try:
         validate_parameters(own)

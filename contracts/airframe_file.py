@@ -127,6 +127,16 @@ def airframe_envelope(airframe: str | Path) -> Envelope:
     return read_airframe(airframe).envelope or PAPER_ENVELOPE
 
 
+def spec_argument(text: str) -> AirframeSpec:
+    """argparse type of ``--airframe NAME|FILE`` that keeps what it read: the airframe
+    file is read once, at the command line, and the spec passed inward (its
+    AirframeError is the usage error)."""
+    try:
+        return read_airframe(text)
+    except AirframeError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def checked_argument(load: Callable[[str], object]) -> Callable[[str], str]:
     """argparse type of ``--airframe NAME|FILE``: ``load`` checks it now (its
     AirframeError is the usage error), the text is passed on as given."""

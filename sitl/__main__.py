@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -12,8 +11,8 @@ from contracts import SITL, timeline
 if __name__ == "__main__":
     timeline.mark(SITL, "main")  # before the heavy imports below
 
-from contracts.airframe import DEFAULT_AIRFRAME, airframe_argument  # noqa: E402
-from contracts.airframe_file import read_airframe  # noqa: E402
+from contracts.airframe import DEFAULT_AIRFRAME  # noqa: E402
+from contracts.airframe_file import spec_argument  # noqa: E402
 from contracts.arguments import (  # noqa: E402
     ALTITUDE_M,
     DURATION_S,
@@ -27,6 +26,7 @@ from contracts.arguments import (  # noqa: E402
 from contracts.frames import DEFAULT_HOME, home_argument  # noqa: E402
 from contracts.mavlink import SIM_TCP_PORT  # noqa: E402
 from contracts.perturbations import load_schedule  # noqa: E402
+from contracts.process_main import pin_cpus, run_main, start_process  # noqa: E402
 from contracts.zenoh_link import (  # noqa: E402
     VEHICLE_CONNECT,
     VEHICLE_LISTEN,
@@ -52,7 +52,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--plant", default="rigid-body", choices=list(FIDELITIES))
     # PX4 SITL's default vehicle is the x500: scripts written against it expect its
     # thrust (the paper's airframe hovers at 22 % and climbs at 2 g on PX4's 0.5-0.6).
-    p.add_argument("--airframe", default=DEFAULT_AIRFRAME, type=airframe_argument,
+    p.add_argument("--airframe", default=DEFAULT_AIRFRAME, type=spec_argument,
                    help="shipped airframe name or airframe .toml file (default: "
                         f"{DEFAULT_AIRFRAME}, the x500-sized quad X; scenarios name theirs)")
     p.add_argument("--start-altitude", type=ALTITUDE_M, default=0.0, metavar="M",
@@ -86,11 +86,9 @@ def run(args: argparse.Namespace) -> int:
 
     timeline.mark(SITL, "imports done")
     if args.rt_cpus is not None:  # before Zenoh's threads start: they inherit it
-        from contracts.realtime import pin_to_cpus
-
-        print(f"sitl: {pin_to_cpus(args.rt_cpus)}", file=sys.stderr, flush=True)
+        pin_cpus(SITL, args.rt_cpus)
     config = SimulatorConfig(
-        airframe=read_airframe(args.airframe), fidelity=args.plant, host=args.host,
+        airframe=args.airframe, fidelity=args.plant, host=args.host,
         port=args.port, lockstep=args.lockstep, rate_hz=args.rate_hz,
         start_altitude_m=args.start_altitude,
         schedule=load_schedule(args.schedule) if args.schedule else (),
@@ -110,17 +108,9 @@ def preload() -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-    try:
-        return run(args)
-    except (ValueError, OSError) as exc:
-        print(f"sitl: error: {exc}", file=sys.stderr)
-        return 2
+    """The simulator's command line, run once (contracts/process_main.py)."""
+    return run_main(SITL, build_parser, run, argv)
 
 
 if __name__ == "__main__":
-    from contracts.warm import WARM_FLAG, exit_process, serve
-
-    code = serve(main, preload) if sys.argv[1:] == [WARM_FLAG] else main()
-    timeline.mark(SITL, "exit")
-    exit_process(code)
+    start_process(SITL, main, preload)

@@ -87,7 +87,7 @@ class Flight:
 
         def send(t: float) -> None:
             if (self.steps - start) % every == 0:
-                self.vehicle.position_setpoint(t, setpoint)
+                self.vehicle.inputs.position_setpoint(t, setpoint)
         self.run(duration_s, send)
 
     def start_offboard(self, setpoint: Setpoint) -> None:

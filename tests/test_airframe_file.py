@@ -356,8 +356,8 @@ def test_airframe_parameters_are_defaults_that_scenarios_and_the_command_line_ov
     from ground.run.flights import Overrides, plan_flight
     from ground.scenario.scenario_file import scenario_by_name
 
-    assert airframe_parameters("quad-x-500") == {"CMDF_ACC_MAX": 20.0}
-    assert airframe_parameters("paper") == {}
+    assert airframe_parameters(read_airframe("quad-x-500")) == {"CMDF_ACC_MAX": 20.0}
+    assert airframe_parameters(read_airframe("paper")) == {}
     scenario = scenario_by_name("x500-position-sine")
     assert plan_flight(scenario).parameters["CMDF_ACC_MAX"] == 20.0
     assert plan_flight(scenario, Overrides(parameters={"CMDF_ACC_MAX": 9.0})
@@ -375,4 +375,4 @@ def test_an_unknown_parameter_in_an_airframe_file_is_refused_where_it_is_used(tm
     path = tmp_path / "mine.toml"
     path.write_text(text)
     with pytest.raises(ValueError, match="mine.toml: parameters: unknown parameter"):
-        airframe_parameters(str(path))
+        airframe_parameters(read_airframe(str(path), controllable=False))

@@ -11,7 +11,8 @@ from importlib import resources
 import numpy as np
 import pytest
 
-from autopilot.flight_tasks.reference import (
+from autopilot.identification.coverage import coverage, coverage_metadata, format_coverage
+from autopilot.trajectories import (
     EXCITATION_MARGIN,
     EXCITATION_RECORD_S,
     Reference,
@@ -19,7 +20,6 @@ from autopilot.flight_tasks.reference import (
     excitation_sines,
     tail_reach,
 )
-from autopilot.identification.coverage import coverage, coverage_metadata, format_coverage
 from contracts.airframe import PAPER
 from contracts.airframe_file import (
     PAPER_ENVELOPE,
@@ -271,8 +271,10 @@ def test_the_autopilots_excitation_takes_the_airframes_envelope_unless_given(opt
                                                                              envelope):
     from autopilot.__main__ import reference_from_options
 
-    assert reference_from_options("excitation", 10.0, options, "quad-x-500").envelope \
+    assert reference_from_options("excitation", 10.0, options,
+                                  read_airframe("quad-x-500")).envelope \
         == envelope
-    assert reference_from_options("excitation", 10.0, [], "paper").envelope == PAPER_ENVELOPE
+    assert reference_from_options("excitation", 10.0, [],
+                                  read_airframe("paper")).envelope == PAPER_ENVELOPE
     with pytest.raises(ValueError, match="unknown field 'rate'; known: yaw_rad"):
-        reference_from_options("excitation", 10.0, ["rate=1"], "quad-x-500")
+        reference_from_options("excitation", 10.0, ["rate=1"], read_airframe("quad-x-500"))

@@ -29,7 +29,7 @@ def _follow(target, seconds: float, with_velocity: bool = True,
         since = t - start
         if round(since / f.period_s) % 100 == 0 and not silent(since):
             position, velocity = target(since)
-            f.vehicle.follow_target(np.array(position, dtype=float),
+            f.vehicle.inputs.follow_target(np.array(position, dtype=float),
                                     np.array(velocity, dtype=float) if with_velocity
                                     else None)
 
@@ -126,7 +126,7 @@ def test_follow_target_needs_the_air_and_bad_reports_change_nothing():
     for position, velocity in (((math.nan, 0, 0), None), ((2e4, 0, 0), None),
                                ((0, 0, 0), (math.inf, 0, 0)), ((0, 0, 0), (200.0, 0, 0))):
         with pytest.raises(RefusedError, match="follow target"):
-            f.vehicle.follow_target(np.array(position, dtype=float),
+            f.vehicle.inputs.follow_target(np.array(position, dtype=float),
                                     None if velocity is None else np.array(velocity))
     assert task.target_ned_m is None
 

@@ -13,6 +13,7 @@ import pytest
 
 from autopilot.commander.commander import Commander
 from autopilot.control.factory import make_controller
+from autopilot.mavlink.link import open_link
 from autopilot.mavlink.server import (
     DROP_WARNING_S,
     HEARTBEAT_SHED_S,
@@ -20,7 +21,6 @@ from autopilot.mavlink.server import (
     PEER_SILENT_S,
     MavlinkServer,
     decode_datagram,
-    open_link,
 )
 from contracts.airframe import PAPER
 from contracts.mavlink import mavlink, new_mavlink

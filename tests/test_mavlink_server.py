@@ -68,7 +68,7 @@ def make_server(vehicle: Commander, links: list, clock: Clock, flavour: str = "p
 
 
 def open_links(n: int) -> list:
-    from autopilot.mavlink.server import open_link
+    from autopilot.mavlink.link import open_link
 
     return [open_link(name, ("127.0.0.1", 0), None, None, i)
             for i, name in enumerate(("gcs", "api")[:n])]
@@ -265,7 +265,7 @@ def test_arming_in_the_air_is_denied(station):
 
 def test_arming_in_offboard_without_setpoints_is_temporarily_rejected(station):
     station.state_up()
-    station.vehicle.position_setpoint(T0, station.vehicle.setpoint)
+    station.vehicle.inputs.position_setpoint(T0, station.vehicle.setpoint)
     assert station.client.result(SET_MODE, *px4(6))[0] == ACCEPTED
     station.at(T0 + DEFAULTS["COM_OF_LOSS_T"] + EPS)
     assert station.client.result(ARM, 1) == (TEMPORARILY_REJECTED,

@@ -190,8 +190,8 @@ def test_mission_mode_needs_a_mission_and_start_checks_the_item():
         f.vehicle.set_mode(FlightMode.MISSION, f.t_s)
     f.vehicle.mission.replace(MISSION, tuple(six_waypoints()))
     with pytest.raises(RefusedError, match="no item 8"):
-        f.vehicle.start_mission(8, f.t_s)
-    f.vehicle.start_mission(2, f.t_s)
+        f.vehicle.auto.start_mission(8, f.t_s)
+    f.vehicle.auto.start_mission(2, f.t_s)
     assert f.vehicle.mode == FlightMode.MISSION and f.vehicle.mission.current == 2
 
 
@@ -201,7 +201,7 @@ def far_away():
     """Taken off to 5 m, then gone to 50 m north."""
     f = Flight()
     f.take_off(5.0)
-    f.vehicle.reposition(np.array([50.0, 0.0, -5.0]), math.radians(90.0), -1.0)
+    f.vehicle.auto.reposition(np.array([50.0, 0.0, -5.0]), math.radians(90.0), -1.0)
     f.run(20.0)
     return f
 
@@ -216,7 +216,7 @@ def test_go_to_reaches_the_position_and_holds_it(far_away):
 def test_return_from_50_m_lands_at_home_and_disarms(far_away):
     f = Flight()
     f.take_off(5.0)
-    f.vehicle.reposition(np.array([50.0, 0.0, -5.0]), math.nan, -1.0)
+    f.vehicle.auto.reposition(np.array([50.0, 0.0, -5.0]), math.nan, -1.0)
     f.run(20.0)
     f.vehicle.set_mode(FlightMode.RTL, f.t_s)
     start = f.t_s
@@ -231,7 +231,7 @@ def test_return_from_50_m_lands_at_home_and_disarms(far_away):
 def test_return_above_the_return_altitude_keeps_its_altitude():
     f = Flight(parameters={"RTL_RETURN_ALT": 4.0, "RTL_DESCEND_ALT": 2.0})
     f.take_off(6.0)
-    f.vehicle.reposition(np.array([10.0, 0.0, -6.0]), math.nan, -1.0)
+    f.vehicle.auto.reposition(np.array([10.0, 0.0, -6.0]), math.nan, -1.0)
     f.run(8.0)
     f.vehicle.set_mode(FlightMode.RTL, f.t_s)
     f.run(25.0)
@@ -243,15 +243,15 @@ def test_go_to_at_a_given_speed_and_refusals():
     f = Flight()
     f.run(0.05)
     with pytest.raises(RefusedError, match="not in the air"):
-        f.vehicle.reposition(np.array([5.0, 0.0, -5.0]), math.nan, -1.0)
+        f.vehicle.auto.reposition(np.array([5.0, 0.0, -5.0]), math.nan, -1.0)
     with pytest.raises(RefusedError, match="not in the air"):
         f.vehicle.set_mode(FlightMode.RTL, f.t_s)
     f.take_off(3.0)
     with pytest.raises(RefusedError, match="finite or NaN"):
-        f.vehicle.reposition(np.array([math.inf, 0.0, -5.0]), math.nan, -1.0)
+        f.vehicle.auto.reposition(np.array([math.inf, 0.0, -5.0]), math.nan, -1.0)
     with pytest.raises(RefusedError, match="more than 1 km"):
-        f.vehicle.reposition(np.array([2000.0, 0.0, -5.0]), math.nan, -1.0)
-    f.vehicle.reposition(np.array([20.0, math.nan, math.nan]), math.nan, 2.0)
+        f.vehicle.auto.reposition(np.array([2000.0, 0.0, -5.0]), math.nan, -1.0)
+    f.vehicle.auto.reposition(np.array([20.0, math.nan, math.nan]), math.nan, 2.0)
     f.run(15.0)
     assert reference_speed(f.log).max() == pytest.approx(2.0, abs=1e-9)
     assert speed(f.log).max() == pytest.approx(2.17, abs=0.01)
@@ -263,12 +263,12 @@ def test_return_as_the_action_of_fence_and_ground_station_loss(how):
     params = ({"GF_ACTION": 3.0, "GF_MAX_HOR_DIST": 8.0} if how == "geofence"
               else {"NAV_DLL_ACT": 2.0, "COM_DL_LOSS_T": 2.0})
     f = Flight(parameters=params)
-    f.vehicle.gcs_heartbeat(0.0)
+    f.vehicle.inputs.gcs_heartbeat(0.0)
     f.take_off(3.0)
     if how == "ground station":
         f.run(2.5)  # no heartbeat since t = 0
     else:
-        f.vehicle.reposition(np.array([15.0, 0.0, -3.0]), math.nan, -1.0)
+        f.vehicle.auto.reposition(np.array([15.0, 0.0, -3.0]), math.nan, -1.0)
         f.run(6.0)
     assert f.vehicle.mode == FlightMode.RTL and f.vehicle.failsafe is not None
     f.run(40.0)
@@ -279,14 +279,14 @@ def test_return_as_the_action_of_fence_and_ground_station_loss(how):
 def manual_flight(mode: FlightMode, yaw_rad: float = 0.0, **parameters) -> Flight:
     f = Flight(yaw_rad=yaw_rad, parameters=parameters or None)
     f.take_off(5.0)
-    f.vehicle.manual_input(f.t_s, Sticks())
+    f.vehicle.inputs.manual_input(f.t_s, Sticks())
     f.vehicle.set_mode(mode, f.t_s)
     return f
 
 
 def sticks(f: Flight, duration_s: float, **positions) -> None:
     """Send MANUAL_CONTROL at 50 Hz (every other control period)."""
-    f.run(duration_s, lambda t: f.vehicle.manual_input(t, Sticks(**positions))
+    f.run(duration_s, lambda t: f.vehicle.inputs.manual_input(t, Sticks(**positions))
           if f.steps % 2 == 0 else None)
 
 
@@ -333,7 +333,7 @@ def test_manual_control_loss_returns_and_manual_modes_need_sticks():
     f.take_off(3.0)
     with pytest.raises(RefusedError, match="posctl denied: no manual control input"):
         f.vehicle.set_mode(FlightMode.POSCTL, f.t_s)
-    f.vehicle.manual_input(f.t_s, Sticks())
+    f.vehicle.inputs.manual_input(f.t_s, Sticks())
     f.vehicle.set_mode(FlightMode.POSCTL, f.t_s)
     f.run(0.6)  # COM_RC_LOSS_T 0.5 s
     assert f.vehicle.mode == FlightMode.RTL and f.vehicle.failsafe == "manual control lost"
@@ -397,8 +397,8 @@ def test_loiter_unlimited_holds_and_payload_items_are_passed_over():
 def test_change_speed_in_flight_sets_the_mission_speed():
     f = mission_flight(six_waypoints(), 6.0)
     with pytest.raises(RefusedError, match="outside"):
-        f.vehicle.change_speed(0.0)
-    f.vehicle.change_speed(2.0)
+        f.vehicle.auto.change_speed(0.0)
+    f.vehicle.auto.change_speed(2.0)
     start = f.t_s
     f.run(10.0)
     # On cruise; leaving a rounded corner, the reference turns its acceleration at the

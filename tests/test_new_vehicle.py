@@ -51,10 +51,10 @@ def test_the_same_name_with_other_numbers_is_another_airframe(tmp_path: Path) ->
     text = resources.files("contracts").joinpath("airframes", "paper.toml").read_text()
     heavier = tmp_path / "paper-heavy.toml"
     heavier.write_text(text.replace("mass_kg = 1.2", "mass_kg = 1.3"))  # still named paper
-    load_models(None, "paper")  # the shipped model is the paper airframe's
+    load_models(None, read_airframe("paper"))  # the shipped model is the paper airframe's
     with pytest.raises(ValueError, match="identified on airframe 'paper' \\(other numbers\\)"):
-        load_models(None, str(heavier))
-    assert load_models(None, str(heavier), any_airframe=True).channels
+        load_models(None, read_airframe(str(heavier)))
+    assert load_models(None, read_airframe(str(heavier)), any_airframe=True).channels
 
 
 # Between machines the identification's numbers differ by more than their last bits:
@@ -126,7 +126,7 @@ def test_an_x_frame_listed_in_another_rotor_order_flies_the_same_closed_loop() -
         "airframes", "quad-x-500.toml").read_text())
     order = [2, 0, 3, 1]  # listed rotor j is PX4's motor order[j] + 1
     shuffled = dict(data, rotor=[data["rotor"][m] for m in order])
-    models = load_models(None, "quad-x-500")
+    models = load_models(None, read_airframe("quad-x-500"))
     scenario = scenario_by_name("x500-position-sine")
     px4, other = (run_inprocess(scenario, "ivfc", "rigid-body",
                                 airframe_from_spec(parse_airframe(d)), models)

@@ -211,13 +211,13 @@ def test_the_tilt_rate_metric_catches_the_x500_limit_cycle(tmp_path):
     from ground.run.inprocess import run_inprocess
     from ground.scenario.scenario_file import scenario_from_dict
 
-    assert airframe_parameters("quad-x-500") == {"CMDF_ACC_MAX": 20.0}
+    assert airframe_parameters(read_airframe("quad-x-500")) == {"CMDF_ACC_MAX": 20.0}
     data = tomllib.loads((Path(__file__).parents[1] / "ground/rehearsal/profiles/flights/wind.toml")
                          .read_text())
     data["perturbation"] = [{"kind": "kick", "theta_rad": 0.3, "start_s": 5.0, "end_s": 5.5}]
     data["transient_s"] = 10.0
     scenario = scenario_from_dict(data, tmp_path / "kick.toml", tmp_path)
-    models = load_models(None, "quad-x-500")
+    models = load_models(None, read_airframe("quad-x-500"))
     rates = {}
     for acc in (8.0, 20.0):
         record = run_inprocess(scenario, "ivfc", "rigid-body", airframe_by_name("quad-x-500"),

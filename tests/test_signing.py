@@ -12,7 +12,8 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from autopilot.commander.commander import Commander
 from autopilot.control.factory import make_controller
-from autopilot.mavlink.server import MavlinkServer, open_link
+from autopilot.mavlink.link import open_link
+from autopilot.mavlink.server import MavlinkServer
 from autopilot.mavlink.signing import SigningState, is_local, signing_clock_now
 from contracts.airframe import PAPER
 

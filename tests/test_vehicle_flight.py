@@ -156,7 +156,7 @@ def _forward(flight: Flight, speed_mps: float, yaw_rate_rad_s: float):
     """What a body-frame velocity setpoint becomes: forward along the heading now."""
     def send(t: float) -> None:
         heading = flight.vehicle.heading_rad
-        flight.vehicle.position_setpoint(t, Setpoint(
+        flight.vehicle.inputs.position_setpoint(t, Setpoint(
             velocity_ned_mps=np.array([speed_mps * math.cos(heading),
                                        speed_mps * math.sin(heading), 0.0]),
             yaw_rad=math.nan if yaw_rate_rad_s else heading,
@@ -206,7 +206,7 @@ def test_feed_forward_follows_a_moving_setpoint_and_stops_at_a_still_one():
         if round((t - t0) / flight.period_s) % 5 == 0:  # 20 Hz
             north = min(1.0 * (t - t0), 6.0)
             speed = 1.0 if north < 6.0 else 0.0
-            flight.vehicle.position_setpoint(t, position_setpoint(
+            flight.vehicle.inputs.position_setpoint(t, position_setpoint(
                 north, 0.0, -2.5, 0.0, velocity=(speed, 0.0, 0.0)))
     flight.run(5.0, moving_target)
     log = flight.since(t0 + 3.0)
@@ -238,7 +238,7 @@ def test_px4_attitude_thrust_is_the_collective_fraction():
     roll = 0.1
     q = (math.cos(roll / 2), math.sin(roll / 2), 0.0, 0.0)
     t0 = flight.t_s
-    flight.run(4.0, lambda t: flight.vehicle.attitude_setpoint(t, q, hover / math.cos(roll)))
+    flight.run(4.0, lambda t: flight.vehicle.inputs.attitude_setpoint(t, q, hover / math.cos(roll)))
     log = flight.since(t0)
     assert abs(log[-1, ROLL] - roll) < 0.01
     assert np.abs(log[:, 3] - log[0, 3]).max() < 0.3  # hover thrust: altitude about held
@@ -246,7 +246,7 @@ def test_px4_attitude_thrust_is_the_collective_fraction():
     ref_roll = log[:, 13 + REF_EULER]
     assert np.abs(np.diff(ref_roll)).max() / flight.period_s <= 2.0 + 1e-9
     t1 = flight.t_s
-    flight.run(2.0, lambda t: flight.vehicle.attitude_setpoint(t, q, 2.0 * hover))
+    flight.run(2.0, lambda t: flight.vehicle.inputs.attitude_setpoint(t, q, 2.0 * hover))
     assert flight.since(t1)[-1, 3] < log[-1, 3] - 1.0  # twice hover: climbs
 
 
@@ -256,7 +256,7 @@ def test_ardupilot_attitude_thrust_half_holds_the_altitude():
     q = (math.cos(roll / 2), math.sin(roll / 2), 0.0, 0.0)
     flight.vehicle.set_mode(FlightMode.GUIDED, flight.t_s)
     t0 = flight.t_s
-    flight.run(4.0, lambda t: flight.vehicle.attitude_setpoint(t, q, 0.5))
+    flight.run(4.0, lambda t: flight.vehicle.inputs.attitude_setpoint(t, q, 0.5))
     log = flight.since(t0)
     assert abs(log[-1, ROLL] - roll) < 0.01
     assert np.abs(log[:, 3] - log[0, 3]).max() < 0.05
@@ -299,7 +299,7 @@ def test_bad_setpoints_are_refused_and_change_nothing(bad, reason):
     vehicle = flight.vehicle
     before, heard = vehicle.setpoint, vehicle.links.setpoint_heard_s
     with pytest.raises(RefusedError, match=reason):
-        vehicle.position_setpoint(flight.t_s, bad)
+        vehicle.inputs.position_setpoint(flight.t_s, bad)
     assert vehicle.setpoint is before and vehicle.links.setpoint_heard_s == heard
     flight.run(1.0)
     assert np.allclose(flight.log[-1, 1:4], (0.0, 0.0, -2.5), atol=0.02)

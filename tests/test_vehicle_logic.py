@@ -20,11 +20,11 @@ from autopilot.commander.commander import Commander
 from autopilot.commander.failsafe import Stream
 from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LANDED_SPEED_MPS
 from autopilot.control.factory import make_controller
-from autopilot.flight_tasks.reference import Reference
 from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.flight_tasks.takeoff import TAKEOFF_REACHED_M
 from autopilot.parameters import default_parameters
 from autopilot.refusal import RefusedError
+from autopilot.trajectories import Reference
 from contracts.airframe import PAPER
 from contracts.frames import quat_from_euler
 from contracts.modes import FlightMode
@@ -88,7 +88,7 @@ def hold_setpoint(north: float = 0.0, east: float = 0.0, down: float = -2.5) -> 
 
 def offboard(vehicle: Commander, link_t_s: float, setpoint: Setpoint | None = None) -> None:
     """Stream one setpoint at ``link_t_s`` and switch to OFFBOARD."""
-    vehicle.position_setpoint(link_t_s, setpoint or hold_setpoint())
+    vehicle.inputs.position_setpoint(link_t_s, setpoint or hold_setpoint())
     vehicle.set_mode(FlightMode.OFFBOARD, link_t_s)
     assert vehicle.mode == FlightMode.OFFBOARD
     said(vehicle)
@@ -298,8 +298,8 @@ def test_ground_station_loss_in_the_air_fires_after_com_dl_loss_t_with_nav_dll_a
         timeout_s, action, mode, text):
     v = flying(COM_DL_LOSS_T=timeout_s, NAV_DLL_ACT=action)
     offboard(v, LINK0)  # not HOLD already, so that hold shows too
-    v.gcs_heartbeat(LINK0)
-    v.position_setpoint(LINK0 + timeout_s, hold_setpoint())  # the offboard stream goes on
+    v.inputs.gcs_heartbeat(LINK0)
+    v.inputs.position_setpoint(LINK0 + timeout_s, hold_setpoint())  # the offboard stream goes on
     v.check_links(LINK0 + timeout_s - EPS)
     assert v.mode == FlightMode.OFFBOARD and not v.gcs_lost and v.failsafe is None
     assert said(v) == []
@@ -312,7 +312,7 @@ def test_ground_station_loss_in_the_air_fires_after_com_dl_loss_t_with_nav_dll_a
     assert said(v) == expected
     v.check_links(LINK0 + timeout_s + 0.5)  # fires once
     assert said(v) == []
-    v.gcs_heartbeat(LINK0 + timeout_s + 1.0)
+    v.inputs.gcs_heartbeat(LINK0 + timeout_s + 1.0)
     assert not v.gcs_lost and v.mode == mode  # the failsafe's mode stays
     assert said(v) == [(NOTICE, "ground station link regained")]
 
@@ -320,7 +320,7 @@ def test_ground_station_loss_in_the_air_fires_after_com_dl_loss_t_with_nav_dll_a
 def test_each_heartbeat_restarts_the_ground_station_timeout():
     v = flying(COM_DL_LOSS_T=3.0)
     for k in range(5):
-        v.gcs_heartbeat(LINK0 + 2.0 * k)
+        v.inputs.gcs_heartbeat(LINK0 + 2.0 * k)
         v.check_links(LINK0 + 2.0 * k + 3.0 - EPS)
     assert not v.gcs_lost
     v.check_links(LINK0 + 8.0 + 3.0 + EPS)
@@ -338,7 +338,7 @@ def test_ground_station_loss_on_the_ground_disarms(action):
     v = on_the_ground(NAV_DLL_ACT=action)
     v.arm(LINK0)
     said(v)
-    v.gcs_heartbeat(LINK0)
+    v.inputs.gcs_heartbeat(LINK0)
     v.check_links(LINK0 + 10.0 + EPS)
     assert not v.armed and v.mode == FlightMode.HOLD
     assert said(v) == [(INFO, "ground station lost: disarmed on the ground")]
@@ -348,14 +348,14 @@ def test_ground_station_loss_with_no_action_leaves_an_armed_vehicle_on_the_groun
     v = on_the_ground(NAV_DLL_ACT=0)
     v.arm(LINK0)
     said(v)
-    v.gcs_heartbeat(LINK0)
+    v.inputs.gcs_heartbeat(LINK0)
     v.check_links(LINK0 + 10.0 + EPS)
     assert v.armed and said(v) == [(WARNING, "ground station lost")]
 
 
 def test_ground_station_loss_while_disarmed_is_only_said():
     v = on_the_ground(NAV_DLL_ACT=3)
-    v.gcs_heartbeat(LINK0)
+    v.inputs.gcs_heartbeat(LINK0)
     v.check_links(LINK0 + 10.0 + EPS)
     assert v.gcs_lost and not v.armed and v.mode == FlightMode.HOLD
     assert said(v) == [(WARNING, "ground station lost")]
@@ -368,7 +368,7 @@ def test_setpoint_loss_in_offboard_fires_after_com_of_loss_t_with_com_obl_act(
         timeout_s, action, mode):
     v = flying(COM_OF_LOSS_T=timeout_s, COM_OBL_ACT=action)
     offboard(v, LINK0)
-    v.position_setpoint(LINK0 + 0.25, hold_setpoint())  # the stream's last setpoint
+    v.inputs.position_setpoint(LINK0 + 0.25, hold_setpoint())  # the stream's last setpoint
     v.check_links(LINK0 + 0.25 + timeout_s - EPS)
     assert v.mode == FlightMode.OFFBOARD and v.failsafe is None and said(v) == []
     v.check_links(LINK0 + 0.25 + timeout_s + EPS)
@@ -384,7 +384,7 @@ def test_refused_setpoints_do_not_keep_the_stream_alive():
     offboard(v, LINK0)
     for k in range(1, 20):  # a 20 Hz stream of bad setpoints
         with pytest.raises(RefusedError):
-            v.position_setpoint(LINK0 + 0.05 * k, hold_setpoint(down=math.inf))
+            v.inputs.position_setpoint(LINK0 + 0.05 * k, hold_setpoint(down=math.inf))
     v.check_links(LINK0 + 1.0 - EPS)
     assert v.mode == FlightMode.OFFBOARD
     v.check_links(LINK0 + 1.0 + EPS)
@@ -394,7 +394,7 @@ def test_refused_setpoints_do_not_keep_the_stream_alive():
 def test_attitude_setpoints_count_as_the_stream():
     v = flying()
     offboard(v, LINK0)
-    v.attitude_setpoint(LINK0 + 0.5, (1.0, 0.0, 0.0, 0.0), None)
+    v.inputs.attitude_setpoint(LINK0 + 0.5, (1.0, 0.0, 0.0, 0.0), None)
     v.check_links(LINK0 + 1.5 - EPS)
     assert v.mode == FlightMode.OFFBOARD and v.state.attitude_target is not None
     v.check_links(LINK0 + 1.5 + EPS)
@@ -518,22 +518,22 @@ def test_land_command_needs_an_armed_vehicle():
 
 def test_offboard_needs_a_setpoint_within_com_of_loss_t_and_flies_the_newest():
     v = flying(COM_OF_LOSS_T=0.5)
-    v.position_setpoint(LINK0, hold_setpoint(1.0, 2.0, -3.0))
-    v.position_setpoint(LINK0 + 0.1, hold_setpoint(4.0, 5.0, -6.0))
+    v.inputs.position_setpoint(LINK0, hold_setpoint(1.0, 2.0, -3.0))
+    v.inputs.position_setpoint(LINK0 + 0.1, hold_setpoint(4.0, 5.0, -6.0))
     assert np.array_equal(v.setpoint.position_ned_m, [0.0, 0.0, 0.0])  # HOLD: not taken
     with pytest.raises(RefusedError, match="no setpoint stream"):
         v.set_mode(FlightMode.OFFBOARD, LINK0 + 0.6 + EPS)
     v.set_mode(FlightMode.OFFBOARD, LINK0 + 0.6 - EPS)
     assert v.mode == FlightMode.OFFBOARD and said(v) == [(INFO, "mode offboard")]
     assert np.array_equal(v.setpoint.position_ned_m, [4.0, 5.0, -6.0])
-    v.position_setpoint(LINK0 + 0.2, hold_setpoint(7.0, 8.0, -9.0))
+    v.inputs.position_setpoint(LINK0 + 0.2, hold_setpoint(7.0, 8.0, -9.0))
     assert np.array_equal(v.setpoint.position_ned_m, [7.0, 8.0, -9.0])  # taken at once
 
 
 def test_guided_takes_setpoints_without_a_stream_and_keeps_the_last():
     v = flying(flavour="ardupilot")
     assert v.mode == FlightMode.GUIDED
-    v.position_setpoint(LINK0, hold_setpoint(1.0, 2.0, -3.0))
+    v.inputs.position_setpoint(LINK0, hold_setpoint(1.0, 2.0, -3.0))
     v.check_links(LINK0 + 100.0)
     assert v.mode == FlightMode.GUIDED
     assert np.array_equal(v.setpoint.position_ned_m, [1.0, 2.0, -3.0])
@@ -721,22 +721,23 @@ def test_bad_position_setpoints_are_refused_and_change_nothing(bad, reason):
     offboard(v, LINK0, good)
     before = _snapshot(v.setpoint)
     with pytest.raises(RefusedError, match=reason) as refused:
-        v.position_setpoint(LINK0 + 0.5, bad)
+        v.inputs.position_setpoint(LINK0 + 0.5, bad)
     assert not refused.value.temporary
     np.testing.assert_array_equal(_snapshot(v.setpoint), before)  # NaN equals NaN here
-    assert not v.streaming(Stream.SETPOINTS, LINK0 + 1.0 + EPS)  # the stream was not refreshed
+    # the stream was not refreshed
+    assert not v.inputs.streaming(Stream.SETPOINTS, LINK0 + 1.0 + EPS)
     assert said(v) == []
 
 
 def test_setpoints_at_the_limits_are_taken_and_the_yaw_wrapped():
     v = flying()
     offboard(v, LINK0)
-    v.position_setpoint(LINK0, Setpoint(np.array([1000.0, -1000.0, -1000.0]),
+    v.inputs.position_setpoint(LINK0, Setpoint(np.array([1000.0, -1000.0, -1000.0]),
                                         np.array([20.0, -20.0, 20.0]),
                                         np.array([20.0, 20.0, -20.0]), 3 * math.pi, math.nan))
     assert np.array_equal(v.setpoint.position_ned_m, [1000.0, -1000.0, -1000.0])
     assert abs(v.setpoint.yaw_rad) == pytest.approx(math.pi)
-    v.position_setpoint(LINK0, Setpoint(velocity_ned_mps=np.array([1.0, 2.0, 0.5]),
+    v.inputs.position_setpoint(LINK0, Setpoint(velocity_ned_mps=np.array([1.0, 2.0, 0.5]),
                                         yaw_rate_rad_s=20.0))
     assert np.array_equal(v.setpoint.velocity_ned_mps, [1.0, 2.0, 0.5])
 
@@ -746,13 +747,13 @@ def test_a_still_position_setpoint_drops_its_feed_forward_after_half_a_second():
     moving = Setpoint(np.array([1.0, 0.0, -2.5]), np.array([1.0, 0.0, 0.0]))
     offboard(v, LINK0, moving)
     for t, x in ((0.1, 1.1), (0.2, 1.2)):  # the setpoint moves: feed-forward applies
-        v.position_setpoint(LINK0 + t, Setpoint(np.array([x, 0.0, -2.5]),
+        v.inputs.position_setpoint(LINK0 + t, Setpoint(np.array([x, 0.0, -2.5]),
                                                 np.array([1.0, 0.0, 0.0])))
         assert v.setpoint.velocity_ned_mps[0] == 1.0
     still = Setpoint(np.array([1.2, 0.0, -2.5]), np.array([1.0, 0.0, 0.0]))
-    v.position_setpoint(LINK0 + 0.7 - EPS, still)
+    v.inputs.position_setpoint(LINK0 + 0.7 - EPS, still)
     assert v.setpoint.velocity_ned_mps[0] == 1.0
-    v.position_setpoint(LINK0 + 0.7 + EPS, still)
+    v.inputs.position_setpoint(LINK0 + 0.7 + EPS, still)
     assert math.isnan(v.setpoint.velocity_ned_mps[0])
 
 
@@ -769,22 +770,22 @@ def test_a_still_position_setpoint_drops_its_feed_forward_after_half_a_second():
 def test_bad_attitude_setpoints_are_refused_and_change_nothing(quaternion, thrust, reason):
     v = flying()
     offboard(v, LINK0)
-    v.attitude_setpoint(LINK0, (1.0, 0.0, 0.0, 0.0), 0.3)
+    v.inputs.attitude_setpoint(LINK0, (1.0, 0.0, 0.0, 0.0), 0.3)
     target = v.state.attitude_target
     with pytest.raises(RefusedError, match=reason):
-        v.attitude_setpoint(LINK0 + 0.5, quaternion, thrust)
+        v.inputs.attitude_setpoint(LINK0 + 0.5, quaternion, thrust)
     assert v.state.attitude_target is target and target.thrust_fraction == 0.3
-    assert not v.streaming(Stream.SETPOINTS, LINK0 + 1.0 + EPS)
+    assert not v.inputs.streaming(Stream.SETPOINTS, LINK0 + 1.0 + EPS)
 
 
 def test_attitude_thrust_is_read_as_the_flavour_reads_it():
     px4 = flying()
     offboard(px4, LINK0)
-    px4.attitude_setpoint(LINK0, tuple(quat_from_euler(0.2, 0.0, 0.0)), 0.25)
+    px4.inputs.attitude_setpoint(LINK0, tuple(quat_from_euler(0.2, 0.0, 0.0)), 0.25)
     assert px4.state.attitude_target.thrust_fraction == 0.25
     assert px4.state.attitude_target.euler_rad[0] == pytest.approx(0.2)
     copter = flying(flavour="ardupilot", MPC_TKO_SPEED=2.0)
-    copter.attitude_setpoint(LINK0, (1.0, 0.0, 0.0, 0.0), 1.0)
+    copter.inputs.attitude_setpoint(LINK0, (1.0, 0.0, 0.0, 0.0), 1.0)
     assert copter.state.attitude_target.climb_rate_mps == 2.0  # (1 - 0.5) * 2 * MPC_TKO_SPEED
     assert math.isnan(copter.state.attitude_target.thrust_fraction)
 
@@ -860,7 +861,7 @@ def test_heartbeat_silence_in_flight_holds_after_com_dl_loss_t_on_the_link_clock
     """Closed loop: the failsafe is timed on the link clock, whatever sim time does."""
     loop = Loop("smc", COM_DL_LOSS_T=1.5, NAV_DLL_ACT=3)
     loop.run(0.05)
-    loop.vehicle.gcs_heartbeat(loop.link_s)
+    loop.vehicle.inputs.gcs_heartbeat(loop.link_s)
     heard = loop.link_s
     loop.vehicle.arm(loop.link_s)
     loop.vehicle.takeoff(1.0)

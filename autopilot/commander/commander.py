@@ -3,7 +3,11 @@
 * the mode table (autopilot/commander/modes.py) says, per mode, what it allows and needs,
   which flight task (autopilot/flight_tasks/) produces its reference and how it lands;
 * :class:`~autopilot.commander.land_detector.LandDetector`: on the ground or not;
-* :class:`~autopilot.commander.failsafe.LinkWatch`: the ground station and input streams;
+* :class:`~autopilot.commander.failsafe.Failsafes`: the ground station, input streams and
+  fence, deciding from a snapshot of the vehicle; :meth:`Commander.apply_failsafe` carries
+  the decisions out;
+* :class:`~autopilot.commander.inputs.ToolInputs`: the setpoints and sticks tools stream;
+* :class:`~autopilot.commander.auto_commands.AutoCommands`: mission start, go-to, speed;
 * :class:`~autopilot.navigator.navigator.Navigator`: the mission lists and the mission;
 * the controller (autopilot/control/controller.py), fed the current task's reference.
 
@@ -23,31 +27,33 @@ from collections.abc import Callable
 
 import numpy as np
 
+from autopilot.commander.auto_commands import AutoCommands
 from autopilot.commander.failsafe import (
+    FailsafeDecision,
     Failsafes,
-    Stream,
+    FailsafeView,
+    Response,
+    decide,
 )
 from autopilot.commander.failures import InjectedFailures
+from autopilot.commander.inputs import ToolInputs
 from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LandDetector
-from autopilot.commander.modes import MODES, ModeRow
+from autopilot.commander.modes import MODES, EntryView, ModeRow
 from autopilot.control.controller import Controller
 from autopilot.flight_tasks.manager import FlightControl
-from autopilot.flight_tasks.reference import Reference
-from autopilot.flight_tasks.setpoints import checked_attitude_target, checked_position_setpoint
-from autopilot.flight_tasks.shaping import Setpoint
-from autopilot.flight_tasks.sticks import Sticks
 from autopilot.flight_tasks.task import FlightTask, Shaped, TaskEnv, TaskState
-from autopilot.navigator.mission_store import MissionStore
+from autopilot.navigator.mission_store import FENCE, MISSION, MissionStore
 from autopilot.navigator.navigator import Navigator
 from autopilot.parameters import validate_parameters
 from autopilot.refusal import RefusedError
+from autopilot.trajectories import Reference
 from contracts.airframe import max_thrust_n
 from contracts.frames import DEFAULT_HOME, Home
 from contracts.modes import FlightMode
 from contracts.perturbation_book import PerturbationBook
 from contracts.perturbations import Perturbation
 from contracts.telemetry import AUTOPILOT
-from contracts.vectors import MEAS_VZ, MEAS_Z, REF_POS, REF_SIZE
+from contracts.vectors import MEAS_VZ, MEAS_Z, MEASUREMENT, REF_POS, REF_SIZE
 
 
 class Commander:
@@ -76,7 +82,7 @@ class Commander:
         self.armed = False
         self.mode = self.idle_mode = FlightMode.GUIDED if flavour == "ardupilot" \
             else FlightMode.HOLD
-        self.failsafes = Failsafes(self)
+        self.failsafes = Failsafes()
         self.links = self.failsafes.links
         self.failsafe: str | None = None
         self.messages: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) for STATUSTEXT
@@ -92,6 +98,12 @@ class Commander:
         self.navigator = Navigator(self.say)
         env = TaskEnv(self.state, self.navigator, reference, self.switch_to, self.say)
         self.tasks: dict[FlightMode, FlightTask] = {m: row.task(env) for m, row in MODES.items()}
+        # What tools stream (setpoints, sticks, a follow target).
+        self.inputs = ToolInputs(self.links, self.state, self.tasks[FlightMode.FOLLOW_TARGET],
+                                 flavour, lambda: self.row.follows_setpoints, self.say)
+        # Where the automatic modes fly (mission start, go-to, speed).
+        self.auto = AutoCommands(self, self.navigator, self.tasks[FlightMode.HOLD],
+                                 self.tasks[FlightMode.MISSION], self.state, self.say)
         # Reference kicks (sim time), from the command line and from Zenoh requests.
         self.flight = FlightControl(self.state, self.tasks, self.controller,
                                     PerturbationBook(AUTOPILOT, schedule))
@@ -166,7 +178,7 @@ class Commander:
             raise RefusedError(f"arming denied in {self.mode.value} mode")
         if not self.landed:
             raise RefusedError("arming denied: not on the ground")
-        if row.arm_needs_stream and not self.streaming(row.stream, link_t_s):
+        if row.arm_needs_stream and not self.inputs.streaming(row.stream, link_t_s):
             raise RefusedError("arming denied: no offboard setpoints", temporary=True)
         self.controller.reset()
         self.armed = True
@@ -229,10 +241,11 @@ class Commander:
         if mode == self.mode:
             return
         row = MODES[mode]
-        if row.stream is not None and not self.streaming(row.stream, link_t_s):
+        if row.stream is not None and not self.inputs.streaming(row.stream, link_t_s):
             raise RefusedError(f"{mode.value} denied: no {row.stream.value}", temporary=True)
         if row.entry is not None:
-            row.entry(self)
+            row.entry(EntryView(self.armed, self.landed, self.reference is not None,
+                                bool(self.mission.lists[MISSION])))
         if row.command is not None:
             row.command(self)
             return
@@ -247,49 +260,42 @@ class Commander:
         self.say(f"mode {mode.value}")
 
     # -- inputs from tools -------------------------------------------------------------------
-    def streaming(self, stream: Stream, link_t_s: float) -> bool:
-        return self.links.streaming(stream, link_t_s, self.parameters)
-
-    def position_setpoint(self, link_t_s: float, setpoint: Setpoint) -> None:
-        """A local NED setpoint (NaN for what the tool left out); checked before anything
-        changes. Per axis group a position (velocity and acceleration then feed-forward)
-        or a velocity; a yaw or a yaw rate (docs/mavlink.md)."""
-        checked = checked_position_setpoint(setpoint)
-        self.links.setpoint_heard(link_t_s)
-        self.state.stream_position(link_t_s, checked)
-        if self.row.follows_setpoints:
-            self.state.apply_streamed()
-
-    def attitude_setpoint(self, link_t_s: float, quaternion: tuple | None,
-                          thrust: float | None) -> None:
-        """An attitude setpoint, thrust as the flavour reads it (setpoints.py)."""
-        target = checked_attitude_target(quaternion, thrust, self.flavour,
-                                         self.parameters["MPC_TKO_SPEED"])
-        self.links.setpoint_heard(link_t_s)
-        self.state.streamed = target
-        if self.row.follows_setpoints:
-            self.state.apply_streamed()
-
-    def manual_input(self, link_t_s: float, sticks: Sticks) -> None:
-        """MANUAL_CONTROL's sticks (checked by sticks.sticks_from_manual_control)."""
-        self.links.manual_heard_s = link_t_s
-        self.state.sticks = sticks
-
-    def follow_target(self, position_ned_m: np.ndarray,
-                      velocity_ned_mps: np.ndarray | None) -> None:
-        """A FOLLOW_TARGET report in local NED (None: no velocity given), stamped with the
-        sim time it arrived at; refused (RefusedError) and ignored when out of range."""
-        self.tasks[FlightMode.FOLLOW_TARGET].report(self.state.sim_t_s, position_ned_m,
-                                                    velocity_ned_mps)
-
     # -- links and failsafes -----------------------------------------------------------------
-    def gcs_heartbeat(self, link_t_s: float) -> None:
-        if self.links.gcs_heartbeat(link_t_s):
-            self.say("ground station link regained", 5)
-
     def check_links(self, link_t_s: float) -> None:
-        """Failsafes timed on the link clock: ground station and the mode's input stream."""
-        self.failsafes.check_links(link_t_s)
+        """Failsafes timed on the link clock: ground station, then the mode's input stream
+        (as the first may have changed the mode, the second reads the vehicle after it)."""
+        self.apply_failsafe(self.failsafes.ground_station(link_t_s, self.parameters,
+                                                          self.failsafe_view()))
+        self.apply_failsafe(self.failsafes.input_stream(link_t_s, self.parameters,
+                                                        self.failsafe_view()))
+
+    def failsafe_view(self) -> FailsafeView:
+        """The snapshot the failsafes decide on, taken when they look."""
+        return FailsafeView(self.armed, self.landed, self.row.stream)
+
+    def apply_failsafe(self, decision: FailsafeDecision | None) -> None:
+        """Carry out a failsafe's decision: the one way a failsafe changes the vehicle.
+        A failsafe is remembered (``failsafe``) and said; in the air the mode changes
+        through ``switch_to``; on the ground the flight ends. A stream lost while disarmed
+        sets HOLD without entering it (no task activation, nothing said)."""
+        if decision is None:
+            return
+        response, reason = decision.response, decision.reason
+        if response is Response.NOTE:
+            self.say(reason, 4)
+            return
+        if response is Response.FALL_BACK:
+            self.mode = decision.mode
+            return
+        self.failsafe = reason
+        if response is Response.WARN:
+            self.say(reason, 4)
+        elif response is Response.DISARM:
+            self.end_flight(f"{reason}: disarmed on the ground")
+        else:
+            self.say(f"{reason}: {decision.mode.value}", 4)
+            if self.mode != decision.mode:
+                self.switch_to(decision.mode)
 
     def set_home(self, home: Home) -> None:
         """Where the local frame is on Earth: missions, fences, go-to and telemetry's
@@ -299,12 +305,13 @@ class Commander:
 
     def position_lost(self, what: str) -> None:
         """The estimator has dead-reckoned past EKF2_NOAID_TOUT: land (PX4 descends)."""
-        self.failsafes.trigger(what, FlightMode.LAND)
+        self.apply_failsafe(decide(what, FlightMode.LAND, self.failsafe_view()))
 
     def sim_link_lost(self) -> None:
         if self.sim_link_ok:
             self.sim_link_ok = False
-            self.failsafes.trigger("simulator link lost", FlightMode.LAND)
+            self.apply_failsafe(decide("simulator link lost", FlightMode.LAND,
+                                       self.failsafe_view()))
 
     # -- the control step --------------------------------------------------------------------
     def sample(self, sim_t_s: float, measurement: np.ndarray) -> None:
@@ -319,7 +326,10 @@ class Commander:
         self.state.new_sample(sim_t_s, measurement)
         self._detect_landing()
         if self.armed and not self.landed and self.row.geofence:
-            self.failsafes.check_geofence()
+            self.apply_failsafe(self.failsafes.fence(
+                self.mission.lists[FENCE], self.home,
+                self.measurement[MEASUREMENT.position_ned_m], self.parameters,
+                self.failsafe_view()))
 
     def _detect_landing(self) -> None:
         m, s = self.measurement, self.state
@@ -345,33 +355,3 @@ class Commander:
         """One control period: take the sample, then compute the motor commands."""
         self.sample(sim_t_s, measurement)
         return self.control()
-
-    # -- missions and go-to ------------------------------------------------------------------
-    def start_mission(self, first_seq: int, link_t_s: float) -> None:
-        """MAV_CMD_MISSION_START: fly the mission from item ``first_seq``."""
-        self.navigator.select(first_seq)
-        if self.mode == FlightMode.MISSION:
-            self.tasks[FlightMode.MISSION].restart()
-        else:
-            self.set_mode(FlightMode.MISSION, link_t_s)
-
-    def reposition(self, target_ned_m: np.ndarray, yaw_rad: float, speed_mps: float) -> None:
-        """MAV_CMD_DO_REPOSITION: fly to a position (NaN: keep that coordinate) and hold
-        there, in HOLD (PX4's AUTO.LOITER)."""
-        if not self.armed or self.landed:
-            raise RefusedError("go-to denied: not in the air", temporary=True)
-        if any(math.isinf(v) for v in (*target_ned_m, yaw_rad, speed_mps)):
-            raise RefusedError("go-to values must be finite or NaN")
-        if math.isfinite(speed_mps) and not 0 < speed_mps <= self.parameters["MPC_XY_VEL_MAX"]:
-            speed_mps = math.nan  # -1 (the default speed) or beyond the limit
-        self.tasks[FlightMode.HOLD].reposition(target_ned_m, yaw_rad, speed_mps,
-                                               self.mode is FlightMode.HOLD)
-
-    def change_speed(self, speed_mps: float) -> None:
-        """MAV_CMD_DO_CHANGE_SPEED in flight: the mission's speed and a go-to's (-1: no
-        change)."""
-        if not self.navigator.change_speed(speed_mps):
-            return
-        if self.mode == FlightMode.HOLD:
-            self.tasks[FlightMode.HOLD].speed_mps = speed_mps
-        self.say(f"speed {speed_mps:.1f} m/s")

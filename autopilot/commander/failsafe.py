@@ -4,21 +4,23 @@
   and the input stream a mode flies on: offboard setpoints (COM_OF_LOSS_T / COM_OBL_ACT)
   or manual control (COM_RC_LOSS_T / NAV_RCL_ACT);
 * the geofence (GF_ACTION), on sim time.
-Pure: the commander calls it with the link clock and carries out the action it names.
+Pure, as PX4's failsafe: it reads a snapshot of the vehicle (:class:`FailsafeView`, plain
+values) and returns a :class:`FailsafeDecision`; the commander carries it out
+(``Commander.apply_failsafe``), the only place a failsafe changes the vehicle.
 """
 
 from __future__ import annotations
 
 import enum
-from typing import TYPE_CHECKING
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
 
 from autopilot.navigator.geofence import GeofenceWatch
-from autopilot.navigator.mission_store import FENCE
+from autopilot.navigator.mission_store import MissionItem
+from contracts.frames import Home
 from contracts.modes import FlightMode
-from contracts.vectors import MEASUREMENT
-
-if TYPE_CHECKING:
-    from autopilot.commander.commander import Commander
 
 
 class Stream(enum.Enum):
@@ -94,53 +96,83 @@ class LinkWatch:
         return self.manual_streaming(link_t_s, p["COM_RC_LOSS_T"])
 
 
-class Failsafes:
-    """Watches the links, the input streams and the fence of ``vehicle``, and carries out
-    what their loss or breach calls for (as PX4's commander: say it, then hold, return,
-    land, or disarm when already on the ground)."""
+@dataclass(frozen=True)
+class FailsafeView:
+    """What the failsafes read of the vehicle: a snapshot the commander takes."""
 
-    def __init__(self, vehicle: Commander) -> None:
-        self.vehicle = vehicle
+    armed: bool
+    landed: bool
+    stream: Stream | None  # the input stream the current mode flies on
+
+
+class Response(enum.Enum):
+    """What the commander does with a failsafe (as PX4's commander: say it, then hold,
+    return, land, or disarm when already on the ground)."""
+
+    NOTE = "note"  # a warning only: said (severity 4), not a failsafe (GF_ACTION 1)
+    WARN = "warn"  # a failsafe with nothing to do (disarmed, or no action): said
+    DISARM = "disarm"  # a failsafe on the ground: disarmed, saying why
+    SWITCH = "switch"  # a failsafe in the air: said, then the mode (unless already in it)
+    FALL_BACK = "fall back"  # disarmed in a mode whose stream stopped: quietly in ``mode``
+
+
+@dataclass(frozen=True)
+class FailsafeDecision:
+    """A failsafe's outcome: what went wrong (the commander's ``failsafe`` text) and what
+    to do about it."""
+
+    response: Response
+    reason: str
+    mode: FlightMode | None = None  # SWITCH and FALL_BACK: the mode to be in
+
+
+def decide(reason: str, action: FlightMode | None, view: FailsafeView) -> FailsafeDecision:
+    """The response to a failsafe whose action is ``action`` (None: a warning)."""
+    if not view.armed or action is None:
+        return FailsafeDecision(Response.WARN, reason)
+    if view.landed:
+        return FailsafeDecision(Response.DISARM, reason)
+    return FailsafeDecision(Response.SWITCH, reason, action)
+
+
+class Failsafes:
+    """Watches the links, the input streams and the fence, and decides what their loss or
+    breach calls for; the commander applies the decisions."""
+
+    def __init__(self) -> None:
         self.links = LinkWatch()
         self.geofence = GeofenceWatch()
 
-    def check_links(self, link_t_s: float) -> None:
-        v = self.vehicle
-        p = v.parameters
+    def ground_station(self, link_t_s: float, p: Mapping[str, float],
+                       view: FailsafeView) -> FailsafeDecision | None:
+        """COM_DL_LOSS_T / NAV_DLL_ACT: the ground station's heartbeat stopped (once per
+        loss)."""
         if self.links.gcs_lost_now(link_t_s, p["COM_DL_LOSS_T"]):
-            self.trigger("ground station lost", GCS_LOSS_ACTIONS[int(p["NAV_DLL_ACT"])])
-        stream = v.row.stream
-        if stream is not None and not self.links.streaming(stream, link_t_s, p):
-            if v.armed:
-                self.trigger(*stream_loss(stream, p))
-            else:
-                v.mode = FlightMode.HOLD
+            return decide("ground station lost", GCS_LOSS_ACTIONS[int(p["NAV_DLL_ACT"])], view)
+        return None
 
-    def check_geofence(self) -> None:
+    def input_stream(self, link_t_s: float, p: Mapping[str, float],
+                     view: FailsafeView) -> FailsafeDecision | None:
+        """The current mode's input stream stopped: its failsafe in flight; disarmed, the
+        vehicle falls back to HOLD without entering it (nothing said)."""
+        stream = view.stream
+        if stream is None or self.links.streaming(stream, link_t_s, p):
+            return None
+        if view.armed:
+            return decide(*stream_loss(stream, p), view)
+        return FailsafeDecision(Response.FALL_BACK, "", FlightMode.HOLD)
+
+    def fence(self, fence: tuple[MissionItem, ...], home: Home, position_ned_m: np.ndarray,
+              p: Mapping[str, float], view: FailsafeView) -> FailsafeDecision | None:
         """GF_ACTION on crossing out of the fence (once per breach): a STATUSTEXT, and
         hold, return or land."""
-        v = self.vehicle
-        p = v.parameters
-        reason = self.geofence.crossed_out(
-            v.mission.lists[FENCE], v.home, v.measurement[MEASUREMENT.position_ned_m],
-            p["GF_MAX_HOR_DIST"], p["GF_MAX_VER_DIST"])
+        reason = self.geofence.crossed_out(fence, home, position_ned_m,
+                                           p["GF_MAX_HOR_DIST"], p["GF_MAX_VER_DIST"])
         if reason is None:
-            return
+            return None
         action = GEOFENCE_ACTIONS[int(p["GF_ACTION"])]
         if action is not None:
-            self.trigger(f"geofence: {reason}", action)
-        elif p["GF_ACTION"] == 1:  # a warning, not a failsafe
-            v.say(f"geofence: {reason}", 4)
-
-    def trigger(self, what: str, action: FlightMode | None) -> None:
-        v = self.vehicle
-        v.failsafe = what
-        if not v.armed or action is None:
-            v.say(f"{what}", 4)
-            return
-        if v.landed:
-            v.end_flight(f"{what}: disarmed on the ground")
-            return
-        v.say(f"{what}: {action.value}", 4)
-        if v.mode != action:
-            v.switch_to(action)
+            return decide(f"geofence: {reason}", action, view)
+        if p["GF_ACTION"] == 1:  # a warning, not a failsafe
+            return FailsafeDecision(Response.NOTE, f"geofence: {reason}")
+        return None

@@ -7,6 +7,10 @@ which input stream it flies on (entering and arming may need it; its loss is the
 stream's failsafe, autopilot/commander/failsafe.py), whether disarming ends it, whether
 the geofence is checked and the total tilt limited in it. Adding a mode is a row here,
 a task in autopilot/flight_tasks/ and its numbers in contracts/modes.py.
+
+Entry checks read an :class:`EntryView` (plain values the commander fills in, as the
+flight tasks read ``TaskEnv``); a mode entered by a command instead calls it on the
+:class:`ModeCommands` the commander offers.
 """
 
 from __future__ import annotations
@@ -14,7 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from autopilot.commander.failsafe import Stream
 from autopilot.flight_tasks.follow import FollowTargetTask
@@ -28,12 +32,26 @@ from autopilot.flight_tasks.reference import ReferenceTask
 from autopilot.flight_tasks.rtl import ReturnTask
 from autopilot.flight_tasks.takeoff import TakeoffTask
 from autopilot.flight_tasks.task import FlightTask, TaskEnv
-from autopilot.navigator.mission_store import MISSION
 from autopilot.refusal import RefusedError
 from contracts.modes import FlightMode
 
-if TYPE_CHECKING:
-    from autopilot.commander.commander import Commander
+
+@dataclass(frozen=True)
+class EntryView:
+    """What a mode's entry check reads of the vehicle: a snapshot the commander takes."""
+
+    armed: bool
+    landed: bool
+    has_reference: bool  # a reference generator is configured (REFERENCE mode)
+    has_mission: bool  # a mission is uploaded (MISSION mode)
+
+
+class ModeCommands(Protocol):
+    """The commands a mode may be entered by instead of a plain switch."""
+
+    def takeoff(self, relative_altitude_m: float | None) -> None:
+        """Climb to ``relative_altitude_m`` (None: MIS_TAKEOFF_ALT) in TAKEOFF."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -43,40 +61,40 @@ class ModeRow:
     follows_setpoints: bool = False  # a streamed setpoint applies as it arrives
     stream: Stream | None = None  # the input it flies on: needed to enter, loss: failsafe
     arm_needs_stream: bool = False  # arming needs the stream too
-    entry: Callable[[Commander], None] | None = None  # raises RefusedError: not now
-    command: Callable[[Commander], None] | None = None  # entered by this command instead
+    entry: Callable[[EntryView], None] | None = None  # raises RefusedError: not now
+    command: Callable[[ModeCommands], None] | None = None  # entered by this command instead
     ends_with_flight: bool = False  # disarming leaves it for the idle mode
     geofence: bool = True  # the fence is checked in flight
     tilt_limited: bool = True  # the total tilt is limited (MPC_TILTMAX_AIR)
 
 
-def _needs_armed(what: str) -> Callable[[Commander], None]:
-    def check(c: Commander) -> None:
-        if not c.armed:
+def _needs_armed(what: str) -> Callable[[EntryView], None]:
+    def check(v: EntryView) -> None:
+        if not v.armed:
             raise RefusedError(f"{what} denied: disarmed", temporary=True)
     return check
 
 
-def _needs_air(what: str) -> Callable[[Commander], None]:
-    def check(c: Commander) -> None:
-        if not c.armed or c.landed:
+def _needs_air(what: str) -> Callable[[EntryView], None]:
+    def check(v: EntryView) -> None:
+        if not v.armed or v.landed:
             raise RefusedError(f"{what} denied: not in the air", temporary=True)
     return check
 
 
-def _needs_reference(c: Commander) -> None:
-    if c.reference is None:
+def _needs_reference(v: EntryView) -> None:
+    if not v.has_reference:
         raise RefusedError("no reference generator configured")
-    if not c.armed or c.landed:
+    if not v.armed or v.landed:
         raise RefusedError("the reference needs an armed vehicle in the air", temporary=True)
 
 
-def _needs_mission(c: Commander) -> None:
-    if not c.mission.lists[MISSION]:
+def _needs_mission(v: EntryView) -> None:
+    if not v.has_mission:
         raise RefusedError("mission denied: no mission uploaded")
 
 
-def _take_off(c: Commander) -> None:
+def _take_off(c: ModeCommands) -> None:
     c.takeoff(None)
 
 

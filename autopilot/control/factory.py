@@ -1,4 +1,8 @@
-"""Build a controller by name: ivfc, t1fc, smc or pid."""
+"""Build a controller by name: ivfc, t1fc, smc or pid.
+
+Functions here take an airframe already read (an ``AirframeSpec``): the process reads
+its airframe file once, at its command line, and passes the spec in.
+"""
 
 from __future__ import annotations
 
@@ -18,7 +22,7 @@ from autopilot.control.cascade import (
 from autopilot.control.pid import PidCascade
 from autopilot.models.ts_model import FuzzyModelSet
 from contracts.airframe import Airframe
-from contracts.airframe_file import read_airframe
+from contracts.airframe_file import AirframeSpec
 from contracts.vectors import ATTITUDE_CHANNELS
 
 CONTROLLERS = ("ivfc", "t1fc", "smc", "pid")
@@ -75,20 +79,19 @@ def make_controller(
 SHIPPED_MODEL = "paper.json"  # the paper's airframe; others have theirs by name
 
 
-def shipped_model_name(airframe: str | None) -> str:
+def shipped_model_name(airframe: AirframeSpec | None) -> str:
     """The model shipped for an airframe (``autopilot/models/<airframe name>.json``), or
     the paper's when none is."""
     if airframe is None:
         return SHIPPED_MODEL
-    own = f"{read_airframe(airframe).name}.json"
+    own = f"{airframe.name}.json"
     return own if resources.files("autopilot.models").joinpath(own).is_file() else SHIPPED_MODEL
 
 
-def load_models(path: Path | None, airframe: str | None = None,
+def load_models(path: Path | None, airframe: AirframeSpec | None = None,
                 any_airframe: bool = False) -> FuzzyModelSet:
-    """The given model file, or the model shipped for the airframe. With ``airframe`` (a
-    name or file), a model identified on another airframe is refused unless
-    ``any_airframe``."""
+    """The given model file, or the model shipped for the airframe. With ``airframe``, a
+    model identified on another airframe is refused unless ``any_airframe``."""
     from autopilot.models.model_file import load_model
 
     if path is None:
@@ -107,16 +110,20 @@ def load_models(path: Path | None, airframe: str | None = None,
     return models
 
 
-def model_airframe_metadata(airframe: str) -> dict[str, str]:
+def model_airframe_metadata(spec: AirframeSpec) -> dict[str, str]:
     """What a model file records of the airframe it was identified on."""
-    spec = read_airframe(airframe)
     return {"airframe": spec.name, "airframe_fingerprint": spec.fingerprint()}
 
 
-def check_model_airframe(models: FuzzyModelSet, airframe: str, source: str) -> None:
+def airframe_as_given(spec: AirframeSpec) -> str:
+    """The ``--airframe`` text the spec was read from (a shipped name or a file path), as
+    its ``source`` records it, for messages that tell the user what to run."""
+    return spec.source.removeprefix("airframe file ").removeprefix("airframe ")
+
+
+def check_model_airframe(models: FuzzyModelSet, spec: AirframeSpec, source: str) -> None:
     """A model flies the airframe it was identified on: same numbers (fingerprint), or,
     for files that record only a name, the same name."""
-    spec = read_airframe(airframe)
     recorded = models.metadata.get("airframe")
     fingerprint = models.metadata.get("airframe_fingerprint")
     same = (fingerprint == spec.fingerprint() if fingerprint is not None
@@ -125,5 +132,6 @@ def check_model_airframe(models: FuzzyModelSet, airframe: str, source: str) -> N
         raise ValueError(
             f"{source} was identified on airframe {recorded!r}"
             f"{' (other numbers)' if recorded == spec.name else ''}, not on {spec.name!r}: "
-            f"identify one for it (ivfm identify --airframe {airframe} --out model.json), "
+            f"identify one for it (ivfm identify --airframe {airframe_as_given(spec)} "
+            "--out model.json), "
             "or fly it anyway with --any-airframe-model")

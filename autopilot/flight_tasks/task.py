@@ -33,8 +33,8 @@ from contracts.vectors import MEAS_YAW, MEAS_Z, MEASUREMENT, REF_POS, REF_VEL
 
 if TYPE_CHECKING:
     from autopilot.commander.land_detector import LandDetector
-    from autopilot.flight_tasks.reference import Reference
     from autopilot.navigator.navigator import Navigator
+    from autopilot.trajectories import Reference
 
 # A position setpoint's velocity / acceleration feed-forward is the setpoint's own motion:
 # it applies while the streamed position moves, and lapses this long after it stops, so

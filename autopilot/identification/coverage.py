@@ -13,8 +13,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from autopilot.flight_tasks.reference import COVERAGE_TAIL, abs_reach
 from autopilot.identification.dataset import Dataset
+from autopilot.trajectories import COVERAGE_TAIL, abs_reach
 from contracts.airframe_file import Envelope
 
 ATTITUDES = ("phi_rad", "theta_rad")

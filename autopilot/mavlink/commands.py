@@ -22,7 +22,7 @@ from contracts.mavlink import GLOBAL_FRAMES, mavlink, ned_from_global
 from contracts.modes import FlightMode, mode_from_custom, px4_custom_mode_from_command
 
 if TYPE_CHECKING:
-    from autopilot.mavlink.server import GroundLink, MavlinkServer
+    from autopilot.mavlink.link import GroundLink, ServerLink
 
 FORCE_DISARM_MAGIC = 21196
 INT32_MAX = 2**31 - 1
@@ -31,7 +31,7 @@ INT32_MAX = 2**31 - 1
 class CommandProtocol:
     """Maps commands to vehicle calls; a handler returns messages to send after the ACK."""
 
-    def __init__(self, server: MavlinkServer) -> None:
+    def __init__(self, server: ServerLink) -> None:
         self.server = server
         self.handled = 0
         self.table: dict[int, Callable] = {
@@ -158,14 +158,14 @@ class CommandProtocol:
     def _mission_start(self, link, p, now):
         if not (math.isfinite(p[0]) and p[0] == int(p[0])):
             raise RefusedError(f"mission start: item {p[0]:g} is not a whole number")
-        self.server.vehicle.start_mission(int(p[0]), now)
+        self.server.vehicle.auto.start_mission(int(p[0]), now)
 
     def _return(self, link, p, now):
         self.server.vehicle.set_mode(FlightMode.RTL, now)
 
     def _change_speed(self, link, p, now):
         """DO_CHANGE_SPEED (QGroundControl's "change speed"): param2 in m/s, -1 no change."""
-        self.server.vehicle.change_speed(p[1])
+        self.server.vehicle.auto.change_speed(p[1])
 
     def _reposition(self, link, p, now):
         """DO_REPOSITION (QGroundControl's "go to location", MAVSDK's goto_location):
@@ -185,7 +185,7 @@ class CommandProtocol:
         # param4 in radians, as PX4 and MAVSDK read it (the MAVLink spec said degrees
         # until 2025 and now says radians too); NaN keeps the heading.
         yaw = p[3]
-        self.server.vehicle.reposition(target, yaw, p[0] if math.isfinite(p[0]) else -1.0)
+        self.server.vehicle.auto.reposition(target, yaw, p[0] if math.isfinite(p[0]) else -1.0)
 
     def _orbit(self, link, p, now):
         """DO_ORBIT (MAVSDK's do_orbit): param1 radius [m] (negative: counter-clockwise),

@@ -28,7 +28,7 @@ from autopilot.navigator.mission_store import (
 from contracts.mavlink import GLOBAL_FRAMES, mavlink
 
 if TYPE_CHECKING:
-    from autopilot.mavlink.server import GroundLink, MavlinkServer
+    from autopilot.mavlink.link import GroundLink, ServerLink
 
 M = mavlink
 RETRY_S = 0.25  # PX4's MAVLINK_MISSION_RETRY_TIMEOUT_DEFAULT
@@ -80,7 +80,7 @@ def item_message(item: MissionItem, partner: tuple[int, int], legacy: bool):
 
 
 class MissionProtocol:
-    def __init__(self, server: MavlinkServer) -> None:
+    def __init__(self, server: ServerLink) -> None:
         self.server = server
         self.store = server.vehicle.mission
         self.transfer: Transfer | None = None

@@ -11,7 +11,7 @@ from autopilot.refusal import RefusedError
 from contracts.mavlink import mavlink
 
 if TYPE_CHECKING:
-    from autopilot.mavlink.server import GroundLink, MavlinkServer
+    from autopilot.mavlink.link import GroundLink, ServerLink
 
 PARAM_COUNT = len(PARAMETERS)
 PARAM_INDEX = {spec.name: i for i, spec in enumerate(PARAMETERS)}
@@ -20,7 +20,7 @@ FTP_NAK, FTP_ERROR_UNSUPPORTED = 129, 4
 
 
 class ParameterProtocol:
-    def __init__(self, server: MavlinkServer) -> None:
+    def __init__(self, server: ServerLink) -> None:
         self.server = server
 
     def handlers(self) -> dict[str, Callable]:

@@ -3,24 +3,22 @@
 Two links as PX4 SITL has them: one to a ground station (sends to 14550) and one to an
 offboard API (sends to 14540); each also answers whoever talks to it. The server reads
 datagrams within a budget, admits peers, hands each message to the protocol that serves
-it (commands, parameters, setpoints: ``autopilot/mavlink_*.py``) and sends the telemetry
-streams. Stream rates and link failsafes run on the link clock (wall time): they serve
-people and tools, not the control loop.
+it (commands, parameters, setpoints, missions: written against link.py's ``ServerLink``,
+so they never import this module) and sends the telemetry streams. Stream rates and link
+failsafes run on the link clock (wall time): they serve people and tools, not the control
+loop.
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
-import socket
-import struct
 import time
-from collections import OrderedDict
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 from autopilot.commander.commander import Commander
 from autopilot.mavlink.commands import CommandProtocol
+from autopilot.mavlink.link import GroundLink, Peer
 from autopilot.mavlink.mission_protocol import MissionProtocol
 from autopilot.mavlink.params import ParameterProtocol
 from autopilot.mavlink.setpoints import SetpointProtocol
@@ -28,16 +26,14 @@ from autopilot.mavlink.signing import (
     SigningState,
     apply_setup_signing,
     is_local,
-    signing_clock_now,
 )
-from autopilot.mavlink.telemetry import DEFAULT_STREAMS, telemetry_message
+from autopilot.mavlink.telemetry import telemetry_message
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
     STATUSTEXT_CHUNK_BYTES,
     datagram_frames,
     mavlink,
-    new_mavlink,
     statustext_messages,
 )
 
@@ -51,94 +47,7 @@ HEARTBEAT_SHED_S = 0.2  # heartbeats closer than this from one address are not d
 HEARD_MAX = 256  # addresses whose last heartbeat time is remembered for that
 DROP_WINDOW_S = 1.0  # drop_rate_comm is measured over this window
 DROP_WARNING_S = 60.0  # at most one STATUSTEXT about drops per link per minute
-SO_MEMINFO = 55  # Linux: the socket's memory figures; index 8 counts the datagrams dropped
-SK_MEMINFO_DROPS = 8
-SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33)
-RCVBUF_BYTES = 1 << 20
 DATAGRAM_MAX = 2048  # MAVLink frames are at most 280 bytes; a datagram holds a few
-
-
-@dataclass
-class Peer:
-    address: tuple[str, int]
-    heard_s: float
-    interactive: bool = False  # has sent more than HEARTBEATs: a tool, not a bystander
-
-
-@dataclass
-class LinkCounters:
-    """What a link has read, refused, shed and lost (cumulative)."""
-
-    datagrams: int = 0  # read from the socket
-    frames: int = 0  # valid frames decoded
-    rejected: int = 0  # not MAVLink, bad CRC, unsigned or wrongly signed, unknown message
-    shed: int = 0  # heartbeats not decoded (the same address was heard just now)
-    not_for_us: int = 0  # valid frames for another system
-    kernel_drops: int = 0  # datagrams the kernel dropped: its buffer was full
-    peers_refused: int = 0  # newcomers turned away while every peer was talking
-
-    def as_dict(self) -> dict[str, int]:
-        return dict(self.__dict__)
-
-
-@dataclass
-class GroundLink:
-    """One UDP socket: its parser/encoder (sequence, signing) and who listens."""
-
-    name: str
-    sock: socket.socket
-    default_remote: tuple[str, int] | None
-    mav: mavlink.MAVLink
-    intervals_s: dict[int, float] = field(default_factory=lambda: dict(DEFAULT_STREAMS))
-    next_due_s: dict[int, float] = field(default_factory=dict)
-    peers: dict[tuple[str, int], Peer] = field(default_factory=dict)
-    counters: LinkCounters = field(default_factory=LinkCounters)
-    heartbeat_heard_s: OrderedDict[tuple[str, int], float] = field(default_factory=OrderedDict)
-    drop_rate: float = 0.0  # lost / arrived over the last window (0-1)
-    window: tuple[float, int, int] | None = None  # (start, arrived, lost) at its start
-    warned_s: float = -math.inf
-
-    def targets(self) -> list[tuple[str, int]]:
-        out = list(self.peers)
-        if self.default_remote is not None and self.default_remote not in self.peers:
-            out.append(self.default_remote)
-        return out
-
-    def read_kernel_drops(self) -> None:
-        """Datagrams the kernel dropped for want of buffer (Linux; elsewhere 0)."""
-        try:
-            info = self.sock.getsockopt(socket.SOL_SOCKET, SO_MEMINFO, 4 * (SK_MEMINFO_DROPS + 1))
-        except OSError:
-            return
-        if len(info) >= 4 * (SK_MEMINFO_DROPS + 1):
-            self.counters.kernel_drops = struct.unpack_from("I", info, 4 * SK_MEMINFO_DROPS)[0]
-
-    def lost(self) -> tuple[int, int]:
-        """(arrived, lost): datagrams that reached the socket, and those the kernel dropped
-        or the link refused (as of the last read_kernel_drops)."""
-        c = self.counters
-        return c.datagrams + c.kernel_drops, c.kernel_drops + c.rejected
-
-
-def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
-              signing_key: bytes | None, link_id: int,
-              sysid: int = AUTOPILOT_SYSID) -> GroundLink:
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    try:  # room for a burst between two reads (privileged: past the system's rmem_max)
-        sock.setsockopt(socket.SOL_SOCKET, SO_RCVBUFFORCE, RCVBUF_BYTES)
-    except OSError:
-        sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
-    sock.bind(bind)
-    sock.setblocking(False)
-    mav = new_mavlink(sysid, AUTOPILOT_COMPID)
-    mav.signing.link_id = link_id  # also for a key SETUP_SIGNING sets later
-    mav.signing.timestamp = signing_clock_now()
-    if signing_key is not None:
-        mav.signing.secret_key = signing_key
-        mav.signing.sign_outgoing = True
-        mav.signing.allow_unsigned_callback = None
-    return GroundLink(name, sock, remote, mav)
 
 
 def decode_datagram(mav: mavlink.MAVLink, data: bytes) -> list | None:
@@ -328,7 +237,7 @@ class MavlinkServer:
     def _on_heartbeat(self, link, address, msg, now) -> None:
         if msg.type == mavlink.MAV_TYPE_GCS or msg.get_srcComponent() == \
                 mavlink.MAV_COMP_ID_MISSIONPLANNER:
-            self.vehicle.gcs_heartbeat(now)
+            self.vehicle.inputs.gcs_heartbeat(now)
 
     def _on_ping(self, link, address, msg, now) -> None:
         if msg.target_system == 0:

@@ -17,7 +17,7 @@ from contracts.mavlink import mavlink, ned_from_global
 from contracts.vectors import MEASUREMENT
 
 if TYPE_CHECKING:
-    from autopilot.mavlink.server import GroundLink, MavlinkServer
+    from autopilot.mavlink.link import GroundLink, ServerLink
 
 # Attitude-target type_mask bits (ATTITUDE_TARGET_TYPEMASK).
 BODY_RATES_IGNORE = 0b111
@@ -29,7 +29,7 @@ TARGET_HAS_POSITION, TARGET_HAS_VELOCITY = 1 << 0, 1 << 1
 
 
 class SetpointProtocol:
-    def __init__(self, server: MavlinkServer) -> None:
+    def __init__(self, server: ServerLink) -> None:
         self.server = server
         self._last_refusal_s = -math.inf
 
@@ -48,7 +48,7 @@ class SetpointProtocol:
                 msg.coordinate_frame, msg.type_mask, (msg.x, msg.y, msg.z),
                 (msg.vx, msg.vy, msg.vz), (msg.afx, msg.afy, msg.afz), msg.yaw, msg.yaw_rate,
                 here, v.heading_rad)
-            v.position_setpoint(now, setpoint)
+            v.inputs.position_setpoint(now, setpoint)
         except RefusedError as exc:
             self._refuse(link, address, str(exc), now)
 
@@ -58,7 +58,7 @@ class SetpointProtocol:
                 self.server.vehicle.home, msg.coordinate_frame, msg.type_mask, msg.lat_int,
                 msg.lon_int, msg.alt, (msg.vx, msg.vy, msg.vz), (msg.afx, msg.afy, msg.afz),
                 msg.yaw, msg.yaw_rate)
-            self.server.vehicle.position_setpoint(now, setpoint)
+            self.server.vehicle.inputs.position_setpoint(now, setpoint)
         except RefusedError as exc:
             self._refuse(link, address, str(exc), now)
 
@@ -67,7 +67,7 @@ class SetpointProtocol:
         try:
             if mask & BODY_RATES_IGNORE != BODY_RATES_IGNORE:
                 raise RefusedError("body-rate setpoints are not supported")
-            self.server.vehicle.attitude_setpoint(
+            self.server.vehicle.inputs.attitude_setpoint(
                 now, None if mask & ATTITUDE_IGNORE else tuple(msg.q),
                 None if mask & THRUST_IGNORE else msg.thrust)
         except RefusedError as exc:
@@ -80,7 +80,7 @@ class SetpointProtocol:
         except RefusedError as exc:
             self._refuse(link, address, str(exc), now)
             return
-        self.server.vehicle.manual_input(now, sticks)
+        self.server.vehicle.inputs.manual_input(now, sticks)
 
     def on_follow_target(self, link: GroundLink, address, msg, now: float) -> None:
         """FOLLOW_TARGET (MAVSDK's follow-me plugin): the target's latitude, longitude and
@@ -100,7 +100,7 @@ class SetpointProtocol:
             if not np.all(np.isfinite(velocity)) or (
                     not msg.est_capabilities & TARGET_HAS_VELOCITY and not np.any(velocity)):
                 velocity = None  # the task estimates it from the positions
-            v.follow_target(position, velocity)
+            v.inputs.follow_target(position, velocity)
         except RefusedError as exc:
             self._refuse(link, address, str(exc), now)
 

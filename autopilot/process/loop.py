@@ -32,12 +32,13 @@ import numpy as np
 from autopilot.commander.commander import Commander
 from autopilot.mavlink.server import MavlinkServer
 from autopilot.process.navigation import Navigation
+from autopilot.process.scenario_start import ScenarioStart
 from autopilot.process.sim_link import SimLink
+from autopilot.process.stall_watch import StallWatch
 from autopilot.process.telemetry import TelemetryPublisher
 from autopilot.process.warm_up import load_compiled_code
-from autopilot.refusal import RefusedError
 from contracts import timeline
-from contracts.airframe_file import read_airframe
+from contracts.airframe_file import AirframeSpec
 from contracts.arguments import CONTROL_RATE_RANGE_HZ
 from contracts.frames import Home
 from contracts.mavlink import (
@@ -46,7 +47,6 @@ from contracts.mavlink import (
     STATE_SOURCES,
     actuator_message,
 )
-from contracts.modes import FlightMode
 from contracts.paced_loop import Deadlines, PacedProcess
 from contracts.realtime import LoopTiming
 from contracts.telemetry import AUTOPILOT
@@ -59,7 +59,6 @@ GROUND_GUARD_S = 0.0005  # ground work ends at least this long before the next s
 GROUND_SLICE = 16  # datagrams per link per turn
 SERVICE_PERIOD_S = 0.005  # telemetry out, link failsafes, Zenoh requests, status
 LOCKSTEP_GROUND_BUDGET_S = 0.001  # per service period in lockstep
-STALL_PERIODS = 2.0  # real time: no sample for this many periods is a simulator stall
 
 
 @dataclass
@@ -77,7 +76,7 @@ class AutopilotConfig:
     rt_priority: int = 50  # SCHED_FIFO priority of the real-time loop (0: normal)
     zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(enabled=False))
     home: Home | None = None  # None: the simulator's first position, as PX4 takes it
-    airframe: str = ""  # shipped name or file: drawn by viewers (the scene record)
+    airframe: AirframeSpec | None = None  # drawn by viewers (the scene record)
 
     def __post_init__(self) -> None:
         low, high = CONTROL_RATE_RANGE_HZ
@@ -93,11 +92,11 @@ class AutopilotConfig:
                              f"{', '.join(STATE_SOURCES)}")
 
 
-def airframe_rotors(airframe: str) -> tuple[str, tuple[tuple[float, ...], ...]] | None:
+def airframe_rotors(spec: AirframeSpec | None
+                    ) -> tuple[str, tuple[tuple[float, ...], ...]] | None:
     """The airframe's name and rotors (x, y, z [m] body FRD, spin) for the scene record."""
-    if not airframe:
+    if spec is None:
         return None
-    spec = read_airframe(airframe)
     return spec.name, tuple((*r.position_m, r.spin) for r in spec.rotors)
 
 
@@ -116,8 +115,8 @@ class Autopilot(PacedProcess):
         self.config = config
         self.vehicle = vehicle
         self.ground = ground
-        self.arm_in_reference = arm_in_reference
-        self.start_mission = start_mission  # until armed in AUTO.MISSION
+        self.scenario = ScenarioStart(vehicle, arm_in_reference, start_mission,
+                                      lambda text: self.log(text))
         self.period_us = round(1e6 / config.rate_hz)
         self.navigation = Navigation.for_source(vehicle, config.state_source)
         self.sim = SimLink(config.sim_host, config.sim_port, config.state_source, config.sysid,
@@ -143,20 +142,7 @@ class Autopilot(PacedProcess):
         self._progress_at = 0.1
         self._last_sample_wall = 0.0  # when the simulator last sent (time.monotonic)
         self._sample_period_us = 0  # between the simulator's last two samples
-        self._stall_started: float | None = None  # a stall going on: since (monotonic)
-        self._stall_held = 0  # control steps it has held the last command
-        self._stall_gap_s = 0.0  # its sample gap so far
-
-    def _start_mission(self, sim_t_s: float) -> None:
-        """Scenario runs: arm in AUTO.MISSION as soon as the vehicle allows it (on the
-        estimator, once it has converged), on sim time."""
-        try:
-            self.vehicle.set_mode(FlightMode.MISSION, sim_t_s)
-            self.vehicle.arm(sim_t_s)
-        except RefusedError:
-            return
-        self.start_mission = False
-        self.log(f"flying the mission from t={sim_t_s:.3f} s")
+        self.stall = StallWatch(self.timing, lambda text: self.log(text))
 
     def _control(self, time_us: int, measurement: np.ndarray,
                  step_start: float | None = None) -> np.ndarray:
@@ -166,12 +152,7 @@ class Autopilot(PacedProcess):
         if not self.node.requests.empty():
             self._service_requests()
         self.vehicle.sample(time_us / 1e6, measurement)
-        if self.arm_in_reference and not self.vehicle.armed and self.steps == 0:
-            self.vehicle.arm_in_reference()
-            self.log(f"flying the {self.vehicle.reference.kind} reference from "
-                     f"t={time_us / 1e6:.3f} s")
-        if self.start_mission:
-            self._start_mission(time_us / 1e6)
+        self.scenario.before_step(time_us / 1e6, self.steps == 0)
         commands = self.vehicle.control()
         self._step_start = start
         self.steps += 1
@@ -283,20 +264,8 @@ class Autopilot(PacedProcess):
         """Real time: a control instant whose newest sample is over STALL_PERIODS periods
         old (of the control or of the simulator, whichever is longer) is a simulator
         stall: counted, and the last command holds (nothing is flown on old data)."""
-        gap_s = now - self._last_sample_wall
-        if gap_s <= STALL_PERIODS * max(period_s, self._sample_period_us / 1e6):
-            if self._stall_started is not None:
-                self.log(f"simulator late: no sample for at least "
-                         f"{1e3 * self._stall_gap_s:.0f} ms; {self._stall_held} control "
-                         f"step(s) held the last command")
-                self._stall_started, self._stall_held = None, 0
-            return False
-        self.timing.record_stall(self._stall_started is None, gap_s)
-        if self._stall_started is None:
-            self._stall_started = now
-        self._stall_held += 1
-        self._stall_gap_s = gap_s
-        return True
+        return self.stall.stalled(now, self._last_sample_wall, period_s,
+                                  self._sample_period_us / 1e6)
 
     def _sim_watchdog(self, now: float) -> None:
         """Real time: no sample for COM_SIM_LOSS_T means the simulator is gone."""

@@ -118,13 +118,13 @@ def identified_model_json(airframe: str, seed: int, clusters: int = DEFAULT_CLUS
     from autopilot.identification.identify import identify_dataset
     from autopilot.models.model_file import save_model
     from contracts.airframe import airframe_by_name
-    from contracts.airframe_file import airframe_envelope
+    from contracts.airframe_file import airframe_envelope, read_airframe
     from ground.identify.excitation import excitation_dataset
 
     dataset = excitation_dataset(airframe_by_name(airframe), seed=seed,
                                  envelope=airframe_envelope(airframe))
     models = identify_dataset(dataset, n_clusters=clusters, seed=seed,
-                              metadata=model_airframe_metadata(airframe))
+                              metadata=model_airframe_metadata(read_airframe(airframe)))
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.json"
         save_model(path, models)
@@ -235,9 +235,10 @@ def _fly(task: dict[str, Any]) -> dict[str, Any]:
         else:
             from autopilot.control.factory import load_models
             from contracts.airframe import airframe_by_name
+            from contracts.airframe_file import read_airframe
             from ground.run.inprocess import run_inprocess
 
-            models = (load_models(plan.model_path, plan.airframe)
+            models = (load_models(plan.model_path, read_airframe(plan.airframe))
                       if plan.controller in ("ivfc", "t1fc") else None)
             record = run_inprocess(scenario, plan.controller, plan.plant,
                                    airframe_by_name(plan.airframe), models,

@@ -15,7 +15,12 @@ from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_datas
 from autopilot.models.model_file import save_model
 from autopilot.models.ts_model import FuzzyModelSet
 from contracts.airframe import airframe_argument, airframe_by_name
-from contracts.airframe_file import ENVELOPE_LIMITS, Envelope, airframe_envelope
+from contracts.airframe_file import (
+    ENVELOPE_LIMITS,
+    Envelope,
+    airframe_envelope,
+    read_airframe,
+)
 from contracts.arguments import SEED, VEHICLE_ID, number
 from ground.cli.common import UsageError
 from ground.identify.excitation import MIN_SAMPLES, dataset_from_log, excitation_dataset
@@ -101,7 +106,7 @@ def handle(args: argparse.Namespace) -> int:
                              f"no model written")
         print(f"ivfm: warning: {advice} (--allow-narrow)", file=sys.stderr)
     models = identify_dataset(dataset, n_clusters=n_clusters, seed=args.seed,
-                              metadata={**model_airframe_metadata(args.airframe),
+                              metadata={**model_airframe_metadata(read_airframe(args.airframe)),
                                         **coverage_metadata(envelope, reach)})
     elapsed = time.perf_counter() - start
     print(format_table_2(models, TABLE_2_VALIDATION_RMSE))

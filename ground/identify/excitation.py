@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from autopilot.control.factory import make_controller
-from autopilot.flight_tasks.reference import evaluate_multisine, excitation_sines
 from autopilot.identification.dataset import ALL_COLUMNS, CHANNEL_INPUT, Dataset
+from autopilot.trajectories import evaluate_multisine, excitation_sines
 from contracts.airframe import (
     Airframe,
     attitude_drift,

@@ -102,13 +102,14 @@ def resolve_model(airframe: str, model: Path | None, out_dir: Path,
         model_airframe_metadata,
         shipped_model_name,
     )
+    from contracts.airframe_file import read_airframe
 
     if model is not None:
-        load_models(model, airframe)
+        load_models(model, read_airframe(airframe))
         return model, str(model)
     try:
-        load_models(None, airframe)
-        return None, f"shipped {shipped_model_name(airframe)}"
+        load_models(None, read_airframe(airframe))
+        return None, f"shipped {shipped_model_name(read_airframe(airframe))}"
     except ValueError:
         pass
     from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
@@ -119,7 +120,7 @@ def resolve_model(airframe: str, model: Path | None, out_dir: Path,
     say("no model of this airframe: identifying one on it (ivfm identify)")
     dataset = excitation_dataset(airframe_by_name(airframe))
     models = identify_dataset(dataset, n_clusters=DEFAULT_N_CLUSTERS, seed=0,
-                              metadata=model_airframe_metadata(airframe))
+                              metadata=model_airframe_metadata(read_airframe(airframe)))
     path = out_dir / "model.json"
     save_model(path, models)
     return path, f"identified now ({path.name})"
@@ -140,7 +141,7 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
     out_dir.mkdir(parents=True, exist_ok=True)
     spec = read_airframe(airframe, controllable=False)
     given = dict(parameters or {})
-    own = airframe_parameters(airframe)  # the airframe file's defaults, then the given
+    own = airframe_parameters(spec)  # the airframe file's defaults, then the given
     flown = validate_parameters({**own, **given})
     rehearsal = Rehearsal(airframe, spec.name, profile, rate_hz, sensors, "", flown,
                           {**own, **given})

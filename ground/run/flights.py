@@ -69,6 +69,7 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
     from autopilot.control.factory import load_models
     from autopilot.parameters import airframe_parameters, validate_parameters
     from contracts.airframe import airframe_by_name
+    from contracts.airframe_file import read_airframe
     from sitl.sensors import read_profile
 
     o = overrides or Overrides()
@@ -78,13 +79,14 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
     sensors = o.sensors or scenario.sensors
     state_source = o.state_source or scenario.state_source
     # The airframe file's own defaults, then the scenario's, then the command line's.
-    given = {**airframe_parameters(airframe), **scenario.parameters, **o.parameters}
+    given = {**airframe_parameters(read_airframe(airframe, controllable=False)),
+             **scenario.parameters, **o.parameters}
     if state_source == "estimator" and "EKF2_GPS_DELAY" not in given:
         # The vehicle's estimator is set up for its GPS receiver, as a user would set it.
         given["EKF2_GPS_DELAY"] = 1000.0 * read_profile(sensors).gps_latency_s
     model_path = o.model_path or scenario.model_path
     if controller in ("ivfc", "t1fc"):  # refused now, not in the autopilot's log
-        load_models(model_path, airframe, o.any_airframe_model)
+        load_models(model_path, read_airframe(airframe), o.any_airframe_model)
     if not (o.rate_hz > 0.0 and o.rate_hz <= 10_000.0):
         raise ValueError(f"--rate-hz must be in (0, 10000], got {o.rate_hz!r}")
     return FlightPlan(scenario.on_airframe(airframe), controller, o.plant or scenario.plant,
@@ -141,6 +143,7 @@ def fly_inprocess(plan: FlightPlan, out_dir: Path, figures: bool = True) -> dict
     """Fly plant and controller in one process; metrics.json (no events: no processes)."""
     from autopilot.control.factory import load_models
     from contracts.airframe import airframe_by_name
+    from contracts.airframe_file import read_airframe
     from ground.record.run_files import write_json
     from ground.report.figures import plot_run
     from ground.report.metrics import compute_metrics
@@ -148,7 +151,7 @@ def fly_inprocess(plan: FlightPlan, out_dir: Path, figures: bool = True) -> dict
     from ground.run.progress import ProgressLine
 
     scenario = plan.scenario
-    models = (load_models(plan.model_path, plan.airframe, plan.any_airframe_model)
+    models = (load_models(plan.model_path, read_airframe(plan.airframe), plan.any_airframe_model)
               if plan.controller in ("ivfc", "t1fc") else None)
     line = ProgressLine(scenario.name, scenario.duration_s)
     line.loading()

@@ -26,7 +26,7 @@ from typing import Any
 
 import zenoh
 
-from autopilot.flight_tasks.reference import REFERENCE_OPTIONS
+from autopilot.trajectories import REFERENCE_OPTIONS
 from contracts import timeline
 from contracts.frames import DEFAULT_HOME, Home
 from contracts.telemetry import AUTOPILOT, SITL, vehicle_key

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from autopilot.flight_tasks.reference import ENVELOPE_OPTIONS, Reference
+from autopilot.trajectories import ENVELOPE_OPTIONS, Reference
 from contracts.airframe_file import airframe_envelope
 from contracts.atomic_file import write_atomic
 from contracts.frames import DEFAULT_HOME, Home

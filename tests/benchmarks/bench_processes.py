@@ -25,7 +25,7 @@ import numpy as np  # noqa: E402
 
 from autopilot.commander.commander import Commander  # noqa: E402
 from autopilot.control.factory import load_models, make_controller  # noqa: E402
-from autopilot.flight_tasks.reference import Reference  # noqa: E402
+from autopilot.trajectories import Reference  # noqa: E402
 from contracts.airframe import PAPER, hover_rotor_speeds  # noqa: E402
 from contracts.frames import DEFAULT_HOME  # noqa: E402
 from contracts.mavlink import (  # noqa: E402

@@ -23,9 +23,10 @@ import numpy as np  # noqa: E402
 
 from autopilot.commander.commander import Commander  # noqa: E402
 from autopilot.control.factory import load_models, make_controller  # noqa: E402
-from autopilot.flight_tasks.reference import Reference  # noqa: E402
-from autopilot.mavlink.server import MavlinkServer, open_link  # noqa: E402
+from autopilot.mavlink.link import open_link  # noqa: E402
+from autopilot.mavlink.server import MavlinkServer  # noqa: E402
 from autopilot.process.loop import Autopilot, AutopilotConfig  # noqa: E402
+from autopilot.trajectories import Reference  # noqa: E402
 from contracts.airframe import PAPER  # noqa: E402
 from contracts.zenoh_link import ZenohOptions  # noqa: E402
 from ground.run.children import LoggerProcess  # noqa: E402

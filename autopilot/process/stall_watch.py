@@ -1,0 +1,46 @@
+"""Real time: a simulator that is late with its samples (a stall), noticed at the control
+instants, counted in the loop timing and logged once it is over.
+
+A control instant whose newest sample is older than the stall limit is not flown (the last
+command holds); the episode's held steps and longest gap are logged when a sample comes
+again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from contracts.realtime import LoopTiming
+
+STALL_PERIODS = 2.0  # no sample for this many periods is a simulator stall
+
+
+class StallWatch:
+    """One stall episode at a time: when it began, the steps it held, its gap so far."""
+
+    def __init__(self, timing: LoopTiming, log: Callable[[str], None]) -> None:
+        self.timing = timing
+        self.log = log
+        self.started: float | None = None  # a stall going on: since (monotonic)
+        self.held = 0  # control steps it has held the last command
+        self.gap_s = 0.0  # its sample gap so far
+
+    def stalled(self, now: float, last_sample_s: float, period_s: float,
+                sample_period_s: float) -> bool:
+        """Whether the control instant ``now`` (monotonic) is in a stall: the newest sample,
+        from ``last_sample_s``, is over STALL_PERIODS periods old (of the control or of the
+        simulator, whichever is longer)."""
+        gap_s = now - last_sample_s
+        if gap_s <= STALL_PERIODS * max(period_s, sample_period_s):
+            if self.started is not None:
+                self.log(f"simulator late: no sample for at least "
+                         f"{1e3 * self.gap_s:.0f} ms; {self.held} control "
+                         f"step(s) held the last command")
+                self.started, self.held = None, 0
+            return False
+        self.timing.record_stall(self.started is None, gap_s)
+        if self.started is None:
+            self.started = now
+        self.held += 1
+        self.gap_s = gap_s
+        return True

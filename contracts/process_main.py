@@ -1,0 +1,51 @@
+"""The entry-point shell of the vehicle processes (``python -m sitl``, ``python -m
+autopilot``), written once.
+
+A process module supplies its parser, its ``run(args)`` and what a warm process loads
+ahead (``preload``); this shell parses the command line, turns a bad value or a failed
+start (ValueError, OSError) into ``<process>: error: ...`` and exit code 2, and, run as a
+script, either runs once or serves run requests as a warm process (contracts/warm.py,
+``--warm``), then marks the exit on the timeline and ends without the interpreter's
+teardown.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+from typing import NoReturn
+
+from contracts import timeline
+from contracts.warm import WARM_FLAG, exit_process, serve
+
+
+def run_main(process: str, build_parser: Callable[[], argparse.ArgumentParser],
+             run: Callable[[argparse.Namespace], int],
+             argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv`` (None: the command line) and run; a ValueError or OSError is the
+    process's error message and exit code 2 (argparse's own errors exit 2 as usual)."""
+    args = build_parser().parse_args(argv)
+    try:
+        return run(args)
+    except (ValueError, OSError) as exc:
+        print(f"{process}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+def start_process(process: str, main: Callable[..., int],
+                  preload: Callable[[], None] | None = None) -> NoReturn:
+    """``python -m <process>``: one run of ``main``, or with ``--warm`` as the only
+    argument, a warm process serving runs of it; then the exit is marked and the process
+    ends (``exit_process``)."""
+    code = serve(main, preload) if sys.argv[1:] == [WARM_FLAG] else main()
+    timeline.mark(process, "exit")
+    exit_process(code)
+
+
+def pin_cpus(process: str, cpus: frozenset[int]) -> None:
+    """``--rt-cpus``: pin the process (before Zenoh's threads start: they inherit it) and
+    say so on standard error."""
+    from contracts.realtime import pin_to_cpus
+
+    print(f"{process}: {pin_to_cpus(cpus)}", file=sys.stderr, flush=True)

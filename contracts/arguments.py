@@ -11,6 +11,21 @@ import argparse
 import math
 import os
 from collections.abc import Callable
+from typing import NamedTuple
+
+
+class NumberRange(NamedTuple):
+    """What a ``number`` option accepts, kept on its parser so a test can check that any
+    value it took lies inside."""
+
+    low: float
+    high: float
+    low_open: bool
+    integer: bool
+
+    def holds(self, value: float) -> bool:
+        inside = (self.low < value if self.low_open else self.low <= value) and value <= self.high
+        return inside and (not self.integer or isinstance(value, int))
 
 
 def number(low: float, high: float, unit: str = "", *, integer: bool = False,
@@ -37,6 +52,7 @@ def number(low: float, high: float, unit: str = "", *, integer: bool = False,
         return value
 
     parse.__name__ = "number"  # argparse names the type in some messages
+    parse.range = NumberRange(low, high, low_open, integer)  # type: ignore[attr-defined]
     return parse
 
 
@@ -58,6 +74,7 @@ def _rate(low: float, high: float) -> Callable[[str], float]:
                                              "period (100, 250, 400, 1000 Hz do)")
         return value
 
+    parse.range = in_range.range  # type: ignore[attr-defined]
     return parse
 
 

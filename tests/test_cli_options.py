@@ -16,7 +16,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from contracts.arguments import DURATION_S, cpu_list, number
+from contracts.arguments import DURATION_S, SEED, cpu_list, number
 from ground.cli.main import build_parser, main
 
 # A command and the positional arguments it needs to parse.
@@ -84,6 +84,23 @@ def _try(base: list[str], option: str, action: argparse.Action, value: str, caps
     if isinstance(got, float):
         assert not math.isnan(got), (option, value)
         assert math.isfinite(got) or action.type is DURATION_S, (option, value)
+    span = getattr(action.type, "range", None)
+    if span is not None:  # a number option (float or whole): what it took is in its range
+        for taken in got if isinstance(got, list) else [got]:  # repeatable options: each
+            assert span.holds(taken), (option, value, got, span)
+
+
+def test_every_number_option_says_its_range():
+    """The range check above reaches the whole-number options too (ports, seeds, ids)."""
+    ranged = {option for _, option, action in TYPED if hasattr(action.type, "range")}
+    assert {"--seed", "--port", "--sysid", "--jobs", "--samples", "--rate-hz",
+            "--duration"} <= ranged, ranged
+
+
+def test_the_range_check_refuses_a_value_outside_or_of_the_wrong_kind():
+    seeds = SEED.range
+    assert seeds.holds(0) and seeds.holds(2**32 - 1)
+    assert not seeds.holds(-1) and not seeds.holds(2**32) and not seeds.holds(3.0)
 
 
 def _depth(base: list[str]) -> int:

@@ -116,7 +116,6 @@ def _travel_deg(yaw: np.ndarray) -> float:
     return math.degrees(float(np.sum(np.abs(np.diff(np.unwrap(yaw))))))
 
 
-@pytest.mark.slow
 def test_mavsdk_square_with_headings_through_0_and_180_deg_then_a_50_m_step():
     """One flight (start-up and take-off are a third of each): the square and the turns,
     then the 50 m step with set_position_velocity_ned."""
@@ -168,7 +167,6 @@ def test_mavsdk_square_with_headings_through_0_and_180_deg_then_a_50_m_step():
     assert np.allclose(p[-1, 1:4], (50.0, 0.0, -10.0), atol=0.1)
 
 
-@pytest.mark.slow
 def test_mavsdk_velocity_box_with_yaw_changes_and_body_velocity():
     marks: dict[str, float] = {}
     legs = [((0.0, 0.0, -2.0), 0.0), ((2.0, 0.0, 0.0), 90.0), ((-2.0, 0.0, 0.0), 270.0),

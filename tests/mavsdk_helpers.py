@@ -1,16 +1,31 @@
-"""What the MAVSDK tests share: waiting for a condition, and mission items placed in
-metres from home."""
+"""What the MAVSDK tests share: connecting as a ground station, waiting for a condition,
+and mission items placed in metres from home."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import inspect
 import math
 import time
+from collections.abc import AsyncIterator
 
+from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.mission import MissionItem
 
 from contracts.frames import DEFAULT_HOME
+
+
+@contextlib.asynccontextmanager
+async def autopilot_on(port: int) -> AsyncIterator:
+    """MAVSDK as a ground station listening on ``port``, and the first autopilot it hears
+    (its ``System``)."""
+    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
+    async with mavsdk:
+        await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
+        system = await mavsdk.first_autopilot(timeout_s=30.0)
+        assert system is not None, "no autopilot heard"
+        yield system
 
 
 async def until(check, timeout_s: float, what: str) -> None:

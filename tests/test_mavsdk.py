@@ -11,12 +11,12 @@ import time
 
 import pytest
 from mavsdk import log_subscribe
-from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.offboard import OffboardAsync, PositionNedYaw
 from mavsdk.asyncio.plugins.telemetry import FlightMode, LandedState, TelemetryAsync
 
 from tests.harness import start_processes
+from tests.mavsdk_helpers import autopilot_on
 
 pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 
@@ -35,11 +35,7 @@ async def _until(check, timeout_s: float, what: str):
 
 async def _fly(port: int) -> list[str]:
     steps = []
-    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-    async with mavsdk:
-        await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
-        system = await mavsdk.first_autopilot(timeout_s=30.0)
-        assert system is not None, "no autopilot heard"
+    async with autopilot_on(port) as system:
         action, telem, offboard = ActionAsync(system), TelemetryAsync(system), \
             OffboardAsync(system)
 

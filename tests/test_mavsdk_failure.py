@@ -10,7 +10,6 @@ import contextlib
 
 import pytest
 from mavsdk import log_subscribe
-from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.failure import (
     FailureAsync,
@@ -23,6 +22,7 @@ from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 from tests.harness import start_processes
+from tests.mavsdk_helpers import autopilot_on
 from tests.test_mavsdk import _near, _until
 
 pytestmark = [pytest.mark.process, pytest.mark.groundtool]
@@ -32,11 +32,7 @@ log_subscribe(lambda level, text, file, line: level.value < 2)  # warnings and e
 
 async def _fly(port: int) -> dict:
     seen: dict = {"texts": []}
-    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-    async with mavsdk:
-        await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
-        system = await mavsdk.first_autopilot(timeout_s=30.0)
-        assert system is not None, "no autopilot heard"
+    async with autopilot_on(port) as system:
         action, telem = ActionAsync(system), TelemetryAsync(system)
         failure, param = FailureAsync(system), ParamAsync(system)
 

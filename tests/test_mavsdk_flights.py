@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 from mavsdk import log_subscribe
-from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync
 from mavsdk.asyncio.plugins.offboard import (
     OffboardAsync,
@@ -30,7 +29,7 @@ from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
 from contracts.frames import wrap_pi
 from tests.harness import start_processes
-from tests.mavsdk_helpers import until
+from tests.mavsdk_helpers import autopilot_on, until
 
 pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 
@@ -66,12 +65,8 @@ async def _record(telem: TelemetryAsync, track: Track) -> None:
 
 async def _fly(port: int, script) -> tuple[Track, dict[str, float]]:
     """Connect, take off to 2.5 m, start offboard holding there, run ``script``, land."""
-    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
     track = Track()
-    async with mavsdk:
-        await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
-        system = await mavsdk.first_autopilot(timeout_s=30.0)
-        assert system is not None, "no autopilot heard"
+    async with autopilot_on(port) as system:
         action, telem = ActionAsync(system), TelemetryAsync(system)
         offboard, param = OffboardAsync(system), ParamAsync(system)
 

@@ -8,7 +8,6 @@ import asyncio
 
 import pytest
 from mavsdk import log_subscribe
-from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.geofence import (
     Circle,
     FenceType,
@@ -20,7 +19,7 @@ from mavsdk.asyncio.plugins.geofence import (
 from mavsdk.asyncio.plugins.mission import MissionAsync, MissionPlan
 
 from tests.harness import start_processes
-from tests.mavsdk_helpers import mission_item
+from tests.mavsdk_helpers import autopilot_on, mission_item
 
 pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 
@@ -31,11 +30,7 @@ HOME = (47.397742, 8.545594)
 
 async def _session(port: int) -> dict:
     out = {}
-    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-    async with mavsdk:
-        await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
-        system = await mavsdk.first_autopilot(timeout_s=30.0)
-        assert system is not None, "no autopilot heard"
+    async with autopilot_on(port) as system:
         mission, fence = MissionAsync(system), GeofenceAsync(system)
         plan = MissionPlan([mission_item(0, 0, 5.0, speed_mps=3.0),
                             mission_item(20, 0, 5.0, loiter_s=2.0),

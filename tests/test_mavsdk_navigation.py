@@ -13,7 +13,6 @@ import time
 import numpy as np
 import pytest
 from mavsdk import log_subscribe
-from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
 from mavsdk.asyncio.plugins.action import ActionAsync, OrbitYawBehavior
 from mavsdk.asyncio.plugins.follow_me import Config, FollowMeAsync, TargetLocation
 from mavsdk.asyncio.plugins.manual_control import ManualControlAsync
@@ -22,7 +21,7 @@ from mavsdk.asyncio.plugins.telemetry import FlightMode, TelemetryAsync
 
 from contracts.frames import DEFAULT_HOME
 from tests.harness import start_processes
-from tests.mavsdk_helpers import mission_item, until
+from tests.mavsdk_helpers import autopilot_on, mission_item, until
 
 pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 
@@ -89,20 +88,16 @@ async def _take_off(action: ActionAsync, watch: Watch, altitude_m: float = 3.0) 
     await until(lambda: watch.ned[2] < -(altitude_m - 0.1), 30.0, "take-off")
 
 
-async def _connect(mavsdk: Mavsdk, port: int):
-    await mavsdk.add_any_connection(f"udpin://127.0.0.1:{port}")
-    system = await mavsdk.first_autopilot(timeout_s=30.0)
-    assert system is not None, "no autopilot heard"
+async def _healthy(system) -> TelemetryAsync:
     telem = TelemetryAsync(system)
     await until(telem.health_all_ok, 30.0, "health all ok")
-    return system, telem
+    return telem
 
 
 async def _mission_session(port: int) -> dict:
     out: dict = {}
-    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-    async with mavsdk:
-        system, telem = await _connect(mavsdk, port)
+    async with autopilot_on(port) as system:
+        telem = await _healthy(system)
         mission, action = MissionAsync(system), ActionAsync(system)
         watch = Watch()
         follower = asyncio.ensure_future(watch.follow(telem, mission))
@@ -145,9 +140,8 @@ def test_mavsdk_flies_pauses_resumes_and_finishes_a_mission_then_returns(tmp_pat
 
 async def _goto_and_sticks_session(port: int) -> dict:
     out: dict = {}
-    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-    async with mavsdk:
-        system, telem = await _connect(mavsdk, port)
+    async with autopilot_on(port) as system:
+        telem = await _healthy(system)
         action, manual = ActionAsync(system), ManualControlAsync(system)
         watch = Watch()
         follower = asyncio.ensure_future(watch.follow(telem))
@@ -194,9 +188,8 @@ def test_mavsdk_goes_to_a_location_and_flies_position_control_with_sticks(tmp_pa
 
 async def _orbit_session(port: int) -> dict:
     out: dict = {"track": []}
-    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-    async with mavsdk:
-        system, telem = await _connect(mavsdk, port)
+    async with autopilot_on(port) as system:
+        telem = await _healthy(system)
         action = ActionAsync(system)
         watch = Watch()
         follower = asyncio.ensure_future(watch.follow(telem))
@@ -229,9 +222,8 @@ def test_mavsdk_do_orbit_circles_the_centre_it_names(tmp_path):
 async def _follow_me_session(port: int) -> dict:
     """A target walking east at 1.5 m/s from 5 m north, reported once a second."""
     out: dict = {"track": [], "modes": []}
-    mavsdk = Mavsdk(Configuration.create_with_component_type(ComponentType.GROUND_STATION))
-    async with mavsdk:
-        system, telem = await _connect(mavsdk, port)
+    async with autopilot_on(port) as system:
+        telem = await _healthy(system)
         action, follow_me = ActionAsync(system), FollowMeAsync(system)
         watch = Watch()
         follower = asyncio.ensure_future(watch.follow(telem))

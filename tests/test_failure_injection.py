@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from autopilot.commander.failures import InjectedFailures, UnsupportedError
-from tests.test_mavlink_server import ACCEPTED, DENIED, UNSUPPORTED, M, Station, texts
+from tests.mavlink_station import ACCEPTED, M, Station, texts
+from tests.test_mavlink_server import DENIED, UNSUPPORTED
 
 INJECT = M.MAV_CMD_INJECT_FAILURE
 GPS, MOTOR, BARO = (M.FAILURE_UNIT_SENSOR_GPS, M.FAILURE_UNIT_SYSTEM_MOTOR,
@@ -21,17 +22,8 @@ DELAYED = M.FAILURE_TYPE_DELAYED
 
 
 @pytest.fixture
-def station():
-    s = Station()
-    yield s
-    s.close()
-
-
-@pytest.fixture
-def enabled():
-    s = Station(SYS_FAILURE_EN=1.0)
-    yield s
-    s.close()
+def enabled(make_station):
+    return make_station(SYS_FAILURE_EN=1.0)
 
 
 def _said(station: Station) -> list[str]:

@@ -21,7 +21,7 @@ FUZZ = settings(max_examples=EXAMPLES, derandomize=True, deadline=None, database
 
 @pytest.fixture(scope="module")
 def station():
-    from tests.test_mavlink_server import Station
+    from tests.mavlink_station import Station
 
     s = Station()
     s.flying()
@@ -46,7 +46,7 @@ SIGNING_KEY = bytes(range(32))
 @pytest.fixture(scope="module")
 def signed_station():
     from autopilot.mavlink.signing import signing_clock_now
-    from tests.test_mavlink_server import Station
+    from tests.mavlink_station import Station
 
     s = Station()
     for mav in (s.links[0].mav, s.client.mav):  # the vehicle signs; so does its tool

@@ -13,18 +13,11 @@ from autopilot.mavlink.mission_protocol import RETRY_S, TIMEOUT_S
 from autopilot.navigator.geofence import zones_from_items
 from autopilot.navigator.mission_store import MISSION
 from contracts.frames import DEFAULT_HOME
-from tests.test_mavlink_server import T0, M, Station
+from tests.mavlink_station import T0, M
 
 HOME_LAT, HOME_LON = 47.397742, 8.545594
 WAYPOINT, TAKEOFF, LAND = M.MAV_CMD_NAV_WAYPOINT, M.MAV_CMD_NAV_TAKEOFF, M.MAV_CMD_NAV_LAND
 REL_INT = M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
-
-
-@pytest.fixture
-def station():
-    s = Station()
-    yield s
-    s.close()
 
 
 def item(seq: int, command: int = WAYPOINT, frame: int = REL_INT, params=(0.0, 1.0, 0.0,

@@ -23,7 +23,6 @@ from numba import njit
 from contracts.airframe_file import (
     AirframeError,
     AirframeSpec,
-    checked_argument,
     read_airframe,
 )
 from contracts.frames import GRAVITY_MPS2
@@ -92,12 +91,10 @@ def airframe_by_name(name: str) -> Airframe:
     return airframe_from_spec(read_airframe(name))
 
 
-airframe_argument = checked_argument(airframe_by_name)  # ``--airframe NAME|FILE``
-
-
 # Shipped airframes (contracts/airframes/*.toml): the paper's Table 1 with the rotor limit
 # W_max = 500 rad/s, and a 450-class "+" vehicle off the paper's design point.
-PAPER = airframe_by_name("paper")
+PAPER_SPEC = read_airframe("paper")
+PAPER = airframe_from_spec(PAPER_SPEC)
 # The vehicle `ivfm sitl` and `ivfm autopilot` give ground tools unless told otherwise, as
 # PX4 SITL's is its x500; the paper's scenarios name the paper's airframe.
 DEFAULT_AIRFRAME = "quad-x-500"

@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -87,6 +86,12 @@ class AirframeSpec:
     # paper's. Not part of the fingerprint either.
     envelope: Envelope | None = None
 
+    @property
+    def argument(self) -> str:
+        """The ``--airframe`` text it was read from (a shipped name or a file path): what
+        a process started for it is given, and what messages tell the user to type."""
+        return self.source.removeprefix("airframe file ").removeprefix("airframe ")
+
     def fingerprint(self) -> str:
         """A short hash of everything that makes the vehicle fly as it does (not its name
         or description): a model identified on it records this."""
@@ -122,9 +127,9 @@ def read_airframe(source: str | Path, controllable: bool = True) -> AirframeSpec
                           controllable=controllable)
 
 
-def airframe_envelope(airframe: str | Path) -> Envelope:
+def envelope_of(spec: AirframeSpec) -> Envelope:
     """The envelope an airframe file names in ``[envelope]``, else the paper's."""
-    return read_airframe(airframe).envelope or PAPER_ENVELOPE
+    return spec.envelope or PAPER_ENVELOPE
 
 
 def spec_argument(text: str) -> AirframeSpec:
@@ -135,19 +140,6 @@ def spec_argument(text: str) -> AirframeSpec:
         return read_airframe(text)
     except AirframeError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
-
-
-def checked_argument(load: Callable[[str], object]) -> Callable[[str], str]:
-    """argparse type of ``--airframe NAME|FILE``: ``load`` checks it now (its
-    AirframeError is the usage error), the text is passed on as given."""
-    def argument(text: str) -> str:
-        try:
-            load(text)
-        except AirframeError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-        return text
-    return argument
-
 
 
 def parse_airframe(data: dict[str, Any], where: str = "airframe",

@@ -115,12 +115,6 @@ def model_airframe_metadata(spec: AirframeSpec) -> dict[str, str]:
     return {"airframe": spec.name, "airframe_fingerprint": spec.fingerprint()}
 
 
-def airframe_as_given(spec: AirframeSpec) -> str:
-    """The ``--airframe`` text the spec was read from (a shipped name or a file path), as
-    its ``source`` records it, for messages that tell the user what to run."""
-    return spec.source.removeprefix("airframe file ").removeprefix("airframe ")
-
-
 def check_model_airframe(models: FuzzyModelSet, spec: AirframeSpec, source: str) -> None:
     """A model flies the airframe it was identified on: same numbers (fingerprint), or,
     for files that record only a name, the same name."""
@@ -132,6 +126,6 @@ def check_model_airframe(models: FuzzyModelSet, spec: AirframeSpec, source: str)
         raise ValueError(
             f"{source} was identified on airframe {recorded!r}"
             f"{' (other numbers)' if recorded == spec.name else ''}, not on {spec.name!r}: "
-            f"identify one for it (ivfm identify --airframe {airframe_as_given(spec)} "
+            f"identify one for it (ivfm identify --airframe {spec.argument} "
             "--out model.json), "
             "or fly it anyway with --any-airframe-model")

@@ -13,7 +13,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from autopilot.models.ts_model import FuzzyModelSet  # noqa: E402
-from contracts.airframe import airframe_by_name  # noqa: E402
+from contracts.airframe import airframe_from_spec  # noqa: E402
+from contracts.airframe_file import AirframeSpec  # noqa: E402
 from contracts.atomic_file import write_atomic
 from contracts.frames import altitude_m  # noqa: E402
 from ground.identify.paper_tables import PAPER_MSE_BY_SCENARIO  # noqa: E402
@@ -28,14 +29,14 @@ def run_comparison(
     scenarios: list[str],
     controllers: list[str],
     plants: list[str],
-    airframe_name: str,
+    airframe_spec: AirframeSpec,
     models: FuzzyModelSet,
     parameters: dict[str, float],
     out_dir: Path,
 ) -> int:
 
 
-    airframe = airframe_by_name(airframe_name)
+    airframe = airframe_from_spec(airframe_spec)
     total = len(scenarios) * len(controllers) * len(plants)
     results: list[dict[str, Any]] = []
     records = {}
@@ -43,7 +44,7 @@ def run_comparison(
     start = time.perf_counter()
     for plant in plants:
         for name in scenarios:
-            scenario = scenario_by_name(name).on_airframe(airframe_name)
+            scenario = scenario_by_name(name).on_airframe(airframe_spec)
             for controller in controllers:
                 line = ProgressLine(f"[{done + 1:>3}/{total}] {plant} {name} {controller}",
                                     scenario.duration_s)
@@ -52,7 +53,7 @@ def run_comparison(
                                            parameters=parameters, progress=line.update)
                 finally:
                     line.done()
-                metrics = compute_metrics(record, scenario, airframe_name)
+                metrics = compute_metrics(record, scenario, airframe_spec.argument)
                 results.append(metrics)
                 records[(plant, name, controller)] = record
                 done += 1
@@ -60,7 +61,7 @@ def run_comparison(
                 print(f"[{done:>3}/{total}] {plant:<10} {name:<15} {controller:<5} "
                       f"{record.wall_time_s:5.2f} s{flag}", file=sys.stderr)
     out_dir.mkdir(parents=True, exist_ok=True)
-    write_json(out_dir / "comparison.json", {"airframe": airframe_name, "runs": results})
+    write_json(out_dir / "comparison.json", {"airframe": airframe_spec.argument, "runs": results})
     table = comparison_markdown(results, scenarios, controllers, plants)
     write_atomic(out_dir / "comparison.md", table)
     for plant in plants:

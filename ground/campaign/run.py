@@ -35,9 +35,19 @@ from typing import Any
 
 import tomli_w
 
+from autopilot.control.factory import load_models, model_airframe_metadata
+from autopilot.identification.identify import identify_dataset
+from autopilot.models.model_file import save_model
+from contracts.airframe import PAPER, airframe_from_spec
+from contracts.airframe_file import envelope_of, read_airframe
 from contracts.atomic_file import atomic_writer, write_atomic
 from ground.campaign.spec import Campaign
+from ground.identify.excitation import excitation_dataset
+from ground.report.metrics import compute_metrics
+from ground.run.flights import Overrides, fly_processes, plan_flight
+from ground.run.inprocess import run_inprocess
 from ground.run.progress import LiveLine
+from ground.scenario.scenario_file import load_scenario, scenario_by_name
 
 RUNS_DIR, DRAWS_DIR, MODELS_DIR = "runs", "draws", "models"
 RESULTS_FILE = "results.csv"
@@ -52,7 +62,6 @@ def draw_scenario(campaign: Campaign, scenario_name: str, index: int,
     drawn plant perturbations over the whole run, its kicks and steps scaled, the model
     identified with the drawn seed, and no [expect] (the plant is not the one they were
     measured on)."""
-    from ground.scenario.scenario_file import scenario_by_name
 
     base = scenario_by_name(scenario_name)
     data = tomllib.loads(base.source.read_text())
@@ -114,17 +123,11 @@ def model_file_name(airframe: str, seed: int, clusters: int = DEFAULT_CLUSTERS) 
 def identified_model_json(airframe: str, seed: int, clusters: int = DEFAULT_CLUSTERS) -> str:
     """The model file's text of an identification with this excitation seed (kept per
     worker: every controller and scenario of a draw flies the same one)."""
-    from autopilot.control.factory import model_airframe_metadata
-    from autopilot.identification.identify import identify_dataset
-    from autopilot.models.model_file import save_model
-    from contracts.airframe import airframe_by_name
-    from contracts.airframe_file import airframe_envelope, read_airframe
-    from ground.identify.excitation import excitation_dataset
 
-    dataset = excitation_dataset(airframe_by_name(airframe), seed=seed,
-                                 envelope=airframe_envelope(airframe))
+    spec = read_airframe(airframe)  # once per worker and airframe (the cache above)
+    dataset = excitation_dataset(airframe_from_spec(spec), seed=seed, envelope=envelope_of(spec))
     models = identify_dataset(dataset, n_clusters=clusters, seed=seed,
-                              metadata=model_airframe_metadata(read_airframe(airframe)))
+                              metadata=model_airframe_metadata(spec))
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "model.json"
         save_model(path, models)
@@ -134,11 +137,10 @@ def identified_model_json(airframe: str, seed: int, clusters: int = DEFAULT_CLUS
 def flight_tasks(campaign: Campaign) -> list[dict[str, Any]]:
     """Every task of a flight campaign, each draw's controllers together (pairs finish
     close in time)."""
-    from ground.scenario.scenario_file import scenario_by_name
 
     tasks = []
     for scenario_name in campaign.scenarios:
-        airframe = scenario_by_name(scenario_name).airframe
+        airframe = scenario_by_name(scenario_name).airframe.argument  # tasks hold text
         for index in range(campaign.runs):
             values = campaign.draw(index)
             seed = values.get("identification_seed")
@@ -208,9 +210,6 @@ def batch_size(tasks: int, workers: int) -> int:
 
 
 def _fly(task: dict[str, Any]) -> dict[str, Any]:
-    from ground.report.metrics import compute_metrics
-    from ground.run.flights import Overrides, plan_flight
-    from ground.scenario.scenario_file import load_scenario
 
     out: dict[str, Any] = {"scenario": task["scenario"], "controller": task["controller"]}
     seed = int(task["values"].get("sensor_seed", 0))
@@ -229,23 +228,18 @@ def _fly(task: dict[str, Any]) -> dict[str, Any]:
         plan = plan_flight(scenario, Overrides(controller=task["controller"],
                                                plant=task["plant"], seed=seed))
         if task["how"] == "processes":
-            from ground.run.flights import fly_processes
 
             metrics = fly_processes(plan, folder / "run", figures=False, quiet=True)
         else:
-            from autopilot.control.factory import load_models
-            from contracts.airframe import airframe_by_name
-            from contracts.airframe_file import read_airframe
-            from ground.run.inprocess import run_inprocess
 
-            models = (load_models(plan.model_path, read_airframe(plan.airframe))
+            models = (load_models(plan.model_path, plan.airframe)
                       if plan.controller in ("ivfc", "t1fc") else None)
             record = run_inprocess(scenario, plan.controller, plan.plant,
-                                   airframe_by_name(plan.airframe), models,
+                                   airframe_from_spec(plan.airframe), models,
                                    period_s=1.0 / plan.rate_hz, parameters=plan.parameters,
                                    sensors=plan.sensors, state_source=plan.state_source,
                                    seed=plan.seed, home=plan.home)
-            metrics = compute_metrics(record, scenario, plan.airframe)
+            metrics = compute_metrics(record, scenario, plan.airframe.argument)
     out["diverged"] = bool(metrics["diverged"])
     if out["diverged"]:
         out["error"] = "diverged: the vehicle left the flight envelope"
@@ -263,14 +257,11 @@ def _fly(task: dict[str, Any]) -> dict[str, Any]:
 
 
 def _identify(task: dict[str, Any]) -> dict[str, Any]:
-    from autopilot.identification.identify import identify_dataset
-    from contracts.airframe import airframe_by_name
-    from ground.identify.excitation import excitation_dataset
 
     values = task["values"]
     seed = int(values.get("identification_seed", 0))
     clusters = int(values.get("clusters", DEFAULT_CLUSTERS))
-    dataset = excitation_dataset(airframe_by_name("paper"), seed=seed)
+    dataset = excitation_dataset(PAPER, seed=seed)
     models = identify_dataset(dataset, n_clusters=clusters, seed=seed)
     out: dict[str, Any] = {"identification_seed": seed, "clusters": clusters}
     for name, ch in models.channels.items():

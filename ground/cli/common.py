@@ -8,7 +8,7 @@ import time
 from pathlib import Path
 
 from autopilot.__main__ import param_argument
-from contracts.airframe import airframe_argument
+from contracts.airframe_file import spec_argument
 from contracts.arguments import cpu_list
 
 
@@ -29,7 +29,7 @@ def fresh_folder(name: str, parent: Path = Path("runs")) -> Path:
 
 def add_vehicle_options(p: argparse.ArgumentParser) -> None:
     """The airframe, its fuzzy model and parameter overrides."""
-    p.add_argument("--airframe", default="paper", type=airframe_argument,
+    p.add_argument("--airframe", default="paper", type=spec_argument,
                    help="shipped airframe name or airframe .toml file")
     p.add_argument("--model", type=Path, help="fuzzy model JSON (default: the shipped one)")
     p.add_argument("--any-airframe-model", action="store_true",

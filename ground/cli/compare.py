@@ -7,8 +7,6 @@ from pathlib import Path
 
 from autopilot.control.factory import CONTROLLERS, load_models
 from autopilot.parameters import validate_parameters
-from contracts.airframe import airframe_by_name
-from contracts.airframe_file import read_airframe
 from ground.campaign.compare import run_comparison
 from ground.cli.common import add_vehicle_options, fresh_folder
 from ground.scenario.scenario_file import PAPER_SCENARIOS, scenario_by_name
@@ -27,8 +25,7 @@ def add_arguments(compare: argparse.ArgumentParser) -> None:
 def handle(args: argparse.Namespace) -> int:
     for name in args.scenarios:
         scenario_by_name(name)
-    airframe_by_name(args.airframe)
     parameters = validate_parameters(dict(args.param))
-    models = load_models(args.model, read_airframe(args.airframe), args.any_airframe_model)
+    models = load_models(args.model, args.airframe, args.any_airframe_model)
     return run_comparison(args.scenarios, args.controllers, args.plants, args.airframe, models,
                           parameters, args.out or fresh_folder("compare"))

@@ -14,13 +14,8 @@ from autopilot.identification.dataset import read_dataset, write_dataset
 from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
 from autopilot.models.model_file import save_model
 from autopilot.models.ts_model import FuzzyModelSet
-from contracts.airframe import airframe_argument, airframe_by_name
-from contracts.airframe_file import (
-    ENVELOPE_LIMITS,
-    Envelope,
-    airframe_envelope,
-    read_airframe,
-)
+from contracts.airframe import airframe_from_spec
+from contracts.airframe_file import ENVELOPE_LIMITS, Envelope, envelope_of, spec_argument
 from contracts.arguments import SEED, VEHICLE_ID, number
 from ground.cli.common import UsageError
 from ground.identify.excitation import MIN_SAMPLES, dataset_from_log, excitation_dataset
@@ -40,7 +35,7 @@ def add_arguments(ident: argparse.ArgumentParser) -> None:
                        default=4000, help=f"excitation samples, at least {MIN_SAMPLES}")
     ident.add_argument("--clusters", type=number(2, 20, integer=True), default=None,
                        help="fuzzy clusters per model, 2-20 (default: the airframe's)")
-    ident.add_argument("--airframe", default="paper", type=airframe_argument,
+    ident.add_argument("--airframe", default="paper", type=spec_argument,
                        help="shipped airframe name or airframe .toml file")
     ident.add_argument("--envelope", type=envelope_argument, default=None,
                        metavar="ATTITUDE_RAD,RATE_RAD_S[,YAW_RATE_RAD_S]",
@@ -67,9 +62,8 @@ def envelope_argument(text: str) -> tuple[float, ...]:
 
 
 def handle(args: argparse.Namespace) -> int:
-    airframe = airframe_by_name(args.airframe)
-    envelope = (Envelope(*args.envelope) if args.envelope else
-                airframe_envelope(args.airframe))
+    airframe = airframe_from_spec(args.airframe)
+    envelope = Envelope(*args.envelope) if args.envelope else envelope_of(args.airframe)
     n_clusters = DEFAULT_N_CLUSTERS if args.clusters is None else args.clusters
     start = time.perf_counter()
     if args.data is not None and args.log is not None:
@@ -106,7 +100,7 @@ def handle(args: argparse.Namespace) -> int:
                              f"no model written")
         print(f"ivfm: warning: {advice} (--allow-narrow)", file=sys.stderr)
     models = identify_dataset(dataset, n_clusters=n_clusters, seed=args.seed,
-                              metadata={**model_airframe_metadata(read_airframe(args.airframe)),
+                              metadata={**model_airframe_metadata(args.airframe),
                                         **coverage_metadata(envelope, reach)})
     elapsed = time.perf_counter() - start
     print(format_table_2(models, TABLE_2_VALIDATION_RMSE))

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ground.report.run_report import format_metrics, report
+from ground.report.metrics import format_metrics
+from ground.report.run_report import report
 
 
 def add_arguments(rep: argparse.ArgumentParser) -> None:

@@ -13,7 +13,7 @@ from contracts.frames import home_argument
 from contracts.mavlink import STATE_SOURCES
 from contracts.timeline import process_start_s
 from ground.cli.common import UsageError, add_rt_cpus, add_vehicle_options, fresh_folder
-from ground.report.run_report import format_metrics
+from ground.report.metrics import format_metrics
 from ground.run.children import WarmProcesses
 from ground.run.flights import Overrides, fly_inprocess, fly_processes, plan_flight
 from ground.scenario.scenario_file import scenario_by_name, shipped_names

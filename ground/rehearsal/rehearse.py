@@ -22,10 +22,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from autopilot.control.factory import load_models, model_airframe_metadata, shipped_model_name
+from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
+from autopilot.models.model_file import save_model
+from autopilot.parameters import airframe_parameters, validate_parameters
+from contracts.airframe import airframe_from_spec
+from contracts.airframe_file import AirframeSpec, check_controllable, read_airframe
 from contracts.atomic_file import write_atomic
 from ground.check.checker import CheckOptions, ScenarioResult, check_one
 from ground.check.results import junit_document, junit_suite, markdown_cell
+from ground.identify.excitation import excitation_dataset
+from ground.record.run_files import write_json
 from ground.rehearsal.readiness import ADVICE, Flight, Profile, airframe_checks, parameter_checks
+from ground.run.children import WarmProcesses
 from ground.run.flights import Overrides
 from ground.scenario.expectations import Outcome
 from ground.scenario.scenario_file import load_scenario
@@ -93,34 +102,22 @@ def _static_advice(outcome: Outcome) -> str:
     return ADVICE.get(key, "")
 
 
-def resolve_model(airframe: str, model: Path | None, out_dir: Path,
+def resolve_model(airframe: AirframeSpec, model: Path | None, out_dir: Path,
                   say: Callable[[str], None]) -> tuple[Path | None, str]:
     """The model the flights fly: the one given, the airframe's shipped one, or one
     identified now on the airframe (about 2 s) into the rehearsal folder."""
-    from autopilot.control.factory import (
-        load_models,
-        model_airframe_metadata,
-        shipped_model_name,
-    )
-    from contracts.airframe_file import read_airframe
-
     if model is not None:
-        load_models(model, read_airframe(airframe))
+        load_models(model, airframe)
         return model, str(model)
     try:
-        load_models(None, read_airframe(airframe))
-        return None, f"shipped {shipped_model_name(read_airframe(airframe))}"
+        load_models(None, airframe)
+        return None, f"shipped {shipped_model_name(airframe)}"
     except ValueError:
         pass
-    from autopilot.identification.identify import DEFAULT_N_CLUSTERS, identify_dataset
-    from autopilot.models.model_file import save_model
-    from contracts.airframe import airframe_by_name
-    from ground.identify.excitation import excitation_dataset
-
     say("no model of this airframe: identifying one on it (ivfm identify)")
-    dataset = excitation_dataset(airframe_by_name(airframe))
+    dataset = excitation_dataset(airframe_from_spec(airframe))
     models = identify_dataset(dataset, n_clusters=DEFAULT_N_CLUSTERS, seed=0,
-                              metadata=model_airframe_metadata(read_airframe(airframe)))
+                              metadata=model_airframe_metadata(airframe))
     path = out_dir / "model.json"
     save_model(path, models)
     return path, f"identified now ({path.name})"
@@ -133,10 +130,6 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
              rt_cpus: frozenset[int] | None = None) -> Rehearsal:
     """Run every check of ``profile`` on ``airframe``; ValueError on bad input (an
     unreadable airframe file, a parameter out of its range, a bad model)."""
-    from autopilot.parameters import airframe_parameters, validate_parameters
-    from contracts.airframe_file import read_airframe
-    from ground.run.children import WarmProcesses
-
     start = time.perf_counter()
     out_dir.mkdir(parents=True, exist_ok=True)
     spec = read_airframe(airframe, controllable=False)
@@ -152,7 +145,8 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
     if not airframe_ok:
         rehearsal.not_flown = "the airframe cannot hover: no flight was flown"
     else:
-        model_path, rehearsal.model = resolve_model(airframe, model, out_dir, say)
+        check_controllable(spec, spec.source)  # it hovers: the flights fly it
+        model_path, rehearsal.model = resolve_model(spec, model, out_dir, say)
         options = CheckOptions(out_dir / "flights", keep_passed=True, figures=True)
         options.out_dir.mkdir(parents=True, exist_ok=True)
         warm = WarmProcesses(start=True)
@@ -162,7 +156,7 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
                 say(f"[{i + 1}/{len(profile.flights)}] {scenario.name} "
                     f"({'real time' if flight.realtime else 'lockstep'}, "
                     f"{scenario.duration_s:g} s)")
-                overrides = Overrides(airframe=airframe, sensors=sensors,
+                overrides = Overrides(airframe=spec, sensors=sensors,
                                       parameters=given, model_path=model_path,
                                       rate_hz=rate_hz, realtime=flight.realtime,
                                       rt_cpus=rt_cpus)
@@ -182,8 +176,6 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
 # -- outputs ----------------------------------------------------------------------------
 
 def write_outputs(r: Rehearsal, out_dir: Path) -> None:
-    from ground.record.run_files import write_json
-
     write_json(out_dir / "rehearsal.json", rehearsal_json(r))
     write_atomic(out_dir / "rehearsal.md", markdown(r))
     write_atomic(out_dir / "rehearsal.html", html_page(r, out_dir))

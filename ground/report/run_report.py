@@ -8,7 +8,6 @@ log, so a report can be re-computed, or computed for a log from elsewhere.
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -87,40 +86,3 @@ def write_page(run_dir: Path, metrics: dict[str, Any], run: dict[str, Any], reco
     page = run_dir / PAGE_FILE
     write_atomic(page, run_page(run_dir, metrics, run, marks, path_png, outcomes))
     return page
-
-
-def format_metrics(metrics: dict[str, Any]) -> str:
-    """A run's metrics as ``ivfm run`` and ``ivfm report`` print them."""
-    lines = [f"{metrics['scenario']} | {metrics['controller']} | {metrics['plant']} plant | "
-             f"{metrics['sim_time_s']:.1f} s sim in {metrics['wall_time_s']:.2f} s wall "
-             f"({metrics['real_time_factor']:.0f}x real time)"
-             + (" | DIVERGED" if metrics["diverged"] else "")]
-    if metrics.get("startup_wall_s", 0.0) > 1.0:
-        lines.append(f"  the first step loaded the compiled numerical core in "
-                     f"{metrics['startup_wall_s']:.1f} s (compiling it: a fresh install; "
-                     "cached after), not counted above")
-    if "loop_real_time_factor" in metrics:
-        lines.append(f"  loop {metrics['loop_real_time_factor']:.1f}x real time after warm-up; "
-                     f"whole command {metrics.get('command_wall_time_s', math.nan):.2f} s wall")
-    lines.append(f"  errors after {metrics['transient_s']:g} s:")
-    for axis, m in metrics["axes"].items():
-        lines.append(f"    {axis:>5}: rmse {m['rmse']:.5f}  mse {m['mse']:.3e}  "
-                     f"max {m['max_abs']:.4f}")
-    est = metrics.get("estimation")
-    if est:
-        lines.append(f"  estimation: attitude {est['attitude_rmse_rad']:.4f} rad  yaw "
-                     f"{est['yaw_rmse_rad']:.4f} rad  position {est['position_rmse_m']:.3f} m  "
-                     f"altitude {est['altitude_rmse_m']:.3f} m  velocity "
-                     f"{est['velocity_rmse_mps']:.3f} m/s (RMSE against truth)")
-    path = metrics.get("path")
-    if path:
-        arrivals = ", ".join("-" if t is None else f"{t:.2f}" for t in path["arrival_s"])
-        lines.append(f"  path: {'every item reached' if path['all_reached'] else 'NOT ALL REACHED'}"
-                     f" (arrivals [s]: {arrivals})")
-        if path["cross_track_rmse_m"] is not None:
-            lines.append(f"  cross-track: rmse {path['cross_track_rmse_m']:.4f} m  max "
-                         f"{path['cross_track_max_m']:.4f} m")
-    c = metrics["control"]
-    lines.append(f"  effort {c['effort_mean_sum_c2']:.4f}  chattering "
-                 f"{c['chattering_per_s']:.3f}/s  saturated {100 * c['saturated_fraction']:.1f} %")
-    return "\n".join(lines)

@@ -9,13 +9,22 @@ from __future__ import annotations
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+from autopilot.control.factory import load_models
+from autopilot.parameters import airframe_parameters, validate_parameters
+from contracts.airframe import airframe_from_spec
+from contracts.airframe_file import AirframeSpec, read_airframe
 from contracts.frames import Home
+from ground.record import timeline as run_timeline
+from ground.record.run_files import RUN_FILE, SCENARIO_FILE, write_json
+from ground.report.metrics import compute_metrics
+from ground.run.children import WarmProcesses
+from ground.run.inprocess import run_inprocess
+from ground.run.processes import RunSettings, run_processes
+from ground.run.progress import ProgressLine
 from ground.scenario.scenario_file import Scenario
-
-if TYPE_CHECKING:
-    from ground.run.children import WarmProcesses
+from sitl.sensors import read_profile
 
 
 @dataclass(frozen=True)
@@ -24,7 +33,7 @@ class Overrides:
 
     controller: str | None = None
     plant: str | None = None
-    airframe: str | None = None
+    airframe: AirframeSpec | str | None = None  # a name or path is read here, once
     sensors: str | None = None
     state_source: str | None = None
     parameters: dict[str, float] = field(default_factory=dict)
@@ -44,7 +53,7 @@ class FlightPlan:
     scenario: Scenario
     controller: str
     plant: str
-    airframe: str
+    airframe: AirframeSpec
     sensors: str
     state_source: str
     parameters: dict[str, float]  # every parameter, defaults included
@@ -66,27 +75,22 @@ class FlightPlan:
 def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> FlightPlan:
     """The scenario's choices after ``overrides``; ValueError on a bad combination
     (an unknown airframe, a model for another airframe)."""
-    from autopilot.control.factory import load_models
-    from autopilot.parameters import airframe_parameters, validate_parameters
-    from contracts.airframe import airframe_by_name
-    from contracts.airframe_file import read_airframe
-    from sitl.sensors import read_profile
-
     o = overrides or Overrides()
     controller = o.controller or scenario.controller
-    airframe = o.airframe or scenario.airframe
-    airframe_by_name(airframe)
+    airframe = (scenario.airframe if o.airframe is None else
+                read_airframe(o.airframe) if isinstance(o.airframe, str) else o.airframe)
+    airframe_from_spec(airframe)
     sensors = o.sensors or scenario.sensors
     state_source = o.state_source or scenario.state_source
     # The airframe file's own defaults, then the scenario's, then the command line's.
-    given = {**airframe_parameters(read_airframe(airframe, controllable=False)),
+    given = {**airframe_parameters(airframe),
              **scenario.parameters, **o.parameters}
     if state_source == "estimator" and "EKF2_GPS_DELAY" not in given:
         # The vehicle's estimator is set up for its GPS receiver, as a user would set it.
         given["EKF2_GPS_DELAY"] = 1000.0 * read_profile(sensors).gps_latency_s
     model_path = o.model_path or scenario.model_path
     if controller in ("ivfc", "t1fc"):  # refused now, not in the autopilot's log
-        load_models(model_path, read_airframe(airframe), o.any_airframe_model)
+        load_models(model_path, airframe, o.any_airframe_model)
     if not (o.rate_hz > 0.0 and o.rate_hz <= 10_000.0):
         raise ValueError(f"--rate-hz must be in (0, 10000], got {o.rate_hz!r}")
     return FlightPlan(scenario.on_airframe(airframe), controller, o.plant or scenario.plant,
@@ -105,12 +109,8 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
     runs of these warm processes (ground/run/processes.py) instead of new processes;
     ``started_s``: when the command started (time.monotonic), for the run's timeline;
     ``view``: (host, port) of a live view the logger serves."""
-    from ground.record import timeline as run_timeline
-    from ground.record.run_files import RUN_FILE, SCENARIO_FILE, write_json
-    from ground.run.processes import RunSettings, run_processes
-
     scenario = plan.scenario
-    settings = RunSettings(plan.controller, plan.plant, plan.airframe, plan.model_path,
+    settings = RunSettings(plan.controller, plan.plant, plan.airframe.argument, plan.model_path,
                            {k: v for k, v in plan.parameters.items() if k in plan.given},
                            realtime=plan.realtime, rate_hz=plan.rate_hz,
                            state_source=plan.state_source, sensors=plan.sensors,
@@ -127,7 +127,7 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
         shutil.copyfile(scenario.plan, beside)
     write_json(out_dir / RUN_FILE, {
         "scenario": scenario.name, "controller": plan.controller, "plant": plan.plant,
-        "airframe": plan.airframe, "rate_hz": plan.rate_hz, "vehicle": settings.vehicle,
+        "airframe": plan.airframe.argument, "rate_hz": plan.rate_hz, "vehicle": settings.vehicle,
         "mode": "realtime" if plan.realtime else "lockstep",
         "state_source": plan.state_source, "sensors": plan.sensors, "seed": plan.seed,
         "home": list(plan.home), "parameters": plan.parameters,
@@ -141,34 +141,27 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
 
 def fly_inprocess(plan: FlightPlan, out_dir: Path, figures: bool = True) -> dict[str, Any]:
     """Fly plant and controller in one process; metrics.json (no events: no processes)."""
-    from autopilot.control.factory import load_models
-    from contracts.airframe import airframe_by_name
-    from contracts.airframe_file import read_airframe
-    from ground.record.run_files import write_json
-    from ground.report.figures import plot_run
-    from ground.report.metrics import compute_metrics
-    from ground.run.inprocess import run_inprocess
-    from ground.run.progress import ProgressLine
-
     scenario = plan.scenario
-    models = (load_models(plan.model_path, read_airframe(plan.airframe), plan.any_airframe_model)
+    models = (load_models(plan.model_path, plan.airframe, plan.any_airframe_model)
               if plan.controller in ("ivfc", "t1fc") else None)
     line = ProgressLine(scenario.name, scenario.duration_s)
     line.loading()
     try:
         record = run_inprocess(scenario, plan.controller, plan.plant,
-                               airframe_by_name(plan.airframe), models,
+                               airframe_from_spec(plan.airframe), models,
                                period_s=1.0 / plan.rate_hz, parameters=plan.parameters,
                                sensors=plan.sensors, state_source=plan.state_source,
                                seed=plan.seed, home=plan.home, progress=line.update)
     finally:
         line.done()
-    metrics = compute_metrics(record, scenario, plan.airframe)
+    metrics = compute_metrics(record, scenario, plan.airframe.argument)
     metrics["mode"] = "inprocess"
     metrics["sensors"], metrics["state_source"] = plan.sensors, plan.state_source
     metrics["seed"] = plan.seed
     metrics["parameters"] = plan.parameters
     write_json(out_dir / "metrics.json", metrics)
     if figures:
+        from ground.report.figures import plot_run  # matplotlib: 0.3 s, only when drawn
+
         plot_run(record, scenario, out_dir)
     return metrics

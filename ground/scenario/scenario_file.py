@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from autopilot.trajectories import ENVELOPE_OPTIONS, Reference
-from contracts.airframe_file import airframe_envelope
+from contracts.airframe import PAPER_SPEC, airframe_from_spec
+from contracts.airframe_file import AirframeSpec, envelope_of, read_airframe
 from contracts.atomic_file import write_atomic
 from contracts.frames import DEFAULT_HOME, Home
 from contracts.perturbations import (
@@ -45,7 +46,7 @@ class Scenario:
     perturbations: tuple[Perturbation, ...] = ()
     controller: str = "ivfc"
     plant: str = "paper"
-    airframe: str = "paper"
+    airframe: AirframeSpec = PAPER_SPEC  # [plant] airframe, read once with the file
     sensors: str = "ideal"  # the simulator's sensor profile (sitl/sensor_profiles)
     state_source: str = "auto"  # what the autopilot flies on (contracts.mavlink.STATE_SOURCES)
     parameters: dict[str, float] = field(default_factory=dict)
@@ -59,12 +60,12 @@ class Scenario:
     # An excitation whose [reference] names no envelope flies the airframe's ([envelope]).
     envelope_from_airframe: bool = False
 
-    def on_airframe(self, airframe: str) -> Scenario:
+    def on_airframe(self, airframe: AirframeSpec) -> Scenario:
         """This scenario as flown on ``airframe``: an excitation that names no envelope
         takes the airframe file's (or the paper's, when it names none)."""
         if not self.envelope_from_airframe:
             return self
-        envelope = dict(zip(ENVELOPE_OPTIONS, airframe_envelope(airframe), strict=True))
+        envelope = dict(zip(ENVELOPE_OPTIONS, envelope_of(airframe), strict=True))
         return replace(self, reference=replace(self.reference, **envelope))
 
     @property
@@ -102,7 +103,6 @@ def load_scenario(path: Path) -> Scenario:
 def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     from autopilot.control.factory import CONTROLLERS
     from autopilot.parameters import validate_parameters
-    from contracts.airframe import airframe_by_name
     from contracts.mavlink import STATE_SOURCES
     from sitl.dynamics import FIDELITIES
     from sitl.sensors import read_profile
@@ -146,7 +146,8 @@ def _scenario(data: dict[str, Any], path: Path) -> Scenario:
     if fidelity not in FIDELITIES:
         raise ValueError(f"plant.fidelity must be one of {', '.join(FIDELITIES)}")
     try:
-        airframe_by_name(airframe)
+        airframe = read_airframe(airframe)
+        airframe_from_spec(airframe)  # flies: its numbers make a model
     except ValueError as exc:
         raise ValueError(f"plant.airframe: {exc}") from None
     ctrl = _table(data, "controller")

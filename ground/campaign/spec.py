@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from contracts.toml_tables import check_fields, number
+from ground.scenario.scenario_file import scenario_by_name
 
 KINDS = ("flights", "identification")
 HOW = ("inprocess", "processes")
@@ -147,7 +148,6 @@ def _distribution(name: str, data: Any, low: float, high: float, where: str) -> 
 
 def parse_campaign(data: dict[str, Any], where: str = "campaign",
                    source: Path | None = None) -> Campaign:
-    from ground.scenario.scenario_file import scenario_by_name
 
     known = {"name", "description", "kind", "scenarios", "controllers", "runs", "seed", "how",
              "plant", "draw", "clusters"}

@@ -19,15 +19,14 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
+from ground.record.run_files import write_json
+from ground.run.children import ProcessRunError, WarmProcesses
 from ground.run.flights import Overrides, fly_processes, plan_flight
 from ground.run.progress import LiveLine
 from ground.scenario.expectations import Outcome, evaluate
 from ground.scenario.scenario_file import Scenario, load_scenario, scenario_by_name, shipped_names
-
-if TYPE_CHECKING:
-    from ground.run.children import WarmProcesses
 
 RESULTS_FILE = "check.json"
 DEFAULT_TOLERANCE = 0.05
@@ -178,7 +177,6 @@ def check_one(scenario: Scenario, options: CheckOptions,
     """Fly one scenario (as runs of ``warm`` processes, if given; with ``overrides`` of
     its choices, else only ``options.realtime``) and judge it; a failed flight is a
     result, not an exception."""
-    from ground.run.children import ProcessRunError
 
     run_dir = options.out_dir / scenario.name
     result = ScenarioResult(scenario, run_dir)
@@ -207,7 +205,6 @@ def run_check(scenarios: list[Scenario], options: CheckOptions,
     """Check every scenario, ``options.jobs`` at a time; results in the given order.
     ``progress`` hears each result as it comes, with the count done and what still flies."""
     options.out_dir.mkdir(parents=True, exist_ok=True)
-    from ground.run.children import WarmProcesses
 
     flying: list[str] = []
     lock = threading.Lock()
@@ -250,7 +247,6 @@ def run_check(scenarios: list[Scenario], options: CheckOptions,
 
 def write_results(results: list[ScenarioResult], path: Path) -> None:
     """check.json: each scenario's verdicts and metrics (an input to --baseline)."""
-    from ground.record.run_files import write_json
 
     write_json(path, {"scenarios": {r.scenario.name: {
         "passed": r.passed, "error": r.error, "run_dir": str(r.run_dir) if not r.passed else None,

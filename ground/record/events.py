@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from contracts.mavlink import mavlink
+from contracts.mavlink import AUTOPILOT_COMPID, StatustextAssembler, mavlink
 from contracts.modes import FlightMode
 from contracts.telemetry import FLAG_ARMED, FLAG_FAILSAFE, mavlink_key
 from ground.record.run_files import iter_messages
@@ -65,7 +65,6 @@ def step_events(sim_time_s: np.ndarray, mode_index: np.ndarray, flags: np.ndarra
 
 def statustext_events(log: Path, sysid: int) -> list[Event]:
     """The vehicle's STATUSTEXT announcements, at the sim time each was sent."""
-    from contracts.mavlink import AUTOPILOT_COMPID, StatustextAssembler
 
     key = mavlink_key(sysid, AUTOPILOT_COMPID, "STATUSTEXT")
     parser = mavlink.MAVLink(None)

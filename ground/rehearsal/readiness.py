@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from autopilot.parameters import PARAMETER_SPECS
 from contracts.airframe_file import AirframeError, AirframeSpec, check_controllable
 from contracts.frames import GRAVITY_MPS2
 from contracts.toml_tables import check_fields, number, subtable
@@ -97,7 +98,6 @@ def load_profile(source: str | Path | None = None) -> Profile:
 
 
 def parse_profile(data: dict[str, Any], path: Path, where: str) -> Profile:
-    from autopilot.parameters import PARAMETER_SPECS
 
     check_fields(data, _TOP, where)
     limits = subtable(data, "airframe", f"{where}: airframe")

@@ -14,7 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from autopilot.navigator.mission_runner import WAYPOINT_COMMANDS, item_position_ned
+from autopilot.parameters import validate_parameters
 from contracts.frames import wrap_pi_array
+from contracts.mavlink import mavlink
 from contracts.vectors import MEAS_EULER_RATE, REF_EULER, REF_POS
 from ground.record.run_files import RunRecord
 from ground.scenario.scenario_file import Scenario
@@ -80,9 +83,6 @@ def distance_to_path(points: np.ndarray, path: np.ndarray) -> np.ndarray:
 def planned_legs(scenario: Scenario) -> tuple[list[np.ndarray], list[float], list[int]]:
     """The mission's positioned items in local NED around home (from the take-off point),
     with each one's acceptance radius [m] and its item number."""
-    from autopilot.navigator.mission_runner import WAYPOINT_COMMANDS, item_position_ned
-    from autopilot.parameters import validate_parameters
-    from contracts.mavlink import mavlink
 
     p = validate_parameters(scenario.parameters)
     start_ned = np.zeros(3)
@@ -100,7 +100,6 @@ def planned_legs(scenario: Scenario) -> tuple[list[np.ndarray], list[float], lis
 def path_metrics(record: RunRecord, scenario: Scenario) -> dict[str, Any]:
     """How the vehicle followed its mission: arrival at each positioned item, cross-track
     error along the planned legs (PATH_DEFINITION)."""
-    from autopilot.parameters import validate_parameters
 
     p = validate_parameters(scenario.parameters)
     legs, radii, seqs = planned_legs(scenario)

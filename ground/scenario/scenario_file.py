@@ -13,11 +13,15 @@ from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
+from autopilot.control.factory import CONTROLLERS
+from autopilot.navigator.plan_file import read_plan
+from autopilot.parameters import validate_parameters
 from autopilot.trajectories import ENVELOPE_OPTIONS, Reference
 from contracts.airframe import PAPER_SPEC, airframe_from_spec
 from contracts.airframe_file import AirframeSpec, envelope_of, read_airframe
 from contracts.atomic_file import write_atomic
 from contracts.frames import DEFAULT_HOME, Home
+from contracts.mavlink import STATE_SOURCES, mavlink
 from contracts.perturbations import (
     Perturbation,
     Perturbations,
@@ -28,6 +32,8 @@ from contracts.perturbations import (
 from contracts.toml_tables import check_fields, number, subtable
 from ground.scenario.expectations import Expectations, parse_expectations
 from ground.scenario.ground_station import GroundStationPlan, parse_ground_station
+from sitl.dynamics import FIDELITIES
+from sitl.sensors import read_profile
 
 SCENARIO_DIR = Path(__file__).parent / "shipped"
 AXES = ("x", "y", "z", "phi", "theta", "psi")
@@ -73,8 +79,6 @@ class Scenario:
         """The plan's mission items (empty without a plan)."""
         if self.plan is None:
             return ()
-        from autopilot.navigator.plan_file import read_plan
-        from contracts.mavlink import mavlink
 
         return read_plan(self.plan)[mavlink.MAV_MISSION_TYPE_MISSION]
 
@@ -101,11 +105,6 @@ def load_scenario(path: Path) -> Scenario:
 
 
 def _scenario(data: dict[str, Any], path: Path) -> Scenario:
-    from autopilot.control.factory import CONTROLLERS
-    from autopilot.parameters import validate_parameters
-    from contracts.mavlink import STATE_SOURCES
-    from sitl.dynamics import FIDELITIES
-    from sitl.sensors import read_profile
 
     check_fields(data, _TOP, "scenario")
     name = _text(data, "name", path.stem)
@@ -205,7 +204,6 @@ def _home(value: Any) -> Home:
 
 def _plan(mission: dict[str, Any], path: Path) -> Path | None:
     """[mission] plan = "file.plan" (beside the scenario), read and checked now."""
-    from autopilot.navigator.plan_file import read_plan
 
     check_fields(mission, {"plan"}, "mission")
     if not mission:

@@ -131,9 +131,9 @@ def logger(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("fuzz-logger")
     lg = Logger(LoggerConfig(out, ZenohOptions(enabled=False)), log=lambda text: None)
-    lg._start_files()
+    lg.files.start()
     yield lg
-    lg._file.finish()
+    lg.files.file.finish()
 
 
 KEYS = st.one_of(st.sampled_from((
@@ -220,17 +220,17 @@ def test_the_logger_bounds_its_keys(tmp_path):
     from ground.telemetry.logger import MAX_KEY_CHARS, MAX_KEYS, Logger, LoggerConfig
 
     lg = Logger(LoggerConfig(tmp_path, ZenohOptions(enabled=False)), log=lambda text: None)
-    lg._start_files()
+    lg.files.start()
     for i in range(MAX_KEYS + 500):
         lg._write(f"ivfm/vehicle/1/junk/k{i}", b"x", None, 0)
     lg._write("ivfm/vehicle/1/" + "k" * MAX_KEY_CHARS, b"x", None, 0)
     c = lg.counters
     assert len(c.per_key) + len(c.rejected_per_key) == MAX_KEYS
-    assert len(lg._file.channels) <= MAX_KEYS and c.keys_over_limit == 501
+    assert len(lg.files.file.channels) <= MAX_KEYS and c.keys_over_limit == 501
     lg._write("ivfm/vehicle/1/junk/k0", b"y", None, 0)  # a key it knows: still logged
     assert c.per_key["ivfm/vehicle/1/junk/k0"] == 2
     assert lg.status()["keys_over_limit"] == 501
-    lg._file.finish()
+    lg.files.file.finish()
 
 
 # -- what the long run (tests/stress/fuzz_long.py) found, pinned ---------------------------

@@ -374,12 +374,12 @@ def test_the_logger_starts_a_new_file_past_its_chunk_cap(tmp_path):
 
     config = LoggerConfig(tmp_path, ZenohOptions(enabled=False), rotate_chunks=16)
     logger = Logger(config, log=lambda _text: None)
-    logger._start_files()
+    logger.files.start()
     key = vehicle_key(1, "autopilot", "status")
     for seq in range(40):  # one record per chunk: files of 16, 16 and 8 records
         logger._write(key, json_record(seq, seq * 1000, final=False), None, seq)
-        logger._flush()
-    logger._file.finish()
+        logger.files.flush()
+    logger.files.file.finish()
     files = sorted(tmp_path.glob("*.mcap"))
     assert [p.name for p in files] == [f"telemetry-00{i}.mcap" for i in range(3)]
     assert [len(list(iter_messages(p))) for p in files] == [16, 16, 8]

@@ -32,7 +32,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -51,9 +51,8 @@ from contracts.telemetry import (
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.telemetry.foxglove_scene import encode
 from ground.telemetry.foxglove_view import FoxgloveView, Output
-from ground.telemetry.mcap_file import ACTIVE_SUFFIX, McapFile, salvage
+from ground.telemetry.log_files import PROCESS, Counters, LogFiles
 
-PROCESS = "logger"  # in the run's timeline
 SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
 # Bounds under hostile traffic (docs/telemetry.md, "Limits"): distinct keys with their
 # own channel and counters, the longest key, and records waiting for the writer.
@@ -120,25 +119,11 @@ class SilenceWatch:
                      "(or router) between them and this logger, are down")
 
 
-@dataclass
-class Counters:
-    records: int = 0
-    rejected: int = 0
-    per_key: dict[str, int] = field(default_factory=lambda: collections.defaultdict(int))
-    rejected_per_key: dict[str, int] = field(
-        default_factory=lambda: collections.defaultdict(int))
-    last_error: str = ""
-    keys_over_limit: int = 0  # records refused on a new key past MAX_KEYS (or too long)
-    inbox_dropped: int = 0  # records dropped with MAX_INBOX waiting (the writer behind)
-    view_messages: int = 0  # Foxglove messages written beside the records
-    view_refused: int = 0  # records whose content the view could not draw (said, skipped)
-    write_error: str = ""  # the disk refused a write (full): logging stopped
-    unwritten: int = 0  # records that came after it
-    files: list[str] = field(default_factory=list)
-    heard: dict[str, dict[str, Any]] = field(default_factory=dict)  # status key -> record
-
-
 class Logger:
+    """Zenoh in, files out: the subscriptions fill an inbox that the loop drains into
+    the files (``LogFiles``), with what Foxglove draws of each record beside it (and to
+    a live view), and answers status queries between drains."""
+
     def __init__(self, config: LoggerConfig, log: Callable[[str], None] | None = None,
                  live: Callable[[Output], None] | None = None) -> None:
         self.config = config
@@ -151,68 +136,14 @@ class Logger:
             collections.deque()
         self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
         self._stop = StopRequest()
-        self._file: McapFile | None = None
-        self._index = 0
-        self._flushed_records = 0  # counters.records at the last flush that worked
-        self._flushed_per_key: dict[str, int] = {}  # and counters.per_key
+        self.files = LogFiles(config.out_dir, config.prefix, config.chunk_bytes,
+                              config.compression, config.rotate_bytes, config.rotate_chunks,
+                              self.counters, self.log)
         self._warned: dict[str, float] = {}
 
     def stop(self, *_args: Any) -> None:
         timeline.mark(PROCESS, "stop asked")
         self._stop.set()
-
-    # -- files ---------------------------------------------------------------------------
-    def _start_files(self) -> None:
-        out = self.config.out_dir
-        out.mkdir(parents=True, exist_ok=True)
-        for active in sorted(out.glob(f"*{ACTIVE_SUFFIX}")):
-            salvage(active, self.log)
-        taken = [int(m.group(1)) for p in out.glob(f"{self.config.prefix}-*.mcap")
-                 if (m := re.match(rf"{re.escape(self.config.prefix)}-(\d+)", p.name))]
-        self._index = max(taken, default=-1) + 1
-        self._open_next()
-
-    def _open_next(self) -> None:
-        path = self.config.out_dir / f"{self.config.prefix}-{self._index:03d}.mcap"
-        self._index += 1
-        self._file = McapFile(path, self.config.chunk_bytes, self.config.compression)
-        self.log(f"writing {path.name}")
-
-    def _flush(self) -> None:
-        """Close the open chunk; start the next file past the size or chunk limit."""
-        if self.counters.write_error:
-            return
-        try:
-            self._file.flush()
-            self._flushed_records = self.counters.records
-            self._flushed_per_key = dict(self.counters.per_key)  # at most MAX_KEYS
-            if (self._file.size >= self.config.rotate_bytes
-                    or self._file.chunks >= self.config.rotate_chunks):
-                self._rotate()
-        except OSError as exc:
-            self._write_failed(exc)
-
-    def _write_failed(self, exc: OSError) -> None:
-        """A full disk (or a file size limit): stop writing, keep what was flushed, say
-        so; the loop goes on answering status queries, which report it."""
-        c = self.counters
-        # The records since the last flush were in the chunk the disk refused.
-        c.unwritten += c.records - self._flushed_records
-        c.records = self._flushed_records
-        c.per_key.clear()
-        c.per_key.update(self._flushed_per_key)
-        c.write_error = f"{exc.strerror or exc} ({self._file.active_path.name})"
-        c.last_error = f"logging stopped: {c.write_error}"
-        self._file.abandon()
-        self.log(f"cannot write {self._file.active_path}: {exc.strerror or exc}: logging "
-                 f"stopped after {c.records} records; the file keeps the "
-                 f"{self._file.flushed_bytes} bytes flushed before (readable: ivfm report "
-                 "and the next logger salvage it)")
-
-    def _rotate(self) -> None:
-        done = self._file.finish()
-        self.counters.files.append(str(done))
-        self._open_next()
 
     # -- records -------------------------------------------------------------------------
     def _on_sample(self, sample: zenoh.Sample) -> None:
@@ -245,11 +176,11 @@ class Logger:
         if c.write_error:
             c.unwritten += 1
             return
-        f = self._file
+        f = self.files.file
         try:
             f.add(f.channel(key, schema), log_time_ns, sim_time_us * 1000, seq, payload)
         except OSError as exc:  # a chunk filled and the disk refused it
-            self._write_failed(exc)
+            self.files.write_failed(exc)
             c.unwritten += 1
             return
         c.records += 1
@@ -267,7 +198,7 @@ class Logger:
             c.view_refused += 1
             self._refuse_view(key, str(exc))
             return
-        f = self._file
+        f = self.files.file
         for output in outputs:
             if self.live is not None:
                 self.live(output)
@@ -277,7 +208,7 @@ class Logger:
                 f.add(f.view_channel(output), log_time_ns, output.sim_time_ns, 0,
                       encode(output.message))
             except OSError as exc:
-                self._write_failed(exc)
+                self.files.write_failed(exc)
                 return
             c.view_messages += 1
 
@@ -333,7 +264,7 @@ class Logger:
                 "keys_over_limit": c.keys_over_limit, "inbox_dropped": c.inbox_dropped,
                 "write_error": c.write_error, "unwritten": c.unwritten,
                 "view_messages": c.view_messages, "view_refused": c.view_refused,
-                "file": str(self._file.active_path) if self._file else None,
+                "file": str(self.files.file.active_path) if self.files.file else None,
                 "finished_files": c.files}
 
     # -- the loop ------------------------------------------------------------------------
@@ -343,7 +274,7 @@ class Logger:
             signal.signal(signal.SIGINT, self.stop)  # StopRequest.set: safe in a handler
         session = open_session(self.config.zenoh, exit_on_listen_failure=True)
         timeline.mark(PROCESS, "zenoh session open")
-        self._start_files()
+        self.files.start()
         subscribers = [session.declare_subscriber(k, self._on_sample) for k in SUBSCRIBED]
         queryable = session.declare_queryable(logger_key(self.config.name, "status"),
                                               self._on_query)
@@ -363,7 +294,7 @@ class Logger:
                 now = time.monotonic()
                 silence.update(now, wrote)
                 if now >= next_flush:
-                    self._flush()
+                    self.files.flush()
                     next_flush = now + self.config.flush_period_s
                 if not wrote:
                     self._stop.wait(0.005)
@@ -376,23 +307,8 @@ class Logger:
             self._answer_queries()
             session.close()
             timeline.mark(PROCESS, "zenoh session closed")
-            self._close_file()
+            self.files.close()
         return 0
-
-    def _close_file(self) -> None:
-        """Finish the open file; after a refused write, leave it as the disk allowed."""
-        if not self.counters.write_error:
-            try:
-                done = self._file.finish()
-                timeline.mark(PROCESS, "file closed")
-                self.counters.files.append(str(done))
-                self.log(f"finished {done.name}: {self.counters.records} records, "
-                         f"{self.counters.rejected} refused")
-                return
-            except OSError as exc:  # the summary did not fit
-                self._write_failed(exc)
-        self.log(f"left {self._file.active_path.name} as the disk allowed: "
-                 f"{self.counters.records} records written, {self.counters.unwritten} not")
 
     def _on_query(self, query: zenoh.Query) -> None:
         """A status query, answered by the loop; past MAX_QUERIES waiting, refused here."""

@@ -96,7 +96,7 @@ def world_to_body(w: float, x: float, y: float, z: float, vx: float, vy: float,
 
     :func:`rotation_from_quat` transposed, written out in plain floats for per-message
     use outside compiled loops (a numba call costs more than the arithmetic here);
-    tests/test_sim_link.py checks the two agree.
+    tests/sitl/test_sim_link.py checks the two agree.
     """
     return (
         (1.0 - 2.0 * (y * y + z * z)) * vx + 2.0 * (x * y + w * z) * vy

@@ -2,7 +2,7 @@
 
 The in-process runs are deterministic (fixed-step RK4, no noise unless a scenario asks for
 it, seeded where it does), so each run's per-axis RMSE and max |error| is a fixed number
-on a given machine. tests/test_scenarios.py compares fresh runs with the numbers stored in
+on a given machine. tests/ground/test_scenarios.py compares fresh runs with the numbers stored in
 tests/golden_metrics.json at a relative tolerance of GOLDEN_REL.
 
 After a change that is meant to move the numbers, regenerate the file and review its diff:
@@ -83,10 +83,10 @@ def write_golden(runs: dict[str, Any], path: Path = GOLDEN_PATH) -> None:
             "produced_by": f"cd /work/main && {UPDATE_COMMAND}",
             "what": "per-axis rmse and max_abs (ground.report.metrics.compute_metrics) of every "
                     "(plant, ground.scenario.scenario_file.PAPER_SCENARIOS, CONTROLLERS) run in "
-                    "process "
-                    "(ground.run.inprocess.run_inprocess, PAPER airframe, shipped fuzzy models); "
+                    "process (ground.run.inprocess.run_inprocess, PAPER airframe, shipped fuzzy "
+                    "models); "
                     "run keys are plant/scenario/controller",
-            "checked_by": f"tests/test_scenarios.py, pytest.approx(rel={GOLDEN_REL:g}, "
+            "checked_by": f"tests/ground/test_scenarios.py, pytest.approx(rel={GOLDEN_REL:g}, "
                           f"abs={GOLDEN_ABS})",
             "versions": {"python": sys.version.split()[0], "numpy": numpy.__version__,
                          "numba": numba.__version__},

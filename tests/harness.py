@@ -75,7 +75,7 @@ def start_processes(log_dir: Path, sim_args: list[str] | None = None,
                     autopilot_args: list[str] | None = None) -> Processes:
     """Simulator and autopilot in real time at 100 Hz, the vehicle on the ground."""
     # The paper's airframe unless a test names one: the tests' figures were measured on it
-    # (the processes' own default is the quad X 500; tests/test_default_vehicle.py).
+    # (the processes' own default is the quad X 500; tests/autopilot/test_default_vehicle.py).
     sim_args, autopilot_args = list(sim_args or []), list(autopilot_args or [])
     for args in (sim_args, autopilot_args):
         if "--airframe" not in args:

@@ -16,7 +16,7 @@ For a position setpoint:
 
 braking_speed is the speed from which a jerk-limited stop ends exactly at the target
 (k * distance on the last stretch): references arrive without overshoot
-(tests/test_shaping.py). A velocity setpoint is integrated into a commanded position
+(tests/autopilot/test_shaping.py). A velocity setpoint is integrated into a commanded position
 and passed through a linear third-order filter (:func:`at_velocity`). Horizontal motion
 is shaped as one 2-D vector, so a vehicle at rest flies to a new position on the
 straight line; vertical motion has PX4's separate up / down limits; yaw goes the short

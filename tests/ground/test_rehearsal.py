@@ -1,7 +1,7 @@
 """``ivfm rehearse``: the static checks on good and deliberately bad airframes, the
 readiness profile's refusals, and the outputs (Markdown, HTML, JUnit read back by
 junitparser, QGroundControl's .params) of a rehearsal that flies nothing. The flights
-through the processes are in tests/test_rehearsal_flights.py."""
+through the processes are in tests/ground/test_rehearsal_flights.py."""
 
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ from ground.rehearsal.readiness import (
     parse_profile,
 )
 
-X500 = Path(__file__).parents[1] / "contracts" / "airframes" / "quad-x-500.toml"
+X500 = Path(__file__).parents[2] / "contracts" / "airframes" / "quad-x-500.toml"
 
 
 def x500_with(tmp_path: Path, name: str, rotor: dict | None = None,
@@ -212,7 +212,7 @@ def test_the_tilt_rate_metric_catches_the_x500_limit_cycle(tmp_path):
     from ground.scenario.scenario_file import scenario_from_dict
 
     assert airframe_parameters(read_airframe("quad-x-500")) == {"CMDF_ACC_MAX": 20.0}
-    data = tomllib.loads((Path(__file__).parents[1] / "ground/rehearsal/profiles/flights/wind.toml")
+    data = tomllib.loads((Path(__file__).parents[2] / "ground/rehearsal/profiles/flights/wind.toml")
                          .read_text())
     data["perturbation"] = [{"kind": "kick", "theta_rad": 0.3, "start_s": 5.0, "end_s": 5.5}]
     data["transient_s"] = 10.0

@@ -27,7 +27,7 @@ from contracts.airframe_file import AirframeError, parse_airframe, read_airframe
 from sitl import dynamics
 from tests.airframes import PlusNumbers, plus_numbers
 
-AIRFRAMES = Path(__file__).parents[1] / "contracts" / "airframes"
+AIRFRAMES = Path(__file__).parents[2] / "contracts" / "airframes"
 
 
 def _rotor(x: float, y: float, spin: str, k: float = 1e-5) -> dict:

@@ -93,7 +93,7 @@ def test_the_autopilot_takes_home_from_the_simulators_first_position():
     HOME_POSITION and GLOBAL_POSITION_INT say where on Earth the vehicle is."""
     from autopilot.mavlink.telemetry import telemetry_message
     from contracts.mavlink import mavlink
-    from tests.test_sim_link import _autopilot_on_a_socket, _send_samples
+    from tests.sitl.test_sim_link import _autopilot_on_a_socket, _send_samples
 
     autopilot, theirs = _autopilot_on_a_socket(home=None)
     assert autopilot.sim.home is None and not autopilot.vehicle.home_known
@@ -129,7 +129,7 @@ def test_home_comes_from_the_truth_even_when_a_fix_comes_first():
     """The simulator's HIL_STATE_QUATERNION is home, not the GPS fix sent before it in the
     same sample: the fix's error would put a vehicle standing on the ground 0.4 m up (where
     arming is refused) and half a metre from where it stands."""
-    from tests.test_sim_link import _autopilot_on_a_socket
+    from tests.sitl.test_sim_link import _autopilot_on_a_socket
 
     autopilot, theirs = _autopilot_on_a_socket(source="estimator", home=None)
     theirs.sendall(_sample_with_an_erring_fix(0, ("HIL_GPS",)))
@@ -148,7 +148,7 @@ def test_a_simulator_without_truth_gives_home_from_its_first_fix():
     """No HIL_STATE_QUATERNION: home is the first 3D fix, once fixes have come for
     HOME_FROM_GPS_AFTER_US without one."""
     from autopilot.process.sim_link import HOME_FROM_GPS_AFTER_US
-    from tests.test_sim_link import _autopilot_on_a_socket
+    from tests.sitl.test_sim_link import _autopilot_on_a_socket
 
     autopilot, theirs = _autopilot_on_a_socket(source="estimator", home=None)
     for t in range(0, HOME_FROM_GPS_AFTER_US, 100_000):

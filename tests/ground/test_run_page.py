@@ -14,7 +14,7 @@ import pytest
 from ground.report.run_page import marks_of
 from ground.report.run_report import report
 
-SHORT_RUN = Path(__file__).parent / "data" / "short-run"  # a 1 s lockstep run's folder
+SHORT_RUN = Path(__file__).parents[1] / "data" / "short-run"  # a 1 s lockstep run's folder
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 NO_EXPECTATIONS_GREY = np.array([0x77, 0x77, 0x77]) / 255.0  # the short run has none
 

@@ -19,7 +19,7 @@ import tomli_w
 
 pytestmark = pytest.mark.process
 
-ROOT = Path(__file__).parents[1]
+ROOT = Path(__file__).parents[2]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
 GO_GREEN = np.array([0x1a, 0x7f, 0x37]) / 255.0  # the verdict's background (rehearsal.py)
 

@@ -12,8 +12,8 @@ import time
 
 import pytest
 
+from tests.groundtools.test_vehicle_mavlink import ACCEPTED, OFFBOARD, M, _streamer, _take_off
 from tests.harness import GroundTool, Processes, free_port
-from tests.test_vehicle_mavlink import ACCEPTED, OFFBOARD, M, _streamer, _take_off
 
 pytestmark = pytest.mark.process
 

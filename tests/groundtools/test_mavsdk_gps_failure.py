@@ -17,10 +17,10 @@ from mavsdk.asyncio.plugins.failure import FailureAsync, FailureType, FailureUni
 from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
+from tests.ground.test_ground_station import free_tcp_port
+from tests.groundtools.test_mavsdk import _near, _until
 from tests.harness import start_processes
 from tests.mavsdk_helpers import autopilot_on
-from tests.test_ground_station import free_tcp_port
-from tests.test_mavsdk import _near, _until
 
 pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 

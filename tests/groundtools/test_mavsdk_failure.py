@@ -21,9 +21,9 @@ from mavsdk.asyncio.plugins.failure import (
 from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
+from tests.groundtools.test_mavsdk import _near, _until
 from tests.harness import start_processes
 from tests.mavsdk_helpers import autopilot_on
-from tests.test_mavsdk import _near, _until
 
 pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from autopilot.commander.failures import InjectedFailures, UnsupportedError
+from tests.autopilot.test_mavlink_server import DENIED, UNSUPPORTED
 from tests.mavlink_station import ACCEPTED, M, Station, texts
-from tests.test_mavlink_server import DENIED, UNSUPPORTED
 
 INJECT = M.MAV_CMD_INJECT_FAILURE
 GPS, MOTOR, BARO = (M.FAILURE_UNIT_SENSOR_GPS, M.FAILURE_UNIT_SYSTEM_MOTOR,
@@ -194,7 +194,7 @@ def test_a_wrong_gps_moves_the_fixes_100_m_north():
 
 def test_on_the_truth_a_stuck_gyro_is_what_the_rate_loop_gets():
     from autopilot.commander import failures as fl
-    from tests.test_sim_link import _answers, _autopilot_on_a_socket, _samples_with_gyro
+    from tests.sitl.test_sim_link import _answers, _autopilot_on_a_socket, _samples_with_gyro
 
     autopilot, theirs = _autopilot_on_a_socket(source="hil-state")
     autopilot.vehicle.set_parameter("SYS_FAILURE_EN", 1.0)

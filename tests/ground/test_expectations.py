@@ -332,7 +332,7 @@ def test_check_refuses_bad_input_before_flying(argv, tmp_path, capsys):
 
 
 def test_a_scenario_from_a_dict_reads_back_with_its_files(tmp_path):
-    plan = Path(__file__).parents[1] / "ground" / "scenario" / "shipped"
+    plan = Path(__file__).parents[2] / "ground" / "scenario" / "shipped"
     scenario = scenario_from_dict({"name": "m", "mission": {"plan": "six-waypoints.plan"},
                                    "plant": {"fidelity": "rigid-body"},
                                    "expect": {"path": {"all_reached": True}}},

@@ -230,7 +230,7 @@ def test_a_campaign_identifies_on_the_airframes_envelope():
     import json
 
     from ground.campaign.run import identified_model_json
-    from tests.test_new_vehicle import _assert_same_numbers
+    from tests.ground.test_new_vehicle import _assert_same_numbers
 
     mine = json.loads(identified_model_json("quad-x-500", 0))
     shipped = json.loads(resources.files("autopilot.models").joinpath(

@@ -1,0 +1,2 @@
+"""The vehicle flown by the clients users have (MAVSDK, MAVProxy, pymavlink) against
+the real processes."""

@@ -31,6 +31,24 @@ def subtable(data: Mapping[str, Any], key: str, where: str,
     return value
 
 
+def array_of_tables(data: Mapping[str, Any], key: str, where: str, known: Iterable[str],
+                    error: type[Exception] = ValueError) -> list[tuple[str, dict[str, Any]]]:
+    """``[[key]]``: each table with the name its errors give (``where i``), its fields
+    checked against ``known``; [] when absent."""
+    value = data.get(key, [])
+    if not isinstance(value, list):
+        raise error(f"{where} must be an array of tables ([[{key}]])")
+    known = set(known)
+    out = []
+    for i, table in enumerate(value):
+        at = f"{where} {i}"
+        if not isinstance(table, dict):
+            raise error(f"{at} must be a table")
+        check_fields(table, known, at, error)
+        out.append((at, table))
+    return out
+
+
 def number(value: Any, where: str, low: float = -math.inf, high: float = math.inf, *,
            low_open: bool = False, unit: str = "",
            error: type[Exception] = ValueError) -> float:

@@ -171,12 +171,8 @@ def flight_figures(rows: list[dict[str, Any]], controllers: tuple[str, ...],
             plots[1, col].set_xlabel(f"{axis} RMSE")
         plots[1, 0].set_ylabel("fraction of draws")
         plots[1, 0].legend(fontsize=8)
-        fig.suptitle(f"{scenario}: RMSE over {len({r['draw'] for r in mine})} draws")
-        fig.tight_layout()
-        path = out_dir / f"{scenario}-rmse.png"
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        paths.append(path)
+        paths.append(_save(fig, f"{scenario}: RMSE over {len({r['draw'] for r in mine})} draws",
+                           out_dir / f"{scenario}-rmse.png"))
         factors = [k for k in mine[0] if k not in NOT_FACTORS and not k.endswith(
             ("_rmse", "_max_abs", "_direction_rad", "_fraction"))
             and isinstance(mine[0][k], int | float)]
@@ -197,13 +193,17 @@ def flight_figures(rows: list[dict[str, Any]], controllers: tuple[str, ...],
                     plots[row, col].set_xlabel(factor)
             plots[row, 0].set_ylabel(f"{axis} RMSE")
         plots[0, 0].legend(fontsize=7)
-        fig.suptitle(f"{scenario}: RMSE against what was drawn")
-        fig.tight_layout()
-        path = out_dir / f"{scenario}-factors.png"
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-        paths.append(path)
+        paths.append(_save(fig, f"{scenario}: RMSE against what was drawn",
+                           out_dir / f"{scenario}-factors.png"))
     return paths
+
+
+def _save(fig: Any, title: str, path: Path) -> Path:
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
 
 
 def write_report(out_dir: Path, name: str, kind: str, controllers: tuple[str, ...],

@@ -32,7 +32,7 @@ import numpy as np
 from autopilot.parameters import PARAMETER_SPECS
 from contracts.airframe_file import AirframeError, AirframeSpec, check_controllable
 from contracts.frames import GRAVITY_MPS2
-from contracts.toml_tables import check_fields, number, subtable
+from contracts.toml_tables import array_of_tables, check_fields, number, subtable
 from ground.scenario.expectations import Outcome
 
 AIRFRAME_LIMITS = {  # key: (what it limits, "min" or "max", unit)
@@ -117,15 +117,8 @@ def parse_profile(data: dict[str, Any], path: Path, where: str) -> Profile:
         if low > high:
             raise ValueError(f"{where}: parameters.{name}: min {low:g} above max {high:g}")
         ranges[name] = (low, high)
-    flights = data.get("flight", [])
-    if not isinstance(flights, list):
-        raise ValueError(f"{where}: flight must be an array of tables ([[flight]])")
     parsed = []
-    for i, f in enumerate(flights):
-        at = f"{where}: flight {i}"
-        if not isinstance(f, dict):
-            raise ValueError(f"{at} must be a table")
-        check_fields(f, _FLIGHT_KEYS, at)
+    for at, f in array_of_tables(data, "flight", f"{where}: flight", _FLIGHT_KEYS):
         if not isinstance(f.get("scenario"), str):
             raise ValueError(f"{at}: scenario must be the path of a scenario file")
         realtime = f.get("realtime", False)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -62,6 +63,25 @@ def _save(fig: plt.Figure, path: Path, top_in: float = 0.45, hgap_in: float = 0.
     return path
 
 
+def _value_and_error(row: Any, t: np.ndarray, lines: tuple, error: np.ndarray,
+                     ylabel: str, error_label: str, transient_s: float) -> None:
+    """One row of a two-column figure: the values on the left (each ``(y, style, width,
+    label)``), their error on the right with the end of the transient marked."""
+    for y, style, width, label in lines:
+        row[0].plot(t, y, style, lw=width, label=label)
+    row[0].set_ylabel(ylabel)
+    row[1].plot(t, error, "C3", lw=1.0)
+    row[1].set_ylabel(error_label)
+    row[1].axvline(transient_s, color="0.6", lw=0.8, ls=":")
+
+
+def _label_columns(fig: Any, plots: Any, title: str) -> None:
+    plots[0, 0].legend(loc="upper right", fontsize=8)
+    plots[-1, 0].set_xlabel("t [s]")
+    plots[-1, 1].set_xlabel("t [s]")
+    fig.suptitle(title)
+
+
 def plot_tracking(record: RunRecord, scenario: Scenario, out_dir: Path,
                   marks: Marks = NO_MARKS) -> Path:
     axes = scenario.axes
@@ -74,16 +94,12 @@ def plot_tracking(record: RunRecord, scenario: Scenario, out_dir: Path,
         reference = output + error
         shown = altitude_m if axis == "z" else (lambda v: v)  # altitude up, as people read it
         label = "altitude" if axis == "z" else axis
-        plots[row, 0].plot(t, shown(reference), "k--", lw=1.0, label="reference")
-        plots[row, 0].plot(t, shown(output), "C0", lw=1.2, label=record.controller)
-        plots[row, 0].set_ylabel(f"{label} [{UNITS[axis]}]")
-        plots[row, 1].plot(t, error, "C3", lw=1.0)
-        plots[row, 1].set_ylabel(f"e_{axis} [{UNITS[axis]}]")
-        plots[row, 1].axvline(scenario.transient_s, color="0.6", lw=0.8, ls=":")
-    plots[0, 0].legend(loc="upper right", fontsize=8)
-    plots[-1, 0].set_xlabel("t [s]")
-    plots[-1, 1].set_xlabel("t [s]")
-    fig.suptitle(f"{scenario.name}: {record.controller} on the {record.plant} plant")
+        _value_and_error(plots[row], t, ((shown(reference), "k--", 1.0, "reference"),
+                                         (shown(output), "C0", 1.2, record.controller)),
+                         error, f"{label} [{UNITS[axis]}]", f"e_{axis} [{UNITS[axis]}]",
+                         scenario.transient_s)
+    _label_columns(fig, plots, f"{scenario.name}: {record.controller} on the "
+                               f"{record.plant} plant")
     return _save(fig, out_dir / "tracking.png", top_in=0.55, marks=marks)
 
 
@@ -151,16 +167,11 @@ def plot_estimation(record: RunRecord, scenario: Scenario, out_dir: Path,
         error = estimate - truth
         if index >= 6:
             error = (error + np.pi) % (2 * np.pi) - np.pi
-        plots[row, 0].plot(t, truth, "k--", lw=1.0, label="truth")
-        plots[row, 0].plot(t, estimate, "C0", lw=1.1, label="estimate")
-        plots[row, 0].set_ylabel(f"{label} [{unit}]")
-        plots[row, 1].plot(t, error, "C3", lw=1.0)
-        plots[row, 1].set_ylabel(f"error [{unit}]")
-        plots[row, 1].axvline(scenario.transient_s, color="0.6", lw=0.8, ls=":")
-    plots[0, 0].legend(loc="upper right", fontsize=8)
-    plots[-1, 0].set_xlabel("t [s]")
-    plots[-1, 1].set_xlabel("t [s]")
-    fig.suptitle(f"{scenario.name}: onboard estimate against the simulator's truth")
+        _value_and_error(plots[row], t, ((truth, "k--", 1.0, "truth"),
+                                         (estimate, "C0", 1.1, "estimate")),
+                         error, f"{label} [{unit}]", f"error [{unit}]", scenario.transient_s)
+    _label_columns(fig, plots, f"{scenario.name}: onboard estimate against the simulator's "
+                               "truth")
     return _save(fig, out_dir / "estimation.png", top_in=0.55, marks=marks)
 
 

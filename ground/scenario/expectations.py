@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from contracts.modes import FlightMode
-from contracts.toml_tables import check_fields, number, subtable
+from contracts.toml_tables import array_of_tables, check_fields, number, subtable
 
 AXIS_LIMITS = ("rmse_max", "max_abs_max")
 # Section -> the metrics a limit may name ("<metric>_max" or "<metric>_min").
@@ -173,18 +173,12 @@ def parse_expectations(data: Any, axes: tuple[str, ...], duration_s: float) -> E
     no_failsafe = data.get("no_failsafe", False)
     if not isinstance(no_failsafe, bool):
         raise ValueError("expect.no_failsafe must be true or false")
-    raw_events = data.get("event", [])
-    if not isinstance(raw_events, list):
-        raise ValueError("expect.event must be an array of tables ([[expect.event]])")
-    events = tuple(_event(e, f"expect.event {i}", duration_s)
-                   for i, e in enumerate(raw_events))
+    events = tuple(_event(e, where, duration_s)
+                   for where, e in array_of_tables(data, "event", "expect.event", _EVENT_KEYS))
     return Expectations(tuple(limits), events, no_failsafe, frozenset(sections))
 
 
-def _event(data: Any, where: str, duration_s: float) -> EventExpectation:
-    if not isinstance(data, dict):
-        raise ValueError(f"{where} must be a table")
-    check_fields(data, _EVENT_KEYS, where)
+def _event(data: dict[str, Any], where: str, duration_s: float) -> EventExpectation:
     kind = data.get("kind")
     if kind not in EVENT_KINDS:
         raise ValueError(f"{where}: kind must be one of {', '.join(EVENT_KINDS)}, got {kind!r}")

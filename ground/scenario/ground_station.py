@@ -34,7 +34,7 @@ from typing import Any
 
 from contracts.mavlink import mavlink
 from contracts.modes import PX4_MODES, FlightMode
-from contracts.toml_tables import check_fields, number
+from contracts.toml_tables import array_of_tables, check_fields, number
 
 GCS_SYSID = 255  # QGroundControl's system id
 SILENCE_KINDS = ("heartbeat", "setpoints", "all")
@@ -79,15 +79,9 @@ def parse_ground_station(table: Any, duration_s: float) -> GroundStationPlan | N
     offboard = table.get("offboard_at_s")
     if offboard is not None:
         offboard = _number(table, "offboard_at_s", 0.0, 0.0, duration_s)
-    silences = table.get("silence", [])
-    if not isinstance(silences, list):
-        raise ValueError("ground_station.silence must be a list of tables ([[...]])")
     out = []
-    for i, item in enumerate(silences):
-        where = f"ground_station.silence {i}"
-        if not isinstance(item, dict):
-            raise ValueError(f"{where} must be a table")
-        check_fields(item, _SILENCE_KEYS, where)
+    for where, item in array_of_tables(table, "silence", "ground_station.silence",
+                                       _SILENCE_KEYS):
         what = item.get("what", "all")
         if what not in SILENCE_KINDS:
             raise ValueError(f"{where}: what must be one of {', '.join(SILENCE_KINDS)}, "

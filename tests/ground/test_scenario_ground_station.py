@@ -29,7 +29,7 @@ from ground.scenario.scenario_file import load_scenario
     ({"silence": [{"start_s": 5, "end_s": 2}]}, "end_s must be a finite number >= 5"),
     ({"silence": [{"end_s": 2}]}, "start_s is required"),
     ({"offboard_at_s": 99}, r"offboard_at_s must be a number in \[0, 20\]"),
-    ({"silence": {"start_s": 1}}, "list of tables"),
+    ({"silence": {"start_s": 1}}, "array of tables"),
 ])
 def test_bad_ground_station_tables_are_refused_with_the_field(table, error):
     with pytest.raises(ValueError, match=error):

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -36,18 +37,16 @@ class AutoVehicle(Protocol):
         ...
 
 
+@dataclass(eq=False)
 class AutoCommands:
     """MAV_CMD_MISSION_START, MAV_CMD_DO_REPOSITION and MAV_CMD_DO_CHANGE_SPEED."""
 
-    def __init__(self, vehicle: AutoVehicle, navigator: Navigator, hold: HoldTask,
-                 mission: MissionTask, state: TaskState,
-                 say: Callable[[str], None]) -> None:
-        self.vehicle = vehicle
-        self.navigator = navigator
-        self.hold = hold
-        self.mission = mission
-        self.state = state
-        self.say = say
+    vehicle: AutoVehicle
+    navigator: Navigator
+    hold: HoldTask
+    mission: MissionTask
+    state: TaskState
+    say: Callable[[str], None]
 
     def start_mission(self, first_seq: int, link_t_s: float) -> None:
         """MAV_CMD_MISSION_START: fly the mission from item ``first_seq``."""

@@ -9,6 +9,7 @@ flown at once in a mode that follows setpoints, else kept for when one is entere
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,19 +21,17 @@ from autopilot.flight_tasks.sticks import Sticks
 from autopilot.flight_tasks.task import TaskState
 
 
+@dataclass(eq=False)
 class ToolInputs:
     """The input streams of one vehicle: ``follows_setpoints`` says whether its current
     mode flies a streamed setpoint as it arrives; ``say`` queues a STATUSTEXT."""
 
-    def __init__(self, links: LinkWatch, state: TaskState, follow: FollowTargetTask,
-                 flavour: str, follows_setpoints: Callable[[], bool],
-                 say: Callable[[str, int], None]) -> None:
-        self.links = links
-        self.state = state
-        self.follow = follow
-        self.flavour = flavour
-        self.follows_setpoints = follows_setpoints
-        self.say = say
+    links: LinkWatch
+    state: TaskState
+    follow: FollowTargetTask
+    flavour: str
+    follows_setpoints: Callable[[], bool]
+    say: Callable[[str, int], None]
 
     def gcs_heartbeat(self, link_t_s: float) -> None:
         """A ground station's HEARTBEAT; said when it ends a loss."""

@@ -34,6 +34,7 @@ from contracts.perturbation_effects import (
     WIND_RANGE_MPS,
     Effect,
 )
+from contracts.toml_tables import number
 
 
 @dataclass(frozen=True)
@@ -256,13 +257,7 @@ def parse_request(data: Any, default_id: str = "") -> Perturbation:
 
 
 def _number(kind: str, name: str, value: Any, low: float, high: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{kind}: {name} must be a number, got {value!r}")
-    value = float(value)
-    if math.isnan(value) or not low <= value <= high or (math.isinf(value) and
-                                                          not math.isinf(high)):
-        raise ValueError(f"{kind}: {name} must be in [{low:g}, {high:g}], got {value!r}")
-    return value
+    return number(value, f"{kind}: {name}", low, high, allow_inf=True)
 
 
 def resolve_now(entry: Perturbation, now_s: float) -> Perturbation:

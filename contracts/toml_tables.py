@@ -50,12 +50,14 @@ def array_of_tables(data: Mapping[str, Any], key: str, where: str, known: Iterab
 
 
 def number(value: Any, where: str, low: float = -math.inf, high: float = math.inf, *,
-           low_open: bool = False, unit: str = "",
+           low_open: bool = False, unit: str = "", allow_inf: bool = False,
            error: type[Exception] = ValueError) -> float:
-    """A TOML number (not a boolean), finite, in [low, high] (``(low`` if ``low_open``);
-    the error says the range and its unit."""
+    """A TOML (or JSON) number, not a boolean, in [low, high] (``(low`` if ``low_open``),
+    finite unless ``allow_inf`` and ``high`` is infinite (a window that never ends); the
+    error says the range and its unit."""
+    infinite_ok = allow_inf and value == high == math.inf
     if (isinstance(value, bool) or not isinstance(value, (int, float))
-            or not math.isfinite(value) or value > high
+            or not (math.isfinite(value) or infinite_ok) or value > high
             or (value <= low if low_open else value < low)):
         raise error(f"{where} must be {_range_text(low, high, low_open, unit)}, got {value!r}")
     return float(value)

@@ -36,7 +36,7 @@ from contracts.mavlink import (
 )
 from contracts.perturbations import NO_SENSOR_EFFECTS, SensorEffects
 from contracts.toml_files import read_named_toml, shipped_names
-from contracts.toml_tables import check_fields
+from contracts.toml_tables import check_fields, number
 from sitl.plant import VehicleState
 
 TEMPERATURE_C = 20.0
@@ -136,6 +136,8 @@ class SensorProfile:
 
 _RATES = {"mag_rate_hz", "baro_rate_hz", "gps_rate_hz"}
 _INTS = {"gps_satellites"}
+# Other than [0, inf): the rates, and the GPS latency the estimator's EKF2_GPS_DELAY matches.
+_RANGES = {**{key: (0.5, 1000.0, "Hz") for key in _RATES}, "gps_latency_s": (0.0, 0.3, "s")}
 
 
 class SensorProfileError(ValueError):
@@ -164,17 +166,16 @@ def parse_profile(data: dict[str, Any], where: str = "sensor profile",
                 raise SensorProfileError(f"{where}: {key} must be text")
             values[key] = value
             continue
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or \
-                not math.isfinite(value) or value < 0:
-            raise SensorProfileError(f"{where}: {key} must be a number >= 0, got {value!r}")
-        if key in _RATES and not 0.5 <= value <= 1000.0:
-            raise SensorProfileError(f"{where}: {key} must be in [0.5, 1000] Hz, got {value!r}")
-        if key == "gps_latency_s" and value > 0.3:
-            raise SensorProfileError(f"{where}: gps_latency_s must be at most 0.3 s (what "
-                                     "the estimator's EKF2_GPS_DELAY can match)")
-        if key == "gps_error_time_constant_s" and value <= 0:
-            raise SensorProfileError(f"{where}: {key} must be > 0")
-        values[key] = int(value) if key in _INTS else float(value)
+        low, high, unit = _RANGES.get(key, (0.0, math.inf, ""))
+        try:
+            value = number(value, f"{where}: {key}", low, high, unit=unit,
+                           low_open=key == "gps_error_time_constant_s", error=SensorProfileError)
+        except SensorProfileError as exc:
+            if key != "gps_latency_s":
+                raise
+            raise SensorProfileError(f"{exc} (what the estimator's EKF2_GPS_DELAY can "
+                                     "match)") from None
+        values[key] = int(value) if key in _INTS else value
     values.setdefault("name", default_name)
     return SensorProfile(**values)
 

@@ -141,10 +141,12 @@ def test_sensor_perturbations_act_on_what_the_sensors_read():
 
 def test_bad_profiles_are_refused_naming_the_field(tmp_path):
     for data, message in ((dict(gyro_noise=1.0), "unknown field(s) gyro_noise"),
-                          (dict(gps_rate_hz=0.0), "gps_rate_hz must be in [0.5, 1000]"),
-                          (dict(baro_noise_m=-1.0), "baro_noise_m must be a number >= 0"),
+                          (dict(gps_rate_hz=0.0), "gps_rate_hz must be a number in [0.5, 1000] Hz"),
+                          (dict(baro_noise_m=-1.0), "baro_noise_m must be a finite number >= 0"),
                           (dict(mag_noise_gauss=math.nan), "mag_noise_gauss must be"),
-                          (dict(gps_latency_s=0.5), "gps_latency_s must be at most 0.3 s"),
+                          (dict(gps_latency_s=0.5),
+                           "gps_latency_s must be a number in [0, 0.3] s, got 0.5 (what the "
+                           "estimator's EKF2_GPS_DELAY can match)"),
                           (dict(name=3), "name must be text")):
         with pytest.raises(SensorProfileError, match=None) as info:
             parse_profile(data, "sensor profile file mine.toml")

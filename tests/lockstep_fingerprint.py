@@ -82,7 +82,7 @@ def fingerprint(names: tuple[str, ...] = SCENARIOS) -> dict[str, dict[str, str]]
     with tempfile.TemporaryDirectory() as tmp:
         for name in names:
             scenario = scenario_by_name(name)
-            settings = RunSettings("ivfc", scenario.plant, scenario.airframe)
+            settings = RunSettings("ivfc", scenario.plant, scenario.airframe.argument)
             run_dir = Path(tmp) / name
             run_processes(scenario, settings, run_dir)
             out[name] = log_digests(run_dir)

@@ -29,7 +29,7 @@ def six_waypoint_runs(tmp_path_factory):
     """The shipped six-waypoint mission flown twice; the first with a Foxglove viewer
     connected to the live view all along (tests/foxglove_client.py)."""
     scenario = scenario_by_name("mission-six-waypoints")
-    settings = RunSettings("ivfc", scenario.plant, scenario.airframe)
+    settings = RunSettings("ivfc", scenario.plant, scenario.airframe.argument)
     out = tmp_path_factory.mktemp("missions")
     port = free_tcp_port()
     viewer: dict = {}

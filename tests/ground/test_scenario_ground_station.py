@@ -72,8 +72,8 @@ def test_an_offboard_ground_station_needs_a_hover_reference(tmp_path):
 
 @pytest.mark.parametrize("request_, error", [
     ({"kind": "sim_stall", "start_s": 1}, "freeze_s is required"),
-    ({"kind": "sim_stall", "start_s": 1, "freeze_s": 0}, "freeze_s must be in"),
-    ({"kind": "sim_stall", "start_s": 1, "freeze_s": 11}, "freeze_s must be in"),
+    ({"kind": "sim_stall", "start_s": 1, "freeze_s": 0}, "freeze_s must be a number in"),
+    ({"kind": "sim_stall", "start_s": 1, "freeze_s": 11}, "freeze_s must be a number in"),
 ])
 def test_bad_sim_stalls_are_refused(request_, error):
     with pytest.raises(ValueError, match=error):

@@ -206,13 +206,13 @@ def test_bad_requests_and_payloads_are_refused_and_change_nothing(tmp_path, sess
             # request handler, which would have ended both processes' loops.
             (both, {"kind": []}, "unknown perturbation kind"),
             (both, {"op": "explode"}, "unknown op"),
-            (("sitl",), {"kind": "mass", "scale": 1e6}, "must be in"),
-            (("sitl",), {"kind": "motor_failure", "motor": 5}, "must be in"),
+            (("sitl",), {"kind": "mass", "scale": 1e6}, "must be a number in"),
+            (("sitl",), {"kind": "motor_failure", "motor": 5}, "must be a number in"),
             (("sitl",), {"kind": "mass", "scale": 1.1, "colour": "red"}, "unknown field"),
             (("sitl",), {"kind": "mass", "scale": 1.1, "id": good["id"]}, "exists already"),
             (("sitl",), {"kind": "kick", "phi_rad": 0.1}, "acts in the autopilot"),
             (("sitl",), {"kind": "gust", "ned_mps": [1, 0, 0]}, "needs an end_s"),
-            (("autopilot",), {"kind": "kick", "phi_rad": 2.0}, "must be in"),
+            (("autopilot",), {"kind": "kick", "phi_rad": 2.0}, "must be a number in"),
             (("autopilot",), {"kind": "kick", "start_s": 1, "end_s": 0.5}, "before"),
             (("autopilot",), {"kind": "mass", "scale": 1.1}, "acts in the sitl"),
         ]
@@ -222,8 +222,8 @@ def test_bad_requests_and_payloads_are_refused_and_change_nothing(tmp_path, sess
                     client.query(1, target, "perturb", request)
         # Raw payloads: not JSON, not an object, NaN and infinity literals.
         for raw, text in ((b"\xff\x00 not json", "not JSON"), (b"[1, 2]", "JSON object"),
-                          (b'{"kind": "mass", "scale": NaN}', "must be in"),
-                          (b'{"kind": "wind", "ned_mps": [Infinity, 0, 0]}', "must be in")):
+                          (b'{"kind": "mass", "scale": NaN}', "must be a number in"),
+                          (b'{"kind": "wind", "ned_mps": [Infinity, 0, 0]}', "must be a number in")):
             replies = list(s.get(vehicle_key(1, "sitl", "perturb"), payload=raw, timeout=5.0))
             assert len(replies) == 1 and replies[0].err is not None, raw
             assert text in replies[0].err.payload.to_bytes().decode(), raw

@@ -223,7 +223,8 @@ def test_bad_requests_and_payloads_are_refused_and_change_nothing(tmp_path, sess
         # Raw payloads: not JSON, not an object, NaN and infinity literals.
         for raw, text in ((b"\xff\x00 not json", "not JSON"), (b"[1, 2]", "JSON object"),
                           (b'{"kind": "mass", "scale": NaN}', "must be a number in"),
-                          (b'{"kind": "wind", "ned_mps": [Infinity, 0, 0]}', "must be a number in")):
+                          (b'{"kind": "wind", "ned_mps": [Infinity, 0, 0]}',
+                           "must be a number in")):
             replies = list(s.get(vehicle_key(1, "sitl", "perturb"), payload=raw, timeout=5.0))
             assert len(replies) == 1 and replies[0].err is not None, raw
             assert text in replies[0].err.payload.to_bytes().decode(), raw

@@ -49,6 +49,12 @@ RULES = (
 )
 
 
+# ground/'s packages from the top down; siblings in one layer never import each other
+# (pyproject.toml's import-linter contract 6 says the same on grimp's graph).
+GROUND_LAYERS = (("cli",), ("rehearsal",), ("check", "campaign"), ("run",),
+                 ("report", "identify", "telemetry", "uplink"), ("record",), ("scenario",))
+
+
 @dataclass(frozen=True)
 class Import:
     importer: str  # the module that imports
@@ -116,6 +122,26 @@ def violations(rule: Rule, imports: list[Import]) -> list[Import]:
             if any(within(imp.importer, p) for p in rule.importers)
             and not any(within(imp.importer, p) for p in rule.except_importers)
             and any(within(imp.imported, p) for p in rule.forbidden)]
+
+
+def ground_layer(module: str) -> tuple[int, str] | None:
+    """(layer index from the top, package) of a module in one of ground's packages."""
+    parts = module.split(".")
+    if len(parts) < 2 or parts[0] != "ground":
+        return None
+    return next(((i, parts[1]) for i, layer in enumerate(GROUND_LAYERS) if parts[1] in layer),
+                None)
+
+
+def layer_violations(imports: list[Import]) -> list[Import]:
+    """Imports of a higher layer, or of a sibling in the same layer."""
+    broken = []
+    for imp in imports:
+        here, there = ground_layer(imp.importer), ground_layer(imp.imported)
+        if here and there and (there[0] < here[0] or (there[0] == here[0]
+                                                      and there[1] != here[1])):
+            broken.append(imp)
+    return broken
 
 
 @pytest.fixture(scope="module")
@@ -214,6 +240,29 @@ def import_cycle(graph: dict[str, set[str]]) -> list[str] | None:
     except graphlib.CycleError as exc:
         return list(exc.args[1])
     return None
+
+
+def test_grounds_packages_import_only_the_layers_below_them(imports):
+    assert {p for layer in GROUND_LAYERS for p in layer} == {
+        p.name for p in (ROOT / "ground").iterdir() if (p / "__init__.py").exists()}
+    broken = layer_violations(imports)
+    assert not broken, "\n".join(f"  {imp}" for imp in broken)
+
+
+def test_the_layer_check_sees_an_import_upwards_and_between_siblings(tmp_path):
+    tree = {"ground/__init__.py": "", "ground/record/__init__.py": "",
+            "ground/record/files.py": "def late():\n    from ground.run.flights import fly\n",
+            "ground/check/__init__.py": "from ground.campaign import spec\n",
+            "ground/run/flights.py": "from ground.record import files\n"}
+    for name, text in tree.items():
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_text(text)
+    broken = {(i.importer, i.imported) for i in layer_violations(all_imports(tmp_path,
+                                                                             ("ground",)))}
+    assert broken == {("ground.record.files", "ground.run.flights"),
+                      ("ground.record.files", "ground.run.flights.fly"),
+                      ("ground.check", "ground.campaign"),
+                      ("ground.check", "ground.campaign.spec")}
 
 
 def test_no_import_cycle_anywhere_type_checking_imports_included(imports):

@@ -24,9 +24,18 @@ class Received:
     messages: dict[str, list[tuple[int, bytes]]] = field(
         default_factory=lambda: defaultdict(list))  # topic -> (log time ns, payload)
     server_info: dict[str, Any] | None = None
+    statuses: list[dict[str, Any]] = field(default_factory=list)  # the server's status ops
+    ended: str = ""  # why collecting stopped: time, closed (with the code), until
 
     def topics(self) -> set[str]:
         return {c["topic"] for c in self.channels.values()}
+
+    def summary(self) -> str:
+        """What arrived, for a failure message: messages per topic, the server's statuses,
+        why collecting ended (a lost live-view stream is traced from here)."""
+        counts = {topic: len(m) for topic, m in self.messages.items()}
+        return (f"ended: {self.ended}; messages per topic: {counts}; advertised: "
+                f"{sorted(self.topics())}; statuses: {self.statuses[:5]}")
 
 
 def connect_when_up(url: str, timeout_s: float = 30.0):
@@ -52,13 +61,17 @@ def collect(url: str, seconds: float, until: Any = None,
             try:
                 frame = ws.recv(timeout=max(0.01, end - time.monotonic()))
             except TimeoutError:
+                got.ended = "time"
                 break
-            except ConnectionClosed:
+            except ConnectionClosed as exc:
+                got.ended = f"closed ({exc})"
                 break
             if isinstance(frame, str):
                 message = json.loads(frame)
                 if message["op"] == "serverInfo":
                     got.server_info = message
+                elif message["op"] == "status":
+                    got.statuses.append(message)
                 elif message["op"] == "advertise":
                     subscriptions = []
                     for channel in message["channels"]:
@@ -71,5 +84,8 @@ def collect(url: str, seconds: float, until: Any = None,
                 sub_id, log_time_ns = struct.unpack_from("<IQ", frame, 1)
                 got.messages[subscription_topic[sub_id]].append((log_time_ns, frame[13:]))
             if until is not None and until(got):
+                got.ended = "until"
                 break
+        else:
+            got.ended = got.ended or "time"
     return got

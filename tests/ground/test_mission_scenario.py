@@ -101,7 +101,7 @@ def test_the_live_view_serves_the_mission_flight_to_a_foxglove_client(six_waypoi
     # in lockstep at about 9x real time, up to a second of sim time.)
     for topic, hz in (("/tf", 50), ("/vehicle1/controller", 50), ("/vehicle1/path", 2)):
         stamps = np.array([t for t, _ in received.messages[topic]]) / 1e9
-        assert stamps[0] < 5.0 and stamps[-1] > 79.0, topic
+        assert stamps.size and stamps[0] < 5.0 and stamps[-1] > 79.0, received.summary()
         assert np.diff(stamps) == pytest.approx(1 / hz, abs=1e-6), topic
     # The scene update carries the mission's waypoints where the plan puts them.
     channel = next(c for c in received.channels.values() if c["topic"] == "/vehicle1/scene")
@@ -109,6 +109,7 @@ def test_the_live_view_serves_the_mission_flight_to_a_foxglove_client(six_waypoi
         id=1, name=channel["schemaName"], encoding="protobuf",
         data=base64.b64decode(channel["schema"])))
     scenes = [decoder(payload) for _, payload in received.messages["/vehicle1/scene"]]
+    assert scenes, received.summary()
     np.testing.assert_allclose(_scene_waypoints(scenes[-1]), _planned_waypoints(scenario),
                                atol=1e-3)
     # Plot-ready internals: the mission flown armed, disarmed on landing at its end.

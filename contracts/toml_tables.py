@@ -55,10 +55,9 @@ def number(value: Any, where: str, low: float = -math.inf, high: float = math.in
     """A TOML (or JSON) number, not a boolean, in [low, high] (``(low`` if ``low_open``),
     finite unless ``allow_inf`` and ``high`` is infinite (a window that never ends); the
     error says the range and its unit."""
-    infinite_ok = allow_inf and value == high == math.inf
     if (isinstance(value, bool) or not isinstance(value, (int, float))
-            or not (math.isfinite(value) or infinite_ok) or value > high
-            or (value <= low if low_open else value < low)):
+            or not (math.isfinite(value) or (allow_inf and value == high == math.inf))
+            or value > high or (value <= low if low_open else value < low)):
         raise error(f"{where} must be {_range_text(low, high, low_open, unit)}, got {value!r}")
     return float(value)
 

@@ -63,3 +63,24 @@ def test_an_inprocess_run_keeps_the_first_steps_load_out_of_its_speed():
     assert record.startup_wall_s > 0 and record.wall_time_s > 0
     assert compute_metrics(record, scenario, "paper")["startup_wall_s"] == \
         record.startup_wall_s
+
+
+def test_a_live_line_logs_results_above_itself_and_only_results_in_a_log():
+    """The one mechanism under every progress line (check, campaign, rehearsal)."""
+    from ground.run.progress import LiveLine
+
+    out, clock = Terminal(), Clock()
+    line = LiveLine(out, clock)
+    line.draw("[1/3] flying")
+    clock.now += 0.05
+    line.draw("[1/3] flying more", force=False)  # throttled: at most ten times a second
+    line.log("[1/3] attitude-sine: pass")
+    assert out.getvalue() == "\r\033[K[1/3] flying\r\033[K[1/3] attitude-sine: pass\n"
+    line.clear()  # nothing live to clear after a logged line
+    assert out.getvalue().endswith("pass\n")
+    log = io.StringIO()
+    quiet = LiveLine(log, clock)
+    quiet.draw("[1/3] flying")
+    quiet.log("[1/3] attitude-sine: pass")
+    quiet.clear()
+    assert log.getvalue() == "[1/3] attitude-sine: pass\n"

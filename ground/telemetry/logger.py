@@ -49,8 +49,8 @@ from contracts.telemetry import (
     schema_for_key,
 )
 from contracts.zenoh_link import ZenohOptions, open_session
-from ground.telemetry.foxglove_scene import encode
-from ground.telemetry.foxglove_view import FoxgloveView, Output
+from ground.telemetry.drawing import Drawing
+from ground.telemetry.foxglove_view import Output
 from ground.telemetry.log_files import PROCESS, Counters, LogFiles
 
 SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
@@ -122,14 +122,11 @@ class SilenceWatch:
 class Logger:
     """Zenoh in, files out: the subscriptions fill an inbox that the loop drains into
     the files (``LogFiles``), with what Foxglove draws of each record beside it (and to
-    a live view), and answers status queries between drains."""
+    a live view: ``Drawing``), and answers status queries between drains."""
 
     def __init__(self, config: LoggerConfig, log: Callable[[str], None] | None = None,
                  live: Callable[[Output], None] | None = None) -> None:
         self.config = config
-        self.view = (FoxgloveView(config.view_rate_hz)
-                     if config.foxglove or live is not None else None)
-        self.live = live  # a live view's publish (ground/telemetry/live_view.py), or None
         self.log = log or (lambda text: print(f"logger: {text}", file=sys.stderr, flush=True))
         self.counters = Counters()
         self._inbox: collections.deque[tuple[str, bytes, bytes | None, int]] = \
@@ -139,6 +136,10 @@ class Logger:
         self.files = LogFiles(config.out_dir, config.prefix, config.chunk_bytes,
                               config.compression, config.rotate_bytes, config.rotate_chunks,
                               self.counters, self.log)
+        # What Foxglove draws, beside the records and to a live view's publish, or None.
+        self.drawing = (Drawing(config.view_rate_hz, config.foxglove, live, self.files,
+                                self.counters, self.log)
+                        if config.foxglove or live is not None else None)
         self._warned: dict[str, float] = {}
 
     def stop(self, *_args: Any) -> None:
@@ -185,32 +186,8 @@ class Logger:
             return
         c.records += 1
         c.per_key[key] += 1
-        if self.view is not None:
-            self._draw(key, payload, attachment, log_time_ns)
-
-    def _draw(self, key: str, payload: bytes, attachment: bytes | None,
-              log_time_ns: int) -> None:
-        """What Foxglove draws of this record, into the file and to the live view."""
-        c = self.counters
-        try:
-            outputs = self.view.feed(key, payload, attachment)
-        except (ValueError, TypeError, KeyError) as exc:
-            c.view_refused += 1
-            self._refuse_view(key, str(exc))
-            return
-        f = self.files.file
-        for output in outputs:
-            if self.live is not None:
-                self.live(output)
-            if not self.config.foxglove:
-                continue
-            try:
-                f.add(f.view_channel(output), log_time_ns, output.sim_time_ns, 0,
-                      encode(output.message))
-            except OSError as exc:
-                self.files.write_failed(exc)
-                return
-            c.view_messages += 1
+        if self.drawing is not None:
+            self.drawing.draw(key, payload, attachment, log_time_ns)
 
     def _check(self, key: str, schema: RecordSchema | str | None, payload: bytes,
                attachment: bytes | None) -> tuple[int, int]:
@@ -248,13 +225,6 @@ class Logger:
             self._warned[key] = now
             self.log(f"refused a record on {key}: {reason} "
                      f"({c.rejected_per_key[key]} so far on this key)")
-
-    def _refuse_view(self, key: str, reason: str) -> None:
-        now = time.monotonic()
-        if now - self._warned.get("view " + key, -10.0) > 5.0:
-            self._warned["view " + key] = now
-            self.log(f"cannot draw a record on {key}: {reason} (logged as it came; "
-                     f"{self.counters.view_refused} so far)")
 
     def status(self) -> dict[str, Any]:
         c = self.counters

@@ -244,15 +244,19 @@ def shipped_names() -> list[str]:
 
 
 @functools.cache
+def _shipped(name: str) -> Scenario:
+    return load_scenario(SCENARIO_DIR / f"{name}.toml")
+
+
 def shipped_scenarios() -> dict[str, Scenario]:
-    """Every shipped scenario, parsed on first use (not at import)."""
-    return {name: load_scenario(SCENARIO_DIR / f"{name}.toml") for name in shipped_names()}
+    """Every shipped scenario, each parsed on first use (not at import)."""
+    return {name: _shipped(name) for name in shipped_names()}
 
 
 def scenario_by_name(name: str) -> Scenario:
-    """A shipped scenario by name, or a scenario file by path."""
+    """A shipped scenario by name (that file alone is read), or a scenario file by path."""
     if name in shipped_names():
-        return shipped_scenarios()[name]
+        return _shipped(name)
     if name.endswith(".toml") or "/" in name:
         return load_scenario(Path(name))
     known = ", ".join(shipped_names())

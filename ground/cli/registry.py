@@ -22,7 +22,8 @@ def add_subcommands(parser: argparse.ArgumentParser, subcommands: Sequence[Subco
     """A subparser per subcommand; only the one ``argv`` names (at ``depth``) gets its
     arguments, so only its module is imported. Without a known name, every one does."""
     named = argv[0] if argv and argv[0] in {s.name for s in subcommands} else None
-    sub = parser.add_subparsers(dest="command" if depth == 0 else f"command_{depth}", required=True)
+    sub = parser.add_subparsers(dest="command" if depth == 0 else "sub" * depth + "command",
+                                required=True)
     for command in subcommands:
         if named is not None and named != command.name:
             sub.add_parser(command.name, help=command.help)

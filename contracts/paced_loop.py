@@ -33,31 +33,37 @@ POLL_MIN_S = 0.0015  # below this, sleep (ns resolution) instead of epoll (ms re
 
 
 class Deadlines:
-    """Deadlines every ``period_s`` on ``time.perf_counter``, from ``first_s`` on."""
+    """Deadlines every ``period_s`` on ``clock`` (``time.perf_counter``), from ``first_s``
+    on; ``pause`` (``time.sleep``) sleeps. Both are injected by tests, so the logic is
+    checked on a clock that nothing else on the machine can make late."""
 
-    def __init__(self, period_s: float, first_s: float) -> None:
+    def __init__(self, period_s: float, first_s: float,
+                 clock: Callable[[], float] = time.perf_counter,
+                 pause: Callable[[float], None] = time.sleep) -> None:
         self.period_s = period_s
         self.next_s = first_s
+        self.clock = clock
+        self.pause = pause
 
     def remaining_s(self) -> float:
-        return self.next_s - time.perf_counter()
+        return self.next_s - self.clock()
 
     def until_spin_s(self) -> float:
         """Time left for other work before ``wait`` must start spinning."""
-        return self.next_s - SPIN_S - time.perf_counter()
+        return self.next_s - SPIN_S - self.clock()
 
     def wait(self, poll: Callable[[float], None]) -> bool:
         """One turn of a precise wait. Far from the deadline: ``poll(timeout_s)`` once for
         I/O and return False (the caller does its housekeeping and calls again); near it:
         sleep, spin to the deadline and return True."""
-        remaining = self.next_s - time.perf_counter()
+        remaining = self.next_s - self.clock()
         if remaining > POLL_MIN_S:
             # epoll counts whole milliseconds and rounds up: ask for whole ones, early.
             poll(math.floor((remaining - SPIN_S) * 1000.0) / 1000.0)
             return False
         if remaining > SPIN_S:
-            time.sleep(remaining - SPIN_S)  # nanosecond sleep; I/O waits in the buffers
-        while time.perf_counter() < self.next_s:
+            self.pause(remaining - SPIN_S)  # nanosecond sleep; I/O waits in the buffers
+        while self.clock() < self.next_s:
             pass
         return True
 
@@ -65,13 +71,13 @@ class Deadlines:
         """A coarse wait: ``poll(remaining_s)`` until it reports that nothing came (False)
         or the deadline has passed. epoll may end it up to a millisecond late."""
         while True:
-            remaining = self.next_s - time.perf_counter()
+            remaining = self.next_s - self.clock()
             if remaining <= 0 or not poll(remaining):
                 return
 
     def sleep(self) -> None:
         """Nothing to serve: sleep to the deadline."""
-        time.sleep(max(0.0, self.next_s - time.perf_counter()))
+        self.pause(max(0.0, self.next_s - self.clock()))
 
     def advance(self) -> None:
         self.next_s += self.period_s
@@ -80,7 +86,7 @@ class Deadlines:
         """After the period's work: if the deadline in force has already passed, drop the
         periods lost and re-anchor on the same grid. Returns (periods dropped, how late
         [s]); (0, 0.0) when on time."""
-        late = time.perf_counter() - self.next_s
+        late = self.clock() - self.next_s
         if late <= 0:
             return 0, 0.0
         skipped = int(late // self.period_s) + 1
@@ -92,7 +98,7 @@ class Deadlines:
         (suspended?) re-anchors the schedule a period from now; less is caught up by
         running the next periods without waiting. Returns how far behind it re-anchored
         [s] (0 when it did not)."""
-        now = time.perf_counter()
+        now = self.clock()
         if now - passed_s > limit_s:
             self.next_s = now + self.period_s
             return now - passed_s

@@ -77,6 +77,13 @@ def _yaw(type_mask: int, yaw: float, yaw_rate: float) -> tuple[float, float]:
     return math.nan, math.nan
 
 
+def _refuse_force(type_mask: int) -> None:
+    """Force setpoints are refused, but the force bit means nothing while every
+    acceleration is masked: DroneKit's examples send 0x0FF8 (position only, force bit on)."""
+    if type_mask & FORCE_SET and not all(type_mask & bit for bit in ACCEL_BITS):
+        raise RefusedError("force setpoints are not supported")
+
+
 def _turn(vector: np.ndarray, heading_rad: float) -> np.ndarray:
     """Heading frame -> NED for the horizontal part (NaN stays NaN)."""
     out = vector.copy()
@@ -89,8 +96,7 @@ def local_setpoint(frame: int, type_mask: int, position, velocity, accel, yaw: f
     """SET_POSITION_TARGET_LOCAL_NED -> Setpoint in local NED."""
     if frame not in LOCAL_FRAMES:
         raise RefusedError(f"setpoint frame {frame} is not supported")
-    if type_mask & FORCE_SET:
-        raise RefusedError("force setpoints are not supported")
+    _refuse_force(type_mask)
     offset, position_turned, vectors_turned = LOCAL_FRAMES[frame]
     pos = _masked(type_mask, POSITION_BITS, position, "position")
     vel = _masked(type_mask, VELOCITY_BITS, velocity, "velocity")
@@ -109,8 +115,7 @@ def global_setpoint(home: Home, frame: int, type_mask: int, lat_int: int, lon_in
     """SET_POSITION_TARGET_GLOBAL_INT -> Setpoint in local NED around ``home``."""
     if frame not in GLOBAL_FRAMES:
         raise RefusedError(f"setpoint frame {frame} is not supported (no terrain data)")
-    if type_mask & FORCE_SET:
-        raise RefusedError("force setpoints are not supported")
+    _refuse_force(type_mask)
     given = _masked(type_mask, POSITION_BITS, (lat_int * 1e-7, lon_int * 1e-7, alt_m),
                     "position")
     lat, lon, alt = given

@@ -104,6 +104,17 @@ def test_unsupported_frames_and_force_setpoints_are_refused() -> None:
         local(mavlink.MAV_FRAME_LOCAL_FLU, POSITION_ONLY)
     with pytest.raises(RefusedError, match="force"):
         local(mavlink.MAV_FRAME_LOCAL_NED, FORCE_SET)
+
+
+def test_the_force_bit_with_every_acceleration_masked_is_a_position_setpoint() -> None:
+    """DroneKit's examples send 0x0FF8: position only, with the force bit set."""
+    setpoint = local(mavlink.MAV_FRAME_LOCAL_NED, 0x0FF8, position=(1.0, 2.0, -3.0))
+    assert list(setpoint.position_ned_m) == [1.0, 2.0, -3.0]
+    with pytest.raises(RefusedError, match="force"):
+        local(mavlink.MAV_FRAME_LOCAL_NED, 0x0FF8 & ~ALL_ACCEL)
+
+
+def test_global_setpoints_in_a_terrain_frame_are_refused() -> None:
     with pytest.raises(RefusedError, match="terrain"):
         global_setpoint(DEFAULT_HOME, mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT, POSITION_ONLY,
                         0, 0, 5.0, (0, 0, 0), (0, 0, 0), 0.0, 0.0)

@@ -188,7 +188,8 @@ class RcInput:
             self._bounce = None
             return None
         if self._bounce is None or self._bounce[0] != position:
-            self._bounce = (position, link_t_s)
+            # From the frame that brought it: Copter reads the switch every loop.
+            self._bounce = (position, self.set_s[channel - 1])
             return None
         if link_t_s - self._bounce[1] < SWITCH_DEBOUNCE_S:
             return None

@@ -284,6 +284,7 @@ class Commander:
         rc, p = self.inputs.rc, self.parameters
         had_sticks = rc.sticks_present
         rc.refresh(link_t_s, p["RC_OVERRIDE_TIME"])
+        self.state.loiter_sticks = rc.sticks_present
         if rc.sticks_present:
             climbs = self.mode in (FlightMode.ALTCTL, FlightMode.POSCTL, FlightMode.HOLD)
             self.state.sticks = sticks_from_channels(

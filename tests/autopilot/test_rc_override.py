@@ -5,6 +5,7 @@ clock in the test's hands."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from autopilot.commander.rc import (
@@ -175,6 +176,26 @@ def test_alt_hold_needs_the_throttle_channel(copter):
                               ["altctl denied: no manual control input"])
     override(copter.client, IGNORE, IGNORE, 1500)
     assert copter.client.result(SET_MODE, CUSTOM, ALT_HOLD)[0] == ACCEPTED
+
+
+def test_loiter_flies_the_sticks_and_holds_when_they_centre(copter):
+    in_alt_hold(copter)
+    v = copter.vehicle
+    assert copter.client.result(SET_MODE, CUSTOM, 5)[0] == ACCEPTED  # LOITER
+    v.step(0.02, air())
+    held = v.setpoint.position_ned_m.copy()
+    assert v.mode is FlightMode.HOLD and np.all(np.isfinite(held))
+    override(copter.client, 1500, 1000, 1500, 1500)  # pitch forward, full
+    at(copter, T0 + 0.1)
+    v.step(0.03, air())
+    assert v.setpoint.velocity_ned_mps[:2] == pytest.approx([DEFAULTS["MPC_VEL_MANUAL"], 0])
+    assert np.all(np.isnan(v.setpoint.position_ned_m[:2]))
+    assert v.setpoint.position_ned_m[2] == held[2]  # the throttle centred: altitude held
+    override(copter.client, *CENTRE)
+    at(copter, T0 + 0.2)
+    v.step(0.04, air())
+    assert np.all(np.isfinite(v.setpoint.position_ned_m[:2]))  # where it can stop
+    assert np.all(np.isnan(v.setpoint.velocity_ned_mps[:2]))
 
 
 # -- the mode switch ---------------------------------------------------------------------------

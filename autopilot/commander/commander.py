@@ -33,18 +33,14 @@ from autopilot.commander.failsafe import (
     Failsafes,
     FailsafeView,
     Response,
-    Stream,
     decide,
-    radio_loss_action,
 )
 from autopilot.commander.failures import InjectedFailures
 from autopilot.commander.inputs import ToolInputs
 from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LandDetector
 from autopilot.commander.modes import MODES, EntryView, ModeRow
-from autopilot.commander.rc import sticks_from_channels
 from autopilot.control.controller import Controller
 from autopilot.flight_tasks.manager import FlightControl
-from autopilot.flight_tasks.sticks import Sticks
 from autopilot.flight_tasks.task import FlightTask, Shaped, TaskEnv, TaskState
 from autopilot.navigator.mission_store import FENCE, MISSION, MissionStore
 from autopilot.navigator.navigator import Navigator
@@ -53,7 +49,7 @@ from autopilot.refusal import RefusedError
 from autopilot.trajectories import Reference
 from contracts.airframe import max_thrust_n
 from contracts.frames import DEFAULT_HOME, Home
-from contracts.modes import FlightMode, mode_from_custom
+from contracts.modes import FlightMode
 from contracts.perturbation_book import PerturbationBook
 from contracts.perturbations import Perturbation
 from contracts.telemetry import AUTOPILOT
@@ -128,7 +124,6 @@ class Commander:
     reached = property(lambda self: self.navigator.reached)
     perturbations = property(lambda self: self.flight.perturbations)
     last_commands = property(lambda self: self.flight.last_commands)
-    # The 18 RC channels the vehicle sees [us], 0 = no channel (ArduPilot flavour).
     rc_channels_pwm: tuple[int, ...] = property(lambda self: self.inputs.rc.pwm)
 
     @property
@@ -274,50 +269,10 @@ class Commander:
                                                           self.failsafe_view()))
         self.apply_failsafe(self.failsafes.input_stream(link_t_s, self.parameters,
                                                         self.failsafe_view()))
-        if self.flavour == "ardupilot":
-            self.check_rc(link_t_s)
-
-    def check_rc(self, link_t_s: float) -> None:
-        """The ArduPilot flavour's RC (autopilot/commander/rc.py): overrides expire, the
-        sticks follow the channels, the mode switch selects FLTMODEn, and the radio
-        failsafe (FS_THR_ENABLE) starts or ends."""
-        rc, p = self.inputs.rc, self.parameters
-        had_sticks = rc.sticks_present
-        rc.refresh(link_t_s, p["RC_OVERRIDE_TIME"])
-        self.state.loiter_sticks = rc.sticks_present
-        if rc.sticks_present:
-            climbs = self.mode in (FlightMode.ALTCTL, FlightMode.POSCTL, FlightMode.HOLD)
-            self.state.sticks = sticks_from_channels(
-                rc.pwm, p["THR_DZ"] / 1000.0 if climbs else None, p["MPC_HOLD_DZ"])
-        elif had_sticks:
-            self.state.sticks = Sticks()  # centred: hold, hover
-        position = rc.mode_switch(link_t_s, int(p["FLTMODE_CH"]))
-        if position is not None:
-            mode = mode_from_custom(self.flavour, int(p[f"FLTMODE{position + 1}"]))
-            try:
-                if mode is None:
-                    raise RefusedError(f"mode {int(p[f'FLTMODE{position + 1}'])} is not "
-                                       "built")
-                self.set_mode(mode, link_t_s)
-            except RefusedError as exc:
-                self.say(f"mode switch position {position + 1}: {exc}", 4)
-        if not rc.failsafe:
-            if p["FS_THR_ENABLE"] and rc.radio_lost(link_t_s) and self.armed:
-                rc.failsafe = True
-                self.apply_failsafe(decide(
-                    "Radio Failsafe", radio_loss_action(p["FS_THR_ENABLE"], self.mode),
-                    self.failsafe_view()))
-        elif rc.radio_back(link_t_s):
-            rc.failsafe = False
-            self.say("Radio Failsafe Cleared", 4)
 
     def failsafe_view(self) -> FailsafeView:
-        """The snapshot the failsafes decide on, taken when they look. In the ArduPilot
-        flavour the sticks' loss is the radio failsafe (check_rc), not the stream's."""
-        stream = self.row.stream
-        if self.flavour == "ardupilot" and stream is Stream.MANUAL:
-            stream = None
-        return FailsafeView(self.armed, self.landed, stream)
+        """The snapshot the failsafes decide on, taken when they look."""
+        return FailsafeView(self.armed, self.landed, self.inputs.watched(self.row.stream))
 
     def apply_failsafe(self, decision: FailsafeDecision | None) -> None:
         """Carry out a failsafe's decision: the one way a failsafe changes the vehicle.

@@ -50,6 +50,13 @@ class ToolInputs:
             return self.rc.sticks_present
         return self.links.streaming(stream, link_t_s, self.state.parameters)
 
+    def watched(self, stream: Stream | None) -> Stream | None:
+        """The stream whose loss is the stream failsafe: in the ArduPilot flavour the
+        radio failsafe (rc.RcPilot) watches the sticks instead."""
+        if self.flavour == "ardupilot" and stream is Stream.MANUAL:
+            return None
+        return stream
+
     def position_setpoint(self, link_t_s: float, setpoint: Setpoint) -> None:
         """A local NED setpoint (NaN for what the tool left out); checked before anything
         changes. Per axis group a position (velocity and acceleration then feed-forward)

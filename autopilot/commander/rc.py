@@ -25,9 +25,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
+from typing import Protocol
 
+from autopilot.commander.failsafe import FailsafeDecision, FailsafeView, decide, radio_loss_action
 from autopilot.flight_tasks.sticks import Sticks
+from autopilot.flight_tasks.task import TaskState
 from autopilot.refusal import RefusedError
+from contracts.modes import FlightMode, mode_from_custom
 
 CHANNELS = 18
 IGNORE = 0xFFFF  # UINT16_MAX: leave the channel as it is
@@ -107,7 +111,8 @@ class RcInput:
     def __init__(self) -> None:
         self.values = [0] * CHANNELS  # the override of each channel, 0 none
         self.set_s: list[float] = [0.0] * CHANNELS  # when each was last overridden
-        self.pwm: tuple[int, ...] = (0,) * CHANNELS  # what the vehicle sees now
+        # What the vehicle sees now [us], 0 no channel (Commander.rc_channels_pwm).
+        self.pwm: tuple[int, ...] = (0,) * CHANNELS
         self.heard_s: float | None = None  # the last override frame
         self.low_throttle = 0  # frames in a row below FS_THR_VALUE (Copter's counter)
         self.failsafe = False
@@ -195,3 +200,69 @@ class RcInput:
             return None
         self._switch, self._bounce = position, None
         return position
+
+
+class RcVehicle(Protocol):
+    """What the RC pilot reads of the vehicle and asks of it (the commander provides)."""
+
+    armed: bool
+    mode: FlightMode
+    flavour: str
+
+    def set_mode(self, mode: FlightMode, link_t_s: float) -> None:
+        """Enter ``mode`` as a tool asks for it (its needs checked first)."""
+        ...
+
+    def say(self, text: str, severity: int = 6) -> None: ...
+
+    def failsafe_view(self) -> FailsafeView: ...
+
+    def apply_failsafe(self, decision: FailsafeDecision | None) -> None:
+        """The one way a failsafe changes the vehicle."""
+        ...
+
+
+# The modes whose throttle is a climb rate: Copter's THR_DZ applies in them.
+CLIMB_THROTTLE_MODES = (FlightMode.ALTCTL, FlightMode.POSCTL, FlightMode.HOLD)
+
+
+class RcPilot:
+    """What the channels do, each service of the links (the MAVLink server calls it in
+    the ArduPilot flavour, after the link failsafes; link clock): overrides expire,
+    the sticks follow the channels, the mode switch selects FLTMODEn, the radio
+    failsafe (FS_THR_ENABLE) starts or ends."""
+
+    def __init__(self, vehicle: RcVehicle, rc: RcInput, state: TaskState) -> None:
+        self.vehicle, self.rc, self.state = vehicle, rc, state
+
+    def check(self, link_t_s: float) -> None:
+        v, rc, state = self.vehicle, self.rc, self.state
+        p = state.parameters
+        had_sticks = rc.sticks_present
+        rc.refresh(link_t_s, p["RC_OVERRIDE_TIME"])
+        state.loiter_sticks = rc.sticks_present
+        if rc.sticks_present:
+            climbs = v.mode in CLIMB_THROTTLE_MODES
+            state.sticks = sticks_from_channels(
+                rc.pwm, p["THR_DZ"] / 1000.0 if climbs else None, p["MPC_HOLD_DZ"])
+        elif had_sticks:
+            state.sticks = Sticks()  # centred: hold, hover
+        position = rc.mode_switch(link_t_s, int(p["FLTMODE_CH"]))
+        if position is not None:
+            number = int(p[f"FLTMODE{position + 1}"])
+            try:
+                mode = mode_from_custom(v.flavour, number)
+                if mode is None:
+                    raise RefusedError(f"mode {number} is not built")
+                v.set_mode(mode, link_t_s)
+            except RefusedError as exc:
+                v.say(f"mode switch position {position + 1}: {exc}", 4)
+        if not rc.failsafe:
+            if p["FS_THR_ENABLE"] and v.armed and rc.radio_lost(link_t_s):
+                rc.failsafe = True
+                v.apply_failsafe(decide("Radio Failsafe",
+                                        radio_loss_action(p["FS_THR_ENABLE"], v.mode),
+                                        v.failsafe_view()))
+        elif rc.radio_back(link_t_s):
+            rc.failsafe = False
+            v.say("Radio Failsafe Cleared", 4)

@@ -77,13 +77,17 @@ class SetpointProtocol:
         except RefusedError as exc:
             self._refuse(link, address, str(exc), now)
 
-    def _from_my_gcs(self, msg) -> bool:
-        """ArduPilot takes RC only from SYSID_MYGCS (others are ignored, not answered)."""
-        return msg.get_srcSystem() == self.server.vehicle.parameters["SYSID_MYGCS"]
+    def _from_my_gcs(self, msg, now: float) -> bool:
+        """ArduPilot takes RC only from SYSID_MYGCS (others are ignored, not answered); a
+        frame from it counts as the ground station's heartbeat (sysid_myggcs_seen)."""
+        if msg.get_srcSystem() != self.server.vehicle.parameters["SYSID_MYGCS"]:
+            return False
+        self.server.vehicle.inputs.gcs_heartbeat(now)
+        return True
 
     def on_rc_override(self, link: GroundLink, address, msg, now: float) -> None:
         """RC_CHANNELS_OVERRIDE (DroneKit's vehicle.channels.overrides, MAVProxy's rc)."""
-        if not self._from_my_gcs(msg):
+        if not self._from_my_gcs(msg, now):
             return
         channels = [getattr(msg, f"chan{i}_raw") for i in range(1, 19)]
         try:
@@ -95,7 +99,7 @@ class SetpointProtocol:
         """MANUAL_CONTROL (QGroundControl's virtual joystick, MAVSDK's manual control); in
         the ArduPilot flavour an override of channels 1-4, from SYSID_MYGCS only."""
         if self.server.flavour == "ardupilot":
-            if not self._from_my_gcs(msg) or msg.target != link.mav.srcSystem:
+            if msg.target != link.mav.srcSystem or not self._from_my_gcs(msg, now):
                 return
             try:
                 self.server.vehicle.inputs.rc_override(

@@ -75,6 +75,10 @@ def test_only_sysid_mygcs_overrides(copter):
     other = copter.new_client(sysid=254)
     assert texts(override(other, *CENTRE)) == []
     assert copter.vehicle.rc_channels_pwm[:4] == (0, 0, 0, 0)
+    assert copter.vehicle.links.gcs_heard_s is None
+    override(copter.client, *CENTRE)  # the GCS's frame is its heartbeat too
+    assert copter.vehicle.links.gcs_heard_s == T0
+    override(copter.client, 0, 0, 0, 0)
     copter.vehicle.set_parameter("SYSID_MYGCS", 254)
     override(other, *CENTRE)
     assert copter.vehicle.rc_channels_pwm[:4] == CENTRE

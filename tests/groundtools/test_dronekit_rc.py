@@ -75,7 +75,7 @@ def test_dronekit_flies_alt_hold_and_switches_mode_on_channel_overrides(tmp_path
             held.append(vehicle.location.global_relative_frame.alt)
             time.sleep(0.2)
         print(f"ALT_HOLD: altitude {min(held):.3f} .. {max(held):.3f} m over 5 s")
-        assert min(held) > 3.0 and max(held) - min(held) < 0.05  # measured: 1 mm
+        assert min(held) > 3.0 and max(held) - min(held) < 0.05  # measured: 1-2 mm
         assert vehicle.mode.name == "ALT_HOLD" and vehicle.armed
         # Position 5 of the switch: FLTMODE5 is LOITER in Copter SITL.
         sticks.set(ch5=1700)

@@ -143,6 +143,23 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("EKF2_GPS_DELAY", 110.0, 0.0, 300.0, "ms", "GPS fix age on arrival"),
     ParamSpec("EKF2_NOAID_TOUT", 5e6, 5e5, 1e8, "us", "dead reckoning this long without a "
               "GPS fix fused: position lost (failsafe: land)"),
+    # ArduPilot Copter: RC (docs/mavlink.md, RC as a ground tool sends it): Copter's names,
+    # units (PWM us, s) and SITL's defaults (Tools/autotest/default_params/copter.parm).
+    ParamSpec("SYSID_MYGCS", 255.0, 1.0, 255.0, "", "the ground station's system id: "
+              "RC_CHANNELS_OVERRIDE and MANUAL_CONTROL only from it (ArduPilot flavour)"),
+    *(ParamSpec(f"FLTMODE{i}", float(mode), 0.0, 27.0, "", f"Copter mode number of the "
+                f"mode switch's position {i}") for i, mode in
+      enumerate((7, 9, 6, 3, 5, 0), start=1)),
+    ParamSpec("FLTMODE_CH", 5.0, 0.0, 16.0, "", "RC channel of the mode switch (0 none)"),
+    ParamSpec("RC_OVERRIDE_TIME", 3.0, -1.0, 120.0, "s", "an RC override lasts this long "
+              "after the last one for its channel (negative: forever)"),
+    ParamSpec("FS_THR_ENABLE", 1.0, 0.0, 7.0, "", "radio failsafe: 0 off, 1 RTL, 2 RTL "
+              "(AUTO continues), 3 LAND, 4-6 RTL, 7 LAND",
+              choices=(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0)),
+    ParamSpec("FS_THR_VALUE", 975.0, 910.0, 1100.0, "us", "throttle PWM below which the "
+              "radio has failed (three frames in a row)"),
+    ParamSpec("THR_DZ", 100.0, 0.0, 300.0, "", "throttle deadzone around mid stick in "
+              "ALT_HOLD / LOITER / POSHOLD, in throttle units (0-1000)"),
 )
 PARAMETER_SPECS: dict[str, ParamSpec] = {spec.name: spec for spec in PARAMETERS}
 assert all(len(name) <= 16 for name in PARAMETER_SPECS)

@@ -40,6 +40,31 @@ def test_fuzz_mavlink_into_the_ground_link(station, handled, data):
     fz.mavlink_ground(station, data.draw(fz.ground_input(handled)))
 
 
+@pytest.fixture(scope="module")
+def copter_station():
+    from tests.mavlink_station import Station
+
+    s = Station(flavour="ardupilot")
+    s.flying()
+    yield s
+    s.close()
+
+
+RC_MESSAGES = ("RC_CHANNELS_OVERRIDE", "MANUAL_CONTROL")
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_rc_overrides_into_the_ardupilot_flavour(copter_station, data):
+    """RC_CHANNELS_OVERRIDE and MANUAL_CONTROL (half of the messages), hostile: every
+    channel the vehicle sees stays 0 or a PWM in the RC range; it flies on."""
+    from autopilot.commander.rc import PWM_MAX_US, PWM_MIN_US
+
+    fz.mavlink_ground(copter_station, data.draw(fz.ground_input(RC_MESSAGES)))
+    assert all(p == 0 or PWM_MIN_US <= p <= PWM_MAX_US
+               for p in copter_station.vehicle.rc_channels_pwm)
+
+
 SIGNING_KEY = bytes(range(32))
 
 

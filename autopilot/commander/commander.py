@@ -124,6 +124,7 @@ class Commander:
     reached = property(lambda self: self.navigator.reached)
     perturbations = property(lambda self: self.flight.perturbations)
     last_commands = property(lambda self: self.flight.last_commands)
+    rc_channels_pwm: tuple[int, ...] = property(lambda self: self.inputs.rc.pwm)
 
     @property
     def reference_start_s(self) -> float:
@@ -271,7 +272,7 @@ class Commander:
 
     def failsafe_view(self) -> FailsafeView:
         """The snapshot the failsafes decide on, taken when they look."""
-        return FailsafeView(self.armed, self.landed, self.row.stream)
+        return FailsafeView(self.armed, self.landed, self.inputs.watched(self.row.stream))
 
     def apply_failsafe(self, decision: FailsafeDecision | None) -> None:
         """Carry out a failsafe's decision: the one way a failsafe changes the vehicle.

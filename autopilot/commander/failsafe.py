@@ -45,6 +45,15 @@ MANUAL_LOSS_ACTIONS: dict[int, FlightMode] = {1: FlightMode.HOLD, 2: FlightMode.
                                               3: FlightMode.LAND}
 
 
+def radio_loss_action(fs_thr_enable: float, mode: FlightMode) -> FlightMode | None:
+    """FS_THR_ENABLE (Copter's radio failsafe): 1, 4, 6 return (SmartRTL and DO_LAND_START
+    are not built: RTL, as Copter falls back), 3, 5, 7 land, 2 returns unless AUTO flies
+    on (None: said only)."""
+    if int(fs_thr_enable) == 2 and mode is FlightMode.MISSION:
+        return None
+    return FlightMode.LAND if int(fs_thr_enable) in (3, 5, 7) else FlightMode.RTL
+
+
 def offboard_loss_action(com_obl_act: float) -> FlightMode:
     """COM_OBL_ACT: 0 lands, otherwise hold."""
     return FlightMode.LAND if com_obl_act == 0 else FlightMode.HOLD

@@ -1,5 +1,6 @@
 """What ground tools send the vehicle: position and attitude setpoints, the sticks of
-MANUAL_CONTROL, a Follow Me target, and the ground station's heartbeat.
+MANUAL_CONTROL (RC overrides in the ArduPilot flavour), a Follow Me target, and the
+ground station's heartbeat.
 
 Each input is checked before anything changes, and stamped on the link clock, where the
 stream failsafes (autopilot/commander/failsafe.py) look for it. A streamed setpoint is
@@ -14,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot.commander.failsafe import LinkWatch, Stream
+from autopilot.commander.rc import RcInput
 from autopilot.flight_tasks.follow import FollowTargetTask
 from autopilot.flight_tasks.setpoints import checked_attitude_target, checked_position_setpoint
 from autopilot.flight_tasks.shaping import Setpoint
@@ -33,14 +35,27 @@ class ToolInputs:
     follows_setpoints: Callable[[], bool]
     say: Callable[[str, int], None]
 
+    def __post_init__(self) -> None:
+        self.rc = RcInput()  # the ArduPilot flavour's channels (autopilot/commander/rc.py)
+
     def gcs_heartbeat(self, link_t_s: float) -> None:
         """A ground station's HEARTBEAT; said when it ends a loss."""
         if self.links.gcs_heartbeat(link_t_s):
             self.say("ground station link regained", 5)
 
     def streaming(self, stream: Stream, link_t_s: float) -> bool:
-        """Whether ``stream`` was heard within its timeout (COM_OF_LOSS_T / COM_RC_LOSS_T)."""
+        """Whether ``stream`` was heard within its timeout (COM_OF_LOSS_T / COM_RC_LOSS_T);
+        in the ArduPilot flavour the sticks are the RC channels, there while overridden."""
+        if self.flavour == "ardupilot" and stream is Stream.MANUAL:
+            return self.rc.sticks_present
         return self.links.streaming(stream, link_t_s, self.state.parameters)
+
+    def watched(self, stream: Stream | None) -> Stream | None:
+        """The stream whose loss is the stream failsafe: in the ArduPilot flavour the
+        radio failsafe (rc.RcPilot) watches the sticks instead."""
+        if self.flavour == "ardupilot" and stream is Stream.MANUAL:
+            return None
+        return stream
 
     def position_setpoint(self, link_t_s: float, setpoint: Setpoint) -> None:
         """A local NED setpoint (NaN for what the tool left out); checked before anything
@@ -66,6 +81,11 @@ class ToolInputs:
         """MANUAL_CONTROL's sticks (checked by sticks.sticks_from_manual_control)."""
         self.links.manual_heard_s = link_t_s
         self.state.sticks = sticks
+
+    def rc_override(self, link_t_s: float, channels: list[int]) -> None:
+        """RC_CHANNELS_OVERRIDE's (or MANUAL_CONTROL's) 18 channels, checked by
+        RcInput.override; the commander reads sticks and the mode switch off them."""
+        self.rc.override(link_t_s, channels, self.state.parameters)
 
     def follow_target(self, position_ned_m: np.ndarray,
                       velocity_ned_mps: np.ndarray | None) -> None:

@@ -110,6 +110,7 @@ class TaskState:
         self.shaped = Shaped.NONE
         self.streamed: Setpoint | AttitudeTarget | None = None  # newest, before offboard
         self.sticks = Sticks()  # the newest MANUAL_CONTROL
+        self.loiter_sticks = False  # HOLD flies the sticks too (ArduPilot's LOITER with RC)
         self.takeoff_altitude_m: float | None = None  # climbing to it
         self._tool_position: np.ndarray | None = None
         self._tool_position_moved_s = -math.inf

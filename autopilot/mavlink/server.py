@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable
 
 from autopilot.commander.commander import Commander
+from autopilot.commander.rc import RcPilot
 from autopilot.mavlink.commands import CommandProtocol
 from autopilot.mavlink.link import GroundLink, Peer
 from autopilot.mavlink.mission_protocol import MissionProtocol
@@ -109,6 +110,9 @@ class MavlinkServer:
         self.parameters = ParameterProtocol(self)
         self.setpoints = SetpointProtocol(self)
         self.missions = MissionProtocol(self)
+        # The ArduPilot flavour's RC channels: sticks, mode switch, radio failsafe.
+        self.rc_pilot = RcPilot(vehicle, vehicle.inputs.rc, vehicle.state) \
+            if flavour == "ardupilot" else None
         # Message type -> handler(link, address, msg, now); what is not here is ignored.
         self.handlers: dict[str, Callable] = {
             "HEARTBEAT": self._on_heartbeat, "PING": self._on_ping,
@@ -284,6 +288,8 @@ class MavlinkServer:
         """Send what is due and queued; check the link failsafes."""
         now = self.clock()
         self.vehicle.check_links(now)
+        if self.rc_pilot is not None:
+            self.rc_pilot.check(now)
         self.missions.service(now)
         shown = (self.vehicle.armed, self.vehicle.mode)
         if shown != self._shown:  # tools read arming and mode off heartbeats

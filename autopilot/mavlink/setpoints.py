@@ -1,6 +1,7 @@
 """Setpoint streams from ground tools (SET_POSITION_TARGET_LOCAL_NED / GLOBAL_INT,
 SET_ATTITUDE_TARGET, MANUAL_CONTROL, and a Follow Me target's FOLLOW_TARGET) to the
-vehicle; refusals said at most once a second."""
+vehicle, and in the ArduPilot flavour RC_CHANNELS_OVERRIDE, with MANUAL_CONTROL onto the
+same channels (autopilot/commander/rc.py); refusals said at most once a second."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from autopilot.commander.rc import manual_control_channels
 from autopilot.flight_tasks.sticks import sticks_from_manual_control
 from autopilot.mavlink.offboard import global_setpoint, local_setpoint
 from autopilot.refusal import RefusedError
@@ -37,7 +39,9 @@ class SetpointProtocol:
         return {"SET_POSITION_TARGET_LOCAL_NED": self.on_local,
                 "SET_POSITION_TARGET_GLOBAL_INT": self.on_global,
                 "SET_ATTITUDE_TARGET": self.on_attitude, "MANUAL_CONTROL": self.on_manual,
-                "FOLLOW_TARGET": self.on_follow_target}
+                "FOLLOW_TARGET": self.on_follow_target,
+                **({"RC_CHANNELS_OVERRIDE": self.on_rc_override}
+                   if self.server.flavour == "ardupilot" else {})}
 
     def on_local(self, link: GroundLink, address, msg, now: float) -> None:
         v = self.server.vehicle
@@ -73,8 +77,36 @@ class SetpointProtocol:
         except RefusedError as exc:
             self._refuse(link, address, str(exc), now)
 
+    def _from_my_gcs(self, msg, now: float) -> bool:
+        """ArduPilot takes RC only from SYSID_MYGCS (others are ignored, not answered); a
+        frame from it counts as the ground station's heartbeat (sysid_myggcs_seen)."""
+        if msg.get_srcSystem() != self.server.vehicle.parameters["SYSID_MYGCS"]:
+            return False
+        self.server.vehicle.inputs.gcs_heartbeat(now)
+        return True
+
+    def on_rc_override(self, link: GroundLink, address, msg, now: float) -> None:
+        """RC_CHANNELS_OVERRIDE (DroneKit's vehicle.channels.overrides, MAVProxy's rc)."""
+        if not self._from_my_gcs(msg, now):
+            return
+        channels = [getattr(msg, f"chan{i}_raw") for i in range(1, 19)]
+        try:
+            self.server.vehicle.inputs.rc_override(now, channels)
+        except RefusedError as exc:
+            self._refuse(link, address, str(exc), now)
+
     def on_manual(self, link: GroundLink, address, msg, now: float) -> None:
-        """MANUAL_CONTROL (QGroundControl's virtual joystick, MAVSDK's manual control)."""
+        """MANUAL_CONTROL (QGroundControl's virtual joystick, MAVSDK's manual control); in
+        the ArduPilot flavour an override of channels 1-4, from SYSID_MYGCS only."""
+        if self.server.flavour == "ardupilot":
+            if msg.target != link.mav.srcSystem or not self._from_my_gcs(msg, now):
+                return
+            try:
+                self.server.vehicle.inputs.rc_override(
+                    now, manual_control_channels(msg.x, msg.y, msg.z, msg.r))
+            except RefusedError as exc:
+                self._refuse(link, address, str(exc), now)
+            return
         try:
             sticks = sticks_from_manual_control(msg.x, msg.y, msg.z, msg.r)
         except RefusedError as exc:

@@ -226,10 +226,11 @@ def run(args: argparse.Namespace) -> int:
 
         for mission_type, items in read_plan(args.mission).items():
             vehicle.mission.replace(mission_type, items)
-    links = [open_link("gcs", ("0.0.0.0", args.gcs_bind), args.gcs, key, 0, config.sysid)]
+    links = [open_link("gcs", ("0.0.0.0", args.gcs_bind), args.gcs, key, 0, config.sysid,
+                       args.flavour)]
     if args.api is not None or args.api_bind:
         links.append(open_link("api", ("0.0.0.0", args.api_bind), args.api, key, 1,
-                               config.sysid))
+                               config.sysid, args.flavour))
     state = SigningState(args.signing_state or default_state_path(config.sysid))
     restored = state.restore([link.mav.signing for link in links])  # also for SETUP_SIGNING
     if key is not None:

@@ -33,6 +33,7 @@ from contracts.mavlink import (
     AUTOPILOT_SYSID,
     STATUSTEXT_CHUNK_BYTES,
     datagram_frames,
+    dialect_of,
     mavlink,
     statustext_messages,
 )
@@ -58,10 +59,15 @@ def decode_datagram(mav: mavlink.MAVLink, data: bytes) -> list | None:
     broken datagram cannot spoil the next one. pymavlink records a signed frame's
     timestamp before it checks the signature; a forged frame would then make the real
     stream's next frames look old, so the record is undone when the signature fails.
+    A whole frame of a message the dialect does not know comes back as the dialect's
+    MAVLink_unknown (no CRC extra to check it against: never acted on, the caller skips
+    and counts it), so a tool's newer message does not cost the frames beside it; with
+    signing on its signature is checked all the same.
     """
     frames = datagram_frames(data)
     if frames is None:
         return None
+    dialect = dialect_of(mav)
     signing = mav.signing.secret_key is not None
     msgs = []
     for frame in frames:
@@ -71,15 +77,16 @@ def decode_datagram(mav: mavlink.MAVLink, data: bytes) -> list | None:
         before = mav.signing.stream_timestamps.get(stream) if signing else None
         try:
             msg = mav.decode(bytearray(frame))
-        except mavlink.MAVError:
+            if signing and isinstance(msg, dialect.MAVLink_unknown) and \
+                    not mav.check_signature(bytearray(frame), frame[5], frame[6]):
+                raise dialect.MAVError("Invalid signature")
+        except dialect.MAVError:
             if signing:
                 if before is None:
                     mav.signing.stream_timestamps.pop(stream, None)
                 else:
                     mav.signing.stream_timestamps[stream] = before
             return None
-        if isinstance(msg, mavlink.MAVLink_unknown):
-            return None  # no CRC extra to check it against: not trusted
         msgs.append(msg)
     return msgs
 
@@ -170,6 +177,9 @@ class MavlinkServer:
             if len(link.heartbeat_heard_s) > HEARD_MAX:
                 link.heartbeat_heard_s.popitem(last=False)
         for msg in msgs:
+            if msg.get_type().startswith("UNKNOWN_"):  # pymavlink's MAVLink_unknown
+                c.unknown += 1
+                continue
             c.frames += 1
             if not self._for_us(msg):
                 c.not_for_us += 1

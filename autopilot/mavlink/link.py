@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 from autopilot.mavlink.signing import signing_clock_now
-from autopilot.mavlink.telemetry import DEFAULT_STREAMS
+from autopilot.mavlink.telemetry import DEFAULT_STREAMS, default_streams
 from contracts.mavlink import AUTOPILOT_COMPID, AUTOPILOT_SYSID, mavlink, new_mavlink
 
 if TYPE_CHECKING:
@@ -110,7 +110,7 @@ def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
         mav.signing.secret_key = signing_key
         mav.signing.sign_outgoing = True
         mav.signing.allow_unsigned_callback = None
-    return GroundLink(name, sock, remote, mav)
+    return GroundLink(name, sock, remote, mav, default_streams(flavour))
 
 
 class ServerLink(Protocol):
@@ -120,6 +120,7 @@ class ServerLink(Protocol):
     vehicle: Commander
     flavour: str  # "px4" or "ardupilot"
     links: list[GroundLink]
+    reboot_pending: bool  # a reboot acknowledged: the server restarts the vehicle next
 
     def send(self, link: GroundLink, msg: object,
              address: tuple[str, int] | None = None) -> None:

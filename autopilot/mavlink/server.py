@@ -18,6 +18,7 @@ from collections.abc import Callable
 
 from autopilot.commander.commander import Commander
 from autopilot.mavlink.commands import CommandProtocol
+from autopilot.mavlink.copter import banner_texts, data_stream_intervals
 from autopilot.mavlink.link import GroundLink, Peer
 from autopilot.mavlink.mission_protocol import MissionProtocol
 from autopilot.mavlink.params import ParameterProtocol
@@ -27,7 +28,7 @@ from autopilot.mavlink.signing import (
     apply_setup_signing,
     is_local,
 )
-from autopilot.mavlink.telemetry import telemetry_message
+from autopilot.mavlink.telemetry import default_streams, home_position, telemetry_message
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
@@ -112,6 +113,8 @@ class MavlinkServer:
         self.boot_s = clock()
         self._shown: tuple | None = None  # (armed, mode) last announced
         self._text_id = 0  # of the last chunked STATUSTEXT (1-65535)
+        self.reboot_pending = False
+        self._home_sent = None  # the home last announced (ArduPilot: HOME_POSITION on change)
         self.commands = CommandProtocol(self)
         self.parameters = ParameterProtocol(self)
         self.setpoints = SetpointProtocol(self)
@@ -123,6 +126,8 @@ class MavlinkServer:
             **self.commands.handlers(),
             **self.parameters.handlers(), **self.setpoints.handlers(),
             **self.missions.handlers()}
+        if flavour == "ardupilot":
+            self.handlers["REQUEST_DATA_STREAM"] = self._on_request_data_stream
 
     # -- receiving -----------------------------------------------------------------------
     def receive(self, link: GroundLink, budget_s: float = math.inf,
@@ -259,6 +264,31 @@ class MavlinkServer:
             self.send(link, mavlink.MAVLink_timesync_message(
                 int((now - self.boot_s) * 1e9), msg.ts1), address)
 
+    def _on_request_data_stream(self, link, address, msg, now) -> None:
+        """REQUEST_DATA_STREAM (ArduPilot): a stream group's messages at a rate [Hz] on
+        this link; rate 0 or start_stop 0 stops them; what Copter ignores is ignored."""
+        intervals = data_stream_intervals(msg.req_stream_id, msg.req_message_rate,
+                                          msg.start_stop)
+        for msg_id, interval in (intervals or {}).items():
+            if interval is None:
+                link.intervals_s.pop(msg_id, None)
+            else:
+                link.intervals_s[msg_id] = interval
+            link.next_due_s.pop(msg_id, None)
+
+    def _reboot(self) -> None:
+        """The acknowledged reboot: the vehicle's state restarts, every link streams what
+        it streams at boot, and the boot texts are said again (Copter's banner)."""
+        self.reboot_pending = False
+        self.vehicle.reboot()
+        self._home_sent = None
+        for link in self.links:
+            link.intervals_s = default_streams(self.flavour)
+            link.next_due_s.clear()
+        if self.flavour == "ardupilot":
+            for text in banner_texts():
+                self.send_text(None, mavlink.MAV_SEVERITY_INFO, text)
+
     def _on_setup_signing(self, link, address, msg, now) -> None:
         """SETUP_SIGNING: only over a signed link (with signing on, an unsigned frame never
         gets here) or from this machine; a key never crosses a network in the clear."""
@@ -293,6 +323,12 @@ class MavlinkServer:
     def service(self) -> None:
         """Send what is due and queued; check the link failsafes."""
         now = self.clock()
+        if self.reboot_pending:
+            self._reboot()
+        v = self.vehicle
+        if self.flavour == "ardupilot" and v.home_known and v.home != self._home_sent:
+            self._home_sent = v.home  # Copter sends HOME_POSITION when home is set
+            self.broadcast(lambda: home_position(v.home))
         self.vehicle.check_links(now)
         self.missions.service(now)
         shown = (self.vehicle.armed, self.vehicle.mode)

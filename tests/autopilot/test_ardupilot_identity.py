@@ -1,0 +1,186 @@
+"""The ArduPilot flavour's identity, streams and maintenance commands as a Copter GCS sees
+them: a real UDP link in the ardupilotmega dialect, the server driven by the test
+(tests/mavlink_station.py). ArduCopter SITL 4.5 is the reference (docs/mavlink.md)."""
+
+from __future__ import annotations
+
+import pytest
+
+from autopilot.mavlink.copter import CAPABILITIES, copter_version_number
+from contracts.mavlink import ardupilotmega as apm
+from tests.mavlink_station import ACCEPTED, ARM, GROUND, T0, Station, air, of_type, texts
+
+DENIED = apm.MAV_RESULT_DENIED
+
+
+@pytest.fixture
+def copter():
+    s = Station(flavour="ardupilot")
+    yield s
+    s.close()
+
+
+def heartbeat(s: Station):
+    """The HEARTBEAT the link sends now (the stream's builder)."""
+    return s.server.telemetry(apm.MAVLINK_MSG_ID_HEARTBEAT)
+
+
+def test_heartbeat_as_copter_sets_it(copter):
+    copter.state_up()
+    hb = heartbeat(copter)
+    assert (hb.type, hb.autopilot) == (apm.MAV_TYPE_QUADROTOR, apm.MAV_AUTOPILOT_ARDUPILOTMEGA)
+    # STABILIZE | MANUAL_INPUT | CUSTOM_MODE (16 + 64 + 1), standby on the ground.
+    assert (hb.base_mode, hb.system_status, hb.custom_mode) == (81, apm.MAV_STATE_STANDBY, 4)
+    assert copter.client.result(ARM, 1)[0] == ACCEPTED
+    assert (heartbeat(copter).base_mode, heartbeat(copter).system_status) == (
+        81 | 128, apm.MAV_STATE_STANDBY)  # armed on the ground: still STANDBY
+    copter.state_up(air(), 0.01)
+    hb = heartbeat(copter)  # flying GUIDED: the position controller runs
+    assert (hb.base_mode, hb.system_status) == (81 | 128 | 8, apm.MAV_STATE_ACTIVE)
+
+
+def test_autopilot_version_is_copters(copter):
+    msg = copter.client.request(apm.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+    assert msg.capabilities == CAPABILITIES
+    assert not msg.capabilities & apm.MAV_PROTOCOL_CAPABILITY_FTP
+    assert msg.flight_sw_version == copter_version_number() == 0x040507FF
+    assert bytes(msg.flight_custom_version) == b"ivfmsitl"
+
+
+def test_banner_says_the_firmware_and_the_frame(copter):
+    ack, others = copter.client.command(apm.MAV_CMD_DO_SEND_BANNER)
+    assert ack.result == ACCEPTED
+    assert texts(others) == ["ArduCopter V4.5.7 (ivfmsitl)", "Frame: QUAD/X"]
+
+
+def stream_ids(s: Station, seconds: float) -> dict[str, int]:
+    counts: dict[str, int] = {}
+    t = s.clock.t
+    for _ in range(int(seconds / 0.01)):
+        t += 0.01
+        s.service(t)
+    for m in s.client.sync():
+        if m.get_type() != "STATUSTEXT":
+            counts[m.get_type()] = counts.get(m.get_type(), 0) + 1
+    return counts
+
+
+def test_only_heartbeats_until_a_tool_asks_then_the_groups_at_their_rates(copter):
+    copter.state_up()
+    copter.client.heartbeat()
+    copter.client.sync()  # now a peer of the link
+    assert stream_ids(copter, 2.0) == {"HEARTBEAT": 2}
+    copter.client.send(apm.MAVLink_request_data_stream_message(
+        1, 1, apm.MAV_DATA_STREAM_ALL, 4, 1))
+    copter.client.sync()
+    counts = stream_ids(copter, 2.0)
+    for name in ("SYS_STATUS", "MISSION_CURRENT", "GPS_RAW_INT", "SERVO_OUTPUT_RAW",
+                 "RC_CHANNELS", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED", "ATTITUDE",
+                 "VFR_HUD", "EKF_STATUS_REPORT"):
+        assert counts[name] in (8, 9), (name, counts)  # 4 Hz for 2 s
+    copter.client.send(apm.MAVLink_request_data_stream_message(
+        1, 1, apm.MAV_DATA_STREAM_POSITION, 0, 1))  # rate 0 stops the group
+    copter.client.send(apm.MAVLink_request_data_stream_message(
+        1, 1, apm.MAV_DATA_STREAM_EXTRA1, 10, 0))  # start_stop 0 stops too
+    copter.client.sync()
+    counts = stream_ids(copter, 1.0)
+    assert "GLOBAL_POSITION_INT" not in counts and "ATTITUDE" not in counts
+    assert counts["VFR_HUD"] in (4, 5) and counts["HEARTBEAT"] == 1
+
+
+def test_gps_ekf_rc_and_servo_messages_on_the_ground(copter):
+    copter.state_up()
+    gps = copter.client.request(apm.MAVLINK_MSG_ID_GPS_RAW_INT)
+    assert (gps.fix_type, gps.satellites_visible, gps.eph) == (3, 10, 121)
+    assert (gps.lat, gps.lon) == (round(copter.vehicle.home.lat_deg * 1e7),
+                                  round(copter.vehicle.home.lon_deg * 1e7))
+    ekf = copter.client.request(apm.MAVLINK_MSG_ID_EKF_STATUS_REPORT)
+    assert ekf.flags == 0x33F  # healthy on the simulator's truth, as SITL's
+    rc = copter.client.request(apm.MAVLINK_MSG_ID_RC_CHANNELS)
+    assert (rc.chancount, rc.chan1_raw, rc.chan18_raw) == (0, 0, 0)  # no RC
+    servo = copter.client.request(apm.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW)
+    assert [servo.servo1_raw, servo.servo4_raw, servo.servo5_raw] == [1000, 1000, 0]
+
+
+def test_ekf_uninitialised_without_the_simulator(copter):
+    assert copter.client.request(apm.MAVLINK_MSG_ID_EKF_STATUS_REPORT).flags == \
+        apm.EKF_UNINITIALIZED
+    gps = copter.client.request(apm.MAVLINK_MSG_ID_GPS_RAW_INT)
+    assert (gps.fix_type, gps.satellites_visible) == (apm.GPS_FIX_TYPE_NO_FIX, 0)
+
+
+def test_home_position_sent_when_home_is_set(copter):
+    copter.state_up()
+    copter.client.heartbeat()
+    copter.client.sync()
+    copter.service(T0)
+    copter.client.sync()
+    assert of_type(copter.client.sync(), "HOME_POSITION") == []  # not known yet
+    copter.vehicle.set_home(copter.vehicle.home)
+    copter.service(T0 + 0.01)
+    (home,) = of_type(copter.client.sync(), "HOME_POSITION")
+    assert home.latitude == round(copter.vehicle.home.lat_deg * 1e7)
+    copter.service(T0 + 0.02)
+    assert of_type(copter.client.sync(), "HOME_POSITION") == []  # once per change
+
+
+def test_reboot_refused_armed_then_restarts_the_vehicle_keeping_parameters(copter):
+    copter.state_up()
+    copter.vehicle.set_home(copter.vehicle.home)
+    copter.vehicle.set_parameter("MPC_XY_VEL_MAX", 7.0)
+    assert copter.client.result(ARM, 1)[0] == ACCEPTED
+    assert copter.client.result(apm.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1) == (
+        DENIED, ["reboot denied: armed"])
+    assert copter.client.result(ARM, 0)[0] == ACCEPTED
+    copter.client.send(apm.MAVLink_request_data_stream_message(1, 1, 0, 4, 1))
+    ack, _ = copter.client.command(apm.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
+    assert ack.result == ACCEPTED
+    copter.service(T0 + 1.0)
+    said = texts(copter.client.sync())
+    assert said[-3:] == ["rebooted", "ArduCopter V4.5.7 (ivfmsitl)", "Frame: QUAD/X"] or \
+        said[:2] == ["ArduCopter V4.5.7 (ivfmsitl)", "Frame: QUAD/X"]
+    v = copter.vehicle
+    assert not v.armed and not v.home_known and v.parameters["MPC_XY_VEL_MAX"] == 7.0
+    assert copter.links[0].intervals_s == {apm.MAVLINK_MSG_ID_HEARTBEAT: 1.0}
+    assert copter.client.result(apm.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 3)[0] == \
+        apm.MAV_RESULT_UNSUPPORTED
+
+
+@pytest.mark.parametrize("params", [(1,), (0, 0, 1), (0, 0, 0, 0, 1), (0, 0, 0, 0, 2)])
+def test_calibrations_complete_at_once_disarmed(copter, params):
+    copter.state_up()
+    assert copter.client.result(apm.MAV_CMD_PREFLIGHT_CALIBRATION, *params) == (
+        ACCEPTED, ["Calibration successful"])
+    assert copter.client.result(apm.MAV_CMD_PREFLIGHT_CALIBRATION, float("nan"))[0] == DENIED
+
+
+def test_mag_cal_reports_success_at_once(copter):
+    copter.state_up()
+    ack, others = copter.client.command(apm.MAV_CMD_DO_START_MAG_CAL, 0, 1, 1)
+    assert ack.result == ACCEPTED
+    (report,) = of_type(others, "MAG_CAL_REPORT")
+    assert (report.cal_status, report.autosaved) == (apm.MAG_CAL_SUCCESS, 1)
+    assert copter.client.result(apm.MAV_CMD_DO_ACCEPT_MAG_CAL)[0] == ACCEPTED
+    assert copter.client.result(apm.MAV_CMD_DO_CANCEL_MAG_CAL)[0] == ACCEPTED
+
+
+def test_prearm_checks_say_what_fails_and_set_the_bit(copter):
+    ack, others = copter.client.command(apm.MAV_CMD_RUN_PREARM_CHECKS)
+    assert ack.result == ACCEPTED
+    assert texts(others) == ["PreArm: no state from the simulator"]
+    (status,) = of_type(others, "SYS_STATUS")
+    assert not status.onboard_control_sensors_health & apm.MAV_SYS_STATUS_PREARM_CHECK
+    copter.state_up(GROUND)
+    ack, others = copter.client.command(apm.MAV_CMD_RUN_PREARM_CHECKS)
+    assert texts(others) == []
+    (status,) = of_type(others, "SYS_STATUS")
+    assert status.onboard_control_sensors_health & apm.MAV_SYS_STATUS_PREARM_CHECK
+
+
+def test_px4_flavour_answers_reboot_and_calibration_but_not_ardupilot_commands(station):
+    station.state_up()
+    assert station.client.result(apm.MAV_CMD_PREFLIGHT_CALIBRATION, 1)[0] == ACCEPTED
+    assert station.client.result(apm.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)[0] == ACCEPTED
+    assert station.client.result(42428)[0] == apm.MAV_RESULT_UNSUPPORTED  # DO_SEND_BANNER
+    gps = station.client.request(apm.MAVLINK_MSG_ID_GPS_RAW_INT)
+    assert gps.fix_type == 3

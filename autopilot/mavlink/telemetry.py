@@ -44,10 +44,10 @@ DEFAULT_STREAMS: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_VFR_HUD: 0.25,
     mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
     mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,  # PX4 streams it (DroneKit waits for it)
 }
 # What REQUEST_MESSAGE and SET_MESSAGE_INTERVAL can have, beyond the streams.
 PRODUCIBLE = set(DEFAULT_STREAMS) | {mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
-                                     mavlink.MAVLINK_MSG_ID_GPS_RAW_INT,
                                      mavlink.MAVLINK_MSG_ID_RC_CHANNELS,
                                      mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW}
 # ... and in the ArduPilot flavour its dialect's messages too.

@@ -153,7 +153,8 @@ def test_land_is_accepted_armed(station):
     (px4(6), TEMPORARILY_REJECTED, ["offboard denied: no setpoint stream"]),
     (px4(4, 2), TEMPORARILY_REJECTED, ["take-off denied: disarmed"]),
     (px4(4, 6), TEMPORARILY_REJECTED, ["landing denied: disarmed"]),
-    (px4(4, 1), DENIED, ["no reference generator configured"]),
+    (px4(6, 1), DENIED, ["no reference generator configured"]),  # REFERENCE
+    (px4(4, 1), DENIED, ["unknown mode 4/1"]),  # AUTO.READY: not a mode of ours
 ])
 @pytest.mark.parametrize("kind", ["long", "int"])
 def test_px4_mode_changes_disarmed(station, params, result, said, kind):

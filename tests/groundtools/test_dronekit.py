@@ -46,7 +46,9 @@ def _wait(predicate, timeout_s: float, what: str) -> None:
 
 def test_dronekit_connects_to_the_ardupilot_flavour_reboots_and_calibrates(
         tmp_path, ardupilot_dialect):
-    procs = start_processes(tmp_path, autopilot_args=["--flavour", "ardupilot"])
+    # Where ArduPilot's SITL and the scripts written for it are: CMAC, by name.
+    procs = start_processes(tmp_path, sim_args=["--home", "CMAC"],
+                            autopilot_args=["--flavour", "ardupilot"])
     vehicle = None
     try:
         vehicle, connect_s = _connect(procs.gcs_port)
@@ -64,6 +66,7 @@ def test_dronekit_connects_to_the_ardupilot_flavour_reboots_and_calibrates(
         home = vehicle.home_location
         here = vehicle.location.global_frame
         assert abs(home.lat - here.lat) < 1e-6 and abs(home.lon - here.lon) < 1e-6
+        assert (home.lat, home.lon, home.alt) == (-35.363261, 149.16523, 584.0)
         assert vehicle.mode.name == "GUIDED" and not vehicle.armed
 
         acks: list[tuple[int, int]] = []

@@ -40,6 +40,28 @@ def test_fuzz_mavlink_into_the_ground_link(station, handled, data):
     fz.mavlink_ground(station, data.draw(fz.ground_input(handled)))
 
 
+@pytest.fixture(scope="module")
+def copter_station():
+    from tests.mavlink_station import Station
+
+    s = Station(flavour="ardupilot")
+    s.flying()
+    yield s
+    s.close()
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_ardupilotmega_into_the_ardupilot_flavour(copter_station, data):
+    """The ArduPilot flavour's link: every ardupilotmega message, and COMMAND_LONG /
+    COMMAND_INT of the commands it serves (banner, reboot, calibrations, mag cal, pre-arm
+    checks ...) with hostile parameters; it keeps answering and flies on."""
+    server = copter_station.server
+    fz.mavlink_ground(copter_station, data.draw(fz.ground_input(
+        tuple(server.handlers), dialect=fz.ardupilotmega,
+        commands=tuple(server.commands.table))))
+
+
 SIGNING_KEY = bytes(range(32))
 
 

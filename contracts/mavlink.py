@@ -27,8 +27,7 @@ from contracts.vectors import MEASUREMENT
 
 __all__ = ["ardupilotmega", "mavlink"]
 
-# The dialect each flavour's ground links speak: PX4 the common set, ArduPilot its own
-# superset (EKF_STATUS_REPORT, MAG_CAL_*, ...). The simulator link is always common.
+# Each flavour's ground-link dialect (ArduPilot's: a superset); the simulator's: common.
 DIALECTS = {"px4": mavlink, "ardupilot": ardupilotmega}
 
 # MAVLink's global frames, each with whether its altitude is above home (else AMSL).
@@ -137,11 +136,6 @@ def new_mavlink(sysid: int, compid: int, flavour: str = "px4") -> mavlink.MAVLin
     mav = DIALECTS[flavour].MAVLink(None, srcSystem=sysid, srcComponent=compid)
     mav.robust_parsing = True
     return mav
-
-
-def dialect_of(mav: mavlink.MAVLink):
-    """The dialect module an encoder/parser belongs to (its MAVError, MAVLink_unknown)."""
-    return ardupilotmega if isinstance(mav, ardupilotmega.MAVLink) else mavlink
 
 
 def _int_clamped(value: float, low: int, high: int) -> int:

@@ -297,18 +297,6 @@ class Commander:
             if self.mode != decision.mode:
                 self.switch_to(decision.mode)
 
-    def reboot(self) -> None:
-        """PREFLIGHT_REBOOT_SHUTDOWN on the ground: the vehicle restarts as at boot, its
-        parameters and missions kept (stored, as an autopilot keeps them); the home is
-        taken again from the simulator's next sample, as at boot."""
-        if self.armed:
-            raise RefusedError("reboot denied: armed")
-        self.failsafe = None
-        self.mode = self.idle_mode
-        self.state.takeoff_altitude_m = None
-        self.home_known = False
-        self.say("rebooted")
-
     def set_home(self, home: Home) -> None:
         """Where the local frame is on Earth: missions, fences, go-to and telemetry's
         latitudes and longitudes are taken around it from now on."""

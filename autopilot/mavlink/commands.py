@@ -9,17 +9,16 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from autopilot.commander.failures import UnsupportedError
-from autopilot.mavlink.copter import banner_texts
+from autopilot.mavlink.maintenance import MaintenanceCommands
 from autopilot.mavlink.telemetry import (
     DEFAULT_STREAMS,
     home_position,
     mission_current,
-    prearm_problem,
     producible,
 )
 from autopilot.navigator.mission_store import ItemError
 from autopilot.refusal import RefusedError
-from contracts.mavlink import GLOBAL_FRAMES, ardupilotmega, mavlink, ned_from_global
+from contracts.mavlink import GLOBAL_FRAMES, mavlink, ned_from_global
 from contracts.modes import FlightMode, mode_from_custom, px4_custom_mode_from_command
 
 if TYPE_CHECKING:
@@ -53,17 +52,8 @@ class CommandProtocol:
             mavlink.MAV_CMD_DO_ORBIT: self._orbit,
             mavlink.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
             mavlink.MAV_CMD_INJECT_FAILURE: self._inject_failure,
-            mavlink.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN: self._reboot,
-            mavlink.MAV_CMD_PREFLIGHT_CALIBRATION: self._calibrate,
+            **MaintenanceCommands(server).table(),
         }
-        if server.flavour == "ardupilot":  # ArduPilot's own commands (its dialect)
-            self.table.update({
-                ardupilotmega.MAV_CMD_DO_SEND_BANNER: self._banner,
-                mavlink.MAV_CMD_RUN_PREARM_CHECKS: self._prearm_checks,
-                ardupilotmega.MAV_CMD_DO_START_MAG_CAL: self._start_mag_cal,
-                ardupilotmega.MAV_CMD_DO_ACCEPT_MAG_CAL: self._mag_cal_done,
-                ardupilotmega.MAV_CMD_DO_CANCEL_MAG_CAL: self._mag_cal_done,
-            })
         self.frame = mavlink.MAV_FRAME_GLOBAL  # the command's frame (COMMAND_LONG: AMSL)
 
     def handlers(self) -> dict[str, Callable]:
@@ -225,63 +215,6 @@ class CommandProtocol:
         except RefusedError:
             task.cancel()
             raise
-
-    # -- maintenance -------------------------------------------------------------------
-    def _reboot(self, link, p, now):
-        """PREFLIGHT_REBOOT_SHUTDOWN param1 1: the vehicle's state restarts as at boot
-        (parameters and missions kept), after the ACK; 0: nothing for the autopilot.
-        Refused armed, as Copter and PX4 refuse it; shutdown and bootloader have no
-        meaning in a simulation."""
-        if not math.isfinite(p[0]) or p[0] not in (0.0, 1.0):
-            raise UnsupportedError(f"reboot param1 {p[0]:g}: only 1 (reboot) is supported")
-        if p[0] == 0.0:
-            return None
-        if self.server.vehicle.armed:
-            raise RefusedError("reboot denied: armed")
-        self.server.reboot_pending = True  # after the ACK has gone out
-        return None
-
-    def _calibrate(self, link, p, now):
-        """PREFLIGHT_CALIBRATION: simulated sensors need none, so every calibration a tool
-        asks (gyro, baro, accelerometer, level, compass) completes at once, disarmed, as
-        in ArduPilot SITL; one asked armed is refused. Params must be finite."""
-        if not all(math.isfinite(v) for v in p):
-            raise RefusedError("calibration parameters must be finite")
-        if self.server.vehicle.armed:
-            raise RefusedError("calibration denied: armed")
-        if any(p):
-            self.server.send_text(link, mavlink.MAV_SEVERITY_INFO, "Calibration successful")
-
-    def _banner(self, link, p, now):
-        for text in banner_texts():
-            self.server.send_text(link, mavlink.MAV_SEVERITY_INFO, text)
-
-    def _prearm_checks(self, link, p, now):
-        """RUN_PREARM_CHECKS: Copter runs them and says what fails ("PreArm: ..."); the
-        SYS_STATUS pre-arm bit shows the outcome. Refused armed, as Copter does."""
-        vehicle = self.server.vehicle
-        if vehicle.armed:
-            raise RefusedError("pre-arm checks: armed", temporary=True)
-        problem = prearm_problem(vehicle)
-        if problem is not None:
-            self.server.send_text(link, mavlink.MAV_SEVERITY_CRITICAL, f"PreArm: {problem}")
-        return [self.server.telemetry(mavlink.MAVLINK_MSG_ID_SYS_STATUS)]
-
-    def _start_mag_cal(self, link, p, now):
-        """DO_START_MAG_CAL: the simulated compass needs none; ArduPilot SITL's finishes
-        in seconds with a MAG_CAL_REPORT, ours at once (fitness 0, offsets 0)."""
-        if not all(math.isfinite(v) for v in p[:5]):
-            raise RefusedError("mag calibration parameters must be finite")
-        if self.server.vehicle.armed:
-            raise RefusedError("mag calibration denied: armed")
-        autosave = p[2] != 0.0
-        return [ardupilotmega.MAVLink_mag_cal_report_message(
-            0, 1, ardupilotmega.MAG_CAL_SUCCESS, int(autosave), 0.0, 0.0, 0.0, 0.0,
-            1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 1.0, ardupilotmega.MAV_SENSOR_ROTATION_NONE,
-            ardupilotmega.MAV_SENSOR_ROTATION_NONE, 1.0)]
-
-    def _mag_cal_done(self, link, p, now):
-        return None
 
     def _request_message(self, link, p, now):
         msg_id = int(p[0]) if math.isfinite(p[0]) else -1

@@ -20,6 +20,7 @@ from autopilot.commander.commander import Commander
 from autopilot.mavlink.commands import CommandProtocol
 from autopilot.mavlink.copter import banner_texts, data_stream_intervals
 from autopilot.mavlink.link import GroundLink, Peer
+from autopilot.mavlink.maintenance import reboot_vehicle
 from autopilot.mavlink.mission_protocol import MissionProtocol
 from autopilot.mavlink.params import ParameterProtocol
 from autopilot.mavlink.setpoints import SetpointProtocol
@@ -33,8 +34,8 @@ from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
     STATUSTEXT_CHUNK_BYTES,
+    ardupilotmega,
     datagram_frames,
-    dialect_of,
     mavlink,
     statustext_messages,
 )
@@ -68,7 +69,7 @@ def decode_datagram(mav: mavlink.MAVLink, data: bytes) -> list | None:
     frames = datagram_frames(data)
     if frames is None:
         return None
-    dialect = dialect_of(mav)
+    dialect = ardupilotmega if isinstance(mav, ardupilotmega.MAVLink) else mavlink
     signing = mav.signing.secret_key is not None
     msgs = []
     for frame in frames:
@@ -280,7 +281,7 @@ class MavlinkServer:
         """The acknowledged reboot: the vehicle's state restarts, every link streams what
         it streams at boot, and the boot texts are said again (Copter's banner)."""
         self.reboot_pending = False
-        self.vehicle.reboot()
+        reboot_vehicle(self.vehicle)
         self._home_sent = None
         for link in self.links:
             link.intervals_s = default_streams(self.flavour)

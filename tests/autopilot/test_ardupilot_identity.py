@@ -4,10 +4,15 @@ them: a real UDP link in the ardupilotmega dialect, the server driven by the tes
 
 from __future__ import annotations
 
-import pytest
+import dataclasses
 
+import pytest
+from pymavlink import mavutil
+
+from autopilot.estimation.estimator import EstimatorStatus
 from autopilot.mavlink.copter import CAPABILITIES, copter_version_number
 from contracts.mavlink import ardupilotmega as apm
+from contracts.modes import PX4_MODES, FlightMode, px4_custom_mode
 from tests.mavlink_station import ACCEPTED, ARM, GROUND, T0, Station, air, of_type, texts
 
 DENIED = apm.MAV_RESULT_DENIED
@@ -184,3 +189,67 @@ def test_px4_flavour_answers_reboot_and_calibration_but_not_ardupilot_commands(s
     assert station.client.result(42428)[0] == apm.MAV_RESULT_UNSUPPORTED  # DO_SEND_BANNER
     gps = station.client.request(apm.MAVLINK_MSG_ID_GPS_RAW_INT)
     assert gps.fix_type == 3
+
+
+def test_rc_channels_and_servo_outputs_follow_the_vehicle(copter):
+    copter.flying()
+    copter.vehicle.rc_channels_pwm = (1500, 1500, 1000, 1500) + (0,) * 14  # the RC work's
+    rc = copter.client.request(apm.MAVLINK_MSG_ID_RC_CHANNELS)
+    assert (rc.chancount, rc.chan1_raw, rc.chan3_raw, rc.chan5_raw) == (4, 1500, 1000, 0)
+    copter.vehicle.step(0.02, air())
+    commands = copter.vehicle.last_commands
+    servo = copter.client.request(apm.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW)
+    pwm = [servo.servo1_raw, servo.servo2_raw, servo.servo3_raw, servo.servo4_raw]
+    assert pwm == [round(1000 + 1000 * c) for c in commands] and min(pwm) > 1000
+
+
+ALIGNED = EstimatorStatus(
+    aligned=True, converged=True, gps_ok=True, since_gps_s=0.1, reason="",
+    tilt_sigma_rad=0.01, yaw_sigma_rad=0.02, horizontal_sigma_m=0.5, vertical_sigma_m=0.8,
+    velocity_sigma_mps=0.1, gps_test_ratio=0.3, gps_position_test_ratio=0.25,
+    gps_velocity_test_ratio=0.2, baro_test_ratio=0.1, mag_test_ratio=0.05, gps_rejected=0,
+    gps_late=0)
+
+
+@pytest.mark.parametrize("change, flags", [
+    ({}, 0x33F),  # fused: what SITL's EKF3 reports healthy
+    ({"gps_ok": False, "since_gps_s": 3.0},  # dead reckoning: no absolute position
+     apm.EKF_ATTITUDE | apm.EKF_VELOCITY_VERT | apm.EKF_POS_VERT_ABS | apm.EKF_CONST_POS_MODE),
+    ({"gps_test_ratio": 1.5}, 0x33F | apm.EKF_GPS_GLITCHING),
+    ({"aligned": False, "gps_ok": False}, apm.EKF_UNINITIALIZED),
+])
+def test_ekf_status_report_from_the_onboard_estimator(copter, change, flags):
+    copter.state_up()
+    copter.vehicle.estimator_status = dataclasses.replace(ALIGNED, **change)
+    ekf = copter.client.request(apm.MAVLINK_MSG_ID_EKF_STATUS_REPORT)
+    assert ekf.flags == flags
+    s = copter.vehicle.estimator_status
+    assert [ekf.velocity_variance, ekf.pos_horiz_variance, ekf.pos_vert_variance,
+            ekf.compass_variance] == pytest.approx(
+        [s.gps_velocity_test_ratio, s.gps_position_test_ratio, s.baro_test_ratio,
+         s.mag_test_ratio])
+    gps = copter.client.request(apm.MAVLINK_MSG_ID_GPS_RAW_INT)
+    assert gps.fix_type == (3 if s.gps_ok else apm.GPS_FIX_TYPE_NO_FIX)
+
+
+def test_every_px4_mode_has_a_pymavlink_name():
+    """DroneKit raises in its HEARTBEAT handler on a PX4 mode pymavlink cannot name; the
+    paper's REFERENCE reads as OFFBOARD and DO_SET_MODE tells it apart by sub mode 1."""
+    names = {mode: mavutil.interpret_px4_mode(0, px4_custom_mode(mode)) for mode in PX4_MODES}
+    assert "UNKNOWN" not in names.values()
+    assert names[FlightMode.REFERENCE] == "OFFBOARD"
+    assert names[FlightMode.HOLD] == "LOITER" and names[FlightMode.MISSION] == "MISSION"
+
+
+def test_unknown_message_ids_are_skipped_on_the_copter_link(copter):
+    """An ArduPilot-only message on the PX4 link and a future one on either: counted."""
+    px4 = Station()
+    try:
+        ekf = apm.MAVLink_ekf_status_report_message(0, 0, 0, 0, 0, 0, 0)
+        for s in (px4, copter):
+            s.client.send(ekf)
+            s.client.sync()
+        assert px4.links[0].counters.unknown == 1  # not in the common dialect
+        assert copter.links[0].counters.unknown == 0  # known (and ignored) here
+    finally:
+        px4.close()

@@ -10,7 +10,6 @@ import time
 import pytest
 from pymavlink import mavutil
 
-from contracts.modes import PX4_MODES, px4_custom_mode
 from tests.harness import start_processes
 
 pytestmark = [pytest.mark.process, pytest.mark.groundtool]
@@ -121,9 +120,3 @@ def test_dronekit_connects_to_the_px4_flavour_and_reads_its_modes(tmp_path):
             vehicle.close()
         procs.stop()
 
-
-def test_every_px4_mode_has_a_pymavlink_name():
-    """DroneKit raises in its HEARTBEAT handler on a PX4 mode pymavlink cannot name."""
-    names = {mode: mavutil.interpret_px4_mode(0, px4_custom_mode(mode)) for mode in PX4_MODES}
-    assert "UNKNOWN" not in names.values()
-    assert names[next(m for m in PX4_MODES if m.value == "reference")] == "OFFBOARD"

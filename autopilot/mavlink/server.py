@@ -129,6 +129,8 @@ class MavlinkServer:
             **self.missions.handlers()}
         if flavour == "ardupilot":
             self.handlers["REQUEST_DATA_STREAM"] = self._on_request_data_stream
+            self._list_parameters = self.handlers["PARAM_REQUEST_LIST"]
+            self.handlers["PARAM_REQUEST_LIST"] = self._on_param_request_list
 
     # -- receiving -----------------------------------------------------------------------
     def receive(self, link: GroundLink, budget_s: float = math.inf,
@@ -277,11 +279,20 @@ class MavlinkServer:
                 link.intervals_s[msg_id] = interval
             link.next_due_s.pop(msg_id, None)
 
+    def _on_param_request_list(self, link, address, msg, now) -> None:
+        """Copter says its banner to a tool that asks for the parameter list ("a
+        convenient way to get extra information", GCS_Param.cpp): what a GCS shows on
+        connecting. Then the list, as the parameter protocol sends it."""
+        for text in banner_texts():
+            self.send_text(link, mavlink.MAV_SEVERITY_INFO, text, address)
+        self._list_parameters(link, address, msg, now)
+
     def _reboot(self) -> None:
         """The acknowledged reboot: the vehicle's state restarts, every link streams what
         it streams at boot, and the boot texts are said again (Copter's banner)."""
         self.reboot_pending = False
         reboot_vehicle(self.vehicle)
+        self.announce()  # "rebooted" before the boot texts
         self._home_sent = None
         for link in self.links:
             link.intervals_s = default_streams(self.flavour)

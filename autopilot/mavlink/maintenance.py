@@ -21,6 +21,25 @@ if TYPE_CHECKING:
     from autopilot.mavlink.link import ServerLink
 
 
+# PREFLIGHT_CALIBRATION: (param index, value) -> the sensor it calibrates.
+CALIBRATIONS = {(0, 1.0): "gyro", (1, 1.0): "mag", (2, 1.0): "baro", (4, 1.0): "accel",
+                (4, 2.0): "level", (4, 4.0): "accel", (5, 1.0): "airspeed"}
+
+
+def calibrations(params: list[float]) -> list[str]:
+    """The sensors a PREFLIGHT_CALIBRATION asks for, in its parameters' order; a value
+    no calibration has (RC, ESC, temperature ones) is unsupported."""
+    asked = []
+    for i, value in enumerate(params):
+        if value == 0.0:
+            continue
+        sensor = CALIBRATIONS.get((i, value))
+        if sensor is None:
+            raise UnsupportedError(f"calibration param{i + 1} {value:g} is not supported")
+        asked.append(sensor)
+    return asked
+
+
 def reboot_vehicle(v: Commander) -> None:
     """An acknowledged PREFLIGHT_REBOOT_SHUTDOWN, on the ground: the vehicle restarts as
     at boot, its parameters and missions kept (stored, as an autopilot keeps them); the
@@ -71,15 +90,24 @@ class MaintenanceCommands:
         return None
 
     def _calibrate(self, link, p, now):
-        """PREFLIGHT_CALIBRATION: simulated sensors need none, so every calibration a tool
-        asks (gyro, baro, accelerometer, level, compass) completes at once, disarmed, as
-        in ArduPilot SITL; one asked armed is refused. Params must be finite."""
+        """PREFLIGHT_CALIBRATION: simulated sensors need none, so each calibration a tool
+        asks completes at once, disarmed (refused armed; params must be finite), with the
+        texts the flavour's ground stations watch for: PX4's "[cal] calibration started"
+        / "done" per sensor, ArduPilot's barometer lines (its gyro and trim calibrations
+        only acknowledge)."""
         if not all(math.isfinite(v) for v in p):
             raise RefusedError("calibration parameters must be finite")
         if self.server.vehicle.armed:
             raise RefusedError("calibration denied: armed")
-        if any(p):
-            self.server.send_text(link, mavlink.MAV_SEVERITY_INFO, "Calibration successful")
+        asked = calibrations(p)
+        if self.server.flavour == "px4":
+            for sensor in asked:
+                for text in (f"[cal] calibration started: 2 {sensor}",
+                             f"[cal] calibration done: {sensor}"):
+                    self.server.send_text(link, mavlink.MAV_SEVERITY_INFO, text)
+        elif "baro" in asked:
+            for text in ("Updating barometer calibration", "Barometer calibration complete"):
+                self.server.send_text(link, mavlink.MAV_SEVERITY_INFO, text)
 
     def _banner(self, link, p, now):
         for text in banner_texts():

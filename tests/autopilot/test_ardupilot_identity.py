@@ -159,12 +159,23 @@ def test_reboot_refused_armed_then_restarts_the_vehicle_keeping_parameters(copte
         apm.MAV_RESULT_UNSUPPORTED
 
 
-@pytest.mark.parametrize("params", [(1,), (0, 0, 1), (0, 0, 0, 0, 1), (0, 0, 0, 0, 2)])
-def test_calibrations_complete_at_once_disarmed(copter, params):
+@pytest.mark.parametrize("params, said", [
+    ((1,), []), ((0, 0, 0, 0, 1), []), ((0, 0, 0, 0, 2), []), ((0, 0, 0, 0, 4), []),
+    ((0, 0, 1), ["Updating barometer calibration", "Barometer calibration complete"])])
+def test_calibrations_complete_at_once_disarmed(copter, params, said):
     copter.state_up()
     assert copter.client.result(apm.MAV_CMD_PREFLIGHT_CALIBRATION, *params) == (
-        ACCEPTED, ["Calibration successful"])
-    assert copter.client.result(apm.MAV_CMD_PREFLIGHT_CALIBRATION, float("nan"))[0] == DENIED
+        ACCEPTED, said)
+
+
+def test_bad_or_armed_calibrations_are_refused(copter):
+    copter.state_up()
+    cal = apm.MAV_CMD_PREFLIGHT_CALIBRATION
+    assert copter.client.result(cal, float("nan"))[0] == DENIED
+    assert copter.client.result(cal, 0, 0, 0, 1) == (  # RC calibration: not here
+        apm.MAV_RESULT_UNSUPPORTED, ["calibration param4 1 is not supported"])
+    assert copter.client.result(ARM, 1)[0] == ACCEPTED
+    assert copter.client.result(cal, 1) == (DENIED, ["calibration denied: armed"])
 
 
 def test_mag_cal_reports_success_at_once(copter):
@@ -192,7 +203,9 @@ def test_prearm_checks_say_what_fails_and_set_the_bit(copter):
 
 def test_px4_flavour_answers_reboot_and_calibration_but_not_ardupilot_commands(station):
     station.state_up()
-    assert station.client.result(apm.MAV_CMD_PREFLIGHT_CALIBRATION, 1)[0] == ACCEPTED
+    assert station.client.result(apm.MAV_CMD_PREFLIGHT_CALIBRATION, 1, 0, 1) == (ACCEPTED, [
+        "[cal] calibration started: 2 gyro", "[cal] calibration done: gyro",
+        "[cal] calibration started: 2 baro", "[cal] calibration done: baro"])
     assert station.client.result(apm.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)[0] == ACCEPTED
     assert station.client.result(42428)[0] == apm.MAV_RESULT_UNSUPPORTED  # DO_SEND_BANNER
     gps = station.client.request(apm.MAVLINK_MSG_ID_GPS_RAW_INT)

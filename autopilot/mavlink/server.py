@@ -30,6 +30,7 @@ from autopilot.mavlink.signing import (
     is_local,
 )
 from autopilot.mavlink.telemetry import default_streams, home_position, telemetry_message
+from autopilot.refusal import RefusedError
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
@@ -291,7 +292,11 @@ class MavlinkServer:
         """The acknowledged reboot: the vehicle's state restarts, every link streams what
         it streams at boot, and the boot texts are said again (Copter's banner)."""
         self.reboot_pending = False
-        reboot_vehicle(self.vehicle)
+        try:
+            reboot_vehicle(self.vehicle)
+        except RefusedError:  # armed by a command read after the reboot's, before now
+            self.send_text(None, mavlink.MAV_SEVERITY_WARNING, "reboot cancelled: armed")
+            return
         self.announce()  # "rebooted" before the boot texts
         self._home_sent = None
         for link in self.links:

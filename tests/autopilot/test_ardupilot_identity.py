@@ -159,6 +159,18 @@ def test_reboot_refused_armed_then_restarts_the_vehicle_keeping_parameters(copte
         apm.MAV_RESULT_UNSUPPORTED
 
 
+def test_a_reboot_overtaken_by_an_arming_is_cancelled(copter):
+    copter.state_up()
+    copter.client.send_command(apm.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1)
+    copter.client.send_command(ARM, 1)  # read in the same batch, before the server services
+    acks = of_type(copter.client.sync(), "COMMAND_ACK")
+    assert [(a.command, a.result) for a in acks] == [
+        (apm.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, ACCEPTED), (ARM, ACCEPTED)]
+    copter.service(T0 + 0.01)
+    assert "reboot cancelled: armed" in texts(copter.client.sync())
+    assert copter.vehicle.armed
+
+
 @pytest.mark.parametrize("params, said", [
     ((1,), []), ((0, 0, 0, 0, 1), []), ((0, 0, 0, 0, 2), []), ((0, 0, 0, 0, 4), []),
     ((0, 0, 1), ["Updating barometer calibration", "Barometer calibration complete"])])

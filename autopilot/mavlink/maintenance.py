@@ -110,6 +110,7 @@ class MaintenanceCommands:
                 self.server.send_text(link, mavlink.MAV_SEVERITY_INFO, text)
 
     def _banner(self, link, p, now):
+        """DO_SEND_BANNER: the firmware and frame lines, after the ACK's handler."""
         for text in banner_texts():
             self.server.send_text(link, mavlink.MAV_SEVERITY_INFO, text)
 
@@ -138,4 +139,5 @@ class MaintenanceCommands:
             ardupilotmega.MAV_SENSOR_ROTATION_NONE, 1.0)]
 
     def _mag_cal_done(self, link, p, now):
+        """ACCEPT / CANCEL_MAG_CAL: the calibration finished when it started."""
         return None

@@ -11,7 +11,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from autopilot.commander.failures import UnsupportedError
-from autopilot.mavlink.copter import banner_texts
+from autopilot.mavlink.ardupilot import say_banner
 from autopilot.mavlink.telemetry import prearm_problem
 from autopilot.refusal import RefusedError
 from contracts.mavlink import ardupilotmega, mavlink
@@ -110,9 +110,8 @@ class MaintenanceCommands:
                 self.server.send_text(link, mavlink.MAV_SEVERITY_INFO, text)
 
     def _banner(self, link, p, now):
-        """DO_SEND_BANNER: the firmware and frame lines, after the ACK's handler."""
-        for text in banner_texts():
-            self.server.send_text(link, mavlink.MAV_SEVERITY_INFO, text)
+        """DO_SEND_BANNER: the firmware and frame lines."""
+        say_banner(self.server, link)
 
     def _prearm_checks(self, link, p, now):
         """RUN_PREARM_CHECKS: Copter runs them and says what fails ("PreArm: ..."); the

@@ -17,8 +17,8 @@ import time
 from collections.abc import Callable
 
 from autopilot.commander.commander import Commander
+from autopilot.mavlink.ardupilot import CopterHandlers, say_banner
 from autopilot.mavlink.commands import CommandProtocol
-from autopilot.mavlink.copter import banner_texts, data_stream_intervals
 from autopilot.mavlink.link import GroundLink, Peer
 from autopilot.mavlink.maintenance import reboot_vehicle
 from autopilot.mavlink.mission_protocol import MissionProtocol
@@ -129,9 +129,8 @@ class MavlinkServer:
             **self.parameters.handlers(), **self.setpoints.handlers(),
             **self.missions.handlers()}
         if flavour == "ardupilot":
-            self.handlers["REQUEST_DATA_STREAM"] = self._on_request_data_stream
-            self._list_parameters = self.handlers["PARAM_REQUEST_LIST"]
-            self.handlers["PARAM_REQUEST_LIST"] = self._on_param_request_list
+            self.handlers.update(CopterHandlers(
+                self, self.handlers["PARAM_REQUEST_LIST"]).handlers())
 
     # -- receiving -----------------------------------------------------------------------
     def receive(self, link: GroundLink, budget_s: float = math.inf,
@@ -268,26 +267,6 @@ class MavlinkServer:
             self.send(link, mavlink.MAVLink_timesync_message(
                 int((now - self.boot_s) * 1e9), msg.ts1), address)
 
-    def _on_request_data_stream(self, link, address, msg, now) -> None:
-        """REQUEST_DATA_STREAM (ArduPilot): a stream group's messages at a rate [Hz] on
-        this link; rate 0 or start_stop 0 stops them; what Copter ignores is ignored."""
-        intervals = data_stream_intervals(msg.req_stream_id, msg.req_message_rate,
-                                          msg.start_stop)
-        for msg_id, interval in (intervals or {}).items():
-            if interval is None:
-                link.intervals_s.pop(msg_id, None)
-            else:
-                link.intervals_s[msg_id] = interval
-            link.next_due_s.pop(msg_id, None)
-
-    def _on_param_request_list(self, link, address, msg, now) -> None:
-        """Copter says its banner to a tool that asks for the parameter list ("a
-        convenient way to get extra information", GCS_Param.cpp): what a GCS shows on
-        connecting. Then the list, as the parameter protocol sends it."""
-        for text in banner_texts():
-            self.send_text(link, mavlink.MAV_SEVERITY_INFO, text, address)
-        self._list_parameters(link, address, msg, now)
-
     def _reboot(self) -> None:
         """The acknowledged reboot: the vehicle's state restarts, every link streams what
         it streams at boot, and the boot texts are said again (Copter's banner)."""
@@ -303,8 +282,7 @@ class MavlinkServer:
             link.intervals_s = default_streams(self.flavour)
             link.next_due_s.clear()
         if self.flavour == "ardupilot":
-            for text in banner_texts():
-                self.send_text(None, mavlink.MAV_SEVERITY_INFO, text)
+            say_banner(self, None)
 
     def _on_setup_signing(self, link, address, msg, now) -> None:
         """SETUP_SIGNING: only over a signed link (with signing on, an unsigned frame never

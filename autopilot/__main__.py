@@ -154,8 +154,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                    help="stop after this much sim time of control")
     p.add_argument("--sysid", type=VEHICLE_ID, default=1, metavar="ID",
                    help="MAVLink system id, also the vehicle id in telemetry keys (1-255)")
-    p.add_argument("--home", type=home_argument, metavar="LAT,LON,ALT",
-                   help="where on Earth the local frame is: degrees, degrees, metres AMSL "
+    p.add_argument("--home", type=home_argument, metavar="NAME|LAT,LON,ALT",
+                   help="where on Earth the local frame is: a named home (CMAC, PX4, ...: "
+                        "docs/mavlink.md) or degrees, degrees, metres AMSL "
                         "(default: the simulator's first HIL_STATE_QUATERNION, as PX4 "
                         "takes it); south or west: --home=-33.86,151.21,40")
     add_vehicle_process_arguments(p)

@@ -154,8 +154,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                    help="stop after this much sim time of control")
     p.add_argument("--sysid", type=VEHICLE_ID, default=1, metavar="ID",
                    help="MAVLink system id, also the vehicle id in telemetry keys (1-255)")
-    p.add_argument("--home", type=home_argument, metavar="LAT,LON,ALT",
-                   help="where on Earth the local frame is: degrees, degrees, metres AMSL "
+    p.add_argument("--home", type=home_argument, metavar="NAME|LAT,LON,ALT",
+                   help="where on Earth the local frame is: a named home (CMAC, PX4, ...: "
+                        "docs/mavlink.md) or degrees, degrees, metres AMSL "
                         "(default: the simulator's first HIL_STATE_QUATERNION, as PX4 "
                         "takes it); south or west: --home=-33.86,151.21,40")
     add_vehicle_process_arguments(p)
@@ -226,10 +227,11 @@ def run(args: argparse.Namespace) -> int:
 
         for mission_type, items in read_plan(args.mission).items():
             vehicle.mission.replace(mission_type, items)
-    links = [open_link("gcs", ("0.0.0.0", args.gcs_bind), args.gcs, key, 0, config.sysid)]
+    links = [open_link("gcs", ("0.0.0.0", args.gcs_bind), args.gcs, key, 0, config.sysid,
+                       args.flavour)]
     if args.api is not None or args.api_bind:
         links.append(open_link("api", ("0.0.0.0", args.api_bind), args.api, key, 1,
-                               config.sysid))
+                               config.sysid, args.flavour))
     state = SigningState(args.signing_state or default_state_path(config.sysid))
     restored = state.restore([link.mav.signing for link in links])  # also for SETUP_SIGNING
     if key is not None:

@@ -253,12 +253,25 @@ class Home(NamedTuple):
         return math.atan2(east, north)
 
 
+def named_home(text: str) -> Home:
+    """``--home``'s value: a name of NAMED_HOMES (any case) or ``LAT,LON,ALT``; a word
+    that is neither is refused with the names."""
+    if "," not in text:
+        for name, home in NAMED_HOMES.items():
+            if name.lower() == text.strip().lower():
+                return home
+        raise ValueError(f"home {text!r} is neither LAT,LON,ALT nor a named home "
+                         f"({', '.join(NAMED_HOMES)})")
+    return Home.parse(text)
+
+
 def home_argument(text: str) -> Home:
-    """argparse type of ``--home LAT,LON,ALT``: a clear message for a bad one."""
+    """argparse type of ``--home NAME`` or ``--home LAT,LON,ALT``: a clear message for a
+    bad one."""
     import argparse
 
     try:
-        return Home.parse(text)
+        return named_home(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
@@ -276,6 +289,20 @@ def _mag_field_ned_gauss(lat_deg: float, lon_deg: float, alt_amsl_m: float
 
 # PX4's default SITL home (Zurich): where a run is when nothing else is said.
 DEFAULT_HOME = Home(47.397742, 8.545594, 488.0)
+# Homes by name (``--home CMAC``): PX4's default and a few of ArduPilot's
+# Tools/autotest/locations.txt, where scripts written for their SITLs expect to be.
+# locations.txt's fourth field, the heading, is not taken: the simulator starts facing
+# north (docs/mavlink.md).
+NAMED_HOMES: dict[str, Home] = {
+    "PX4": DEFAULT_HOME,
+    "CMAC": Home(-35.363261, 149.165230, 584.0),  # ArduPilot SITL's default (sim_vehicle.py)
+    "ARDUCOPTER_AUTOTEST": Home(-35.362938, 149.165085, 584.0),
+    "CMAC2": Home(-35.362889, 149.165221, 584.0),
+    "KSFO": Home(37.619373, -122.376637, 5.3),
+    "OSRF0": Home(37.4003371, -122.0800351, 0.0),
+    "Kingaroy": Home(-26.583528, 151.840440, 444.0),
+    "Ballarat": Home(-37.598705, 143.881744, 485.0),
+}
 
 
 SEA_LEVEL_PRESSURE_HPA = 1013.25

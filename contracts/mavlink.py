@@ -12,6 +12,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mavlink
 
 from contracts.frames import (
@@ -24,7 +25,10 @@ from contracts.frames import (
 )
 from contracts.vectors import MEASUREMENT
 
-__all__ = ["mavlink"]
+__all__ = ["ardupilotmega", "mavlink"]
+
+# Each flavour's ground-link dialect (ArduPilot's: a superset); the simulator's: common.
+DIALECTS = {"px4": mavlink, "ardupilot": ardupilotmega}
 
 # MAVLink's global frames, each with whether its altitude is above home (else AMSL).
 GLOBAL_FRAMES: dict[int, bool] = {
@@ -124,11 +128,12 @@ class GpsSample(NamedTuple):
     satellites: int
 
 
-def new_mavlink(sysid: int, compid: int) -> mavlink.MAVLink:
-    """An encoder/parser for one link. Robust parsing: bytes that are not a valid frame
-    become BAD_DATA messages (which every receiver drops and counts) and parsing goes on,
-    rather than an exception that would lose the frames behind them."""
-    mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+def new_mavlink(sysid: int, compid: int, flavour: str = "px4") -> mavlink.MAVLink:
+    """An encoder/parser for one link, in the flavour's dialect (DIALECTS). Robust
+    parsing: bytes that are not a valid frame become BAD_DATA messages (which every
+    receiver drops and counts) and parsing goes on, rather than an exception that would
+    lose the frames behind them."""
+    mav = DIALECTS[flavour].MAVLink(None, srcSystem=sysid, srcComponent=compid)
     mav.robust_parsing = True
     return mav
 

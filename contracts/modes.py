@@ -43,6 +43,7 @@ PX4_SUB_AUTO_RTL = 5
 PX4_SUB_AUTO_LAND = 6
 PX4_SUB_AUTO_FOLLOW_TARGET = 8
 PX4_SUB_POSCTL_ORBIT = 1
+PX4_SUB_OFFBOARD_REFERENCE = 1  # ours: PX4's OFFBOARD has no sub modes
 
 PX4_MODES: dict[FlightMode, tuple[int, int]] = {
     FlightMode.HOLD: (PX4_MAIN_AUTO, PX4_SUB_AUTO_LOITER),
@@ -56,8 +57,10 @@ PX4_MODES: dict[FlightMode, tuple[int, int]] = {
     FlightMode.STABILIZED: (PX4_MAIN_STABILIZED, 0),
     FlightMode.ORBIT: (PX4_MAIN_POSCTL, PX4_SUB_POSCTL_ORBIT),
     FlightMode.FOLLOW_TARGET: (PX4_MAIN_AUTO, PX4_SUB_AUTO_FOLLOW_TARGET),
-    # PX4 has no such mode: the paper's reference shows as AUTO.READY.
-    FlightMode.REFERENCE: (PX4_MAIN_AUTO, PX4_SUB_AUTO_READY),
+    # PX4 has no such mode. The reference is a setpoint stream from a generator outside
+    # PX4's navigator, which is what OFFBOARD means to PX4: tools (pymavlink, DroneKit,
+    # MAVSDK, QGroundControl) read it as OFFBOARD; sub mode 1 keeps it apart for our own.
+    FlightMode.REFERENCE: (PX4_MAIN_OFFBOARD, PX4_SUB_OFFBOARD_REFERENCE),
 }
 # PX4 modes without a sub mode (any sub mode a tool sends selects them).
 PX4_MAIN_ONLY = (PX4_MAIN_OFFBOARD, PX4_MAIN_POSCTL, PX4_MAIN_ALTCTL, PX4_MAIN_STABILIZED)

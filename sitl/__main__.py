@@ -72,9 +72,11 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         "(docs/sensors.md)")
     p.add_argument("--rt-priority", type=RT_PRIORITY, default=40, metavar="N",
                    help="real time: SCHED_FIFO priority (1-99; 0: normal scheduling)")
-    p.add_argument("--home", type=home_argument, default=DEFAULT_HOME, metavar="LAT,LON,ALT",
-                   help="where on Earth the vehicle starts: degrees, degrees, metres AMSL "
-                        "(default: PX4's SITL home, 47.397742,8.545594,488); south or west: "
+    p.add_argument("--home", type=home_argument, default=DEFAULT_HOME,
+                   metavar="NAME|LAT,LON,ALT",
+                   help="where on Earth the vehicle starts: a named home (CMAC, PX4, KSFO, "
+                        "...: docs/mavlink.md) or degrees, degrees, metres AMSL (default: "
+                        "PX4's SITL home, 47.397742,8.545594,488); south or west: "
                         "--home=-33.86,151.21,40")
     add_vehicle_process_arguments(p)
     add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT, identity="vehicle", vehicle=True)

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 from hypothesis import strategies as st
 
-from contracts.mavlink import mavlink
+from contracts.mavlink import ardupilotmega, mavlink
 
 M = mavlink
 HOSTILE_FLOATS = (math.nan, math.inf, -math.inf, 0.0, -0.0, 1e38, -1e38, 3.4e38, 1e-45,
@@ -48,6 +48,9 @@ INT_RANGES = {"int8_t": (-128, 127), "uint8_t": (0, 255), "int16_t": (-2**15, 2*
               "uint32_t": (0, 2**32 - 1), "int64_t": (-2**63, 2**63 - 1),
               "uint64_t": (0, 2**64 - 1)}
 MESSAGE_CLASSES = sorted({cls for cls in M.mavlink_map.values()}, key=lambda c: c.msgname)
+# The ArduPilot flavour's dialect: every message its links decode.
+APM_MESSAGE_CLASSES = sorted({cls for cls in ardupilotmega.mavlink_map.values()},
+                             key=lambda c: c.msgname)
 
 
 # Strategies are built once (functools.cache): building them per draw costs hypothesis
@@ -107,13 +110,17 @@ def _flip(frame: bytes, flips: list[tuple[int, int]]) -> bytes:
 
 @st.composite
 def ground_input(draw, handled: tuple[str, ...], key: bytes | None = None,
-                 newest_timestamp: int = 0) -> list[bytes]:
+                 newest_timestamp: int = 0, dialect=M,
+                 commands: tuple[int, ...] = ()) -> list[bytes]:
     """1-8 datagrams: hostile messages (half of them of a type the server handles),
     some of them damaged. With ``key`` (a vehicle that signs): each frame signed with
     that key, another key or not at all, at a timestamp up to 100 s older than
     ``newest_timestamp`` (10 us units), on any link id, and some sent twice (replays).
-    Component 191: a stream of its own, beside the test client's."""
-    encoder = M.MAVLink(None, srcSystem=draw(st.sampled_from((255, 1, 0, 254))),
+    Component 191: a stream of its own, beside the test client's. ``dialect``: the
+    vehicle's (its messages drawn); ``commands``: ids a hostile COMMAND_LONG / COMMAND_INT
+    carries half the time (the ones the vehicle serves: a random id rarely is one)."""
+    classes_all = APM_MESSAGE_CLASSES if dialect is ardupilotmega else MESSAGE_CLASSES
+    encoder = dialect.MAVLink(None, srcSystem=draw(st.sampled_from((255, 1, 0, 254))),
                         srcComponent=190 if key is None else 191)
     if key is not None:
         signer = draw(st.sampled_from(("key", "wrong key", "unsigned")))
@@ -123,12 +130,15 @@ def ground_input(draw, handled: tuple[str, ...], key: bytes | None = None,
             encoder.signing.link_id = draw(st.integers(0, 255))
             age = draw(st.integers(0, 10**7))  # the draw's bounds fixed: reproducible
             encoder.signing.timestamp = max(0, newest_timestamp - age)
-    wanted = [c for c in MESSAGE_CLASSES if c.msgname in handled]
+    wanted = [c for c in classes_all if c.msgname in handled]
     out = []
     for _ in range(draw(st.integers(1, 8))):
-        classes = wanted if draw(st.booleans()) else MESSAGE_CLASSES
+        classes = wanted if draw(st.booleans()) else classes_all
         try:
-            frame = draw(hostile_message(classes)).pack(encoder)
+            msg = draw(hostile_message(classes))
+            if commands and hasattr(msg, "command") and draw(st.booleans()):
+                msg.command = draw(st.sampled_from(commands))
+            frame = msg.pack(encoder)
         except (struct.error, OverflowError, TypeError, ValueError):
             continue  # not packable: what no encoder can send either
         out.append(draw(damaged(frame)) if draw(st.integers(0, 3)) == 0 else frame)

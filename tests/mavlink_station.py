@@ -14,7 +14,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from autopilot.commander.commander import Commander
 from autopilot.control.factory import make_controller
 from contracts.airframe import PAPER
-from contracts.mavlink import StatustextAssembler
+from contracts.mavlink import DIALECTS, StatustextAssembler
 
 M = mavlink
 ACCEPTED = M.MAV_RESULT_ACCEPTED
@@ -47,10 +47,10 @@ def make_server(vehicle: Commander, links: list, clock: Clock, flavour: str = "p
     return MavlinkServer(vehicle, links, flavour, clock=clock)
 
 
-def open_links(n: int) -> list:
+def open_links(n: int, flavour: str = "px4") -> list:
     from autopilot.mavlink.link import open_link
 
-    return [open_link(name, ("127.0.0.1", 0), None, None, i)
+    return [open_link(name, ("127.0.0.1", 0), None, None, i, flavour=flavour)
             for i, name in enumerate(("gcs", "api")[:n])]
 
 
@@ -66,8 +66,9 @@ class Client:
         self.sock.bind(("127.0.0.1", 0))
         self.address = self.sock.getsockname()
         self.vehicle_address = ("127.0.0.1", link.sock.getsockname()[1])
-        self.mav = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
-        self.parser = mavlink.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        dialect = DIALECTS[station.flavour]  # the vehicle's dialect, as a tool picks it
+        self.mav = dialect.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+        self.parser = dialect.MAVLink(None, srcSystem=sysid, srcComponent=compid)
         self.parser.robust_parsing = True
         self.pings = 0
 
@@ -142,9 +143,10 @@ class Station:
 
     def __init__(self, n_links: int = 1, flavour: str = "px4", **parameters) -> None:
         self.clock = Clock()
+        self.flavour = flavour
         self.vehicle = Commander(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01,
                                parameters, flavour=flavour)
-        self.links = open_links(n_links)
+        self.links = open_links(n_links, flavour)
         self.server = make_server(self.vehicle, self.links, self.clock, flavour)
         self.clients: list[Client] = []
         self.client = self.new_client()

@@ -65,6 +65,18 @@ def test_fuzz_rc_overrides_into_the_ardupilot_flavour(copter_station, data):
                for p in copter_station.vehicle.rc_channels_pwm)
 
 
+@FUZZ
+@given(data=st.data())
+def test_fuzz_ardupilotmega_into_the_ardupilot_flavour(copter_station, data):
+    """The ArduPilot flavour's link: every ardupilotmega message, and COMMAND_LONG /
+    COMMAND_INT of the commands it serves (banner, reboot, calibrations, mag cal, pre-arm
+    checks ...) with hostile parameters; it keeps answering and flies on."""
+    server = copter_station.server
+    fz.mavlink_ground(copter_station, data.draw(fz.ground_input(
+        tuple(server.handlers), dialect=fz.ardupilotmega,
+        commands=tuple(server.commands.table))))
+
+
 SIGNING_KEY = bytes(range(32))
 
 

@@ -9,12 +9,12 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from autopilot.commander.failures import UnsupportedError
+from autopilot.mavlink.maintenance import MaintenanceCommands
 from autopilot.mavlink.telemetry import (
     DEFAULT_STREAMS,
-    PRODUCIBLE,
-    autopilot_version,
     home_position,
     mission_current,
+    producible,
 )
 from autopilot.navigator.mission_store import ItemError
 from autopilot.refusal import RefusedError
@@ -40,7 +40,8 @@ class CommandProtocol:
             mavlink.MAV_CMD_NAV_LAND: self._land,
             mavlink.MAV_CMD_DO_SET_MODE: self._set_mode,
             mavlink.MAV_CMD_REQUEST_MESSAGE: self._request_message,
-            mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: lambda *_: [autopilot_version()],
+            mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: lambda *_: [
+                self.server.telemetry(mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)],
             mavlink.MAV_CMD_GET_HOME_POSITION: lambda *_: [
                 home_position(self.server.vehicle.home)],
             mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: self._message_interval,
@@ -51,6 +52,7 @@ class CommandProtocol:
             mavlink.MAV_CMD_DO_ORBIT: self._orbit,
             mavlink.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
             mavlink.MAV_CMD_INJECT_FAILURE: self._inject_failure,
+            **MaintenanceCommands(server).table(),
         }
         self.frame = mavlink.MAV_FRAME_GLOBAL  # the command's frame (COMMAND_LONG: AMSL)
 
@@ -216,13 +218,13 @@ class CommandProtocol:
 
     def _request_message(self, link, p, now):
         msg_id = int(p[0]) if math.isfinite(p[0]) else -1
-        if msg_id not in PRODUCIBLE:
+        if msg_id not in producible(self.server.flavour):
             raise RefusedError(f"message {p[0]:g} is not produced")
         return [self.server.telemetry(msg_id)]
 
     def _message_interval(self, link, p, now):
         msg_id, interval_us = int(p[0]) if math.isfinite(p[0]) else -1, p[1]
-        if msg_id not in PRODUCIBLE:
+        if msg_id not in producible(self.server.flavour):
             raise RefusedError(f"message {p[0]:g} is not produced")
         if not math.isfinite(interval_us):
             raise RefusedError("interval must be finite")

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Protocol
 
 from autopilot.mavlink.signing import signing_clock_now
-from autopilot.mavlink.telemetry import DEFAULT_STREAMS
+from autopilot.mavlink.telemetry import DEFAULT_STREAMS, default_streams
 from contracts.mavlink import AUTOPILOT_COMPID, AUTOPILOT_SYSID, mavlink, new_mavlink
 
 if TYPE_CHECKING:
@@ -41,7 +41,8 @@ class LinkCounters:
 
     datagrams: int = 0  # read from the socket
     frames: int = 0  # valid frames decoded
-    rejected: int = 0  # not MAVLink, bad CRC, unsigned or wrongly signed, unknown message
+    rejected: int = 0  # not MAVLink, bad CRC, unsigned or wrongly signed
+    unknown: int = 0  # whole frames of a message the dialect does not know: skipped
     shed: int = 0  # heartbeats not decoded (the same address was heard just now)
     not_for_us: int = 0  # valid frames for another system
     kernel_drops: int = 0  # datagrams the kernel dropped: its buffer was full
@@ -92,7 +93,8 @@ class GroundLink:
 
 def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
               signing_key: bytes | None, link_id: int,
-              sysid: int = AUTOPILOT_SYSID) -> GroundLink:
+              sysid: int = AUTOPILOT_SYSID, flavour: str = "px4") -> GroundLink:
+    """A ground link's socket and its encoder/parser in the flavour's dialect."""
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:  # room for a burst between two reads (privileged: past the system's rmem_max)
@@ -101,14 +103,14 @@ def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,
         sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, RCVBUF_BYTES)
     sock.bind(bind)
     sock.setblocking(False)
-    mav = new_mavlink(sysid, AUTOPILOT_COMPID)
+    mav = new_mavlink(sysid, AUTOPILOT_COMPID, flavour)
     mav.signing.link_id = link_id  # also for a key SETUP_SIGNING sets later
     mav.signing.timestamp = signing_clock_now()
     if signing_key is not None:
         mav.signing.secret_key = signing_key
         mav.signing.sign_outgoing = True
         mav.signing.allow_unsigned_callback = None
-    return GroundLink(name, sock, remote, mav)
+    return GroundLink(name, sock, remote, mav, default_streams(flavour))
 
 
 class ServerLink(Protocol):
@@ -118,6 +120,7 @@ class ServerLink(Protocol):
     vehicle: Commander
     flavour: str  # "px4" or "ardupilot"
     links: list[GroundLink]
+    reboot_pending: bool  # a reboot acknowledged: the server restarts the vehicle next
 
     def send(self, link: GroundLink, msg: object,
              address: tuple[str, int] | None = None) -> None:

@@ -18,8 +18,10 @@ from collections.abc import Callable
 
 from autopilot.commander.commander import Commander
 from autopilot.commander.rc import RcPilot
+from autopilot.mavlink.ardupilot import CopterHandlers, say_banner
 from autopilot.mavlink.commands import CommandProtocol
 from autopilot.mavlink.link import GroundLink, Peer
+from autopilot.mavlink.maintenance import reboot_vehicle
 from autopilot.mavlink.mission_protocol import MissionProtocol
 from autopilot.mavlink.params import ParameterProtocol
 from autopilot.mavlink.setpoints import SetpointProtocol
@@ -28,11 +30,13 @@ from autopilot.mavlink.signing import (
     apply_setup_signing,
     is_local,
 )
-from autopilot.mavlink.telemetry import telemetry_message
+from autopilot.mavlink.telemetry import default_streams, home_position, telemetry_message
+from autopilot.refusal import RefusedError
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
     STATUSTEXT_CHUNK_BYTES,
+    ardupilotmega,
     datagram_frames,
     mavlink,
     statustext_messages,
@@ -59,10 +63,15 @@ def decode_datagram(mav: mavlink.MAVLink, data: bytes) -> list | None:
     broken datagram cannot spoil the next one. pymavlink records a signed frame's
     timestamp before it checks the signature; a forged frame would then make the real
     stream's next frames look old, so the record is undone when the signature fails.
+    A whole frame of a message the dialect does not know comes back as the dialect's
+    MAVLink_unknown (no CRC extra to check it against: never acted on, the caller skips
+    and counts it), so a tool's newer message does not cost the frames beside it; with
+    signing on its signature is checked all the same.
     """
     frames = datagram_frames(data)
     if frames is None:
         return None
+    dialect = ardupilotmega if isinstance(mav, ardupilotmega.MAVLink) else mavlink
     signing = mav.signing.secret_key is not None
     msgs = []
     for frame in frames:
@@ -72,15 +81,16 @@ def decode_datagram(mav: mavlink.MAVLink, data: bytes) -> list | None:
         before = mav.signing.stream_timestamps.get(stream) if signing else None
         try:
             msg = mav.decode(bytearray(frame))
-        except mavlink.MAVError:
+            if signing and isinstance(msg, dialect.MAVLink_unknown) and \
+                    not mav.check_signature(bytearray(frame), frame[5], frame[6]):
+                raise dialect.MAVError("Invalid signature")
+        except dialect.MAVError:
             if signing:
                 if before is None:
                     mav.signing.stream_timestamps.pop(stream, None)
                 else:
                     mav.signing.stream_timestamps[stream] = before
             return None
-        if isinstance(msg, mavlink.MAVLink_unknown):
-            return None  # no CRC extra to check it against: not trusted
         msgs.append(msg)
     return msgs
 
@@ -106,6 +116,8 @@ class MavlinkServer:
         self.boot_s = clock()
         self._shown: tuple | None = None  # (armed, mode) last announced
         self._text_id = 0  # of the last chunked STATUSTEXT (1-65535)
+        self.reboot_pending = False
+        self._home_sent = None  # the home last announced (ArduPilot: HOME_POSITION on change)
         self.commands = CommandProtocol(self)
         self.parameters = ParameterProtocol(self)
         self.setpoints = SetpointProtocol(self)
@@ -120,6 +132,9 @@ class MavlinkServer:
             **self.commands.handlers(),
             **self.parameters.handlers(), **self.setpoints.handlers(),
             **self.missions.handlers()}
+        if flavour == "ardupilot":
+            self.handlers.update(CopterHandlers(
+                self, self.handlers["PARAM_REQUEST_LIST"]).handlers())
 
     # -- receiving -----------------------------------------------------------------------
     def receive(self, link: GroundLink, budget_s: float = math.inf,
@@ -174,6 +189,9 @@ class MavlinkServer:
             if len(link.heartbeat_heard_s) > HEARD_MAX:
                 link.heartbeat_heard_s.popitem(last=False)
         for msg in msgs:
+            if msg.get_type().startswith("UNKNOWN_"):  # pymavlink's MAVLink_unknown
+                c.unknown += 1
+                continue
             c.frames += 1
             if not self._for_us(msg):
                 c.not_for_us += 1
@@ -253,6 +271,23 @@ class MavlinkServer:
             self.send(link, mavlink.MAVLink_timesync_message(
                 int((now - self.boot_s) * 1e9), msg.ts1), address)
 
+    def _reboot(self) -> None:
+        """The acknowledged reboot: the vehicle's state restarts, every link streams what
+        it streams at boot, and the boot texts are said again (Copter's banner)."""
+        self.reboot_pending = False
+        try:
+            reboot_vehicle(self.vehicle)
+        except RefusedError:  # armed by a command read after the reboot's, before now
+            self.send_text(None, mavlink.MAV_SEVERITY_WARNING, "reboot cancelled: armed")
+            return
+        self.announce()  # "rebooted" before the boot texts
+        self._home_sent = None
+        for link in self.links:
+            link.intervals_s = default_streams(self.flavour)
+            link.next_due_s.clear()
+        if self.flavour == "ardupilot":
+            say_banner(self, None)
+
     def _on_setup_signing(self, link, address, msg, now) -> None:
         """SETUP_SIGNING: only over a signed link (with signing on, an unsigned frame never
         gets here) or from this machine; a key never crosses a network in the clear."""
@@ -287,6 +322,12 @@ class MavlinkServer:
     def service(self) -> None:
         """Send what is due and queued; check the link failsafes."""
         now = self.clock()
+        if self.reboot_pending:
+            self._reboot()
+        v = self.vehicle
+        if self.flavour == "ardupilot" and v.home_known and v.home != self._home_sent:
+            self._home_sent = v.home  # Copter sends HOME_POSITION when home is set
+            self.broadcast(lambda: home_position(v.home))
         self.vehicle.check_links(now)
         if self.rc_pilot is not None:
             self.rc_pilot.check(now)

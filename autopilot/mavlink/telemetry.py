@@ -12,9 +12,14 @@ import math
 import numpy as np
 
 from autopilot.commander.commander import Commander
+from autopilot.mavlink.copter import (
+    COPTER_DEFAULT_STREAMS,
+    copter_autopilot_version,
+    copter_heartbeat,
+)
 from contracts.frames import Home
 from contracts.frames import quat_from_euler as _quat_from_euler
-from contracts.mavlink import mavlink
+from contracts.mavlink import ardupilotmega, mavlink
 from contracts.modes import custom_mode
 from contracts.vectors import (
     MEAS_EULER,
@@ -39,9 +44,25 @@ DEFAULT_STREAMS: dict[int, float] = {
     mavlink.MAVLINK_MSG_ID_VFR_HUD: 0.25,
     mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS: 1.0,
     mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 1.0,
+    mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: 1.0,  # PX4 streams it (DroneKit waits for it)
 }
 # What REQUEST_MESSAGE and SET_MESSAGE_INTERVAL can have, beyond the streams.
-PRODUCIBLE = set(DEFAULT_STREAMS) | {mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION}
+PRODUCIBLE = set(DEFAULT_STREAMS) | {mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION,
+                                     mavlink.MAVLINK_MSG_ID_RC_CHANNELS,
+                                     mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW}
+# ... and in the ArduPilot flavour its dialect's messages too.
+PRODUCIBLE_ARDUPILOT = PRODUCIBLE | {ardupilotmega.MAVLINK_MSG_ID_EKF_STATUS_REPORT}
+
+
+def producible(flavour: str) -> set[int]:
+    """The message ids the flavour can send (its dialect has them)."""
+    return PRODUCIBLE_ARDUPILOT if flavour == "ardupilot" else PRODUCIBLE
+
+
+def default_streams(flavour: str) -> dict[int, float]:
+    """What a new link streams: PX4's set, or Copter's heartbeat alone until a tool asks
+    (REQUEST_DATA_STREAM or SET_MESSAGE_INTERVAL), as Copter's SRn_* default to 0."""
+    return dict(COPTER_DEFAULT_STREAMS if flavour == "ardupilot" else DEFAULT_STREAMS)
 
 SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
            | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
@@ -69,7 +90,10 @@ def autopilot_type(flavour: str) -> int:
 
 
 def heartbeat(v: Commander, flavour: str) -> mavlink.MAVLink_heartbeat_message:
-    """Arming in base_mode, the mode in custom_mode, CRITICAL while a failsafe flies."""
+    """Arming in base_mode, the mode in custom_mode, CRITICAL while a failsafe flies
+    (Copter's own rules in the ArduPilot flavour: copter.py)."""
+    if flavour == "ardupilot":
+        return copter_heartbeat(v)
     base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | \
         mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
     if v.armed:
@@ -81,6 +105,18 @@ def heartbeat(v: Commander, flavour: str) -> mavlink.MAVLink_heartbeat_message:
         status, 3)
 
 
+def prearm_problem(v: Commander) -> str | None:
+    """Why arming would be refused by the state checks (SYS_STATUS's pre-arm bit and
+    Copter's "PreArm: ..." texts read it), or None."""
+    if not v.sim_link_ok:
+        return "no state from the simulator"
+    if v.navigation_problem is not None:
+        return v.navigation_problem
+    if not (v.armed or v.landed):
+        return "not landed"
+    return None
+
+
 def sys_status(v: Commander, drop_rate: float, errors: int) -> mavlink.MAVLink_sys_status_message:
     """Sensor health and the pre-arm check; PX4's meanings for the link figures:
     ``drop_rate`` (0-1) goes out in centi-percent, ``errors`` are datagrams refused."""
@@ -88,7 +124,7 @@ def sys_status(v: Commander, drop_rate: float, errors: int) -> mavlink.MAVLink_s
     status = v.estimator_status
     if status is not None and not status.gps_ok:
         health &= ~mavlink.MAV_SYS_STATUS_SENSOR_GPS
-    if v.sim_link_ok and (v.armed or v.landed) and v.navigation_problem is None:
+    if prearm_problem(v) is None:
         health |= PREARM
     return mavlink.MAVLink_sys_status_message(
         SENSORS | PREARM, SENSORS | PREARM, health, 0, 12000, -1, -1,
@@ -165,6 +201,93 @@ def autopilot_version() -> mavlink.MAVLink_autopilot_version_message:
         caps, FIRMWARE_VERSION, 0, 0, 0, [0] * 8, [0] * 8, [0] * 8, 0, 0, 1, [0] * 18)
 
 
+# A simulated receiver's GPS: what GPS_RAW_INT says of a fix (SITL's GPS reports these).
+GPS_SATELLITES = 10
+GPS_EPH_CM = 121  # HDOP 1.21 x 100, as ArduPilot SITL's simulated GPS
+UINT16_MAX = 65535
+
+
+def gps_ok(v: Commander) -> bool:
+    s = v.estimator_status
+    return v.sim_link_ok and (s is None or s.gps_ok)
+
+
+def gps_raw_int(v: Commander, m: np.ndarray, time_us: int) -> mavlink.MAVLink_gps_raw_int_message:
+    """GPS_RAW_INT of the position the vehicle flies on (a 3D fix while the simulator's
+    state or the estimator's GPS is fresh, else no fix): PX4 and Copter stream it and
+    DroneKit's wait_ready and is_armable read its fix type."""
+    ok = gps_ok(v)
+    lat, lon, alt = v.home.geodetic_from_ned(*m[MEASUREMENT.position_ned_m])
+    vn, ve = float(m[MEAS_VEL]), float(m[MEAS_VEL + 1])
+    cog = int(round(math.degrees(math.atan2(ve, vn)) % 360.0 * 100)) % 36000
+    return mavlink.MAVLink_gps_raw_int_message(
+        time_us, mavlink.GPS_FIX_TYPE_3D_FIX if ok else mavlink.GPS_FIX_TYPE_NO_FIX,
+        int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),
+        GPS_EPH_CM if ok else UINT16_MAX, GPS_EPH_CM if ok else UINT16_MAX,
+        min(UINT16_MAX - 1, int(round(math.hypot(vn, ve) * 100))), cog,
+        GPS_SATELLITES if ok else 0)
+
+
+# EKF_STATUS_REPORT of a healthy solution (ArduPilot SITL's 0x33F: attitude, velocities,
+# relative and absolute horizontal position, vertical position, and the predicted ones).
+EKF_HEALTHY = (ardupilotmega.EKF_ATTITUDE | ardupilotmega.EKF_VELOCITY_HORIZ
+               | ardupilotmega.EKF_VELOCITY_VERT | ardupilotmega.EKF_POS_HORIZ_REL
+               | ardupilotmega.EKF_POS_HORIZ_ABS | ardupilotmega.EKF_POS_VERT_ABS
+               | ardupilotmega.EKF_PRED_POS_HORIZ_REL | ardupilotmega.EKF_PRED_POS_HORIZ_ABS)
+
+
+def ekf_status_report(v: Commander) -> ardupilotmega.MAVLink_ekf_status_report_message:
+    """EKF_STATUS_REPORT (ArduPilot's dialect) from the onboard estimator's status, or
+    healthy while flying on the simulator's truth; DroneKit's is_armable reads
+    PRED_POS_HORIZ_ABS. The variances are the estimator's innovation test ratios."""
+    s = v.estimator_status
+    if s is None:
+        flags = EKF_HEALTHY if v.sim_link_ok else ardupilotmega.EKF_UNINITIALIZED
+        return ardupilotmega.MAVLink_ekf_status_report_message(flags, 0, 0, 0, 0, 0, 0)
+    flags = 0
+    if s.aligned:
+        flags |= ardupilotmega.EKF_ATTITUDE | ardupilotmega.EKF_VELOCITY_VERT | \
+            ardupilotmega.EKF_POS_VERT_ABS
+        if s.gps_ok:
+            flags |= ardupilotmega.EKF_VELOCITY_HORIZ | ardupilotmega.EKF_POS_HORIZ_REL | \
+                ardupilotmega.EKF_POS_HORIZ_ABS | ardupilotmega.EKF_PRED_POS_HORIZ_REL | \
+                ardupilotmega.EKF_PRED_POS_HORIZ_ABS
+        else:
+            flags |= ardupilotmega.EKF_CONST_POS_MODE
+    else:
+        flags |= ardupilotmega.EKF_UNINITIALIZED
+    if s.gps_test_ratio > 1.0:
+        flags |= ardupilotmega.EKF_GPS_GLITCHING
+    return ardupilotmega.MAVLink_ekf_status_report_message(
+        flags, s.gps_velocity_test_ratio, s.gps_position_test_ratio, s.baro_test_ratio,
+        s.mag_test_ratio, 0.0, 0.0)
+
+
+RC_CHANNELS = 18
+
+
+def rc_channels(v: Commander, boot_ms: int) -> mavlink.MAVLink_rc_channels_message:
+    """RC_CHANNELS from the vehicle's ``rc_channels_pwm`` (18 values, 0: no channel);
+    without RC all 0 and chancount 0, as Copter sends it; rssi 255: unknown."""
+    pwm = [int(c) for c in v.rc_channels_pwm][:RC_CHANNELS]
+    pwm += [0] * (RC_CHANNELS - len(pwm))
+    count = max((i + 1 for i, c in enumerate(pwm) if c), default=0)
+    return mavlink.MAVLink_rc_channels_message(boot_ms, count, *pwm, 255)
+
+
+PWM_MIN_US, PWM_MAX_US = 1000, 2000  # Copter's MOT_PWM_MIN / MOT_PWM_MAX defaults
+
+
+def servo_output_raw(v: Commander, time_us: int) -> mavlink.MAVLink_servo_output_raw_message:
+    """SERVO_OUTPUT_RAW: the motors' PWM, 1000 + 1000 x command (disarmed: 1000, as
+    Copter's outputs at MOT_PWM_MIN), in the airframe's motor order on servos 1-4."""
+    commands = np.clip(np.asarray(v.last_commands, dtype=float), 0.0, 1.0) if v.armed \
+        else np.zeros(4)
+    pwm = [int(round(PWM_MIN_US + (PWM_MAX_US - PWM_MIN_US) * c)) for c in commands[:4]]
+    return mavlink.MAVLink_servo_output_raw_message(
+        time_us & 0xFFFFFFFF, 0, *pwm, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
+
+
 def telemetry_message(msg_id: int, v: Commander, flavour: str, boot_ms: int,
                       drop_rate: float = 0.0, errors: int = 0):
     """The telemetry message ``msg_id`` now (raises ValueError for one not produced)."""
@@ -202,7 +325,15 @@ def telemetry_message(msg_id: int, v: Commander, flavour: str, boot_ms: int,
         return mavlink.MAVLink_vfr_hud_message(speed, speed, heading, throttle,
                                                v.home.alt_amsl_m - m[MEAS_Z], -m[MEAS_VZ])
     if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
-        return autopilot_version()
+        return copter_autopilot_version() if flavour == "ardupilot" else autopilot_version()
+    if msg_id == mavlink.MAVLINK_MSG_ID_GPS_RAW_INT:
+        return gps_raw_int(v, m, round(v.sim_t_s * 1e6))
+    if msg_id == mavlink.MAVLINK_MSG_ID_RC_CHANNELS:
+        return rc_channels(v, boot_ms)
+    if msg_id == mavlink.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW:
+        return servo_output_raw(v, round(v.sim_t_s * 1e6))
+    if msg_id == ardupilotmega.MAVLINK_MSG_ID_EKF_STATUS_REPORT and flavour == "ardupilot":
+        return ekf_status_report(v)
     if msg_id == mavlink.MAVLINK_MSG_ID_MISSION_CURRENT:
         return mission_current(v)
     if msg_id == mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS:

@@ -44,8 +44,9 @@ def add_arguments(run: argparse.ArgumentParser) -> None:
                           ".toml file (default: the scenario's, else ideal)")
     run.add_argument("--seed", type=SEED, default=0,
                      help="seed of the simulator's sensors and link loss (default 0)")
-    run.add_argument("--home", type=home_argument, metavar="LAT,LON,ALT",
-                     help="where on Earth the flight is: degrees, degrees, metres AMSL "
+    run.add_argument("--home", type=home_argument, metavar="NAME|LAT,LON,ALT",
+                     help="where on Earth the flight is: a named home (CMAC, PX4, ...) or "
+                          "degrees, degrees, metres AMSL "
                           "(default: the scenario's, else PX4's SITL home in Zurich); "
                           "south or west: --home=-33.86,151.21,40")
     run.add_argument("--controller", choices=CONTROLLERS, help="(default: the scenario's)")

@@ -276,7 +276,45 @@ def test_decode_datagram_takes_whole_frames_only():
     assert decode_datagram(mav, b"") is None
     unknown = bytearray(hb)
     unknown[7] = 0xEE  # a message id pymavlink does not know: no CRC extra to trust
-    assert decode_datagram(mav, bytes(unknown)) is None
+    # ... comes back as unknown (the server skips and counts it), the frames beside it kept
+    assert [m.get_type() for m in decode_datagram(mav, hb + bytes(unknown) + hb)] == [
+        "HEARTBEAT", "UNKNOWN_238", "HEARTBEAT"]
+
+
+def _signed_unknown(key: bytes, timestamp: int) -> bytes:
+    """A signed frame of message id 0xEEEE (unknown to pymavlink), signed with ``key``."""
+    import hashlib
+    import struct
+
+    payload = b"\x01\x02\x03"
+    header = bytes([0xFD, len(payload), 1, 0, 7, 245, 190, 0xEE, 0xEE, 0])
+    body = header + payload + b"\x00\x00" + bytes([0]) + struct.pack("<Q", timestamp)[:6]
+    return body + hashlib.sha256(key + body).digest()[:6]
+
+
+def test_unknown_messages_are_skipped_and_counted_signed_or_not(station):
+    ground, link, _clock, tool = station
+    t = tool()
+    hb = mavlink.MAVLink_heartbeat_message(6, 8, 0, 0, 0, 3).pack(new_mavlink(9, 1))
+    unknown = bytearray(hb)
+    unknown[7] = 0xEE
+    request = mavlink.MAVLink_param_request_read_message(1, 1, b"MPC_XY_VEL_MAX", -1)
+    t.raw(bytes(unknown) + request.pack(t.mav))
+    _settle()
+    ground.receive(link)
+    assert (link.counters.unknown, link.counters.rejected, link.counters.frames) == (1, 0, 1)
+    assert [m.get_type() for m in t.received()] == ["PARAM_VALUE"]  # the frame beside it
+
+    signed = new_mavlink(1, 1)
+    signed.signing.secret_key = KEY
+    now = int((time.time() - 1420070400) * 100000)
+    good = _signed_unknown(KEY, now)
+    assert [m.get_type() for m in decode_datagram(signed, good)] == ["UNKNOWN_61166"]
+    assert signed.signing.stream_timestamps[(0, 245, 190)] == now
+    # A forged one (wrong key, an hour ahead) is refused and does not age the stream.
+    assert decode_datagram(signed, _signed_unknown(bytes(32), now + 360_000_000)) is None
+    assert signed.signing.stream_timestamps[(0, 245, 190)] == now
+    assert decode_datagram(signed, hb) is None  # unsigned: refused as before
 
 
 def test_max_peers_is_checked():

@@ -153,7 +153,8 @@ def test_land_is_accepted_armed(station):
     (px4(6), TEMPORARILY_REJECTED, ["offboard denied: no setpoint stream"]),
     (px4(4, 2), TEMPORARILY_REJECTED, ["take-off denied: disarmed"]),
     (px4(4, 6), TEMPORARILY_REJECTED, ["landing denied: disarmed"]),
-    (px4(4, 1), DENIED, ["no reference generator configured"]),
+    (px4(6, 1), DENIED, ["no reference generator configured"]),  # REFERENCE
+    (px4(4, 1), DENIED, ["unknown mode 4/1"]),  # AUTO.READY: not a mode of ours
 ])
 @pytest.mark.parametrize("kind", ["long", "int"])
 def test_px4_mode_changes_disarmed(station, params, result, said, kind):
@@ -247,7 +248,7 @@ def test_home_position_on_request(station, command, params):
 
 @pytest.mark.parametrize("kind", ["long", "int"])
 @pytest.mark.parametrize("command", [M.MAV_CMD_USER_1, M.MAV_CMD_DO_SET_SERVO,
-                                     M.MAV_CMD_PREFLIGHT_CALIBRATION])
+                                     M.MAV_CMD_DO_SET_RELAY])
 def test_unsupported_commands_get_unsupported(station, command, kind):
     station.state_up()
     ack, others = station.client.command(command, 1, kind=kind)
@@ -273,7 +274,7 @@ def test_a_non_finite_message_id_is_denied(station, command, value):
 STREAMS = {"HEARTBEAT": 1.0, "SYS_STATUS": 1.0, "EXTENDED_SYS_STATE": 1.0, "ATTITUDE": 0.05,
            "ATTITUDE_QUATERNION": 0.05, "LOCAL_POSITION_NED": 0.05,
            "GLOBAL_POSITION_INT": 0.1, "HOME_POSITION": 5.0, "VFR_HUD": 0.25,
-           "ESTIMATOR_STATUS": 1.0, "MISSION_CURRENT": 1.0}
+           "ESTIMATOR_STATUS": 1.0, "MISSION_CURRENT": 1.0, "GPS_RAW_INT": 1.0}
 
 
 def stream_counts(s: Station, start: float, seconds: float, every: float = 0.005,

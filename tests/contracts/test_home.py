@@ -161,3 +161,25 @@ def test_a_simulator_without_truth_gives_home_from_its_first_fix():
     assert autopilot.vehicle.home_known and "first GPS fix" in autopilot.sim.home_source
     north, east, down = DEFAULT_HOME.ned_from_geodetic(*home)
     assert (north, east, down) == pytest.approx((0.5, 0.0, 0.4), abs=0.01)
+
+
+def test_named_homes_by_any_case_and_a_bad_name_lists_them():
+    from contracts.frames import NAMED_HOMES, named_home
+
+    assert named_home("CMAC") == named_home("cmac") == Home(-35.363261, 149.16523, 584.0)
+    assert named_home("px4") == DEFAULT_HOME
+    assert named_home("-35.5,149.5,600") == Home(-35.5, 149.5, 600.0)
+    with pytest.raises(ValueError, match="neither LAT,LON,ALT nor a named home") as err:
+        named_home("Atlantis")
+    assert all(name in str(err.value) for name in NAMED_HOMES)
+
+
+@pytest.mark.process
+def test_the_simulator_refuses_a_bad_home_name_before_it_starts():
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-m", "sitl", "--home", "Atlantis"],
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    assert "'Atlantis' is neither LAT,LON,ALT nor a named home (PX4, CMAC" in done.stderr

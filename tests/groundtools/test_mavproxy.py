@@ -42,6 +42,12 @@ class Prompt:
         for pattern in expect:
             self.child.expect(pattern, timeout=timeout_s)
 
+    def wait_for_gps_lock(self, timeout_s: float = 30.0) -> None:
+        """Telemetry flowing: a Copter streams nothing until asked (SRn_* 0), and MAVProxy
+        asks (REQUEST_DATA_STREAM) every 15 s for the vehicles it has seen, so up to 15 s
+        after it first hears one; it says "GPS lock" at the first GPS_RAW_INT with a fix."""
+        self.child.expect(r"GPS lock at", timeout=timeout_s)
+
     def relative_altitude_m(self) -> float:
         self.type("status GLOBAL_POSITION_INT", r"relative_alt : (-?\d+)")
         return int(self.child.match.group(1)) / 1000.0
@@ -71,6 +77,7 @@ def test_mavproxy_arms_takes_off_tunes_a_gain_and_lands(tmp_path):
         prompt.child.expect(rf"Received {len(PARAMETERS)} parameters", timeout=40)
         assert "FTP: request timed out" not in prompt.child.before
         assert time.monotonic() - start < 10
+        prompt.wait_for_gps_lock()
         prompt.type("mode GUIDED", r"Got COMMAND_ACK: DO_SET_MODE: ACCEPTED")
         prompt.type("arm throttle", r"Got COMMAND_ACK: COMPONENT_ARM_DISARM: ACCEPTED",
                     r"(?<!DIS)ARMED")

@@ -77,6 +77,17 @@ COPTER_MODES: dict[FlightMode, int] = {
     FlightMode.REFERENCE: 25,  # SYSTEMID: ArduPilot's own excitation mode
 }
 
+# Every ArduPilot Copter mode number and its name (ArduCopter/mode.h, Mode::Number; the
+# names its mode->name() gives, as in "Mode change to ALT_HOLD failed: ..."). The ones this
+# vehicle flies are in COPTER_MODES; the others exist in Copter but are refused here.
+COPTER_MODE_NAMES: dict[int, str] = {
+    0: "STABILIZE", 1: "ACRO", 2: "ALT_HOLD", 3: "AUTO", 4: "GUIDED", 5: "LOITER", 6: "RTL",
+    7: "CIRCLE", 9: "LAND", 11: "DRIFT", 13: "SPORT", 14: "FLIP", 15: "AUTOTUNE",
+    16: "POSHOLD", 17: "BRAKE", 18: "THROW", 19: "AVOID_ADSB", 20: "GUIDED_NOGPS",
+    21: "SMART_RTL", 22: "FLOWHOLD", 23: "FOLLOW", 24: "ZIGZAG", 25: "SYSTEMID",
+    26: "AUTOROTATE", 27: "AUTO_RTL", 28: "TURTLE",
+}
+
 FLAVOURS = ("px4", "ardupilot")
 
 
@@ -113,6 +124,11 @@ def custom_mode(flavour: str, mode: FlightMode) -> int:
     if mode == FlightMode.OFFBOARD:
         mode = FlightMode.GUIDED
     return COPTER_MODES[mode]
+
+
+def copter_mode_name(mode: FlightMode) -> str:
+    """The Copter name of one of our modes, as Copter's texts and MAVProxy write it."""
+    return COPTER_MODE_NAMES[custom_mode("ardupilot", mode)]
 
 
 def mode_from_custom(flavour: str, number: int) -> FlightMode | None:

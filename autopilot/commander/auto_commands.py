@@ -17,7 +17,10 @@ import numpy as np
 
 from autopilot.flight_tasks.hold import HoldTask
 from autopilot.flight_tasks.mission import MissionTask
+from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.flight_tasks.task import TaskState
+from autopilot.navigator.geofence import breach, zones_from_items
+from autopilot.navigator.mission_store import FENCE
 from autopilot.navigator.navigator import Navigator
 from autopilot.refusal import RefusedError
 from contracts.modes import FlightMode
@@ -39,7 +42,8 @@ class AutoVehicle(Protocol):
 
 @dataclass(eq=False)
 class AutoCommands:
-    """MAV_CMD_MISSION_START, MAV_CMD_DO_REPOSITION and MAV_CMD_DO_CHANGE_SPEED."""
+    """MAV_CMD_MISSION_START, MAV_CMD_DO_REPOSITION and MAV_CMD_DO_CHANGE_SPEED; Copter's
+    GUIDED go-to and altitude change (MISSION_ITEM current=2 / 3)."""
 
     vehicle: AutoVehicle
     navigator: Navigator
@@ -77,3 +81,53 @@ class AutoCommands:
         if self.vehicle.mode == FlightMode.HOLD:
             self.hold.speed_mps = speed_mps
         self.say(f"speed {speed_mps:.1f} m/s")
+
+    def guided_go_to(self, target_ned_m: np.ndarray) -> None:
+        """Copter's GUIDED go-to (DroneKit's simple_goto): fly to ``target_ned_m`` (all
+        three given) and hold there, in GUIDED, in the air only; a target beyond the fence
+        or 1 km from home is refused (Copter's set_destination refuses one outside the
+        fence), nothing changed."""
+        self._guided_in_the_air("go-to")
+        if not np.all(np.isfinite(target_ned_m)):
+            raise RefusedError("go-to position must be finite")
+        if np.any(np.abs(target_ned_m) > 1000.0):
+            raise RefusedError("go-to position is more than 1 km from home")
+        p = self.state.parameters
+        outside = breach(target_ned_m, zones_from_items(self.navigator.store.lists[FENCE],
+                                                        self.navigator.home),
+                         p["GF_MAX_HOR_DIST"], p["GF_MAX_VER_DIST"])
+        if outside is not None:
+            raise RefusedError(f"go-to denied: the target is {outside}")
+        self._fly_to(np.array(target_ned_m, dtype=float))
+        self.say(f"going to {target_ned_m[0]:.1f} N {target_ned_m[1]:.1f} E "
+                 f"{-target_ned_m[2]:.1f} m up")
+
+    def guided_altitude(self, relative_altitude_m: float) -> None:
+        """MISSION_ITEM current=3 in GUIDED: the target's altitude above home changes, its
+        horizontal position stays (Copter acknowledges and leaves it to a to-do)."""
+        self._guided_in_the_air("altitude change")
+        if not math.isfinite(relative_altitude_m) or not 0.5 <= relative_altitude_m <= 1000.0:
+            raise RefusedError(f"altitude {relative_altitude_m:g} m is outside [0.5, 1000] m")
+        target = self.state.setpoint.position_ned_m.copy()
+        if not np.all(np.isfinite(target)):
+            target = self.state.stopping_point()
+        target[2] = -relative_altitude_m
+        p = self.state.parameters
+        if p["GF_MAX_VER_DIST"] > 0 and relative_altitude_m > p["GF_MAX_VER_DIST"]:
+            raise RefusedError(f"altitude change denied: {relative_altitude_m:g} m is above "
+                               f"the fence's {p['GF_MAX_VER_DIST']:g} m")
+        self._fly_to(target)
+        self.say(f"changing altitude to {relative_altitude_m:.1f} m")
+
+    def _guided_in_the_air(self, what: str) -> None:
+        v = self.vehicle
+        if v.mode is not FlightMode.GUIDED:
+            raise RefusedError(f"{what} needs GUIDED mode")
+        if not v.armed or v.landed:
+            raise RefusedError(f"{what} denied: not in the air", temporary=True)
+
+    def _fly_to(self, target_ned_m: np.ndarray) -> None:
+        s = self.state
+        s.takeoff_altitude_m = None  # a go-to ends a take-off, as in Copter
+        s.attitude_target = None  # a position target replaces an attitude target
+        s.setpoint = Setpoint.hold(target_ned_m, s.setpoint.yaw_rad)

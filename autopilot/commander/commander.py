@@ -33,12 +33,14 @@ from autopilot.commander.failsafe import (
     Failsafes,
     FailsafeView,
     Response,
+    Stream,
     decide,
 )
 from autopilot.commander.failures import InjectedFailures
 from autopilot.commander.inputs import ToolInputs
 from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LandDetector
 from autopilot.commander.modes import MODES, EntryView, ModeRow
+from autopilot.commander.personality import PERSONALITIES, Personality
 from autopilot.control.controller import Controller
 from autopilot.flight_tasks.manager import FlightControl
 from autopilot.flight_tasks.task import FlightTask, Shaped, TaskEnv, TaskState
@@ -79,9 +81,10 @@ class Commander:
                                af.mass_kg * af.gravity_mps2 / thrust_n, self.land_detector)
         self.reference = reference
         self.flavour = flavour
+        # The flavour's arming and mode rules and words (autopilot/commander/personality.py).
+        self.personality: Personality = PERSONALITIES[flavour]
         self.armed = False
-        self.mode = self.idle_mode = FlightMode.GUIDED if flavour == "ardupilot" \
-            else FlightMode.HOLD
+        self.mode = self.idle_mode = self.personality.boot_mode
         self.failsafes = Failsafes()
         self.links = self.failsafes.links
         self.failsafe: str | None = None
@@ -100,7 +103,8 @@ class Commander:
         self.tasks: dict[FlightMode, FlightTask] = {m: row.task(env) for m, row in MODES.items()}
         # What tools stream (setpoints, sticks, a follow target).
         self.inputs = ToolInputs(self.links, self.state, self.tasks[FlightMode.FOLLOW_TARGET],
-                                 flavour, lambda: self.row.follows_setpoints, self.say)
+                                 flavour, lambda: self.row.follows_setpoints, self.say,
+                                 self.personality.setpoints_in_guided_only)
         # Where the automatic modes fly (mission start, go-to, speed).
         self.auto = AutoCommands(self, self.navigator, self.tasks[FlightMode.HOLD],
                                  self.tasks[FlightMode.MISSION], self.state, self.say)
@@ -166,20 +170,27 @@ class Commander:
         self.controller.apply_parameters(updated)
 
     # -- arming ----------------------------------------------------------------------------
-    def arm(self, link_t_s: float) -> None:
+    def arm(self, link_t_s: float, force: bool = False) -> None:
+        """Arm where the flavour allows it; ``force`` (Copter's 2989) skips the mode and
+        ground checks, never the state checks (Copter's mandatory checks)."""
         if self.armed:
             return
+        p = self.personality
         if self.navigation_problem is not None:
-            raise RefusedError(f"arming denied: {self.navigation_problem}", temporary=True)
+            raise RefusedError(p.navigation_text.format(reason=self.navigation_problem),
+                               temporary=True)
         if not self.sim_link_ok or self.measurement is None:
-            raise RefusedError("arming denied: no state from the simulator", temporary=True)
+            raise RefusedError(p.no_state_text, temporary=True)
         row = self.row
-        if not row.armable:
-            raise RefusedError(f"arming denied in {self.mode.value} mode")
-        if not self.landed:
-            raise RefusedError("arming denied: not on the ground")
+        if not force and not p.can_arm_in(self.mode, row.armable):
+            raise RefusedError(p.not_armable_text.format(mode=p.mode_name(self.mode)))
+        if not force and not self.landed:
+            raise RefusedError(p.in_the_air_text)
         if row.arm_needs_stream and not self.inputs.streaming(row.stream, link_t_s):
             raise RefusedError("arming denied: no offboard setpoints", temporary=True)
+        if p.arm_needs_manual and row.stream is Stream.MANUAL and \
+                not self.inputs.streaming(row.stream, link_t_s):
+            raise RefusedError(p.no_sticks_text, temporary=True)
         self.controller.reset()
         self.armed = True
         self.failsafe = None  # a new flight: what went wrong before is over
@@ -187,7 +198,7 @@ class Commander:
         self.flight.last_ref = np.zeros(REF_SIZE)
         self.task.on_arm()
         self.land_detector.set(self.landed, self.sim_t_s)
-        self.say("armed")
+        self.say(p.armed_text)
 
     def arm_in_reference(self) -> None:
         """Scenario runs: fly the reference from the first sample, wherever the vehicle is."""
@@ -204,7 +215,14 @@ class Commander:
             return
         if not self.landed and not force:
             raise RefusedError("disarming denied: in the air (force with param2 21196)")
-        self.end_flight("disarmed")
+        self.end_flight(self.personality.disarmed_text)
+
+    def terminate(self) -> None:
+        """MAV_CMD_DO_FLIGHTTERMINATION: motors off at once and disarmed, in the air too
+        (the vehicle falls); a disarmed vehicle stays as it is."""
+        if self.armed:
+            self.failsafe = "flight terminated"
+            self.end_flight(self.personality.terminated_text)
 
     def end_flight(self, text: str) -> None:
         """Disarm now, saying ``text`` (on the ground, or a failsafe's last resort)."""
@@ -212,7 +230,7 @@ class Commander:
         self.state.shaped = Shaped.NONE
         self.state.takeoff_altitude_m = None
         self.navigator.flight_ended()
-        if self.row.ends_with_flight:
+        if self.row.ends_with_flight and not self.personality.keeps_mode_on_disarm:
             self.mode = self.idle_mode
         self.say(text)
 
@@ -224,9 +242,12 @@ class Commander:
             raise RefusedError(f"take-off altitude {alt:g} m is outside [0.5, 100] m")
         if not self.armed:
             raise RefusedError("take-off denied: disarmed", temporary=True)
-        if self.flavour == "ardupilot" and self.mode != FlightMode.GUIDED:
-            raise RefusedError("take-off needs GUIDED mode")
-        if self.flavour == "px4":
+        p = self.personality
+        if p.takeoff_mode is not None and self.mode != p.takeoff_mode:
+            raise RefusedError(f"take-off needs {p.mode_name(p.takeoff_mode)} mode")
+        if p.takeoff_needs_ground and not self.landed:
+            raise RefusedError("take-off denied: already flying")
+        if p.takeoff_mode is None:
             self.mode = FlightMode.TAKEOFF
         self.tasks[FlightMode.TAKEOFF].climb_to(alt)
         self.say(f"taking off to {alt:.1f} m")
@@ -237,15 +258,23 @@ class Commander:
         self.switch_to(FlightMode.LAND)
 
     def set_mode(self, mode: FlightMode, link_t_s: float) -> None:
-        """A mode a tool asks for: the row's needs are checked before anything changes."""
+        """A mode a tool asks for: the row's needs are checked before anything changes
+        (in Copter's flavour only when armed: disarmed, any mode may be selected)."""
         if mode == self.mode:
             return
-        row = MODES[mode]
-        if row.stream is not None and not self.inputs.streaming(row.stream, link_t_s):
-            raise RefusedError(f"{mode.value} denied: no {row.stream.value}", temporary=True)
-        if row.entry is not None:
-            row.entry(EntryView(self.armed, self.landed, self.reference is not None,
-                                bool(self.mission.lists[MISSION])))
+        row, p = MODES[mode], self.personality
+        if row.command is None and not self.armed and p.any_mode_disarmed:
+            self.switch_to(mode)
+            return
+        try:
+            if row.stream is not None and not self.inputs.streaming(row.stream, link_t_s):
+                raise RefusedError(f"{mode.value} denied: no {row.stream.value}",
+                                   temporary=True)
+            if row.entry is not None:
+                row.entry(EntryView(self.armed, self.landed, self.reference is not None,
+                                    bool(self.mission.lists[MISSION])))
+        except RefusedError as exc:
+            raise RefusedError(p.mode_failed(mode, str(exc)), exc.temporary) from None
         if row.command is not None:
             row.command(self)
             return
@@ -257,7 +286,8 @@ class Commander:
         self.mode = mode
         self.state.takeoff_altitude_m = None
         self.tasks[mode].activate(previous, self.armed)
-        self.say(f"mode {mode.value}")
+        if self.personality.mode_changed_text is not None:
+            self.say(self.personality.mode_changed_text.format(mode=mode.value))
 
     # -- inputs from tools -------------------------------------------------------------------
     # -- links and failsafes -----------------------------------------------------------------
@@ -285,7 +315,8 @@ class Commander:
             self.say(reason, 4)
             return
         if response is Response.FALL_BACK:
-            self.mode = decision.mode
+            if self.personality.falls_back_disarmed:
+                self.mode = decision.mode
             return
         self.failsafe = reason
         if response is Response.WARN:
@@ -343,7 +374,7 @@ class Commander:
                 and self.land_detector.landed_since_s is not None
                 and self.land_detector.landed_for_s(s.sim_t_s)
                 >= self.parameters["COM_DISARM_LAND"]):
-            self.end_flight("landed: disarmed")
+            self.end_flight(self.personality.landed_disarmed_text)
 
     def control(self) -> np.ndarray:
         """Motor commands for this control period (zeros when disarmed or without state)."""

@@ -9,6 +9,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from autopilot.commander.failures import UnsupportedError
+from autopilot.commander.personality import FORCE_ARM_MAGIC
 from autopilot.mavlink.telemetry import (
     DEFAULT_STREAMS,
     PRODUCIBLE,
@@ -26,6 +27,9 @@ if TYPE_CHECKING:
 
 FORCE_DISARM_MAGIC = 21196
 INT32_MAX = 2**31 - 1
+# What Copter answers MAV_RESULT_FAILED when it refuses (GCS_MAVLink_Copter.cpp).
+FAILS_IN_COPTER = (mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_CMD_NAV_TAKEOFF,
+                   mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_CMD_DO_FLIGHTTERMINATION)
 
 
 class CommandProtocol:
@@ -52,6 +56,8 @@ class CommandProtocol:
             mavlink.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
             mavlink.MAV_CMD_INJECT_FAILURE: self._inject_failure,
         }
+        if server.vehicle.personality.flight_termination:
+            self.table[mavlink.MAV_CMD_DO_FLIGHTTERMINATION] = self._terminate
         self.frame = mavlink.MAV_FRAME_GLOBAL  # the command's frame (COMMAND_LONG: AMSL)
 
     def handlers(self) -> dict[str, Callable]:
@@ -93,6 +99,8 @@ class CommandProtocol:
         except RefusedError as exc:
             result = (mavlink.MAV_RESULT_TEMPORARILY_REJECTED if exc.temporary
                       else mavlink.MAV_RESULT_DENIED)
+            if self.server.vehicle.personality.refusals_fail and command in FAILS_IN_COPTER:
+                result = mavlink.MAV_RESULT_FAILED
             self.ack(link, address, msg, command, result, str(exc))
             return
         self.ack(link, address, msg, command, mavlink.MAV_RESULT_ACCEPTED)
@@ -112,9 +120,11 @@ class CommandProtocol:
         self.server.vehicle.inject_failure(p[0], p[1], p[2])
 
     def _arm(self, link, p, now):
+        """param1 1 arms, 0 disarms; param2 21196 forces a disarm in the air, and in
+        Copter's flavour 2989 forces an arm (its mode and ground checks skipped)."""
         vehicle = self.server.vehicle
         if p[0] == 1.0:
-            vehicle.arm(now)
+            vehicle.arm(now, force=vehicle.personality.force_arm and p[1] == FORCE_ARM_MAGIC)
         elif p[0] == 0.0:
             vehicle.disarm(force=p[1] == FORCE_DISARM_MAGIC)
         else:
@@ -143,8 +153,16 @@ class CommandProtocol:
         number = int(main) if flavour == "ardupilot" else px4_custom_mode_from_command(main, sub)
         mode = mode_from_custom(flavour, number)
         if mode is None:
-            raise RefusedError(f"unknown mode {main:g}/{sub:g}")
+            label = f"{main:g}" if flavour == "ardupilot" else f"{main:g}/{sub:g}"
+            raise RefusedError(self.server.vehicle.personality.unflown_mode(number, label))
         self.server.vehicle.set_mode(mode, now)
+
+    def _terminate(self, link, p, now):
+        """MAV_CMD_DO_FLIGHTTERMINATION (Copter's): param1 above 0.5 stops the motors and
+        disarms at once, in the air too; anything else is refused."""
+        if not p[0] > 0.5:
+            raise RefusedError(f"flight termination needs param1 1, got {p[0]:g}")
+        self.server.vehicle.terminate()
 
     def _set_mission_current(self, link, p, now):
         """The mission item to go on from (MAVProxy's ``wp set`` sends this first)."""

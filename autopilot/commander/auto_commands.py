@@ -17,12 +17,14 @@ import numpy as np
 
 from autopilot.flight_tasks.hold import HoldTask
 from autopilot.flight_tasks.mission import MissionTask
+from autopilot.flight_tasks.offboard import OffboardTask
 from autopilot.flight_tasks.shaping import Setpoint
 from autopilot.flight_tasks.task import TaskState
 from autopilot.navigator.geofence import breach, zones_from_items
 from autopilot.navigator.mission_store import FENCE
 from autopilot.navigator.navigator import Navigator
 from autopilot.refusal import RefusedError
+from contracts.frames import wrap_pi
 from contracts.modes import FlightMode
 
 
@@ -51,6 +53,7 @@ class AutoCommands:
     mission: MissionTask
     state: TaskState
     say: Callable[[str], None]
+    guided: OffboardTask | None = None  # GUIDED's task (a region of interest)
 
     def start_mission(self, first_seq: int, link_t_s: float) -> None:
         """MAV_CMD_MISSION_START: fly the mission from item ``first_seq``."""
@@ -118,6 +121,34 @@ class AutoCommands:
                                f"the fence's {p['GF_MAX_VER_DIST']:g} m")
         self._fly_to(target)
         self.say(f"changing altitude to {relative_altitude_m:.1f} m")
+
+    def guided_yaw(self, angle_deg: float, direction: float, relative: bool) -> None:
+        """MAV_CMD_CONDITION_YAW in GUIDED (Copter's): face ``angle_deg`` (0-360, clockwise
+        from north), or turn by it (``relative``: clockwise, counter-clockwise when
+        ``direction`` is -1); the turn rate is the vehicle's own. It ends a region of
+        interest."""
+        if not (math.isfinite(angle_deg) and 0.0 <= angle_deg <= 360.0):
+            raise RefusedError(f"yaw angle {angle_deg:g} deg is outside [0, 360]")
+        if not math.isfinite(direction):
+            raise RefusedError("yaw direction must be finite")
+        self._guided_in_the_air("yaw")
+        s = self.state
+        start = s.setpoint.yaw_rad if math.isfinite(s.setpoint.yaw_rad) else s.heading_rad
+        turn = math.radians(angle_deg) * (-1.0 if direction < 0 else 1.0)
+        s.setpoint.yaw_rad = wrap_pi(start + turn if relative else math.radians(angle_deg))
+        s.setpoint.yaw_rate_rad_s = math.nan
+        self.guided.roi_ned_m = None
+        self.say(f"yaw to {math.degrees(s.setpoint.yaw_rad) % 360.0:.0f} deg")
+
+    def guided_roi(self, roi_ned_m: np.ndarray | None) -> None:
+        """DO_SET_ROI / DO_SET_ROI_LOCATION in GUIDED: the nose on ``roi_ned_m`` while in
+        GUIDED (None: DO_SET_ROI_NONE, the heading stays where it is)."""
+        if roi_ned_m is not None and not np.all(np.isfinite(roi_ned_m[:2])):
+            raise RefusedError("region of interest must be finite")
+        self._guided_in_the_air("region of interest")
+        self.guided.roi_ned_m = None if roi_ned_m is None else np.array(roi_ned_m, dtype=float)
+        self.say("region of interest cleared" if roi_ned_m is None else
+                 f"region of interest {roi_ned_m[0]:.1f} N {roi_ned_m[1]:.1f} E")
 
     def _guided_in_the_air(self, what: str) -> None:
         v = self.vehicle

@@ -107,7 +107,8 @@ class Commander:
                                  self.personality.setpoints_in_guided_only)
         # Where the automatic modes fly (mission start, go-to, speed).
         self.auto = AutoCommands(self, self.navigator, self.tasks[FlightMode.HOLD],
-                                 self.tasks[FlightMode.MISSION], self.state, self.say)
+                                 self.tasks[FlightMode.MISSION], self.state, self.say,
+                                 self.tasks[FlightMode.GUIDED])
         # Reference kicks (sim time), from the command line and from Zenoh requests.
         self.flight = FlightControl(self.state, self.tasks, self.controller,
                                     PerturbationBook(AUTOPILOT, schedule))

@@ -50,7 +50,9 @@ class Personality:
     falls_back_disarmed: bool  # a lost input stream moves a disarmed vehicle to HOLD
     force_arm: bool  # COMPONENT_ARM_DISARM param2 2989 arms without the checks
     flight_termination: bool  # MAV_CMD_DO_FLIGHTTERMINATION is served
-    guided_items: bool  # MISSION_ITEM(_INT) current=2/3: a GUIDED go-to / altitude
+    # MISSION_ITEM(_INT) current=2/3 (a GUIDED go-to / altitude change), CONDITION_YAW and
+    # DO_SET_ROI* as commands: GUIDED requests
+    guided_requests: bool
     refusals_fail: bool  # a refused arm, take-off or mode change: MAV_RESULT_FAILED
     armed_text: str
     disarmed_text: str  # a tool's disarm
@@ -85,7 +87,7 @@ PX4 = Personality(
     keeps_mode_on_disarm=False, any_mode_disarmed=False, armable=None,
     arm_needs_manual=False, takeoff_mode=None, takeoff_needs_ground=False,
     setpoints_in_guided_only=False, falls_back_disarmed=True, force_arm=False,
-    flight_termination=False, guided_items=False, refusals_fail=False,
+    flight_termination=False, guided_requests=False, refusals_fail=False,
     armed_text="armed", disarmed_text="disarmed", landed_disarmed_text="landed: disarmed",
     terminated_text="flight terminated: disarmed",
     no_state_text="arming denied: no state from the simulator",
@@ -101,7 +103,7 @@ COPTER = Personality(
     keeps_mode_on_disarm=True, any_mode_disarmed=True, armable=COPTER_ARMABLE,
     arm_needs_manual=True, takeoff_mode=FlightMode.GUIDED, takeoff_needs_ground=True,
     setpoints_in_guided_only=True, falls_back_disarmed=False, force_arm=True,
-    flight_termination=True, guided_items=True, refusals_fail=True,
+    flight_termination=True, guided_requests=True, refusals_fail=True,
     armed_text="Arming motors", disarmed_text="Disarming motors",
     landed_disarmed_text="Disarming motors", terminated_text="Disarming motors",
     no_state_text="PreArm: Need Position Estimate", navigation_text="PreArm: AHRS: {reason}",

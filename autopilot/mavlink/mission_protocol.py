@@ -86,7 +86,7 @@ class MissionProtocol:
         self.store = server.vehicle.mission
         self.transfer: Transfer | None = None
         # Copter's flavour: an item with current=2 / 3 is a GUIDED request (guided.py).
-        self.guided = GuidedItems(server) if server.vehicle.personality.guided_items \
+        self.guided = GuidedItems(server) if server.vehicle.personality.guided_requests \
             else None
 
     def handlers(self) -> dict[str, Callable]:

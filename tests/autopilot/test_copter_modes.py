@@ -462,3 +462,71 @@ def test_copter_takes_position_targets_only_in_guided(copter_station):
         0))
     s.client.sync()
     assert np.array_equal(s.vehicle.setpoint.position_ned_m, [5.0, 6.0, -7.0])
+
+
+# -- yaw and region of interest in GUIDED ---------------------------------------------------
+YAW, ROI = M.MAV_CMD_CONDITION_YAW, M.MAV_CMD_DO_SET_ROI_LOCATION
+
+
+def test_condition_yaw_in_guided_absolute_and_relative(copter_station):
+    s = copter_station
+    guided_flying(s)
+    assert s.client.result(YAW, 90.0, 0.0, 0.0, 0.0) == (ACCEPTED, [])
+    assert s.vehicle.setpoint.yaw_rad == pytest.approx(math.pi / 2)
+    assert s.client.result(YAW, 30.0, 0.0, -1.0, 1.0)[0] == ACCEPTED  # 30 deg to the left
+    assert s.vehicle.setpoint.yaw_rad == pytest.approx(math.radians(60.0))
+    assert s.client.result(YAW, 150.0, 0.0, 1.0, 1.0)[0] == ACCEPTED  # 150 to the right
+    assert s.vehicle.setpoint.yaw_rad == pytest.approx(math.radians(-150.0))
+    for bad, text in (((361.0, 0, 0, 0), "yaw angle 361 deg is outside [0, 360]"),
+                      ((math.nan, 0, 0, 0), "yaw angle nan deg is outside [0, 360]"),
+                      ((10.0, 0, math.inf, 0), "yaw direction must be finite"),
+                      ((10.0, 0, 0, 2.0), "yaw param4 must be 0 (absolute) or 1 "
+                                          "(relative), got 2")):
+        assert s.client.result(YAW, *bad) == (FAILED, [text])
+    assert s.vehicle.setpoint.yaw_rad == pytest.approx(math.radians(-150.0))
+    assert s.client.result(SET_MODE, CUSTOM, 5)[0] == ACCEPTED  # LOITER
+    assert s.client.result(YAW, 10.0) == (FAILED, ["yaw needs GUIDED mode"])
+
+
+def test_a_region_of_interest_turns_the_nose_to_it_in_guided_until_cleared():
+    v = guided_in_the_air()
+    v.auto.guided_roi(np.array([0.0, 10.0, 0.0]))  # due east
+    v.control()
+    assert v.setpoint.yaw_rad == pytest.approx(math.pi / 2)
+    v.sample(0.02, state(10.0, north_m=20.0))  # it moved north: the ROI is south-east
+    v.control()
+    assert v.setpoint.yaw_rad == pytest.approx(math.atan2(10.0, -20.0))
+    v.auto.guided_roi(None)
+    v.sample(0.03, state(10.0, north_m=0.0))
+    v.control()
+    assert v.setpoint.yaw_rad == pytest.approx(math.atan2(10.0, -20.0))  # stays
+    assert said(v) == [(INFO, "region of interest 0.0 N 10.0 E"),
+                       (INFO, "region of interest cleared")]
+    v.auto.guided_roi(np.array([0.0, 10.0, 0.0]))
+    v.set_mode(FlightMode.HOLD, LINK0)
+    v.set_mode(FlightMode.GUIDED, LINK0)  # a new GUIDED: no ROI
+    v.control()
+    assert v.tasks[FlightMode.GUIDED].roi_ned_m is None
+
+
+def test_do_set_roi_location_through_the_server(copter_station):
+    s = copter_station
+    guided_flying(s)
+    lat, lon = north_east_of_home(0.0, 30.0)
+    assert s.client.result(ROI, 0, 0, 0, 0, lat, lon, 0.0, kind="int",
+                           frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)[0] == ACCEPTED
+    np.testing.assert_allclose(s.vehicle.tasks[FlightMode.GUIDED].roi_ned_m[:2], [0.0, 30.0],
+                               atol=0.01)
+    assert s.client.result(ROI, 0, 0, 0, 0, math.nan, lon, 0.0) == (
+        FAILED, ["region of interest latitude/longitude must be finite"])
+    assert s.client.result(M.MAV_CMD_DO_SET_ROI, 0, 0, 0, 0, 0.0, 0.0, 0.0)[0] == ACCEPTED
+    assert s.vehicle.tasks[FlightMode.GUIDED].roi_ned_m is None  # 0, 0: none
+    assert s.client.result(ROI, 0, 0, 0, 0, lat, lon, 0.0)[0] == ACCEPTED
+    assert s.client.result(M.MAV_CMD_DO_SET_ROI_NONE)[0] == ACCEPTED
+    assert s.vehicle.tasks[FlightMode.GUIDED].roi_ned_m is None
+
+
+def test_px4_serves_no_copter_yaw_or_roi_commands(station):
+    station.flying()
+    for command in (YAW, ROI, M.MAV_CMD_DO_SET_ROI_NONE):
+        assert station.client.result(command, 10.0) == (UNSUPPORTED, [])

@@ -91,6 +91,12 @@ class AutoCommands:
         or 1 km from home is refused (Copter's set_destination refuses one outside the
         fence), nothing changed."""
         self._guided_in_the_air("go-to")
+        self._fly_to(self.checked_go_to(target_ned_m))
+        self.say(f"going to {target_ned_m[0]:.1f} N {target_ned_m[1]:.1f} E "
+                 f"{-target_ned_m[2]:.1f} m up")
+
+    def checked_go_to(self, target_ned_m: np.ndarray) -> np.ndarray:
+        """A go-to target as given, after the checks that do not depend on the mode."""
         if not np.all(np.isfinite(target_ned_m)):
             raise RefusedError("go-to position must be finite")
         if np.any(np.abs(target_ned_m) > 1000.0):
@@ -101,9 +107,26 @@ class AutoCommands:
                          p["GF_MAX_HOR_DIST"], p["GF_MAX_VER_DIST"])
         if outside is not None:
             raise RefusedError(f"go-to denied: the target is {outside}")
-        self._fly_to(np.array(target_ned_m, dtype=float))
-        self.say(f"going to {target_ned_m[0]:.1f} N {target_ned_m[1]:.1f} E "
-                 f"{-target_ned_m[2]:.1f} m up")
+        return np.array(target_ned_m, dtype=float)
+
+    def guided_reposition(self, target_ned_m: np.ndarray, change_mode: bool,
+                          link_t_s: float) -> None:
+        """DO_REPOSITION in Copter's flavour: a GUIDED go-to (NaN keeps that coordinate of
+        the current target); outside GUIDED only with the change-mode flag, which enters
+        GUIDED first (checked before anything changes)."""
+        v = self.vehicle
+        if v.mode is not FlightMode.GUIDED and not change_mode:
+            raise RefusedError("go-to needs GUIDED mode (or DO_REPOSITION's change-mode "
+                               "flag)")
+        if not v.armed or v.landed:
+            raise RefusedError("go-to denied: not in the air", temporary=True)
+        held = self.state.setpoint.position_ned_m
+        here = held if v.mode is FlightMode.GUIDED and np.all(np.isfinite(held)) \
+            else self.state.stopping_point()
+        target = self.checked_go_to(np.where(np.isfinite(target_ned_m), target_ned_m, here))
+        if v.mode is not FlightMode.GUIDED:
+            v.set_mode(FlightMode.GUIDED, link_t_s)
+        self.guided_go_to(target)
 
     def guided_altitude(self, relative_altitude_m: float) -> None:
         """MISSION_ITEM current=3 in GUIDED: the target's altitude above home changes, its

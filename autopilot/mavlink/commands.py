@@ -236,6 +236,12 @@ class CommandProtocol:
         if math.isfinite(lat) and (abs(lat) > 90.0 or abs(lon) > 180.0):
             raise RefusedError(f"go-to latitude/longitude {lat:g}, {lon:g} is not on Earth")
         target = ned_from_global(self.server.vehicle.home, self.frame, lat, lon, alt)
+        vehicle = self.server.vehicle
+        if vehicle.personality.guided_requests:  # Copter: a GUIDED go-to
+            flags = int(p[1]) if math.isfinite(p[1]) and 0 <= p[1] < 2**31 else 0
+            vehicle.auto.guided_reposition(
+                target, bool(flags & mavlink.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE), now)
+            return
         # param4 in radians, as PX4 and MAVSDK read it (the MAVLink spec said degrees
         # until 2025 and now says radians too); NaN keeps the heading.
         yaw = p[3]

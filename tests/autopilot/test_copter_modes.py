@@ -530,3 +530,46 @@ def test_px4_serves_no_copter_yaw_or_roi_commands(station):
     station.flying()
     for command in (YAW, ROI, M.MAV_CMD_DO_SET_ROI_NONE):
         assert station.client.result(command, 10.0) == (UNSUPPORTED, [])
+
+
+def test_do_reposition_is_a_guided_go_to_and_changes_mode_only_when_flagged(copter_station):
+    """Copter's DO_REPOSITION: refused outside GUIDED unless param2 has
+    MAV_DO_REPOSITION_FLAGS_CHANGE_MODE, which enters GUIDED; NaN keeps a coordinate."""
+    s = copter_station
+    guided_flying(s)
+    assert s.client.result(SET_MODE, CUSTOM, 5)[0] == ACCEPTED  # LOITER
+    lat, lon = north_east_of_home(15.0, 5.0)
+    reposition = M.MAV_CMD_DO_REPOSITION
+    assert s.client.result(reposition, -1, 0, 0, math.nan, lat, lon, 12.0, kind="int",
+                           frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT) == (
+        M.MAV_RESULT_DENIED, ["go-to needs GUIDED mode (or DO_REPOSITION's change-mode flag)"])
+    assert s.vehicle.mode is FlightMode.HOLD
+    assert s.client.result(reposition, -1, 1, 0, math.nan, lat, lon, 12.0, kind="int",
+                           frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)[0] == ACCEPTED
+    assert s.vehicle.mode is FlightMode.GUIDED
+    np.testing.assert_allclose(s.vehicle.setpoint.position_ned_m, [15.0, 5.0, -12.0],
+                               atol=0.01)
+    # In GUIDED no flag is needed; NaN altitude keeps the target's.
+    lat, lon = north_east_of_home(-4.0, 2.0)
+    assert s.client.result(reposition, -1, 0, 0, math.nan, lat, lon, math.nan, kind="int",
+                           frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT)[0] == ACCEPTED
+    np.testing.assert_allclose(s.vehicle.setpoint.position_ned_m, [-4.0, 2.0, -12.0],
+                               atol=0.01)
+
+
+def test_a_flagged_do_reposition_beyond_the_fence_changes_nothing():
+    s = Station(flavour="ardupilot", GF_MAX_HOR_DIST=50.0)
+    try:
+        s.state_up()
+        s.vehicle.messages.clear()
+        guided_flying(s)
+        assert s.client.result(SET_MODE, CUSTOM, 5)[0] == ACCEPTED  # LOITER
+        before = s.vehicle.setpoint.position_ned_m.copy()
+        lat, lon = north_east_of_home(80.0, 0.0)
+        assert s.client.result(M.MAV_CMD_DO_REPOSITION, -1, 1, 0, math.nan, lat, lon, 10.0,
+                               kind="int", frame=M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT) == (
+            M.MAV_RESULT_DENIED, ["go-to denied: the target is 80.0 m from home, beyond 50 m"])
+        assert s.vehicle.mode is FlightMode.HOLD
+        assert np.array_equal(s.vehicle.setpoint.position_ned_m, before)
+    finally:
+        s.close()

@@ -33,14 +33,13 @@ from autopilot.commander.failsafe import (
     Failsafes,
     FailsafeView,
     Response,
-    Stream,
     decide,
 )
 from autopilot.commander.failures import InjectedFailures
 from autopilot.commander.inputs import ToolInputs
 from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LandDetector
 from autopilot.commander.modes import MODES, EntryView, ModeRow
-from autopilot.commander.personality import PERSONALITIES, Personality
+from autopilot.commander.personality import PERSONALITIES, ArmingView, Personality
 from autopilot.control.controller import Controller
 from autopilot.flight_tasks.manager import FlightControl
 from autopilot.flight_tasks.task import FlightTask, Shaped, TaskEnv, TaskState
@@ -81,8 +80,7 @@ class Commander:
                                af.mass_kg * af.gravity_mps2 / thrust_n, self.land_detector)
         self.reference = reference
         self.flavour = flavour
-        # The flavour's arming and mode rules and words (autopilot/commander/personality.py).
-        self.personality: Personality = PERSONALITIES[flavour]
+        self.personality: Personality = PERSONALITIES[flavour]  # its rules and words
         self.armed = False
         self.mode = self.idle_mode = self.personality.boot_mode
         self.failsafes = Failsafes()
@@ -115,6 +113,7 @@ class Commander:
 
     # -- what the parts hold, as tools and logs read it -----------------------------------
     row: ModeRow = property(lambda self: MODES[self.mode])
+    reference_start_s: float = property(lambda self: self.tasks[FlightMode.REFERENCE].start_s)
     task: FlightTask = property(lambda self: self.tasks[self.mode])
 
     parameters = property(lambda self: self.state.parameters)
@@ -129,10 +128,6 @@ class Commander:
     reached = property(lambda self: self.navigator.reached)
     perturbations = property(lambda self: self.flight.perturbations)
     last_commands = property(lambda self: self.flight.last_commands)
-
-    @property
-    def reference_start_s(self) -> float:
-        return self.tasks[FlightMode.REFERENCE].start_s
 
     @property
     def landing(self) -> bool:
@@ -172,26 +167,13 @@ class Commander:
 
     # -- arming ----------------------------------------------------------------------------
     def arm(self, link_t_s: float, force: bool = False) -> None:
-        """Arm where the flavour allows it; ``force`` (Copter's 2989) skips the mode and
-        ground checks, never the state checks (Copter's mandatory checks)."""
         if self.armed:
             return
-        p = self.personality
-        if self.navigation_problem is not None:
-            raise RefusedError(p.navigation_text.format(reason=self.navigation_problem),
-                               temporary=True)
-        if not self.sim_link_ok or self.measurement is None:
-            raise RefusedError(p.no_state_text, temporary=True)
         row = self.row
-        if not force and not p.can_arm_in(self.mode, row.armable):
-            raise RefusedError(p.not_armable_text.format(mode=p.mode_name(self.mode)))
-        if not force and not self.landed:
-            raise RefusedError(p.in_the_air_text)
-        if row.arm_needs_stream and not self.inputs.streaming(row.stream, link_t_s):
-            raise RefusedError("arming denied: no offboard setpoints", temporary=True)
-        if p.arm_needs_manual and row.stream is Stream.MANUAL and \
-                not self.inputs.streaming(row.stream, link_t_s):
-            raise RefusedError(p.no_sticks_text, temporary=True)
+        self.personality.check_arming(self.mode, row, ArmingView(
+            self.navigation_problem, self.sim_link_ok and self.measurement is not None,
+            self.landed, force,
+            row.stream is not None and self.inputs.streaming(row.stream, link_t_s)))
         self.controller.reset()
         self.armed = True
         self.failsafe = None  # a new flight: what went wrong before is over
@@ -199,7 +181,7 @@ class Commander:
         self.flight.last_ref = np.zeros(REF_SIZE)
         self.task.on_arm()
         self.land_detector.set(self.landed, self.sim_t_s)
-        self.say(p.armed_text)
+        self.say(self.personality.armed_text)
 
     def arm_in_reference(self) -> None:
         """Scenario runs: fly the reference from the first sample, wherever the vehicle is."""
@@ -219,8 +201,7 @@ class Commander:
         self.end_flight(self.personality.disarmed_text)
 
     def terminate(self) -> None:
-        """MAV_CMD_DO_FLIGHTTERMINATION: motors off at once and disarmed, in the air too
-        (the vehicle falls); a disarmed vehicle stays as it is."""
+        """Flight termination: motors off and disarmed at once, in the air too."""
         if self.armed:
             self.failsafe = "flight terminated"
             self.end_flight(self.personality.terminated_text)
@@ -243,12 +224,8 @@ class Commander:
             raise RefusedError(f"take-off altitude {alt:g} m is outside [0.5, 100] m")
         if not self.armed:
             raise RefusedError("take-off denied: disarmed", temporary=True)
-        p = self.personality
-        if p.takeoff_mode is not None and self.mode != p.takeoff_mode:
-            raise RefusedError(f"take-off needs {p.mode_name(p.takeoff_mode)} mode")
-        if p.takeoff_needs_ground and not self.landed:
-            raise RefusedError("take-off denied: already flying")
-        if p.takeoff_mode is None:
+        self.personality.check_takeoff(self.mode, self.landed)
+        if self.personality.takeoff_mode is None:
             self.mode = FlightMode.TAKEOFF
         self.tasks[FlightMode.TAKEOFF].climb_to(alt)
         self.say(f"taking off to {alt:.1f} m")
@@ -259,23 +236,17 @@ class Commander:
         self.switch_to(FlightMode.LAND)
 
     def set_mode(self, mode: FlightMode, link_t_s: float) -> None:
-        """A mode a tool asks for: the row's needs are checked before anything changes
-        (in Copter's flavour only when armed: disarmed, any mode may be selected)."""
+        """A mode a tool asks for: its needs checked first (Copter's: when armed only)."""
         if mode == self.mode:
             return
-        row, p = MODES[mode], self.personality
-        if row.command is None and not self.armed and p.any_mode_disarmed:
+        row = MODES[mode]
+        if row.command is None and not self.armed and self.personality.any_mode_disarmed:
             self.switch_to(mode)
             return
-        try:
-            if row.stream is not None and not self.inputs.streaming(row.stream, link_t_s):
-                raise RefusedError(f"{mode.value} denied: no {row.stream.value}",
-                                   temporary=True)
-            if row.entry is not None:
-                row.entry(EntryView(self.armed, self.landed, self.reference is not None,
-                                    bool(self.mission.lists[MISSION])))
-        except RefusedError as exc:
-            raise RefusedError(p.mode_failed(mode, str(exc)), exc.temporary) from None
+        self.personality.check_entry(mode, row, EntryView(
+            self.armed, self.landed, self.reference is not None,
+            bool(self.mission.lists[MISSION])),
+            row.stream is None or self.inputs.streaming(row.stream, link_t_s))
         if row.command is not None:
             row.command(self)
             return
@@ -290,7 +261,6 @@ class Commander:
         if self.personality.mode_changed_text is not None:
             self.say(self.personality.mode_changed_text.format(mode=mode.value))
 
-    # -- inputs from tools -------------------------------------------------------------------
     # -- links and failsafes -----------------------------------------------------------------
     def check_links(self, link_t_s: float) -> None:
         """Failsafes timed on the link clock: ground station, then the mode's input stream

@@ -23,6 +23,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from autopilot.commander.failsafe import Stream
+from autopilot.commander.modes import EntryView, ModeRow
+from autopilot.refusal import RefusedError
 from contracts.modes import COPTER_MODE_NAMES, FlightMode, copter_mode_name
 
 # Copter's ArduCopter modes that allow arming from a ground station (mode.h allows_arming)
@@ -30,6 +33,17 @@ from contracts.modes import COPTER_MODE_NAMES, FlightMode, copter_mode_name
 COPTER_ARMABLE = frozenset({FlightMode.STABILIZED, FlightMode.ALTCTL, FlightMode.GUIDED,
                             FlightMode.HOLD, FlightMode.POSCTL})
 FORCE_ARM_MAGIC = 2989  # COMPONENT_ARM_DISARM param2: arm without the checks (ArduPilot)
+
+
+@dataclass(frozen=True)
+class ArmingView:
+    """What the arming checks read of the vehicle: a snapshot the commander takes."""
+
+    navigation_problem: str | None  # why the estimate is not good enough, None if it is
+    has_state: bool  # the simulator's state is here and its link up
+    landed: bool
+    force: bool  # Copter's 2989: the mode and ground checks skipped
+    streaming: bool  # the mode's input stream is heard (False for a mode without one)
 
 
 @dataclass(frozen=True)
@@ -72,6 +86,42 @@ class Personality:
 
     def can_arm_in(self, mode: FlightMode, table_armable: bool) -> bool:
         return table_armable if self.armable is None else mode in self.armable
+
+    def check_entry(self, mode: FlightMode, row: ModeRow, view: EntryView,
+                    streaming: bool) -> None:
+        """Raise RefusedError, in the flavour's words, when ``mode`` cannot be entered now
+        (``streaming``: its input stream is heard, or it has none)."""
+        try:
+            if not streaming:
+                raise RefusedError(f"{mode.value} denied: no {row.stream.value}",
+                                   temporary=True)
+            if row.entry is not None:
+                row.entry(view)
+        except RefusedError as exc:
+            raise RefusedError(self.mode_failed(mode, str(exc)), exc.temporary) from None
+
+    def check_takeoff(self, mode: FlightMode, landed: bool) -> None:
+        """Raise RefusedError when a take-off command is not for this mode or moment."""
+        if self.takeoff_mode is not None and mode != self.takeoff_mode:
+            raise RefusedError(f"take-off needs {self.mode_name(self.takeoff_mode)} mode")
+        if self.takeoff_needs_ground and not landed:
+            raise RefusedError("take-off denied: already flying")
+
+    def check_arming(self, mode: FlightMode, row: ModeRow, v: ArmingView) -> None:
+        """Raise RefusedError, in the flavour's words, when arming is not allowed now."""
+        if v.navigation_problem is not None:
+            raise RefusedError(self.navigation_text.format(reason=v.navigation_problem),
+                               temporary=True)
+        if not v.has_state:
+            raise RefusedError(self.no_state_text, temporary=True)
+        if not v.force and not self.can_arm_in(mode, row.armable):
+            raise RefusedError(self.not_armable_text.format(mode=self.mode_name(mode)))
+        if not v.force and not v.landed:
+            raise RefusedError(self.in_the_air_text)
+        if row.arm_needs_stream and not v.streaming:
+            raise RefusedError("arming denied: no offboard setpoints", temporary=True)
+        if self.arm_needs_manual and row.stream is Stream.MANUAL and not v.streaming:
+            raise RefusedError(self.no_sticks_text, temporary=True)
 
     def unflown_mode(self, number: int, label: str) -> str:
         """Why a mode number this vehicle does not fly is refused (``label``: the number

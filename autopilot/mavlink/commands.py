@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 from autopilot.commander.failures import UnsupportedError
 from autopilot.commander.personality import FORCE_ARM_MAGIC
+from autopilot.mavlink.guided import copter_commands
 from autopilot.mavlink.telemetry import (
     DEFAULT_STREAMS,
     PRODUCIBLE,
@@ -58,13 +59,8 @@ class CommandProtocol:
             mavlink.MAV_CMD_DO_CHANGE_SPEED: self._change_speed,
             mavlink.MAV_CMD_INJECT_FAILURE: self._inject_failure,
         }
-        if server.vehicle.personality.flight_termination:
-            self.table[mavlink.MAV_CMD_DO_FLIGHTTERMINATION] = self._terminate
-        if server.vehicle.personality.guided_requests:
-            self.table.update({mavlink.MAV_CMD_CONDITION_YAW: self._yaw,
-                               mavlink.MAV_CMD_DO_SET_ROI: self._roi,
-                               mavlink.MAV_CMD_DO_SET_ROI_LOCATION: self._roi,
-                               mavlink.MAV_CMD_DO_SET_ROI_NONE: self._roi_none})
+        # Copter's own commands (none for PX4).
+        self.table.update(copter_commands(server, lambda: self.frame))
         self.frame = mavlink.MAV_FRAME_GLOBAL  # the command's frame (COMMAND_LONG: AMSL)
 
     def handlers(self) -> dict[str, Callable]:
@@ -163,42 +159,6 @@ class CommandProtocol:
             label = f"{main:g}" if flavour == "ardupilot" else f"{main:g}/{sub:g}"
             raise RefusedError(self.server.vehicle.personality.unflown_mode(number, label))
         self.server.vehicle.set_mode(mode, now)
-
-    def _yaw(self, link, p, now):
-        """CONDITION_YAW (Copter's, in GUIDED): param1 angle [deg], param3 direction (-1
-        counter-clockwise), param4 1 relative / 0 absolute; param2's rate is not used."""
-        if p[3] not in (0.0, 1.0):
-            raise RefusedError(f"yaw param4 must be 0 (absolute) or 1 (relative), got "
-                               f"{p[3]:g}")
-        self.server.vehicle.auto.guided_yaw(p[0], p[2], p[3] == 1.0)
-
-    def _roi(self, link, p, now):
-        """DO_SET_ROI_LOCATION / DO_SET_ROI (Copter's, in GUIDED): latitude, longitude and
-        altitude in params 5-7; latitude and longitude 0: no region of interest, as
-        Copter reads them."""
-        if self.frame not in GLOBAL_FRAMES:
-            raise RefusedError(f"region of interest frame {self.frame} is not supported")
-        lat, lon, alt = p[4], p[5], p[6]
-        if not all(math.isfinite(v) for v in (lat, lon)):
-            raise RefusedError("region of interest latitude/longitude must be finite")
-        if abs(lat) > 90.0 or abs(lon) > 180.0:
-            raise RefusedError(f"region of interest {lat:g}, {lon:g} is not on Earth")
-        vehicle = self.server.vehicle
-        if lat == 0.0 and lon == 0.0:
-            vehicle.auto.guided_roi(None)
-            return
-        alt = alt if math.isfinite(alt) else 0.0
-        vehicle.auto.guided_roi(ned_from_global(vehicle.home, self.frame, lat, lon, alt))
-
-    def _roi_none(self, link, p, now):
-        self.server.vehicle.auto.guided_roi(None)
-
-    def _terminate(self, link, p, now):
-        """MAV_CMD_DO_FLIGHTTERMINATION (Copter's): param1 above 0.5 stops the motors and
-        disarms at once, in the air too; anything else is refused."""
-        if not p[0] > 0.5:
-            raise RefusedError(f"flight termination needs param1 1, got {p[0]:g}")
-        self.server.vehicle.terminate()
 
     def _set_mission_current(self, link, p, now):
         """The mission item to go on from (MAVProxy's ``wp set`` sends this first)."""

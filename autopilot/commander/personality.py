@@ -12,6 +12,7 @@ disarm; disarmed, any mode it flies may be selected (set_mode's ``ignore_checks`
 the mode's needs apply; arming only in STABILIZE, ALT_HOLD, GUIDED, LOITER and POSHOLD
 (AUTO only with AUTO_OPTIONS bit 0, off by default); a take-off only in GUIDED, armed and
 on the ground; position and attitude targets obeyed in GUIDED only (ignored elsewhere);
+GUIDED requests (go-to and altitude items, DO_REPOSITION, CONDITION_YAW, DO_SET_ROI*);
 force-arm with param2 2989; DO_FLIGHTTERMINATION; a refused arm, take-off or mode change
 answered MAV_RESULT_FAILED; "PreArm: ...", "Arm: ...", "Mode change to X failed: ..."
 texts, "Arming motors" / "Disarming motors" (Copter SITL's), no text on a mode change (the
@@ -64,8 +65,8 @@ class Personality:
     falls_back_disarmed: bool  # a lost input stream moves a disarmed vehicle to HOLD
     force_arm: bool  # COMPONENT_ARM_DISARM param2 2989 arms without the checks
     flight_termination: bool  # MAV_CMD_DO_FLIGHTTERMINATION is served
-    # MISSION_ITEM(_INT) current=2/3 (a GUIDED go-to / altitude change), CONDITION_YAW and
-    # DO_SET_ROI* as commands: GUIDED requests
+    # GUIDED requests: MISSION_ITEM(_INT) current=2/3 (a go-to / altitude change),
+    # DO_REPOSITION as a GUIDED go-to, CONDITION_YAW and DO_SET_ROI* as commands
     guided_requests: bool
     refusals_fail: bool  # a refused arm, take-off or mode change: MAV_RESULT_FAILED
     armed_text: str

@@ -65,8 +65,9 @@ def test_dronekit_guided_takeoff_two_gotos_rtl_and_landing(tmp_path):
 
         vehicle.simple_takeoff(10)
         here = vehicle.location.global_relative_frame
-        wait_for("10 m", lambda: here.alt is not None and abs(
+        took = wait_for("10 m", lambda: here.alt is not None and abs(
             vehicle.location.global_relative_frame.alt - 10.0) < 0.3, 60)
+        print(f"take-off to 10 m: {took:.1f} s")
         time.sleep(1.0)
         here = vehicle.location.global_relative_frame
         assert abs(here.alt - 10.0) < 0.3
@@ -85,14 +86,18 @@ def test_dronekit_guided_takeoff_two_gotos_rtl_and_landing(tmp_path):
                 n, e = offset_m(home, here)
                 return math.hypot(n - north, e - east) < 0.5 and abs(here.alt - alt) < 0.3
 
-            wait_for(f"{north} N {east} E {alt} m", there, 40)
+            took = wait_for(f"{north} N {east} E {alt} m", there, 40)
+            print(f"go-to {north} N {east} E {alt} m: {took:.1f} s")
             time.sleep(1.0)
             assert there(), vehicle.location.global_relative_frame  # and it stays there
 
         vehicle.mode = dronekit.VehicleMode("RTL")
         wait_for("RTL", lambda: vehicle.mode.name == "RTL", 10)
-        wait_for("landed and disarmed", lambda: not vehicle.armed, 120)
+        took = wait_for("landed and disarmed", lambda: not vehicle.armed, 120)
         here = vehicle.location.global_relative_frame
+        north, east = offset_m(home, here)
+        print(f"RTL to disarmed: {took:.1f} s, {north:.2f} N {east:.2f} E of home, "
+              f"{here.alt} m up")
         assert max(abs(v) for v in offset_m(home, here)) < 1.0, here  # at home
         assert here.alt < 0.2
         time.sleep(1.5)

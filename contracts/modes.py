@@ -24,6 +24,7 @@ class FlightMode(enum.Enum):
     STABILIZED = "stabilized"  # manual: sticks command tilt and collective thrust
     ORBIT = "orbit"  # circle a centre (MAV_CMD_DO_ORBIT)
     FOLLOW_TARGET = "follow_target"  # follow a target's FOLLOW_TARGET messages (Follow Me)
+    BRAKE = "brake"  # stop where the vehicle can and hold (ArduPilot Copter's BRAKE only)
 
 
 MANUAL_MODES = (FlightMode.POSCTL, FlightMode.ALTCTL, FlightMode.STABILIZED)
@@ -75,6 +76,7 @@ COPTER_MODES: dict[FlightMode, int] = {
     FlightMode.ORBIT: 7,  # CIRCLE
     FlightMode.FOLLOW_TARGET: 23,  # FOLLOW
     FlightMode.REFERENCE: 25,  # SYSTEMID: ArduPilot's own excitation mode
+    FlightMode.BRAKE: 17,
 }
 
 # Every ArduPilot Copter mode number and its name (ArduCopter/mode.h, Mode::Number; the

@@ -69,7 +69,7 @@ def test_copter_boots_in_stabilize_and_the_mode_numbers_are_coppers():
         "AUTO": FlightMode.MISSION, "GUIDED": FlightMode.GUIDED, "LOITER": FlightMode.HOLD,
         "RTL": FlightMode.RTL, "CIRCLE": FlightMode.ORBIT, "LAND": FlightMode.LAND,
         "POSHOLD": FlightMode.POSCTL, "FOLLOW": FlightMode.FOLLOW_TARGET,
-        "SYSTEMID": FlightMode.REFERENCE}
+        "SYSTEMID": FlightMode.REFERENCE, "BRAKE": FlightMode.BRAKE}
 
 
 @pytest.mark.parametrize("mode", list(COPTER_MODES))
@@ -290,7 +290,7 @@ def guided_flying(s: Station) -> None:
 def test_heartbeat_shows_stabilize_at_boot_and_each_mode_by_number(copter_station):
     s = copter_station
     assert s.client.request(M.MAVLINK_MSG_ID_HEARTBEAT).custom_mode == 0
-    for number in (6, 9, 4, 5, 3, 2, 16, 7, 23, 25, 0):  # RTL, LAND ... disarmed
+    for number in (6, 9, 4, 5, 3, 2, 16, 7, 23, 25, 17, 0):  # RTL, LAND ... disarmed
         assert s.client.result(SET_MODE, CUSTOM, number) == (ACCEPTED, [])
         assert s.client.request(M.MAVLINK_MSG_ID_HEARTBEAT).custom_mode == number
     # The legacy SET_MODE (MAVProxy's) too.
@@ -301,7 +301,7 @@ def test_heartbeat_shows_stabilize_at_boot_and_each_mode_by_number(copter_statio
 
 @pytest.mark.parametrize("number, text", [
     (1, "Mode change to ACRO failed: not available in this SITL"),
-    (17, "Mode change to BRAKE failed: not available in this SITL"),
+    (11, "Mode change to DRIFT failed: not available in this SITL"),
     (24, "Mode change to ZIGZAG failed: not available in this SITL"),
     (8, "No such mode 8"), (99, "No such mode 99"),
 ])
@@ -573,3 +573,18 @@ def test_a_flagged_do_reposition_beyond_the_fence_changes_nothing():
         assert np.array_equal(s.vehicle.setpoint.position_ned_m, before)
     finally:
         s.close()
+
+
+def test_brake_stops_and_holds_in_the_air_and_is_refused_on_the_ground_armed():
+    v = guided_in_the_air()
+    v.sample(0.02, state(10.0, north_m=3.0))
+    v.set_mode(FlightMode.BRAKE, LINK0)
+    assert v.mode is FlightMode.BRAKE and said(v) == []
+    np.testing.assert_allclose(v.setpoint.position_ned_m, [3.0, 0.0, -10.0])
+    v = copter()
+    v.set_mode(FlightMode.GUIDED, LINK0)
+    v.arm(LINK0)
+    with pytest.raises(RefusedError, match="^Mode change to BRAKE failed: brake denied: not "
+                                           "in the air$"):
+        v.set_mode(FlightMode.BRAKE, LINK0)
+    assert v.mode is FlightMode.GUIDED

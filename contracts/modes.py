@@ -24,6 +24,7 @@ class FlightMode(enum.Enum):
     STABILIZED = "stabilized"  # manual: sticks command tilt and collective thrust
     ORBIT = "orbit"  # circle a centre (MAV_CMD_DO_ORBIT)
     FOLLOW_TARGET = "follow_target"  # follow a target's FOLLOW_TARGET messages (Follow Me)
+    BRAKE = "brake"  # stop where the vehicle can and hold (ArduPilot Copter's BRAKE only)
 
 
 MANUAL_MODES = (FlightMode.POSCTL, FlightMode.ALTCTL, FlightMode.STABILIZED)
@@ -78,6 +79,18 @@ COPTER_MODES: dict[FlightMode, int] = {
     FlightMode.ORBIT: 7,  # CIRCLE
     FlightMode.FOLLOW_TARGET: 23,  # FOLLOW
     FlightMode.REFERENCE: 25,  # SYSTEMID: ArduPilot's own excitation mode
+    FlightMode.BRAKE: 17,
+}
+
+# Every ArduPilot Copter mode number and its name (ArduCopter/mode.h, Mode::Number; the
+# names its mode->name() gives, as in "Mode change to ALT_HOLD failed: ..."). The ones this
+# vehicle flies are in COPTER_MODES; the others exist in Copter but are refused here.
+COPTER_MODE_NAMES: dict[int, str] = {
+    0: "STABILIZE", 1: "ACRO", 2: "ALT_HOLD", 3: "AUTO", 4: "GUIDED", 5: "LOITER", 6: "RTL",
+    7: "CIRCLE", 9: "LAND", 11: "DRIFT", 13: "SPORT", 14: "FLIP", 15: "AUTOTUNE",
+    16: "POSHOLD", 17: "BRAKE", 18: "THROW", 19: "AVOID_ADSB", 20: "GUIDED_NOGPS",
+    21: "SMART_RTL", 22: "FLOWHOLD", 23: "FOLLOW", 24: "ZIGZAG", 25: "SYSTEMID",
+    26: "AUTOROTATE", 27: "AUTO_RTL", 28: "TURTLE",
 }
 
 FLAVOURS = ("px4", "ardupilot")
@@ -116,6 +129,11 @@ def custom_mode(flavour: str, mode: FlightMode) -> int:
     if mode == FlightMode.OFFBOARD:
         mode = FlightMode.GUIDED
     return COPTER_MODES[mode]
+
+
+def copter_mode_name(mode: FlightMode) -> str:
+    """The Copter name of one of our modes, as Copter's texts and MAVProxy write it."""
+    return COPTER_MODE_NAMES[custom_mode("ardupilot", mode)]
 
 
 def mode_from_custom(flavour: str, number: int) -> FlightMode | None:

@@ -75,6 +75,9 @@ class Flight:
 
     def take_off(self, altitude_m: float = 2.5) -> None:
         self.run(0.05)  # the first samples: the simulator link comes up
+        takeoff_mode = self.vehicle.personality.takeoff_mode  # Copter: GUIDED
+        if takeoff_mode is not None:
+            self.vehicle.set_mode(takeoff_mode, self.t_s)
         self.vehicle.arm(self.t_s)
         self.vehicle.takeoff(altitude_m)
         self.run(8.0)

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import math
 import os
+import struct
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -42,15 +43,58 @@ def test_fuzz_mavlink_into_the_ground_link(station, handled, data):
 
 @pytest.fixture(scope="module")
 def copter_station():
-    from tests.mavlink_station import Station
+    """The ArduPilot-Copter flavour in GUIDED in the air: where go-tos and targets act."""
+    from contracts.modes import FlightMode
+    from tests.mavlink_station import T0, Station
 
     s = Station(flavour="ardupilot")
+    s.state_up()
+    s.vehicle.set_mode(FlightMode.GUIDED, T0)
     s.flying()
     yield s
     s.close()
 
 
 RC_MESSAGES = ("RC_CHANNELS_OVERRIDE", "MANUAL_CONTROL")
+
+
+@st.composite
+def _guided_items(draw) -> list[bytes]:
+    """MISSION_ITEM / MISSION_ITEM_INT with current 2 or 3 (Copter's GUIDED go-to and
+    altitude change), every other field hostile, some in a global frame as DroneKit sends
+    them; and Copter's own commands (arming with 2989, flight termination, modes)."""
+    from tests.mavlink_station import M
+
+    encoder = M.MAVLink(None, srcSystem=255, srcComponent=190)
+    out = []
+    for _ in range(draw(st.integers(1, 4))):
+        msg = draw(fz.hostile_message([M.MAVLink_mission_item_message,
+                                       M.MAVLink_mission_item_int_message,
+                                       M.MAVLink_command_long_message]))
+        if msg.get_type() == "COMMAND_LONG":
+            msg.command = draw(st.sampled_from((M.MAV_CMD_DO_FLIGHTTERMINATION,
+                                                M.MAV_CMD_COMPONENT_ARM_DISARM,
+                                                M.MAV_CMD_DO_SET_MODE, M.MAV_CMD_NAV_TAKEOFF)))
+        else:
+            msg.current = draw(st.sampled_from((2, 3)))
+            msg.mission_type = 0
+            if draw(st.booleans()):
+                msg.frame = draw(st.sampled_from((0, 3, 5, 6)))
+                msg.command = M.MAV_CMD_NAV_WAYPOINT
+        try:
+            out.append(msg.pack(encoder))
+        except (struct.error, OverflowError, TypeError, ValueError):
+            continue
+    return out
+
+
+@FUZZ
+@given(datagrams=_guided_items())
+def test_fuzz_guided_items_and_copter_commands(copter_station, datagrams):
+    """Refused with a MISSION_ACK / COMMAND_ACK and a reason, or carried out: the vehicle
+    answers and its setpoint stays finite."""
+    fz.mavlink_ground(copter_station, datagrams)
+    assert all(math.isfinite(v) for v in copter_station.vehicle.setpoint.position_ned_m)
 
 
 @FUZZ

@@ -39,6 +39,7 @@ from autopilot.commander.failures import InjectedFailures
 from autopilot.commander.inputs import ToolInputs
 from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LandDetector
 from autopilot.commander.modes import MODES, EntryView, ModeRow
+from autopilot.commander.personality import PERSONALITIES, ArmingView, Personality
 from autopilot.control.controller import Controller
 from autopilot.flight_tasks.manager import FlightControl
 from autopilot.flight_tasks.task import FlightTask, Shaped, TaskEnv, TaskState
@@ -79,9 +80,9 @@ class Commander:
                                af.mass_kg * af.gravity_mps2 / thrust_n, self.land_detector)
         self.reference = reference
         self.flavour = flavour
+        self.personality: Personality = PERSONALITIES[flavour]  # its rules and words
         self.armed = False
-        self.mode = self.idle_mode = FlightMode.GUIDED if flavour == "ardupilot" \
-            else FlightMode.HOLD
+        self.mode = self.idle_mode = self.personality.boot_mode
         self.failsafes = Failsafes()
         self.links = self.failsafes.links
         self.failsafe: str | None = None
@@ -100,16 +101,19 @@ class Commander:
         self.tasks: dict[FlightMode, FlightTask] = {m: row.task(env) for m, row in MODES.items()}
         # What tools stream (setpoints, sticks, a follow target).
         self.inputs = ToolInputs(self.links, self.state, self.tasks[FlightMode.FOLLOW_TARGET],
-                                 flavour, lambda: self.row.follows_setpoints, self.say)
+                                 flavour, lambda: self.row.follows_setpoints, self.say,
+                                 self.personality.setpoints_in_guided_only)
         # Where the automatic modes fly (mission start, go-to, speed).
         self.auto = AutoCommands(self, self.navigator, self.tasks[FlightMode.HOLD],
-                                 self.tasks[FlightMode.MISSION], self.state, self.say)
+                                 self.tasks[FlightMode.MISSION], self.state, self.say,
+                                 self.tasks[FlightMode.GUIDED])
         # Reference kicks (sim time), from the command line and from Zenoh requests.
         self.flight = FlightControl(self.state, self.tasks, self.controller,
                                     PerturbationBook(AUTOPILOT, schedule))
 
     # -- what the parts hold, as tools and logs read it -----------------------------------
     row: ModeRow = property(lambda self: MODES[self.mode])
+    reference_start_s: float = property(lambda self: self.tasks[FlightMode.REFERENCE].start_s)
     task: FlightTask = property(lambda self: self.tasks[self.mode])
 
     parameters = property(lambda self: self.state.parameters)
@@ -125,10 +129,6 @@ class Commander:
     perturbations = property(lambda self: self.flight.perturbations)
     last_commands = property(lambda self: self.flight.last_commands)
     rc_channels_pwm: tuple[int, ...] = property(lambda self: self.inputs.rc.pwm)
-
-    @property
-    def reference_start_s(self) -> float:
-        return self.tasks[FlightMode.REFERENCE].start_s
 
     @property
     def landing(self) -> bool:
@@ -167,20 +167,14 @@ class Commander:
         self.controller.apply_parameters(updated)
 
     # -- arming ----------------------------------------------------------------------------
-    def arm(self, link_t_s: float) -> None:
+    def arm(self, link_t_s: float, force: bool = False) -> None:
         if self.armed:
             return
-        if self.navigation_problem is not None:
-            raise RefusedError(f"arming denied: {self.navigation_problem}", temporary=True)
-        if not self.sim_link_ok or self.measurement is None:
-            raise RefusedError("arming denied: no state from the simulator", temporary=True)
         row = self.row
-        if not row.armable:
-            raise RefusedError(f"arming denied in {self.mode.value} mode")
-        if not self.landed:
-            raise RefusedError("arming denied: not on the ground")
-        if row.arm_needs_stream and not self.inputs.streaming(row.stream, link_t_s):
-            raise RefusedError("arming denied: no offboard setpoints", temporary=True)
+        self.personality.check_arming(self.mode, row, ArmingView(
+            self.navigation_problem, self.sim_link_ok and self.measurement is not None,
+            self.landed, force,
+            row.stream is not None and self.inputs.streaming(row.stream, link_t_s)))
         self.controller.reset()
         self.armed = True
         self.failsafe = None  # a new flight: what went wrong before is over
@@ -188,7 +182,7 @@ class Commander:
         self.flight.last_ref = np.zeros(REF_SIZE)
         self.task.on_arm()
         self.land_detector.set(self.landed, self.sim_t_s)
-        self.say("armed")
+        self.say(self.personality.armed_text)
 
     def arm_in_reference(self) -> None:
         """Scenario runs: fly the reference from the first sample, wherever the vehicle is."""
@@ -205,7 +199,13 @@ class Commander:
             return
         if not self.landed and not force:
             raise RefusedError("disarming denied: in the air (force with param2 21196)")
-        self.end_flight("disarmed")
+        self.end_flight(self.personality.disarmed_text)
+
+    def terminate(self) -> None:
+        """Flight termination: motors off and disarmed at once, in the air too."""
+        if self.armed:
+            self.failsafe = "flight terminated"
+            self.end_flight(self.personality.terminated_text)
 
     def end_flight(self, text: str) -> None:
         """Disarm now, saying ``text`` (on the ground, or a failsafe's last resort)."""
@@ -213,7 +213,7 @@ class Commander:
         self.state.shaped = Shaped.NONE
         self.state.takeoff_altitude_m = None
         self.navigator.flight_ended()
-        if self.row.ends_with_flight:
+        if self.row.ends_with_flight and not self.personality.keeps_mode_on_disarm:
             self.mode = self.idle_mode
         self.say(text)
 
@@ -225,9 +225,8 @@ class Commander:
             raise RefusedError(f"take-off altitude {alt:g} m is outside [0.5, 100] m")
         if not self.armed:
             raise RefusedError("take-off denied: disarmed", temporary=True)
-        if self.flavour == "ardupilot" and self.mode != FlightMode.GUIDED:
-            raise RefusedError("take-off needs GUIDED mode")
-        if self.flavour == "px4":
+        self.personality.check_takeoff(self.mode, self.landed)
+        if self.personality.takeoff_mode is None:
             self.mode = FlightMode.TAKEOFF
         self.tasks[FlightMode.TAKEOFF].climb_to(alt)
         self.say(f"taking off to {alt:.1f} m")
@@ -238,15 +237,17 @@ class Commander:
         self.switch_to(FlightMode.LAND)
 
     def set_mode(self, mode: FlightMode, link_t_s: float) -> None:
-        """A mode a tool asks for: the row's needs are checked before anything changes."""
+        """A mode a tool asks for: its needs checked first (Copter's: when armed only)."""
         if mode == self.mode:
             return
         row = MODES[mode]
-        if row.stream is not None and not self.inputs.streaming(row.stream, link_t_s):
-            raise RefusedError(f"{mode.value} denied: no {row.stream.value}", temporary=True)
-        if row.entry is not None:
-            row.entry(EntryView(self.armed, self.landed, self.reference is not None,
-                                bool(self.mission.lists[MISSION])))
+        if row.command is None and not self.armed and self.personality.any_mode_disarmed:
+            self.switch_to(mode)
+            return
+        self.personality.check_entry(mode, row, EntryView(
+            self.armed, self.landed, self.reference is not None,
+            bool(self.mission.lists[MISSION])),
+            row.stream is None or self.inputs.streaming(row.stream, link_t_s))
         if row.command is not None:
             row.command(self)
             return
@@ -258,9 +259,9 @@ class Commander:
         self.mode = mode
         self.state.takeoff_altitude_m = None
         self.tasks[mode].activate(previous, self.armed)
-        self.say(f"mode {mode.value}")
+        if self.personality.mode_changed_text is not None:
+            self.say(self.personality.mode_changed_text.format(mode=mode.value))
 
-    # -- inputs from tools -------------------------------------------------------------------
     # -- links and failsafes -----------------------------------------------------------------
     def check_links(self, link_t_s: float) -> None:
         """Failsafes timed on the link clock: ground station, then the mode's input stream
@@ -286,7 +287,8 @@ class Commander:
             self.say(reason, 4)
             return
         if response is Response.FALL_BACK:
-            self.mode = decision.mode
+            if self.personality.falls_back_disarmed:
+                self.mode = decision.mode
             return
         self.failsafe = reason
         if response is Response.WARN:
@@ -344,7 +346,7 @@ class Commander:
                 and self.land_detector.landed_since_s is not None
                 and self.land_detector.landed_for_s(s.sim_t_s)
                 >= self.parameters["COM_DISARM_LAND"]):
-            self.end_flight("landed: disarmed")
+            self.end_flight(self.personality.landed_disarmed_text)
 
     def control(self) -> np.ndarray:
         """Motor commands for this control period (zeros when disarmed or without state)."""

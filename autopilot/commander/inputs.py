@@ -34,6 +34,12 @@ class ToolInputs:
     flavour: str
     follows_setpoints: Callable[[], bool]
     say: Callable[[str, int], None]
+    # Copter: a target outside GUIDED is ignored (GCS_MAVLink_Copter returns unless the
+    # mode is a guided one), not kept for later nor counted as a stream.
+    targets_in_guided_only: bool = False
+
+    def _ignored(self) -> bool:
+        return self.targets_in_guided_only and not self.follows_setpoints()
 
     def __post_init__(self) -> None:
         self.rc = RcInput()  # the ArduPilot flavour's channels (autopilot/commander/rc.py)
@@ -62,6 +68,8 @@ class ToolInputs:
         changes. Per axis group a position (velocity and acceleration then feed-forward)
         or a velocity; a yaw or a yaw rate (docs/mavlink.md)."""
         checked = checked_position_setpoint(setpoint)
+        if self._ignored():
+            return
         self.links.setpoint_heard(link_t_s)
         self.state.stream_position(link_t_s, checked)
         if self.follows_setpoints():
@@ -72,6 +80,8 @@ class ToolInputs:
         """An attitude setpoint, thrust as the flavour reads it (setpoints.py)."""
         target = checked_attitude_target(quaternion, thrust, self.flavour,
                                          self.state.parameters["MPC_TKO_SPEED"])
+        if self._ignored():
+            return
         self.links.setpoint_heard(link_t_s)
         self.state.streamed = target
         if self.follows_setpoints():

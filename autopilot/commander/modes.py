@@ -116,6 +116,8 @@ MODES: dict[FlightMode, ModeRow] = {
     FlightMode.ORBIT: ModeRow(OrbitTask, entry=_needs_air("orbit"), ends_with_flight=True),
     FlightMode.FOLLOW_TARGET: ModeRow(FollowTargetTask, entry=_needs_air("follow target"),
                                       ends_with_flight=True),
+    # Copter's BRAKE (no PX4 number): HOLD's stop and hold, in the air only, never armed in.
+    FlightMode.BRAKE: ModeRow(HoldTask, entry=_needs_air("brake")),
     FlightMode.POSCTL: ModeRow(PositionControlTask, armable=True, stream=Stream.MANUAL),
     FlightMode.ALTCTL: ModeRow(partial(AttitudeControlTask, thrust_stick=False),
                                armable=True, stream=Stream.MANUAL),

@@ -9,6 +9,8 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from autopilot.commander.failures import UnsupportedError
+from autopilot.commander.personality import FORCE_ARM_MAGIC
+from autopilot.mavlink.guided import copter_commands
 from autopilot.mavlink.maintenance import MaintenanceCommands
 from autopilot.mavlink.telemetry import (
     DEFAULT_STREAMS,
@@ -26,6 +28,11 @@ if TYPE_CHECKING:
 
 FORCE_DISARM_MAGIC = 21196
 INT32_MAX = 2**31 - 1
+# What Copter answers MAV_RESULT_FAILED when it refuses (GCS_MAVLink_Copter.cpp).
+FAILS_IN_COPTER = (mavlink.MAV_CMD_COMPONENT_ARM_DISARM, mavlink.MAV_CMD_NAV_TAKEOFF,
+                   mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_CMD_DO_FLIGHTTERMINATION,
+                   mavlink.MAV_CMD_CONDITION_YAW, mavlink.MAV_CMD_DO_SET_ROI,
+                   mavlink.MAV_CMD_DO_SET_ROI_LOCATION, mavlink.MAV_CMD_DO_SET_ROI_NONE)
 
 
 class CommandProtocol:
@@ -54,6 +61,8 @@ class CommandProtocol:
             mavlink.MAV_CMD_INJECT_FAILURE: self._inject_failure,
             **MaintenanceCommands(server).table(),
         }
+        # Copter's own commands (none for PX4).
+        self.table.update(copter_commands(server, lambda: self.frame))
         self.frame = mavlink.MAV_FRAME_GLOBAL  # the command's frame (COMMAND_LONG: AMSL)
 
     def handlers(self) -> dict[str, Callable]:
@@ -95,6 +104,8 @@ class CommandProtocol:
         except RefusedError as exc:
             result = (mavlink.MAV_RESULT_TEMPORARILY_REJECTED if exc.temporary
                       else mavlink.MAV_RESULT_DENIED)
+            if self.server.vehicle.personality.refusals_fail and command in FAILS_IN_COPTER:
+                result = mavlink.MAV_RESULT_FAILED
             self.ack(link, address, msg, command, result, str(exc))
             return
         self.ack(link, address, msg, command, mavlink.MAV_RESULT_ACCEPTED)
@@ -114,9 +125,11 @@ class CommandProtocol:
         self.server.vehicle.inject_failure(p[0], p[1], p[2])
 
     def _arm(self, link, p, now):
+        """param1 1 arms, 0 disarms; param2 21196 forces a disarm in the air, and in
+        Copter's flavour 2989 forces an arm (its mode and ground checks skipped)."""
         vehicle = self.server.vehicle
         if p[0] == 1.0:
-            vehicle.arm(now)
+            vehicle.arm(now, force=vehicle.personality.force_arm and p[1] == FORCE_ARM_MAGIC)
         elif p[0] == 0.0:
             vehicle.disarm(force=p[1] == FORCE_DISARM_MAGIC)
         else:
@@ -145,7 +158,8 @@ class CommandProtocol:
         number = int(main) if flavour == "ardupilot" else px4_custom_mode_from_command(main, sub)
         mode = mode_from_custom(flavour, number)
         if mode is None:
-            raise RefusedError(f"unknown mode {main:g}/{sub:g}")
+            label = f"{main:g}" if flavour == "ardupilot" else f"{main:g}/{sub:g}"
+            raise RefusedError(self.server.vehicle.personality.unflown_mode(number, label))
         self.server.vehicle.set_mode(mode, now)
 
     def _set_mission_current(self, link, p, now):
@@ -184,6 +198,12 @@ class CommandProtocol:
         if math.isfinite(lat) and (abs(lat) > 90.0 or abs(lon) > 180.0):
             raise RefusedError(f"go-to latitude/longitude {lat:g}, {lon:g} is not on Earth")
         target = ned_from_global(self.server.vehicle.home, self.frame, lat, lon, alt)
+        vehicle = self.server.vehicle
+        if vehicle.personality.guided_requests:  # Copter: a GUIDED go-to
+            flags = int(p[1]) if math.isfinite(p[1]) and 0 <= p[1] < 2**31 else 0
+            vehicle.auto.guided_reposition(
+                target, bool(flags & mavlink.MAV_DO_REPOSITION_FLAGS_CHANGE_MODE), now)
+            return
         # param4 in radians, as PX4 and MAVSDK read it (the MAVLink spec said degrees
         # until 2025 and now says radians too); NaN keeps the heading.
         yaw = p[3]

@@ -16,6 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
+from autopilot.mavlink.guided import ALTITUDE_CHANGE, GUIDED_GO_TO, GuidedItems
 from autopilot.mavlink.telemetry import mission_current
 from autopilot.navigator.mission_store import (
     MAX_ITEMS,
@@ -84,6 +85,9 @@ class MissionProtocol:
         self.server = server
         self.store = server.vehicle.mission
         self.transfer: Transfer | None = None
+        # Copter's flavour: an item with current=2 / 3 is a GUIDED request (guided.py).
+        self.guided = GuidedItems(server) if server.vehicle.personality.guided_requests \
+            else None
 
     def handlers(self) -> dict[str, Callable]:
         return {"MISSION_COUNT": self.on_count, "MISSION_ITEM_INT": self.on_item,
@@ -154,6 +158,10 @@ class MissionProtocol:
         self._ask(self.transfer, now)
 
     def on_item(self, link, address, msg, now: float) -> None:
+        if self.guided is not None and msg.current in (GUIDED_GO_TO, ALTITUDE_CHANGE) and \
+                getattr(msg, "mission_type", MISSION) == MISSION:
+            self.guided.on_item(link, address, msg, now)
+            return
         t = self.transfer
         if t is None or not t.upload or t.link is not link or t.partner != _partner(msg):
             return  # not ours to take (a late duplicate, or another tool's)

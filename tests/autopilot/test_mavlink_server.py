@@ -187,17 +187,20 @@ def test_offboard_is_accepted_with_a_setpoint_stream(station):
 
 
 def test_ardupilot_modes_and_take_off_above_home_in_guided():
+    """Copter boots in STABILIZE; refusals are MAV_RESULT_FAILED with Copter's words
+    (tests/autopilot/test_copter_modes.py has the rest of its rules)."""
+    failed = M.MAV_RESULT_FAILED
     s = Station(flavour="ardupilot")
     try:
         s.state_up()
         heartbeat = s.client.request(M.MAVLINK_MSG_ID_HEARTBEAT)
         assert (heartbeat.autopilot, heartbeat.custom_mode) == (M.MAV_AUTOPILOT_ARDUPILOTMEGA,
-                                                                 4)
-        assert s.client.result(SET_MODE, CUSTOM, 99) == (DENIED, ["unknown mode 99/0"])
-        assert s.client.result(ARM, 1)[0] == ACCEPTED
+                                                                 0)
+        assert s.client.result(SET_MODE, CUSTOM, 99) == (failed, ["No such mode 99"])
         assert s.client.result(SET_MODE, CUSTOM, 5)[0] == ACCEPTED  # LOITER
         assert s.vehicle.mode == FlightMode.HOLD
-        assert s.client.result(TAKEOFF, *[0.0] * 6, 3.0) == (DENIED,
+        assert s.client.result(ARM, 1)[0] == ACCEPTED
+        assert s.client.result(TAKEOFF, *[0.0] * 6, 3.0) == (failed,
                                                            ["take-off needs GUIDED mode"])
         assert s.client.result(SET_MODE, CUSTOM, 4)[0] == ACCEPTED
         assert s.client.result(TAKEOFF, *[0.0] * 6, 3.0)[0] == ACCEPTED  # above home

@@ -72,6 +72,17 @@ def on_the_ground(**kwargs) -> Commander:
     return v
 
 
+def copter_flying(altitude_m: float = 2.5, **kwargs) -> Commander:
+    """The ArduPilot-Copter flavour armed in GUIDED, in the air."""
+    v = on_the_ground(flavour="ardupilot", **kwargs)
+    v.set_mode(FlightMode.GUIDED, LINK0)
+    v.arm(LINK0)
+    v.sample(0.01, state(altitude_m))
+    assert v.armed and not v.landed and v.mode == FlightMode.GUIDED
+    said(v)
+    return v
+
+
 def flying(altitude_m: float = 2.5, **kwargs) -> Commander:
     """Armed in HOLD, in the air (state jumps there: the logic only reads the state)."""
     v = on_the_ground(**kwargs)
@@ -162,7 +173,7 @@ def test_a_new_vehicle_is_disarmed_landed_in_its_flavours_start_mode_and_silent(
     assert (v.armed, v.landed, v.mode, v.failsafe, v.sim_link_ok) == (
         False, True, FlightMode.HOLD, None, False)
     assert v.messages == []
-    assert make_vehicle(flavour="ardupilot").mode == FlightMode.GUIDED
+    assert make_vehicle(flavour="ardupilot").mode == FlightMode.STABILIZED  # STABILIZE
     assert np.array_equal(v.control(), np.zeros(4))  # no state: motors off
 
 
@@ -258,7 +269,7 @@ def test_arming_on_the_ground_holds_where_the_vehicle_is(flavour, mode):
     said(v)
     v.arm(LINK0)
     assert v.armed and v.landed and v.mode == mode
-    assert said(v) == [(INFO, "armed")]
+    assert said(v) == [(INFO, "armed" if flavour == "px4" else "Arming motors")]
     assert np.array_equal(v.setpoint.position_ned_m, [3.0, 0.0, 0.0])
     assert v.setpoint.yaw_rad == pytest.approx(0.5)
     v.arm(LINK0)  # again: nothing happens, nothing is said
@@ -531,8 +542,7 @@ def test_offboard_needs_a_setpoint_within_com_of_loss_t_and_flies_the_newest():
 
 
 def test_guided_takes_setpoints_without_a_stream_and_keeps_the_last():
-    v = flying(flavour="ardupilot")
-    assert v.mode == FlightMode.GUIDED
+    v = copter_flying()
     v.inputs.position_setpoint(LINK0, hold_setpoint(1.0, 2.0, -3.0))
     v.check_links(LINK0 + 100.0)
     assert v.mode == FlightMode.GUIDED
@@ -614,8 +624,8 @@ def test_take_off_by_mode_uses_mis_takeoff_alt():
 
 def test_ardupilot_takes_off_in_guided_only_and_stays_guided():
     v = on_the_ground(flavour="ardupilot")
+    v.set_mode(FlightMode.HOLD, LINK0)  # LOITER: armable in Copter
     v.arm(LINK0)
-    v.set_mode(FlightMode.HOLD, LINK0)
     with pytest.raises(RefusedError, match="^take-off needs GUIDED mode$") as refused:
         v.takeoff(2.0)
     assert not refused.value.temporary
@@ -784,7 +794,7 @@ def test_attitude_thrust_is_read_as_the_flavour_reads_it():
     px4.inputs.attitude_setpoint(LINK0, tuple(quat_from_euler(0.2, 0.0, 0.0)), 0.25)
     assert px4.state.attitude_target.thrust_fraction == 0.25
     assert px4.state.attitude_target.euler_rad[0] == pytest.approx(0.2)
-    copter = flying(flavour="ardupilot", MPC_TKO_SPEED=2.0)
+    copter = copter_flying(MPC_TKO_SPEED=2.0)
     copter.inputs.attitude_setpoint(LINK0, (1.0, 0.0, 0.0, 0.0), 1.0)
     assert copter.state.attitude_target.climb_rate_mps == 2.0  # (1 - 0.5) * 2 * MPC_TKO_SPEED
     assert math.isnan(copter.state.attitude_target.thrust_fraction)

@@ -15,6 +15,7 @@ from autopilot.commander.commander import Commander
 from autopilot.control.factory import make_controller
 from contracts.airframe import PAPER
 from contracts.mavlink import DIALECTS, StatustextAssembler
+from contracts.modes import FlightMode
 
 M = mavlink
 ACCEPTED = M.MAV_RESULT_ACCEPTED
@@ -168,8 +169,11 @@ class Station:
         self.vehicle.sample(sim_t, measurement)
 
     def flying(self) -> None:
-        """Armed (through the server) and in the air; queued STATUSTEXT sent and read."""
+        """Armed (through the server) and in the air; queued STATUSTEXT sent and read.
+        A Copter arms in GUIDED (its boot mode, STABILIZE, needs RC sticks to arm)."""
         self.state_up()
+        if self.flavour == "ardupilot" and self.vehicle.mode is FlightMode.STABILIZED:
+            self.vehicle.set_mode(FlightMode.GUIDED, self.clock.t)
         assert self.client.result(ARM, 1)[0] == ACCEPTED
         self.state_up(air(), 0.01)
         assert self.vehicle.armed and not self.vehicle.landed

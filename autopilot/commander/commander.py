@@ -153,9 +153,8 @@ class Commander:
     def inject_failure(self, unit: float, kind: float, instance: float) -> None:
         """MAV_CMD_INJECT_FAILURE (autopilot/commander/failures.py): refused unless
         SYS_FAILURE_EN is 1; announced when done."""
-        text = self.failures.inject(self.parameters["SYS_FAILURE_EN"] == 1.0, unit, kind,
-                                    instance)
-        self.say(text, 4)
+        enabled = self.parameters["SYS_FAILURE_EN"] == 1.0
+        self.say(self.failures.inject(enabled, unit, kind, instance), 4)
 
     def set_parameter(self, name: str, value: float) -> None:
         """Change one parameter; it takes effect at the next control step."""

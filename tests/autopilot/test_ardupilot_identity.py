@@ -20,7 +20,10 @@ DENIED = apm.MAV_RESULT_DENIED
 
 @pytest.fixture
 def copter():
+    """A Copter in GUIDED, where it arms without RC (it boots in STABILIZE, whose sticks
+    need RC: tests/autopilot/test_copter_modes.py)."""
     s = Station(flavour="ardupilot")
+    s.vehicle.set_mode(FlightMode.GUIDED, T0)
     yield s
     s.close()
 

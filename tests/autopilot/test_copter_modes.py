@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from autopilot.commander.failsafe import Stream
-from autopilot.flight_tasks.sticks import Sticks
 from autopilot.refusal import RefusedError
 from contracts.frames import DEFAULT_HOME
 from contracts.modes import COPTER_MODE_NAMES, COPTER_MODES, FlightMode
@@ -47,7 +46,8 @@ def copter(**parameters):
 
 
 def sticks(v, link_t_s: float = LINK0) -> None:
-    v.inputs.manual_input(link_t_s, Sticks(throttle=0.0))
+    """The sticks a Copter has: RC channels 1-4 overridden, throttle low (1000 us)."""
+    v.inputs.rc_override(link_t_s, [1500, 1500, 1000, 1500, *[65535] * 4, *[0] * 10])
 
 
 def guided_in_the_air(altitude_m: float = 10.0, **parameters):
@@ -104,15 +104,19 @@ def test_arming_only_in_the_modes_copter_arms_in(mode):
 
 
 @pytest.mark.parametrize("mode", sorted(STICK_MODES, key=lambda m: m.value))
-def test_arming_in_a_stick_mode_needs_the_sticks_within_com_rc_loss_t(mode):
-    v = copter(COM_RC_LOSS_T=0.5)
+def test_arming_in_a_stick_mode_needs_the_rc_throttle_channel(mode):
+    v = copter(RC_OVERRIDE_TIME=0.5)
     v.set_mode(FlightMode.GUIDED, LINK0)
     v.set_mode(mode, LINK0)
+    with pytest.raises(RefusedError, match="^PreArm: RC not found$") as refused:
+        v.arm(LINK0)  # no channel overridden yet
     sticks(v)
+    v.inputs.rc.refresh(LINK0 + 0.5 + EPS, 0.5)  # the override expired
     with pytest.raises(RefusedError, match="^PreArm: RC not found$") as refused:
         v.arm(LINK0 + 0.5 + EPS)
     assert refused.value.temporary and not v.armed
-    v.arm(LINK0 + 0.5 - EPS)
+    sticks(v, LINK0 + 1.0)
+    v.arm(LINK0 + 1.0)
     assert v.armed and v.mode is mode
 
 

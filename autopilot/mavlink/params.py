@@ -37,6 +37,7 @@ PX4_NAMES = px4_parameters()
 PARAM_COUNT = len(PX4_NAMES)  # the PX4 flavour's
 PARAM_INDEX = {name: i for i, name in enumerate(PX4_NAMES)}
 FTP_NAK, FTP_ERROR_UNSUPPORTED = 129, 4
+NO_INDEX = 65535  # Copter's param_index -1 in PARAM_VALUE's uint16 field
 MAV_TYPES = {"INT8": mavlink.MAV_PARAM_TYPE_INT8, "INT16": mavlink.MAV_PARAM_TYPE_INT16,
              "INT32": mavlink.MAV_PARAM_TYPE_INT32, "REAL32": mavlink.MAV_PARAM_TYPE_REAL32}
 
@@ -108,7 +109,7 @@ class ParameterProtocol:
                 self._say(link, address, f"unknown parameter {name or msg.param_index}")
             return
         # Copter echoes the index asked (-1 for a read by name); PX4 gives the index.
-        index = msg.param_index if self.ardupilot else None
+        index = (msg.param_index % 65536) if self.ardupilot else None
         self.server.send(link, self.param_value(name, index), address)
 
     def on_param_set(self, link: GroundLink, address, msg, now: float) -> None:
@@ -120,7 +121,7 @@ class ParameterProtocol:
         if self.ardupilot:
             self._set_copter(link, address, name, msg.param_value)
             # Copter's echo: on every link, index -1.
-            value = self.param_value(name, -1)
+            value = self.param_value(name, NO_INDEX)
         else:
             if not self._set_px4(link, address, name, msg):
                 return

@@ -49,7 +49,7 @@ async def _fly(port: int) -> dict:
             await failure.inject(FailureUnit.SENSOR_GPS, FailureType.OFF, 0)
         except FailureError as exc:
             seen["disabled"] = exc.result
-        await param.set_param_float("SYS_FAILURE_EN", 1.0)
+        await param.set_param_int("SYS_FAILURE_EN", 1)
         try:
             await failure.inject(FailureUnit.SENSOR_BARO, FailureType.DELAYED, 0)
         except FailureError as exc:

@@ -6,7 +6,8 @@ Each flavour answers as its autopilot does:
 * PX4: the internal names, INT32 or REAL32 as PX4 declares each; an INT32 travels as the
   integer's four bytes in the float field (byte-wise encoding, declared in
   AUTOPILOT_VERSION); a PARAM_SET whose type differs from the parameter's changes
-  nothing and gets no PARAM_VALUE ("param types mismatch", as PX4's mavlink_parameters).
+  nothing and gets no PARAM_VALUE ("param types mismatch", as PX4's mavlink_parameters);
+  a set is answered to the setter, then the value goes to every link.
 * ArduPilot: Copter's names, units and types (autopilot/copter_parameters.py), values
   C-cast into the float field; a PARAM_SET is cast to the parameter's own type whatever
   type it says, answered with PARAM_VALUE (index -1) on every link; unknown names are
@@ -126,6 +127,10 @@ class ParameterProtocol:
             if not self._set_px4(link, address, name, msg):
                 return
             value = self.param_value(name)
+            # PX4 answers the setter at once, then sends the changed parameter on every
+            # link (send_untransmitted): MAVSDK's parameter subscriptions (the failure
+            # plugin's SYS_FAILURE_EN) learn of a change from that second one.
+            self.server.send(link, value, address)
         # PARAM_VALUE on every link: tools learn the value in force.
         for target_link in self.server.links:
             self.server.send(target_link, value)

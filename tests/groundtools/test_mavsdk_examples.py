@@ -77,6 +77,11 @@ def _fly(tmp_path: Path, example: str, timeout_s: float, sim_args=(), autopilot_
     gcs = GroundTool(procs.gcs_port)
     try:
         gcs.connect(60)
+        # Started once the vehicle is ready to arm, as a user starts it when the vehicle
+        # says so: the example's own wait (global position and home ok) can pass while
+        # the estimator is still converging, and arming is denied until it has.
+        gcs.wait_type("SYS_STATUS", 90,
+                      lambda m: m.onboard_control_sensors_health & M.MAV_SYS_STATUS_PREARM_CHECK)
         seen = run_example(example, gcs, timeout_s, tmp_path / "example.log")
         after = time.monotonic() + 3.0  # what the vehicle does after the example's end
         while time.monotonic() < after:

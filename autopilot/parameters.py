@@ -1,5 +1,9 @@
 """The autopilot's named parameters: one table, used by the code, the CLI and the MAVLink
-parameter protocol (all REAL32). Names fit MAVLink's 16-character param_id.
+parameter protocol. Names fit MAVLink's 16-character param_id. ``integer`` marks the ones
+PX4 declares INT32 (enum, boolean and int32 in its parameter definitions); they take
+whole numbers only, and travel as INT32 in the PX4 flavour's parameter protocol. The
+ArduPilot flavour shows these values under Copter's names and units
+(autopilot/copter_parameters.py).
 
 Controller gains first, then the vehicle's own (take-off, landing, failsafes) under
 PX4's names where PX4 has one.
@@ -29,6 +33,7 @@ class ParamSpec:
     unit: str
     description: str
     choices: tuple[float, ...] = ()  # allowed values of an enumeration, () = any in range
+    integer: bool = False  # whole numbers only: PX4's type is INT32 (else REAL32)
 
 
 _SMC_GAINS = {
@@ -85,12 +90,13 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_TKO_SPEED", 1.0, 0.1, 5.0, "m/s", "climb speed of take-off"),
     ParamSpec("MPC_LAND_SPEED", 0.7, 0.1, 3.0, "m/s", "descent speed of landing"),
     ParamSpec("COM_DISARM_LAND", 1.0, 0.0, 20.0, "s", "disarm this long after touchdown"),
-    ParamSpec("COM_DL_LOSS_T", 10.0, 1.0, 300.0, "s", "ground-station heartbeat loss timeout"),
+    ParamSpec("COM_DL_LOSS_T", 10.0, 1.0, 300.0, "s", "ground-station heartbeat loss timeout",
+              integer=True),
     ParamSpec("NAV_DLL_ACT", 1.0, 0.0, 3.0, "", "on GCS loss: 0 none, 1 hold, 2 return, "
-              "3 land", choices=(0.0, 1.0, 2.0, 3.0)),
+              "3 land", choices=(0.0, 1.0, 2.0, 3.0), integer=True),
     ParamSpec("COM_OF_LOSS_T", 1.0, 0.1, 60.0, "s", "offboard setpoint loss timeout"),
     ParamSpec("COM_OBL_ACT", 1.0, 0.0, 1.0, "", "on setpoint loss: 0 land, 1 hold",
-              choices=(0.0, 1.0)),
+              choices=(0.0, 1.0), integer=True),
     # Setpoint shaping (autopilot/flight_tasks/shaping.py): PX4's names, meanings and
     # units; defaults for the paper airframe (PX4's own defaults are for a 450-class quadrotor).
     ParamSpec("MPC_XY_VEL_MAX", 5.0, 0.5, 20.0, "m/s", "largest horizontal speed"),
@@ -104,10 +110,10 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_YAWRAUTO_ACC", 60.0, 5.0, 1000.0, "deg/s^2", "largest yaw acceleration"),
     ParamSpec("COM_SIM_LOSS_T", 0.5, 0.05, 60.0, "s", "simulator link loss timeout (-> land)"),
     ParamSpec("SYS_FAILURE_EN", 0.0, 0.0, 1.0, "", "failure injection from ground tools "
-              "(MAV_CMD_INJECT_FAILURE): 0 off, 1 on", choices=(0.0, 1.0)),
+              "(MAV_CMD_INJECT_FAILURE): 0 off, 1 on", choices=(0.0, 1.0), integer=True),
     # The geofence (docs/missions.md): PX4's names; a limit of 0 is off.
     ParamSpec("GF_ACTION", 2.0, 0.0, 5.0, "", "on a fence breach: 0 none, 1 warn, 2 hold, "
-              "3 return, 5 land", choices=(0.0, 1.0, 2.0, 3.0, 5.0)),
+              "3 return, 5 land", choices=(0.0, 1.0, 2.0, 3.0, 5.0), integer=True),
     ParamSpec("GF_MAX_HOR_DIST", 0.0, 0.0, 10000.0, "m", "largest distance from home (0 off)"),
     ParamSpec("GF_MAX_VER_DIST", 0.0, 0.0, 10000.0, "m", "largest height above home (0 off)"),
     # Missions and return (docs/missions.md): PX4's names; RTL altitudes lower than PX4's
@@ -124,7 +130,8 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("FLW_TGT_FA", 180.0, -180.0, 180.0, "deg", "follow angle from the target's "
               "course, clockwise: 0 in front, 90 right, 180 behind"),
     ParamSpec("FLW_TGT_ALT_M", 0.0, 0.0, 2.0, "", "altitude: 0 constant, 1 terrain "
-              "(flat here: constant), 2 track the target's", choices=(0.0, 1.0, 2.0)),
+              "(flat here: constant), 2 track the target's", choices=(0.0, 1.0, 2.0),
+              integer=True),
     ParamSpec("FLW_TGT_RS", 0.1, 0.0, 1.0, "", "smoothing of the target's position: 0 "
               "follows each report, 1 never moves"),
     ParamSpec("FLW_TGT_MAX_VEL", 5.0, 0.1, 20.0, "m/s", "largest speed round the target "
@@ -138,11 +145,11 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("MPC_MAN_Y_MAX", 90.0, 5.0, 400.0, "deg/s", "full-stick yaw rate"),
     ParamSpec("COM_RC_LOSS_T", 0.5, 0.1, 35.0, "s", "manual control loss timeout"),
     ParamSpec("NAV_RCL_ACT", 2.0, 1.0, 3.0, "", "on manual control loss: 1 hold, 2 return, "
-              "3 land", choices=(1.0, 2.0, 3.0)),
+              "3 land", choices=(1.0, 2.0, 3.0), integer=True),
     # The estimator (--state-source estimator), PX4's EKF2 name.
     ParamSpec("EKF2_GPS_DELAY", 110.0, 0.0, 300.0, "ms", "GPS fix age on arrival"),
     ParamSpec("EKF2_NOAID_TOUT", 5e6, 5e5, 1e8, "us", "dead reckoning this long without a "
-              "GPS fix fused: position lost (failsafe: land)"),
+              "GPS fix fused: position lost (failsafe: land)", integer=True),
     # ArduPilot Copter: RC (docs/mavlink.md, RC as a ground tool sends it): Copter's names,
     # units (PWM us, s) and SITL's defaults (Tools/autotest/default_params/copter.parm).
     ParamSpec("SYSID_MYGCS", 255.0, 1.0, 255.0, "", "the ground station's system id: "
@@ -214,6 +221,8 @@ def validate_parameters(overrides: dict[str, float]) -> dict[str, float]:
                 f"parameter {name} must be finite and in "
                 f"[{spec.minimum}, {spec.maximum}], got {value!r}"
             )
+        if spec.integer and not number.is_integer():
+            raise ValueError(f"parameter {name} takes whole numbers, got {value!r}")
         if spec.choices and number not in spec.choices:
             raise ValueError(f"parameter {name} must be one of "
                              f"{', '.join(f'{c:g}' for c in spec.choices)}, got {value!r}")

@@ -12,6 +12,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from autopilot.copter_parameters import ardupilot_parameters
 from tests import fuzzing as fz
 
 # FUZZ_EXAMPLES raises every target's count (the long script sets it).
@@ -348,3 +349,25 @@ def test_a_request_whose_kind_is_not_text_is_refused():
     for kind in ([], {}, 1, None):
         with pytest.raises(ValueError, match="unknown perturbation kind"):
             PerturbationBook("sitl").handle({"kind": kind}, 0.0)
+
+
+COPTER_NAMES = [p.name for p in ardupilot_parameters()]
+
+
+@FUZZ
+@given(name=st.sampled_from(COPTER_NAMES) | st.text(max_size=16),
+       value=st.floats(width=32) | st.sampled_from([math.nan, math.inf, -math.inf]),
+       kind=st.integers(0, 255), flavour=st.sampled_from(["copter", "px4"]))
+def test_fuzz_param_set_by_copter_name_value_and_type(station, copter_station, name, value,
+                                                     kind, flavour):
+    """Any name, float and declared type: the vehicle keeps parameters it flies, and the
+    Copter values kept for the tools stay finite."""
+    s = copter_station if flavour == "copter" else station
+    from tests.mavlink_station import M
+
+    encoded = name.encode()[:16]
+    s.client.send(M.MAVLink_param_set_message(1, 1, encoded, value, kind))
+    s.client.sync()
+    fz.check_vehicle(s.vehicle)
+    stored = copter_station.server.parameters.stored.values()
+    assert all(math.isfinite(v) for v in stored)

@@ -188,7 +188,9 @@ def home_position(home: Home) -> mavlink.MAVLink_home_position_message:
 
 
 def autopilot_version() -> mavlink.MAVLink_autopilot_version_message:
+    # PX4's: an INT32 parameter's bytes travel in PARAM_VALUE's float field (BYTEWISE).
     caps = (mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+            | mavlink.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
             | mavlink.MAV_PROTOCOL_CAPABILITY_COMMAND_INT
             | mavlink.MAV_PROTOCOL_CAPABILITY_SET_ATTITUDE_TARGET
             | mavlink.MAV_PROTOCOL_CAPABILITY_SET_POSITION_TARGET_LOCAL_NED

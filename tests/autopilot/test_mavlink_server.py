@@ -15,7 +15,9 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from autopilot.parameters import PARAMETERS, default_parameters
+from autopilot.copter_parameters import px4_parameters
+from autopilot.mavlink.params import float_as_int32, int32_as_float
+from autopilot.parameters import PARAMETERS, default_parameters, validate_parameters
 from contracts.frames import DEFAULT_HOME
 from contracts.modes import FlightMode, px4_custom_mode
 from tests.flight import mission_item
@@ -419,15 +421,43 @@ def test_telemetry_shows_the_vehicle_state(station):
 
 
 # -- parameters ------------------------------------------------------------------------
-def test_param_request_list_sends_every_parameter_in_order(station):
+INT32, REAL32 = M.MAV_PARAM_TYPE_INT32, M.MAV_PARAM_TYPE_REAL32
+PX4_INT32 = {"COM_DL_LOSS_T", "NAV_DLL_ACT", "COM_OBL_ACT", "SYS_FAILURE_EN", "GF_ACTION",
+             "FLW_TGT_ALT_M", "NAV_RCL_ACT", "EKF2_NOAID_TOUT"}  # PX4's own definitions
+
+
+def px4_param_set(name: str, value: float, kind: int | None = None):
+    """A PARAM_SET as MAVSDK sends it to PX4: an INT32 as its bytes in the float field."""
+    kind = (INT32 if name in PX4_INT32 else REAL32) if kind is None else kind
+    wire = int32_as_float(int(value)) if kind == INT32 else value
+    return M.MAVLink_param_set_message(1, 1, name.encode(), wire, kind)
+
+
+def decoded(v) -> float:
+    """A PARAM_VALUE's value, byte-wise decoded for INT32 (PX4's encoding)."""
+    return float(float_as_int32(v.param_value)) if v.param_type == INT32 else v.param_value
+
+
+def test_param_request_list_sends_every_parameter_in_order_with_px4_types(station):
     station.client.send(M.MAVLink_param_request_list_message(1, 1))
     values = of_type(station.client.sync(), "PARAM_VALUE")
-    assert [v.param_id for v in values] == [spec.name for spec in PARAMETERS]
-    assert [v.param_index for v in values] == list(range(len(PARAMETERS)))
-    assert {v.param_count for v in values} == {len(PARAMETERS)}
-    assert {v.param_type for v in values} == {M.MAV_PARAM_TYPE_REAL32}
+    listed = px4_parameters()  # the table without the ArduPilot-only names
+    assert [v.param_id for v in values] == list(listed)
+    assert [v.param_index for v in values] == list(range(len(listed)))
+    assert {v.param_count for v in values} == {len(listed)}
+    assert {v.param_id for v in values if v.param_type == INT32} == PX4_INT32
+    assert {v.param_type for v in values if v.param_id not in PX4_INT32} == {REAL32}
     for v in values:
-        assert v.param_value == pytest.approx(DEFAULTS[v.param_id], rel=1e-6)
+        assert decoded(v) == pytest.approx(DEFAULTS[v.param_id], rel=1e-6)
+    # the bytes, not a cast: NAV_DLL_ACT 1 is the float 1.4e-45 (a denormal), not 1.0
+    (dll,) = [v for v in values if v.param_id == "NAV_DLL_ACT"]
+    assert dll.param_value == pytest.approx(1.401298e-45) and decoded(dll) == 1.0
+
+
+def test_autopilot_version_declares_px4_bytewise_parameter_encoding(station):
+    caps = station.client.request(M.MAVLINK_MSG_ID_AUTOPILOT_VERSION).capabilities
+    assert caps & M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_BYTEWISE
+    assert not caps & M.MAV_PROTOCOL_CAPABILITY_PARAM_ENCODE_C_CAST
 
 
 def test_param_request_read_by_name_and_by_index(station):
@@ -437,46 +467,69 @@ def test_param_request_read_by_name_and_by_index(station):
     station.client.send(M.MAVLink_param_request_read_message(1, 1, b"", 9999))
     msgs = station.client.sync()
     values = of_type(msgs, "PARAM_VALUE")
-    assert [(v.param_id, v.param_value, v.param_index) for v in values] == [
-        ("COM_DL_LOSS_T", 10.0, [s.name for s in PARAMETERS].index("COM_DL_LOSS_T")),
-        (PARAMETERS[0].name, pytest.approx(PARAMETERS[0].default), 0)]
+    assert [(v.param_id, decoded(v), v.param_type, v.param_index) for v in values] == [
+        ("COM_DL_LOSS_T", 10.0, INT32,
+         [s.name for s in PARAMETERS].index("COM_DL_LOSS_T")),
+        (PARAMETERS[0].name, pytest.approx(PARAMETERS[0].default), REAL32, 0)]
     assert texts(msgs) == ["unknown parameter NO_SUCH_PARAM", "unknown parameter 9999"]
 
 
-def test_param_set_takes_effect_and_is_echoed_on_every_link(make_station):
+@pytest.mark.parametrize("name, value", [("COM_OF_LOSS_T", 2.5), ("COM_DL_LOSS_T", 3),
+                                         ("EKF2_NOAID_TOUT", 7_000_000)])
+def test_param_set_takes_effect_and_is_echoed_on_every_link(make_station, name, value):
     s = make_station(n_links=2)
     api = s.new_client(1)
     api.heartbeat()
     api.sync()
-    s.client.send(M.MAVLink_param_set_message(1, 1, b"COM_DL_LOSS_T", 2.5,
-                                              M.MAV_PARAM_TYPE_REAL32))
+    s.client.send(px4_param_set(name, value))
     msgs = s.client.sync()
-    assert [(v.param_id, v.param_value) for v in of_type(msgs, "PARAM_VALUE")] == [
-        ("COM_DL_LOSS_T", 2.5)]
+    # PX4: the answer to the setter, then the change on every link (send_untransmitted)
+    assert [(v.param_id, decoded(v)) for v in of_type(msgs, "PARAM_VALUE")] == [
+        (name, value)] * 2
     assert texts(msgs) == []
-    assert s.vehicle.parameters["COM_DL_LOSS_T"] == 2.5
-    assert [(v.param_id, v.param_value) for v in of_type(api.sync(), "PARAM_VALUE")] == [
-        ("COM_DL_LOSS_T", 2.5)]
+    assert s.vehicle.parameters[name] == value
+    assert [(v.param_id, decoded(v)) for v in of_type(api.sync(), "PARAM_VALUE")] == [
+        (name, value)]
+
+
+@pytest.mark.parametrize("name, kind", [("SYS_FAILURE_EN", REAL32),
+                                        ("COM_OF_LOSS_T", INT32)])
+def test_a_param_set_of_the_wrong_type_changes_nothing_and_gets_no_value_as_px4(
+        station, name, kind):
+    # PX4 (mavlink_parameters.cpp) refuses a type other than the parameter's and sends
+    # no PARAM_VALUE: MAVSDK's set_param_float on an INT32 times out there too.
+    station.client.send(px4_param_set(name, 1.0, kind))
+    msgs = station.client.sync()
+    assert texts(msgs) == [f"param types mismatch: {name}"]
+    assert of_type(msgs, "PARAM_VALUE") == []
+    assert station.vehicle.parameters[name] == DEFAULTS[name]
 
 
 @pytest.mark.parametrize("name, value, why", [
     ("ATT_LAM", math.nan, "ATT_LAM: parameter ATT_LAM must be finite and in"),
     ("ATT_LAM", 1e9, "ATT_LAM: parameter ATT_LAM must be finite and in"),
-    ("NAV_DLL_ACT", 2.5, "NAV_DLL_ACT: parameter NAV_DLL_ACT must be one of"),
+    ("GF_ACTION", 4, "GF_ACTION: parameter GF_ACTION must be one of 0, 1,"),
+    ("COM_DL_LOSS_T", -7, "COM_DL_LOSS_T: parameter COM_DL_LOSS_T must be fini"),
     ("COM_OF_LOSS_T", 0.0, "COM_OF_LOSS_T: parameter COM_OF_LOSS_T must be fin")])
 def test_a_refused_param_set_keeps_the_old_value_and_says_why(station, name, value, why):
     old = DEFAULTS[name]
-    station.client.send(M.MAVLink_param_set_message(1, 1, name.encode(), value,
-                                                    M.MAV_PARAM_TYPE_REAL32))
+    station.client.send(px4_param_set(name, value))
     msgs = station.client.sync()
     (said,) = texts(msgs)
     assert said.startswith(why)
     # the whole reason, range and value included, in two chunks
-    assert len(said) > STATUSTEXT_CHARS and said.endswith(f"got {value!r}")
-    (echo,) = of_type(msgs, "PARAM_VALUE")
-    assert (echo.param_id, echo.param_value) == (name, pytest.approx(old))
+    assert len(said) > STATUSTEXT_CHARS and said.endswith(f"got {float(value)!r}")
+    for echo in of_type(msgs, "PARAM_VALUE"):  # the value in force, answered twice
+        assert (echo.param_id, decoded(echo)) == (name, pytest.approx(old))
+    assert len(of_type(msgs, "PARAM_VALUE")) == 2
     assert station.vehicle.parameters[name] == old
     assert of_type(msgs, "STATUSTEXT")[0].severity == M.MAV_SEVERITY_WARNING
+
+
+def test_an_integer_parameter_refuses_a_fraction_from_the_command_line():
+    with pytest.raises(ValueError, match="COM_DL_LOSS_T takes whole numbers, got 2.5"):
+        validate_parameters({"COM_DL_LOSS_T": 2.5})
+    assert validate_parameters({"COM_DL_LOSS_T": 3.0})["COM_DL_LOSS_T"] == 3.0
 
 
 def test_an_unknown_param_set_is_said_and_not_echoed(station):
@@ -489,13 +542,12 @@ def test_an_unknown_param_set_is_said_and_not_echoed(station):
 
 # -- link failsafes through the server ---------------------------------------------------
 def set_param(s: Station, name: str, value: float) -> None:
-    s.client.send(M.MAVLink_param_set_message(1, 1, name.encode(), value,
-                                              M.MAV_PARAM_TYPE_REAL32))
+    s.client.send(px4_param_set(name, value))
     s.client.sync()
     assert s.vehicle.parameters[name] == value
 
 
-@pytest.mark.parametrize("timeout_s", [DEFAULTS["COM_DL_LOSS_T"], 2.5])
+@pytest.mark.parametrize("timeout_s", [DEFAULTS["COM_DL_LOSS_T"], 3.0])
 def test_ground_station_heartbeat_loss_lands_after_com_dl_loss_t(station, timeout_s):
     s = station
     s.flying()

@@ -1,5 +1,7 @@
 """MAVSDK's failure plugin against the real processes, as against PX4: refused while
-SYS_FAILURE_EN is 0, unsupported failures refused, and a motor switched off in flight
+SYS_FAILURE_EN is 0 (by MAVSDK itself, which reads the INT32 parameter as it does PX4's,
+and by the vehicle for tools that ask anyway: tests/autopilot/test_failure_injection.py),
+unsupported failures refused, and a motor switched off in flight
 brings the quad down (a crash, as on PX4), with the injection announced; a reason
 longer than one STATUSTEXT arrives whole (MAVSDK reassembles the chunks)."""
 
@@ -49,7 +51,7 @@ async def _fly(port: int) -> dict:
             await failure.inject(FailureUnit.SENSOR_GPS, FailureType.OFF, 0)
         except FailureError as exc:
             seen["disabled"] = exc.result
-        await param.set_param_float("SYS_FAILURE_EN", 1.0)
+        await param.set_param_int("SYS_FAILURE_EN", 1)
         try:
             await failure.inject(FailureUnit.SENSOR_BARO, FailureType.DELAYED, 0)
         except FailureError as exc:
@@ -81,10 +83,12 @@ def test_mavsdk_injects_failures_as_into_px4(tmp_path):
         seen = asyncio.run(_fly(procs.gcs_port))
     finally:
         procs.stop()
-    assert seen.get("disabled") == FailureResult.DENIED
+    # MAVSDK read SYS_FAILURE_EN 0 and did not ask; set_param_int's change reached its
+    # subscription (PX4's second PARAM_VALUE), so the later injections were sent.
+    assert seen.get("disabled") == FailureResult.DISABLED
     assert seen.get("unsupported") == FailureResult.UNSUPPORTED
     assert seen.get("fell")
-    assert "failure injection disabled: set SYS_FAILURE_EN to 1" in seen["texts"]
+    assert "failure injection disabled: set SYS_FAILURE_EN to 1" not in seen["texts"]
     # 162 characters: sent in four STATUSTEXT chunks, shown whole by MAVSDK
     assert "failure barometer delayed is not supported (gyro, accelerometer, magnetometer, " \
         "barometer, GPS: ok, off, stuck, garbage, wrong, slow, intermittent; motor: ok, off)" \

@@ -40,7 +40,7 @@ async def _fly(port: int) -> dict:
             h = await telem.health()
             return h.is_local_position_ok and h.is_armable
         await _until(healthy, 30, "health")
-        await param.set_param_float("SYS_FAILURE_EN", 1.0)
+        await param.set_param_int("SYS_FAILURE_EN", 1)
 
         async def down_m():
             return (await telem.position_velocity_ned()).position.down_m

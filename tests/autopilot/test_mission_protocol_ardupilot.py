@@ -1,0 +1,187 @@
+"""The mission protocol as ArduPilot Copter runs it (``--flavour ardupilot``), over real UDP
+sockets with pymavlink: home is item 0 of the mission list, uploads are asked with
+MISSION_REQUEST and answered with either item form, the stored mission is numbered from
+1 on the wire (DO_JUMP targets, MISSION_CURRENT, MISSION_ITEM_REACHED, set-current), and
+Copter's answers to what it refuses. The PX4 flavour's protocol is
+tests/autopilot/test_mission_protocol.py."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from autopilot.navigator.mission_store import FENCE, MISSION
+from tests.autopilot.test_mission_protocol import (
+    HOME_LAT,
+    HOME_LON,
+    LAND,
+    REL_INT,
+    TAKEOFF,
+    WAYPOINT,
+    download,
+    fields,
+    item,
+    of,
+)
+from tests.mavlink_station import M, texts
+
+
+@pytest.fixture
+def copter(make_station):
+    return make_station(flavour="ardupilot")
+
+
+def home_item_as_tools_send_it():
+    """What MAVProxy's ``wp load`` and DroneKit send as item 0: a waypoint at home, AMSL."""
+    return M.MAVLink_mission_item_int_message(
+        1, 1, 0, M.MAV_FRAME_GLOBAL_INT, WAYPOINT, 0, 1, 0.0, 0.0, 0.0, 0.0,
+        round(HOME_LAT * 1e7), round(HOME_LON * 1e7), 488.0, MISSION)
+
+
+def mission_with_home():
+    return [home_item_as_tools_send_it(), item(1, TAKEOFF, params=(0.0, 0.0, 0.0, math.nan)),
+            item(2, north_m=20.0), item(3, LAND, north_m=20.0, alt_m=0.0)]
+
+
+def upload(station, items, mission_type: int = MISSION, legacy_answers: bool = False):
+    """A tool's upload answering what the vehicle asks; returns the ACK, the requests'
+    message types and sequence numbers, and the texts said."""
+    c = station.client
+    c.send(M.MAVLink_mission_count_message(1, 1, len(items), mission_type))
+    asked, said = [], []
+    for _ in range(len(items) + 1):
+        msgs = c.sync()
+        said += texts(msgs)
+        acks = of(msgs, "MISSION_ACK")
+        if acks:
+            return acks[0], asked, said
+        (request,) = of(msgs, "MISSION_REQUEST_INT") + of(msgs, "MISSION_REQUEST")
+        asked.append((request.get_type(), request.seq))
+        c.send(items[request.seq])
+    raise AssertionError("no MISSION_ACK")
+
+
+def test_an_empty_mission_downloads_as_home_alone(copter):
+    (home,) = download(copter)
+    assert (home.seq, home.frame, home.command) == (0, M.MAV_FRAME_GLOBAL, WAYPOINT)
+    h = copter.vehicle.home
+    assert (home.x, home.y) == (round(h.lat_deg * 1e7), round(h.lon_deg * 1e7))
+    assert home.z == pytest.approx(h.alt_amsl_m, abs=1e-3)  # above sea level, not home
+    (home_legacy,) = download(copter, legacy=True)  # MISSION_REQUEST gets MISSION_ITEM
+    assert home_legacy.x == pytest.approx(h.lat_deg, abs=4e-6)  # float32 degrees
+
+
+def test_an_upload_is_asked_with_mission_request_and_item_0_is_dropped(copter):
+    items = mission_with_home()
+    ack, asked, said = upload(copter, items)
+    assert ack.type == M.MAV_MISSION_ACCEPTED
+    assert asked == [("MISSION_REQUEST", seq) for seq in range(4)]  # as Copter asks
+    assert said == ["Flight plan received"]
+    stored = copter.vehicle.mission.lists[MISSION]
+    assert [(i.seq, i.command) for i in stored] == [(0, TAKEOFF), (1, WAYPOINT), (2, LAND)]
+    back = download(copter)
+    assert [m.seq for m in back] == [0, 1, 2, 3]
+    assert [fields(a)[1:] for a in back[1:]] == [fields(b)[1:] for b in items[1:]]
+    assert back[0].z == pytest.approx(copter.vehicle.home.alt_amsl_m, abs=1e-3)
+    current = copter.server.telemetry(M.MAVLINK_MSG_ID_MISSION_CURRENT)
+    assert (current.seq, current.total) == (1, 3)  # the first item after home; the last is 3
+
+
+def test_a_home_item_elsewhere_does_not_move_home(copter):
+    before = copter.vehicle.home
+    items = mission_with_home()
+    items[0] = M.MAVLink_mission_item_int_message(
+        1, 1, 0, M.MAV_FRAME_GLOBAL_INT, WAYPOINT, 0, 1, 0.0, 0.0, 0.0, 0.0,
+        round((HOME_LAT + 0.01) * 1e7), round(HOME_LON * 1e7), 600.0, MISSION)
+    assert upload(copter, items)[0].type == M.MAV_MISSION_ACCEPTED
+    assert copter.vehicle.home == before
+    assert download(copter)[0].x == round(before.lat_deg * 1e7)
+
+
+def test_float_items_are_taken_in_degrees(copter):
+    legacy = [M.MAVLink_mission_item_message(1, 1, seq, M.MAV_FRAME_GLOBAL_RELATIVE_ALT,
+                                             WAYPOINT, 0, 1, 0.0, 1.0, 0.0, math.nan,
+                                             HOME_LAT + 1e-4 * seq, HOME_LON, 5.0, MISSION)
+              for seq in range(3)]
+    ack, asked, _ = upload(copter, legacy)
+    assert ack.type == M.MAV_MISSION_ACCEPTED and len(asked) == 3
+    stored = copter.vehicle.mission.lists[MISSION]
+    # float32 degrees: 4e-6 deg apart near 47 deg
+    assert [i.x for i in stored] == pytest.approx(
+        [(HOME_LAT + 1e-4) * 1e7, (HOME_LAT + 2e-4) * 1e7], abs=40)
+
+
+def test_do_jump_targets_are_numbered_after_home(copter):
+    items = mission_with_home()
+    items.insert(3, item(3, M.MAV_CMD_DO_JUMP, M.MAV_FRAME_MISSION, params=(2.0, 1.0, 0.0, 0.0)))
+    items = [M.MAVLink_mission_item_int_message(
+        1, 1, seq, m.frame, m.command, 0, 1, m.param1, m.param2, m.param3, m.param4, m.x, m.y,
+        m.z, MISSION) for seq, m in enumerate(items)]
+    assert upload(copter, items)[0].type == M.MAV_MISSION_ACCEPTED
+    jump = copter.vehicle.mission.lists[MISSION][2]
+    assert (jump.command, jump.params[0]) == (M.MAV_CMD_DO_JUMP, 1.0)  # stored from 0
+    assert download(copter)[3].param1 == 2.0  # and said from 1 again
+
+
+def test_copter_refusals_leave_the_mission_as_it_was(copter):
+    assert upload(copter, mission_with_home())[0].type == M.MAV_MISSION_ACCEPTED
+    before = copter.vehicle.mission.lists[MISSION]
+    to_home = mission_with_home()
+    to_home[2] = item(2, M.MAV_CMD_DO_JUMP, M.MAV_FRAME_MISSION, params=(0.0, 1.0, 0.0, 0.0))
+    ack, _, said = upload(copter, to_home)
+    assert ack.type == M.MAV_MISSION_ERROR  # a jump to home, as Copter answers it
+    assert said == ["mission: item 2: DO_JUMP to home"]
+    bad = mission_with_home()
+    bad[2] = item(2, alt_m=math.nan)
+    ack, _, said = upload(copter, bad)
+    assert ack.type == M.MAV_MISSION_INVALID_PARAM7
+    assert said == ["mission: item 2: altitude nan m"]  # in the tool's numbering
+    bad_home = mission_with_home()
+    bad_home[0] = item(0, frame=M.MAV_FRAME_BODY_FRD)
+    assert upload(copter, bad_home)[0].type == M.MAV_MISSION_UNSUPPORTED_FRAME
+    assert copter.vehicle.mission.lists[MISSION] is before
+
+
+def test_an_item_past_the_end_is_answered_with_the_count_then_an_error(copter):
+    assert upload(copter, mission_with_home())[0].type == M.MAV_MISSION_ACCEPTED
+    c = copter.client
+    c.send(M.MAVLink_mission_request_int_message(1, 1, 4, MISSION))
+    msgs = c.sync()
+    assert [m.count for m in of(msgs, "MISSION_COUNT")] == [4]
+    assert [m.type for m in of(msgs, "MISSION_ACK")] == [M.MAV_MISSION_ERROR]
+
+
+def test_set_current_and_reached_are_numbered_after_home(copter):
+    assert upload(copter, mission_with_home())[0].type == M.MAV_MISSION_ACCEPTED
+    c = copter.client
+    c.send(M.MAVLink_mission_set_current_message(1, 1, 2))
+    (current,) = of(c.sync(), "MISSION_CURRENT")
+    assert copter.vehicle.mission.current == 1 and current.seq == 2
+    c.send(M.MAVLink_mission_set_current_message(1, 1, 0))  # home: the mission's start
+    (current,) = of(c.sync(), "MISSION_CURRENT")
+    assert copter.vehicle.mission.current == 0 and current.seq == 1
+    copter.vehicle.reached.append(1)  # the runner reached stored item 1
+    copter.service()
+    assert [m.seq for m in of(c.sync(), "MISSION_ITEM_REACHED")] == [2]
+
+
+def test_fences_have_no_home_item(copter):
+    vertices = [item(seq, M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, params=(3.0, 0, 0, 0),
+                     north_m=30.0 * (seq == 1), east_m=30.0 * (seq == 2), mission_type=FENCE)
+                for seq in range(3)]
+    ack, asked, said = upload(copter, vertices, FENCE)
+    assert ack.type == M.MAV_MISSION_ACCEPTED and said == []
+    assert [seq for _, seq in asked] == [0, 1, 2]
+    assert len(download(copter, FENCE)) == 3
+    assert copter.vehicle.mission.lists[MISSION] == ()
+
+
+def test_the_px4_flavour_keeps_its_numbering(station):
+    items = [item(0, TAKEOFF, params=(0.0, 0.0, 0.0, math.nan)), item(1, north_m=20.0)]
+    ack, asked, said = upload(station, items)
+    assert ack.type == M.MAV_MISSION_ACCEPTED and said == []
+    assert asked == [("MISSION_REQUEST_INT", 0), ("MISSION_REQUEST_INT", 1)]
+    back = download(station)
+    assert [(m.seq, m.command, m.frame) for m in back] == [(0, TAKEOFF, REL_INT),
+                                                          (1, WAYPOINT, REL_INT)]

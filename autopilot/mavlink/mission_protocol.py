@@ -211,19 +211,20 @@ class MissionProtocol:
             self.server.send_text(link, M.MAV_SEVERITY_INFO, "Flight plan received", address)
         self._end(M.MAV_MISSION_ACCEPTED)
 
-    @staticmethod
-    def _checked(item: MissionItem, t: Transfer) -> MissionItem:
+    def _checked(self, item: MissionItem, t: Transfer) -> MissionItem:
         """The item as stored, once it passed check_item (raises ItemError). An ArduPilot
         upload's home item is checked as it came and dropped later; the others are
-        numbered from 0, as stored (a DO_JUMP to home is Copter's MAV_MISSION_ERROR)."""
+        numbered from 0, as stored (a DO_JUMP to home is Copter's MAV_MISSION_ERROR);
+        an ArduPilot mission takes Copter's yaw and ROI items too."""
+        ardupilot = self.server.flavour == "ardupilot"
         if item.seq < t.home:
-            check_item(item, t.count)
+            check_item(item, t.count, ardupilot)
             return item
         if item.command == M.MAV_CMD_DO_JUMP and item.params[0] < t.home:
             raise ItemError(M.MAV_MISSION_ERROR, f"item {item.seq}: DO_JUMP to home")
         stored = renumbered(item, -t.home)
         try:
-            check_item(stored, t.count - t.home)
+            check_item(stored, t.count - t.home, ardupilot)
         except ItemError as exc:  # said in the tool's numbering
             raise ItemError(exc.result, f"item {item.seq}:" + str(exc).split(":", 1)[1]) \
                 from None

@@ -28,7 +28,13 @@ import numpy as np
 
 from autopilot.flight_tasks.goal import LAND_DOWN_M, Goal, Vertical
 from autopilot.flight_tasks.shaping import Setpoint
-from autopilot.navigator.mission_store import DO_COMMANDS, PAYLOAD_COMMANDS, MissionItem
+from autopilot.navigator.mission_store import (
+    ARDUPILOT_DO_COMMANDS,
+    DO_COMMANDS,
+    PAYLOAD_COMMANDS,
+    MissionItem,
+    is_roi_none,
+)
 from contracts.frames import Home
 from contracts.mavlink import mavlink, ned_from_global
 
@@ -144,6 +150,7 @@ class MissionRunner:
     _hold_from_s: float | None = None
     _wait_until_s: float = 0.0
     _jumps_left: dict[int, int] = field(default_factory=dict)
+    _roi_ned_m: np.ndarray | None = None  # the region of interest the nose points at
 
     def start(self, seq: int, position_ned_m: np.ndarray, yaw_rad: float, landed: bool,
               take_off_alt_m: float) -> None:
@@ -165,7 +172,7 @@ class MissionRunner:
     # -- the items ---------------------------------------------------------------------
     def _nav_command(self, seq: int) -> int | None:
         for item in self.items[seq:]:
-            if item.command not in DO_COMMANDS:
+            if item.command not in DO_COMMANDS and item.command not in ARDUPILOT_DO_COMMANDS:
                 return item.command
         return None
 
@@ -189,9 +196,9 @@ class MissionRunner:
                     self.speed_mps = float(item.params[1])
                 self.seq += 1
                 continue
-            if command in PAYLOAD_COMMANDS:  # no camera or gimbal to drive
-                self.seq += 1
-                continue
+            if command in PAYLOAD_COMMANDS or command in ARDUPILOT_DO_COMMANDS:
+                self.seq += 1  # no payload to drive; yaw and ROI items ran with the last
+                continue       # position item (_run_conditionals)
             if command == M.MAV_CMD_DO_JUMP:
                 left = self._jumps_left.setdefault(self.seq, int(item.params[1]))
                 if left != 0:
@@ -227,6 +234,37 @@ class MissionRunner:
         self._yaw_rad = math.radians(yaw) if math.isfinite(yaw) else (
             face if math.isfinite(face) else self._yaw_rad)
         self._phase = Phase.TAKEOFF if command == M.MAV_CMD_NAV_TAKEOFF else Phase.FLY
+        self._run_conditionals(here)
+
+    def _run_conditionals(self, here: np.ndarray) -> None:
+        """ArduPilot Copter's yaw and ROI items (ARDUPILOT_DO_COMMANDS) that follow the
+        item just begun run at once, during its leg, as AP_Mission starts the do and
+        condition commands after a navigation command: CONDITION_YAW turns to a heading
+        (absolute, or relative to the present one, clockwise or not) held until the
+        next position item; a region of interest keeps the nose on it from now on (each
+        leg too) until a DO_SET_ROI_NONE or an ROI at 0, 0."""
+        for item in self.items[self.seq + 1:]:
+            command = item.command
+            if command not in DO_COMMANDS and command not in ARDUPILOT_DO_COMMANDS:
+                return
+            if command == M.MAV_CMD_CONDITION_YAW:
+                angle = math.radians(item.params[0])
+                self._yaw_rad = self._yaw_rad + (-angle if item.params[2] < 0 else angle) \
+                    if item.params[3] == 1.0 else angle
+                self._roi_ned_m = None  # Copter: a fixed heading replaces the ROI
+            elif is_roi_none(item):
+                self._roi_ned_m = None
+            elif command in ARDUPILOT_DO_COMMANDS:  # an ROI at a location
+                self._roi_ned_m = item_position_ned(item, here, self.home)
+
+    def _heading(self, position_ned_m: np.ndarray) -> float:
+        """The heading to fly: facing the region of interest when there is one (and it is
+        not close by), else the item's."""
+        if self._roi_ned_m is not None:
+            face = heading_to(position_ned_m, self._roi_ned_m)
+            if math.isfinite(face):
+                self._yaw_rad = face
+        return self._yaw_rad
 
     def _finish(self, text: str) -> None:
         if not self.finished:
@@ -305,7 +343,7 @@ class MissionRunner:
             elif away <= AT_WAYPOINT_M or (away <= radius and self._slowed_for_corner(
                     reference_velocity_ned_mps, radius)):
                 self._next(position_ned_m, t_s)
-        return Goal(Setpoint.hold(self._target, self._yaw_rad), self._speed(),
+        return Goal(Setpoint.hold(self._target, self._heading(position_ned_m)), self._speed(),
                     Vertical.TAKEOFF if self._phase is Phase.TAKEOFF else Vertical.CRUISE)
 
     def _slowed_for_corner(self, velocity_ned_mps: np.ndarray | None,

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from autopilot.navigator.mission_store import FENCE, MISSION
@@ -185,3 +186,117 @@ def test_the_px4_flavour_keeps_its_numbering(station):
     back = download(station)
     assert [(m.seq, m.command, m.frame) for m in back] == [(0, TAKEOFF, REL_INT),
                                                           (1, WAYPOINT, REL_INT)]
+
+
+# -- Copter's yaw and ROI items ------------------------------------------------------------
+CONDITION_YAW, ROI_LOCATION, ROI_NONE = (M.MAV_CMD_CONDITION_YAW, M.MAV_CMD_DO_SET_ROI_LOCATION,
+                                         M.MAV_CMD_DO_SET_ROI_NONE)
+
+
+def yaw_item(seq: int, params) -> object:
+    return M.MAVLink_mission_item_int_message(1, 1, seq, M.MAV_FRAME_MISSION, CONDITION_YAW, 0,
+                                              1, *params, 0, 0, 0.0, MISSION)
+
+
+def test_copter_yaw_and_roi_items_are_taken_in_the_ardupilot_flavour_only(copter, station):
+    items = mission_with_home()[:3] + [
+        yaw_item(3, (90.0, 20.0, 1.0, 0.0)), item(4, ROI_LOCATION, params=(0, 0, 0, 0),
+                                                  east_m=30.0),
+        M.MAVLink_mission_item_int_message(1, 1, 5, M.MAV_FRAME_MISSION, ROI_NONE, 0, 1,
+                                           0, 0, 0, 0, 0, 0, 0.0, MISSION),
+        item(6, M.MAV_CMD_DO_SET_ROI, params=(0, 0, 0, 0), east_m=10.0)]
+    ack, _, _ = upload(copter, items)
+    assert ack.type == M.MAV_MISSION_ACCEPTED
+    assert [i.command for i in copter.vehicle.mission.lists[MISSION][2:]] == [
+        CONDITION_YAW, ROI_LOCATION, ROI_NONE, M.MAV_CMD_DO_SET_ROI]
+    # PX4 takes what it took: a CONDITION_YAW is refused, the mission stays empty.
+    px4 = [item(0, TAKEOFF, params=(0.0, 0.0, 0.0, math.nan)),
+           M.MAVLink_mission_item_int_message(1, 1, 1, M.MAV_FRAME_MISSION, CONDITION_YAW, 0,
+                                              1, 90.0, 0.0, 0.0, 0.0, 0, 0, 0.0, MISSION)]
+    ack, _, said = upload(station, px4)
+    assert ack.type == M.MAV_MISSION_UNSUPPORTED and station.vehicle.mission.lists[MISSION] == ()
+
+
+@pytest.mark.parametrize(("params", "result"), [
+    ((400.0, 0.0, 0.0, 0.0), M.MAV_MISSION_INVALID_PARAM1),
+    ((math.nan, 0.0, 0.0, 0.0), M.MAV_MISSION_INVALID_PARAM1),
+    ((90.0, -5.0, 0.0, 0.0), M.MAV_MISSION_INVALID_PARAM2),
+    ((90.0, 0.0, 2.0, 0.0), M.MAV_MISSION_INVALID_PARAM3),
+    ((90.0, 0.0, 0.0, 0.5), M.MAV_MISSION_INVALID_PARAM4),
+])
+def test_a_bad_condition_yaw_is_refused(copter, params, result):
+    items = mission_with_home()[:2] + [yaw_item(2, params)]
+    ack, _, said = upload(copter, items)
+    assert ack.type == result and copter.vehicle.mission.lists[MISSION] == ()
+    assert said and said[0].startswith("mission: item 2: ")
+
+
+def _runner(items):
+    from autopilot.navigator.mission_runner import MissionRunner
+    from autopilot.parameters import default_parameters
+    from contracts.frames import DEFAULT_HOME
+
+    return MissionRunner(tuple(items), default_parameters(), DEFAULT_HOME)
+
+
+# Headings to points placed by latitude and longitude (1e-7 deg, 1 cm, of rounding, and the
+# projection's round trip): within 1e-5 rad at 20 m, 1e-4 rad for the ROI's.
+def test_condition_yaw_turns_during_the_leg_before_it_until_the_next_waypoint():
+    from tests.flight import do_item, mission_item
+
+    runner = _runner([mission_item(0, 20.0, 0.0, 5.0), do_item(1, CONDITION_YAW,
+                                                               (90.0, 0.0, 0.0, 0.0)),
+                      mission_item(2, 20.0, 20.0, 5.0)])
+    here = np.array([0.0, 0.0, -5.0])
+    runner.start(0, here, 0.0, False, 2.5)
+    goal = runner.step(0.0, here, here)
+    assert goal.setpoint.yaw_rad == pytest.approx(math.pi / 2, abs=1e-5)  # east, not facing north
+    relative = _runner([mission_item(0, 20.0, 0.0, 5.0), do_item(1, CONDITION_YAW,
+                                                                 (30.0, 0.0, -1.0, 1.0))])
+    relative.start(0, here, 0.0, False, 2.5)
+    assert relative.step(0.0, here, here).setpoint.yaw_rad == pytest.approx(-math.pi / 6, abs=1e-5)
+    there = np.array([20.0, 0.0, -5.0])  # at the first waypoint: the next leg faces east
+    for t in np.arange(0.01, 5.0, 0.01):
+        goal = runner.step(t, there, there)
+        if runner.seq == 2:
+            break
+    assert runner.seq == 2 and goal.setpoint.yaw_rad == pytest.approx(math.pi / 2, abs=1e-5)
+    runner.step(5.0, there, there)
+
+
+def test_a_region_of_interest_holds_the_nose_across_legs_until_roi_none():
+    """As AP_Mission runs them, the do items after a waypoint run during the leg to it:
+    the ROI after WP1 holds on the legs to WP1 and WP2; the ROI_NONE after WP3 ends it
+    on the leg to WP3, which faces its way again."""
+    from contracts.frames import DEFAULT_HOME
+    from tests.flight import do_item, mission_item
+
+    lat, lon, _ = DEFAULT_HOME.geodetic_from_ned(0.0, 30.0, 0.0)
+    runner = _runner([mission_item(0, 20.0, 0.0, 5.0), MissionItem_at(1, ROI_LOCATION, lat, lon),
+                      mission_item(2, 20.0, -20.0, 5.0), mission_item(3, 0.0, -20.0, 5.0),
+                      do_item(4, ROI_NONE, (0, 0, 0, 0)), mission_item(5, 0.0, 0.0, 5.0)])
+    here = np.array([0.0, 0.0, -5.0])
+    runner.start(0, here, 0.0, False, 2.5)
+    assert runner.step(0.0, here, here).setpoint.yaw_rad == pytest.approx(math.pi / 2, abs=1e-4)
+    midway = np.array([10.0, 0.0, -5.0])
+    assert runner.step(0.01, midway, midway).setpoint.yaw_rad == pytest.approx(
+        math.atan2(30.0, -10.0), abs=1e-4)
+
+    def fly_to(position, seq: int, t0: float):
+        for t in np.arange(t0, t0 + 5.0, 0.01):
+            goal = runner.step(t, position, position)
+            if runner.seq == seq:
+                return goal
+        raise AssertionError(f"item {seq} not begun")
+
+    goal = fly_to(np.array([20.0, 0.0, -5.0]), 2, 0.02)
+    assert goal.setpoint.yaw_rad == pytest.approx(math.atan2(30.0, -20.0), abs=1e-4)  # ROI
+    goal = fly_to(np.array([20.0, -20.0, -5.0]), 3, 5.0)
+    assert abs(goal.setpoint.yaw_rad) == pytest.approx(math.pi, abs=1e-4)  # south: no ROI
+
+
+def MissionItem_at(seq: int, command: int, lat_deg: float, lon_deg: float):  # noqa: N802
+    from autopilot.navigator.mission_store import MissionItem
+
+    return MissionItem(seq, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command, 0, 1,
+                       (0.0, 0.0, 0.0, 0.0), round(lat_deg * 1e7), round(lon_deg * 1e7), 5.0)

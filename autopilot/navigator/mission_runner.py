@@ -84,9 +84,12 @@ class Event(NamedTuple):
     text: str = ""
 
 
-def item_position_ned(item: MissionItem, here_ned_m: np.ndarray, home: Home) -> np.ndarray:
+def item_position_ned(item: MissionItem, here_ned_m: np.ndarray, home: Home,
+                      zero_latlon_is_here: bool = False) -> np.ndarray:
     """A positioned item's target in local NED around ``home``. A landing item at latitude
-    and longitude 0 (or x, y NaN in LOCAL_NED) lands where the vehicle is."""
+    and longitude 0 (or x, y NaN in LOCAL_NED) lands where the vehicle is; with
+    ``zero_latlon_is_here`` (ArduPilot Copter) so does every position item at 0, 0, at
+    its own altitude."""
     if item.is_global:
         here_latlon = item.x == 0 and item.y == 0
         out = ned_from_global(home, item.frame, item.x * 1e-7, item.y * 1e-7, item.z)
@@ -94,8 +97,8 @@ def item_position_ned(item: MissionItem, here_ned_m: np.ndarray, home: Home) -> 
         here_latlon = not (math.isfinite(item.x) and math.isfinite(item.y))
         out = np.array([item.x, item.y, item.z], dtype=float)
     # A take-off climbs straight up where the vehicle is, as PX4's does.
-    if item.command == M.MAV_CMD_NAV_TAKEOFF or (here_latlon and
-                                                 item.command == M.MAV_CMD_NAV_LAND):
+    if item.command == M.MAV_CMD_NAV_TAKEOFF or (here_latlon and (
+            zero_latlon_is_here or item.command == M.MAV_CMD_NAV_LAND)):
         out[0:2] = here_ned_m[0:2]
     return out
 
@@ -138,6 +141,7 @@ class MissionRunner:
     items: tuple[MissionItem, ...]
     parameters: dict[str, float]
     home: Home  # where the items' latitudes and longitudes are taken around
+    zero_latlon_is_here: bool = False  # Copter: a position item at 0, 0 is "here"
     seq: int = 0
     speed_mps: float = math.nan  # DO_CHANGE_SPEED; NaN: MPC_XY_CRUISE
     events: list[Event] = field(default_factory=list)  # for the navigator to act on
@@ -179,8 +183,11 @@ class MissionRunner:
     def _first_position(self, seq: int, here: np.ndarray) -> np.ndarray | None:
         for item in self.items[seq:]:
             if item.command in (*WAYPOINT_COMMANDS, M.MAV_CMD_NAV_TAKEOFF):
-                return item_position_ned(item, here, self.home)
+                return self._position(item, here)
         return None
+
+    def _position(self, item: MissionItem, here: np.ndarray) -> np.ndarray:
+        return item_position_ned(item, here, self.home, self.zero_latlon_is_here)
 
     def _begin_item(self, here: np.ndarray, t_s: float) -> None:
         """Set up the current item, carrying out DO items on the way to the next one
@@ -225,7 +232,7 @@ class MissionRunner:
             self._phase = Phase.WAIT
             self._wait_until_s = t_s + float(item.params[0])
             return
-        target = item_position_ned(item, self._leg_start, self.home)
+        target = self._position(item, self._leg_start)
         if command == M.MAV_CMD_NAV_LAND:
             target[2] = self._leg_start[2]  # fly there at this altitude, then descend
         self._target = target
@@ -293,7 +300,7 @@ class MissionRunner:
         following = self.seq + 1
         if following < len(self.items) and \
                 self.items[following].command in WAYPOINT_COMMANDS:
-            after = item_position_ned(self.items[following], self._target, self.home)
+            after = self._position(self.items[following], self._target)
             return corner_speed_mps(turn_angle(self._leg_start, self._target, after),
                                     radius_m, self.parameters["MPC_ACC_HOR"], self._speed())
         return 0.0

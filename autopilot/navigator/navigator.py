@@ -22,7 +22,10 @@ from contracts.frames import DEFAULT_HOME
 class Navigator:
     """The mission store and the runner flying (or pausing) its mission."""
 
-    def __init__(self, say: Callable[..., None]) -> None:
+    def __init__(self, say: Callable[..., None], zero_latlon_is_here: bool = False) -> None:
+        # ArduPilot Copter's rule: a position item at latitude and longitude 0 is flown
+        # where the vehicle is (MissionRunner.zero_latlon_is_here).
+        self.zero_latlon_is_here = zero_latlon_is_here
         self.store = MissionStore()  # mission, fence and rally lists, kept across modes
         self.runner: MissionRunner | None = None  # the mission being flown (or paused)
         self.complete = False
@@ -55,7 +58,8 @@ class Navigator:
                 self.runner.items is not items:  # from the start, fresh jump counts and speed
             if self.complete or self.store.current >= len(items):
                 self.store.current = 0
-            self.runner = MissionRunner(items, parameters, self.home)
+            self.runner = MissionRunner(items, parameters, self.home,
+                                        zero_latlon_is_here=self.zero_latlon_is_here)
         self.complete = False  # (resuming keeps the jump counts and the speed)
         self.runner.start(self.store.current, stopping_point, heading_rad, landed,
                           parameters["MIS_TAKEOFF_ALT"])

@@ -300,3 +300,32 @@ def MissionItem_at(seq: int, command: int, lat_deg: float, lon_deg: float):  # n
 
     return MissionItem(seq, M.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command, 0, 1,
                        (0.0, 0.0, 0.0, 0.0), round(lat_deg * 1e7), round(lon_deg * 1e7), 5.0)
+
+
+def test_a_waypoint_at_latitude_and_longitude_0_is_here_in_copter_missions_only():
+    from dataclasses import replace
+
+    from autopilot.navigator.mission_runner import MissionRunner
+    from autopilot.parameters import default_parameters
+    from contracts.frames import DEFAULT_HOME
+    from tests.flight import mission_item
+
+    here = np.array([7.0, -3.0, -5.0])
+    zero = replace(MissionItem_at(0, M.MAV_CMD_NAV_WAYPOINT, 0.0, 0.0), z=12.0)
+    items = (mission_item(0, 7.0, -3.0, 5.0), zero)
+    for copter, expected_ne in ((True, (7.0, -3.0)), (False, None)):
+        runner = MissionRunner(items, default_parameters(), DEFAULT_HOME,
+                               zero_latlon_is_here=copter)
+        runner.start(1, here, 0.0, False, 2.5)
+        goal = runner.step(0.0, here, here)
+        target = goal.setpoint.position_ned_m
+        assert target[2] == pytest.approx(-12.0)  # its own altitude above home, both ways
+        if copter:
+            assert tuple(target[:2]) == pytest.approx(expected_ne)
+        else:  # PX4: latitude 0, longitude 0 is a place (thousands of km away)
+            assert math.hypot(*target[:2]) > 1e6
+
+
+def test_the_ardupilot_flavour_flies_position_items_at_0_0_where_it_is(make_station):
+    assert make_station(flavour="ardupilot").vehicle.navigator.zero_latlon_is_here
+    assert not make_station().vehicle.navigator.zero_latlon_is_here

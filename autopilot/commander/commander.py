@@ -95,7 +95,7 @@ class Commander:
         # Why the state is not good enough to arm on (the estimator's reason), None if it is.
         self.navigation_problem: str | None = None
         self.estimator_status = None  # EstimatorStatus when flying on the estimator
-        self.navigator = Navigator(self.say, zero_latlon_is_here=flavour == "ardupilot")
+        self.navigator = Navigator(self.say, copter_rules=flavour == "ardupilot")
         env = TaskEnv(self.state, self.navigator, reference, self.switch_to, self.say)
         self.tasks: dict[FlightMode, FlightTask] = {m: row.task(env) for m, row in MODES.items()}
         # What tools stream (setpoints, sticks, a follow target).
@@ -246,6 +246,9 @@ class Commander:
         if row.entry is not None:
             row.entry(EntryView(self.armed, self.landed, self.reference is not None,
                                 bool(self.mission.lists[MISSION])))
+        if mode == FlightMode.MISSION and (why := self.navigator.missing_takeoff(
+                self.armed, self.landed)):
+            raise RefusedError(why)
         if row.command is not None:
             row.command(self)
             return

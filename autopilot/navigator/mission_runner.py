@@ -103,6 +103,14 @@ def item_position_ned(item: MissionItem, here_ned_m: np.ndarray, home: Home,
     return out
 
 
+def nav_command(items: tuple[MissionItem, ...], seq: int) -> int | None:
+    """The command of the first item from ``seq`` on that is not a do item (None: none)."""
+    for item in items[seq:]:
+        if item.command not in DO_COMMANDS and item.command not in ARDUPILOT_DO_COMMANDS:
+            return item.command
+    return None
+
+
 def heading_to(start_ned_m: np.ndarray, target_ned_m: np.ndarray) -> float:
     """The heading from ``start`` to ``target`` [rad], NaN when they are close."""
     d = target_ned_m[0:2] - start_ned_m[0:2]
@@ -175,10 +183,7 @@ class MissionRunner:
 
     # -- the items ---------------------------------------------------------------------
     def _nav_command(self, seq: int) -> int | None:
-        for item in self.items[seq:]:
-            if item.command not in DO_COMMANDS and item.command not in ARDUPILOT_DO_COMMANDS:
-                return item.command
-        return None
+        return nav_command(self.items, seq)
 
     def _first_position(self, seq: int, here: np.ndarray) -> np.ndarray | None:
         for item in self.items[seq:]:

@@ -327,5 +327,33 @@ def test_a_waypoint_at_latitude_and_longitude_0_is_here_in_copter_missions_only(
 
 
 def test_the_ardupilot_flavour_flies_position_items_at_0_0_where_it_is(make_station):
-    assert make_station(flavour="ardupilot").vehicle.navigator.zero_latlon_is_here
-    assert not make_station().vehicle.navigator.zero_latlon_is_here
+    assert make_station(flavour="ardupilot").vehicle.navigator.copter_rules
+    assert not make_station().vehicle.navigator.copter_rules
+
+
+def test_auto_armed_on_the_ground_needs_a_take_off_first_as_copter(make_station):
+    """Copter refuses AUTO armed on the ground unless the next position item is a take-off
+    ("Auto: Missing Takeoff Cmd"); disarmed it may be selected. PX4 climbs first instead."""
+    from tests.mavlink_station import ACCEPTED, ARM
+
+    SET_MODE = M.MAV_CMD_DO_SET_MODE
+
+    custom = float(M.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED)
+    copter = make_station(flavour="ardupilot")
+    no_takeoff = [home_item_as_tools_send_it(), item(1, north_m=20.0)]
+    assert upload(copter, no_takeoff)[0].type == M.MAV_MISSION_ACCEPTED
+    copter.state_up()
+    assert copter.client.result(ARM, 1)[0] == ACCEPTED  # in GUIDED, on the ground
+    result, said = copter.client.result(SET_MODE, custom, 3.0)  # AUTO
+    assert result != ACCEPTED and "Auto: Missing Takeoff Cmd" in " ".join(said)
+    assert copter.vehicle.mode.value == "guided"
+    assert upload(copter, mission_with_home())[0].type == M.MAV_MISSION_ACCEPTED
+    assert copter.client.result(SET_MODE, custom, 3.0)[0] == ACCEPTED
+    assert copter.vehicle.mode.value == "mission"
+
+    px4 = make_station()
+    assert upload(px4, [item(0, north_m=20.0)])[0].type == M.MAV_MISSION_ACCEPTED
+    px4.state_up()
+    assert px4.client.result(ARM, 1)[0] == ACCEPTED
+    assert px4.client.result(SET_MODE, custom, 4.0, 4.0)[0] == ACCEPTED  # AUTO.MISSION
+    assert px4.vehicle.mode.value == "mission"

@@ -52,6 +52,7 @@ WITHOUT_POSITION = DO_COMMANDS | WAIT_COMMANDS | {M.MAV_CMD_NAV_RETURN_TO_LAUNCH
 MAX_ALTITUDE_M = 10_000.0
 MAX_LOCAL_M = 100_000.0
 MAX_SPEED_MPS = 30.0
+SPEED_TYPE_AIRSPEED, SPEED_TYPE_GROUNDSPEED = 0.0, 1.0  # DO_CHANGE_SPEED param1 (SPEED_TYPE)
 
 
 @dataclass(frozen=True)
@@ -141,6 +142,13 @@ def check_item(item: MissionItem, count: int, ardupilot: bool = False) -> None:
             raise ItemError(M.MAV_MISSION_INVALID_PARAM4,
                             f"item {item.seq}: {p4} (0 absolute, 1 relative)")
     elif command == M.MAV_CMD_DO_CHANGE_SPEED:
+        if ardupilot and p1 not in (SPEED_TYPE_AIRSPEED, SPEED_TYPE_GROUNDSPEED):
+            # Copter's types 2 and 3 set the climb and descent speeds; the mission here
+            # flies its vertical speeds from the parameters, so they are refused, not
+            # taken and ignored.
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM1,
+                            f"item {item.seq}: speed type {p1} (0 airspeed, 1 ground speed; "
+                            "climb and descent speeds are not flown)")
         if math.isnan(p2) or not (p2 == -1 or 0 < p2 <= MAX_SPEED_MPS):
             raise ItemError(M.MAV_MISSION_INVALID_PARAM2,
                             f"item {item.seq}: speed {p2} m/s (0-{MAX_SPEED_MPS:g}, -1 "

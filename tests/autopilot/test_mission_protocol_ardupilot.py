@@ -357,3 +357,21 @@ def test_auto_armed_on_the_ground_needs_a_take_off_first_as_copter(make_station)
     assert px4.client.result(ARM, 1)[0] == ACCEPTED
     assert px4.client.result(SET_MODE, custom, 4.0, 4.0)[0] == ACCEPTED  # AUTO.MISSION
     assert px4.vehicle.mode.value == "mission"
+
+
+@pytest.mark.parametrize(("speed_type", "result"), [
+    (0.0, M.MAV_MISSION_ACCEPTED), (1.0, M.MAV_MISSION_ACCEPTED),
+    (2.0, M.MAV_MISSION_INVALID_PARAM1), (3.0, M.MAV_MISSION_INVALID_PARAM1),
+    (math.nan, M.MAV_MISSION_INVALID_PARAM1)])
+def test_do_change_speed_types_in_copter_missions(copter, speed_type, result):
+    """Air and ground speed set the horizontal cruise; Copter's climb and descent types
+    are refused (the mission flies its vertical speeds from the parameters)."""
+    speed = M.MAVLink_mission_item_int_message(1, 1, 2, M.MAV_FRAME_MISSION,
+                                               M.MAV_CMD_DO_CHANGE_SPEED, 0, 1, speed_type,
+                                               4.0, -1.0, 0.0, 0, 0, 0.0, MISSION)
+    ack, _, said = upload(copter, mission_with_home()[:2] + [speed])
+    assert ack.type == result
+    if result == M.MAV_MISSION_ACCEPTED:
+        assert copter.vehicle.mission.lists[MISSION][1].params[:2] == (speed_type, 4.0)
+    else:
+        assert said[0].startswith("mission: item 2: speed type")

@@ -246,9 +246,7 @@ class Commander:
         if row.entry is not None:
             row.entry(EntryView(self.armed, self.landed, self.reference is not None,
                                 bool(self.mission.lists[MISSION])))
-        if mode == FlightMode.MISSION and (why := self.navigator.missing_takeoff(
-                self.armed, self.landed)):
-            raise RefusedError(why)
+        self.navigator.check_mode_entry(mode, self.armed, self.landed)  # Copter's AUTO rule
         if row.command is not None:
             row.command(self)
             return

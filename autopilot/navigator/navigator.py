@@ -18,6 +18,7 @@ from autopilot.navigator.mission_store import MAX_SPEED_MPS, MISSION, MissionSto
 from autopilot.refusal import RefusedError
 from contracts.frames import DEFAULT_HOME
 from contracts.mavlink import mavlink
+from contracts.modes import FlightMode
 
 
 class Navigator:
@@ -68,14 +69,14 @@ class Navigator:
                           parameters["MIS_TAKEOFF_ALT"])
         return self._take_events()
 
-    def missing_takeoff(self, armed: bool, landed: bool) -> str | None:
-        """Copter's refusal of AUTO when armed on the ground with a mission whose next
-        position item is not a take-off (ModeAuto::init: it would drag or flip the
-        vehicle), or None. Only under copter_rules: PX4 climbs first instead."""
-        if not (self.copter_rules and armed and landed):
-            return None
-        first = nav_command(self.mission, self.store.current)
-        return None if first == mavlink.MAV_CMD_NAV_TAKEOFF else "Auto: Missing Takeoff Cmd"
+    def check_mode_entry(self, mode: FlightMode, armed: bool, landed: bool) -> None:
+        """Copter refuses AUTO (MISSION) when armed on the ground with a mission whose
+        next position item is not a take-off (ModeAuto::init: it would drag or flip the
+        vehicle): RefusedError. Only under copter_rules: PX4 climbs first instead."""
+        if mode != FlightMode.MISSION or not (self.copter_rules and armed and landed):
+            return
+        if nav_command(self.mission, self.store.current) != mavlink.MAV_CMD_NAV_TAKEOFF:
+            raise RefusedError("Auto: Missing Takeoff Cmd")
 
     @property
     def uploaded_anew(self) -> bool:

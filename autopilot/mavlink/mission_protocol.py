@@ -177,6 +177,9 @@ class MissionProtocol:
         self.transfer = None  # a new count restarts an upload from this tool
         if msg.count == 0:
             self.store.replace(mission_type, ())
+            if home:  # Copter: an empty upload is a complete one
+                self.server.send_text(link, M.MAV_SEVERITY_INFO, "Flight plan received",
+                                      address)
             self._ack(link, address, _partner(msg), M.MAV_MISSION_ACCEPTED, mission_type)
             return
         self.transfer = Transfer(link, address, _partner(msg), mission_type, msg.count,

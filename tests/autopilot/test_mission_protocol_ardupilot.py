@@ -375,3 +375,12 @@ def test_do_change_speed_types_in_copter_missions(copter, speed_type, result):
         assert copter.vehicle.mission.lists[MISSION][1].params[:2] == (speed_type, 4.0)
     else:
         assert said[0].startswith("mission: item 2: speed type")
+
+
+def test_an_empty_upload_and_a_home_only_upload_empty_the_mission(copter):
+    for items in ([], [home_item_as_tools_send_it()]):
+        assert upload(copter, mission_with_home())[0].type == M.MAV_MISSION_ACCEPTED
+        ack, asked, said = upload(copter, items)
+        assert ack.type == M.MAV_MISSION_ACCEPTED and said == ["Flight plan received"]
+        assert asked == [("MISSION_REQUEST", 0)] * len(items)
+        assert copter.vehicle.mission.lists[MISSION] == () and len(download(copter)) == 1

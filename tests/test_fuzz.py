@@ -152,6 +152,28 @@ def test_fuzz_signed_and_forged_mavlink_into_a_signing_vehicle(signed_station, h
                                                                 newest)))
 
 
+MISSION_MESSAGES = ("MISSION_COUNT", "MISSION_ITEM", "MISSION_ITEM_INT", "MISSION_REQUEST",
+                    "MISSION_REQUEST_INT", "MISSION_REQUEST_LIST", "MISSION_ACK",
+                    "MISSION_CLEAR_ALL", "MISSION_SET_CURRENT")
+
+
+@FUZZ
+@given(data=st.data())
+def test_fuzz_missions_into_an_ardupilot_vehicle(copter_station, data):
+    """The ArduPilot flavour's mission protocol (home as item 0, items renumbered on the
+    way in and out): hostile mission messages, an upload started first half the time so
+    that items land mid-transfer; every stored item still passes the store's check."""
+    from autopilot.navigator.mission_store import MISSION_TYPES, check_item
+
+    if data.draw(st.booleans()):
+        copter_station.client.send(fz.M.MAVLink_mission_count_message(
+            1, 1, data.draw(st.integers(0, 6)), data.draw(st.sampled_from(MISSION_TYPES))))
+    fz.mavlink_ground(copter_station, data.draw(fz.ground_input(MISSION_MESSAGES)))
+    for items in copter_station.vehicle.mission.lists.values():
+        for item in items:
+            check_item(item, len(items))
+
+
 @pytest.fixture(scope="module")
 def sim_pair():
     pair = fz.SimLinkPair()

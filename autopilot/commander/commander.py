@@ -96,7 +96,7 @@ class Commander:
         # Why the state is not good enough to arm on (the estimator's reason), None if it is.
         self.navigation_problem: str | None = None
         self.estimator_status = None  # EstimatorStatus when flying on the estimator
-        self.navigator = Navigator(self.say)
+        self.navigator = Navigator(self.say, copter_rules=flavour == "ardupilot")
         env = TaskEnv(self.state, self.navigator, reference, self.switch_to, self.say)
         self.tasks: dict[FlightMode, FlightTask] = {m: row.task(env) for m, row in MODES.items()}
         # What tools stream (setpoints, sticks, a follow target).
@@ -146,8 +146,7 @@ class Commander:
         return self.navigator.state(self.mission_active)
 
     def say(self, text: str, severity: int = 6) -> None:
-        """Queue a STATUSTEXT (severity: 3 error, 4 warning, 5 notice, 6 info); a long text
-        goes in chunks, up to 200 characters."""
+        """Queue a STATUSTEXT (severity 3 error ... 6 info), in chunks up to 200 characters."""
         self.messages.append((severity, text[:200]))
 
     def inject_failure(self, unit: float, kind: float, instance: float) -> None:
@@ -246,7 +245,8 @@ class Commander:
         self.personality.check_entry(mode, row, EntryView(
             self.armed, self.landed, self.reference is not None,
             bool(self.mission.lists[MISSION])),
-            row.stream is None or self.inputs.streaming(row.stream, link_t_s))
+            row.stream is None or self.inputs.streaming(row.stream, link_t_s),
+            lambda: self.navigator.check_mode_entry(mode, self.armed, self.landed))
         if row.command is not None:
             row.command(self)
             return

@@ -89,15 +89,17 @@ class Personality:
         return table_armable if self.armable is None else mode in self.armable
 
     def check_entry(self, mode: FlightMode, row: ModeRow, view: EntryView,
-                    streaming: bool) -> None:
+                    streaming: bool, navigator_check: Callable[[], None]) -> None:
         """Raise RefusedError, in the flavour's words, when ``mode`` cannot be entered now
-        (``streaming``: its input stream is heard, or it has none)."""
+        (``streaming``: its input stream is heard, or it has none; ``navigator_check``
+        raises when the mission cannot start so, e.g. Copter's AUTO without a take-off)."""
         try:
             if not streaming:
                 raise RefusedError(f"{mode.value} denied: no {row.stream.value}",
                                    temporary=True)
             if row.entry is not None:
                 row.entry(view)
+            navigator_check()
         except RefusedError as exc:
             raise RefusedError(self.mode_failed(mode, str(exc)), exc.temporary) from None
 

@@ -17,6 +17,7 @@ from autopilot.mavlink.telemetry import (
     home_position,
     mission_current,
     producible,
+    stored_seq,
 )
 from autopilot.navigator.mission_store import ItemError
 from autopilot.refusal import RefusedError
@@ -166,10 +167,10 @@ class CommandProtocol:
         """The mission item to go on from (MAVProxy's ``wp set`` sends this first)."""
         seq = int(p[0]) if math.isfinite(p[0]) and p[0] == int(p[0]) else -1
         try:
-            self.server.vehicle.mission.set_current(seq)
+            self.server.vehicle.mission.set_current(stored_seq(self.server.flavour, seq))
         except ItemError as exc:
             raise RefusedError(str(exc)) from None
-        return [mission_current(self.server.vehicle)]
+        return [mission_current(self.server.vehicle, self.server.flavour)]
 
     def _mission_start(self, link, p, now):
         if not (math.isfinite(p[0]) and p[0] == int(p[0])):

@@ -30,7 +30,12 @@ from autopilot.mavlink.signing import (
     apply_setup_signing,
     is_local,
 )
-from autopilot.mavlink.telemetry import default_streams, home_position, telemetry_message
+from autopilot.mavlink.telemetry import (
+    default_streams,
+    home_items,
+    home_position,
+    telemetry_message,
+)
 from autopilot.refusal import RefusedError
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
@@ -341,7 +346,7 @@ class MavlinkServer:
         self.announce()
         self.save_signing()
         while self.vehicle.reached:
-            seq = self.vehicle.reached.pop(0)
+            seq = self.vehicle.reached.pop(0) + home_items(self.flavour)
             self.broadcast(lambda q=seq: mavlink.MAVLink_mission_item_reached_message(q))
             for link in self.links:  # the current item changes with it
                 link.next_due_s[mavlink.MAVLINK_MSG_ID_MISSION_CURRENT] = now

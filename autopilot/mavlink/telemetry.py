@@ -160,15 +160,36 @@ def estimator_status(v: Commander, time_us: int) -> mavlink.MAVLink_estimator_st
         s.baro_test_ratio, s.mag_test_ratio, 0, 0, s.horizontal_sigma_m, s.vertical_sigma_m)
 
 
-def mission_current(v: Commander) -> mavlink.MAVLink_mission_current_message:
-    """The mission's current item, its length and state (PX4 streams it at 1 Hz)."""
+def home_items(flavour: str, mission_type: int = mavlink.MAV_MISSION_TYPE_MISSION) -> int:
+    """How many items come before the stored mission on the wire: ArduPilot Copter lists
+    home as item 0 of the mission (AP_Mission), so the stored item k is the tools' k + 1;
+    PX4 lists the mission alone. Fences and rally points have no home item."""
+    return int(flavour == "ardupilot" and mission_type == mavlink.MAV_MISSION_TYPE_MISSION)
+
+
+def stored_seq(flavour: str, seq: int) -> int:
+    """The stored mission's index of item ``seq`` as the flavour's tools number it; an
+    ArduPilot tool's 0 (home) is the first item, as Copter restarts its mission there."""
+    return max(seq - home_items(flavour), 0) if seq >= 0 else seq
+
+
+def mission_current(v: Commander, flavour: str = "px4") -> mavlink.MAVLink_mission_current_message:
+    """The mission's current item, its length and state (PX4 streams it at 1 Hz), numbered
+    as the flavour's tools number the items (home_items)."""
     store = v.mission
     total = len(store.lists[mavlink.MAV_MISSION_TYPE_MISSION])
-    state = {"none": mavlink.MISSION_STATE_NO_MISSION,
-             "not started": mavlink.MISSION_STATE_NOT_STARTED,
-             "active": mavlink.MISSION_STATE_ACTIVE, "paused": mavlink.MISSION_STATE_PAUSED,
-             "complete": mavlink.MISSION_STATE_COMPLETE}[v.mission_state]
-    return mavlink.MAVLink_mission_current_message(store.current, total, state, 0)
+    if home_items(flavour):  # items 1..total after home: on the last one, seq == total
+        return mavlink.MAVLink_mission_current_message(
+            store.current + 1, total, MISSION_STATES[v.mission_state], 0)
+    return mavlink.MAVLink_mission_current_message(store.current, total,
+                                                   MISSION_STATES[v.mission_state], 0)
+
+
+MISSION_STATES = {"none": mavlink.MISSION_STATE_NO_MISSION,
+                  "not started": mavlink.MISSION_STATE_NOT_STARTED,
+                  "active": mavlink.MISSION_STATE_ACTIVE,
+                  "paused": mavlink.MISSION_STATE_PAUSED,
+                  "complete": mavlink.MISSION_STATE_COMPLETE}
 
 
 def landed_state(v: Commander) -> int:
@@ -337,7 +358,7 @@ def telemetry_message(msg_id: int, v: Commander, flavour: str, boot_ms: int,
     if msg_id == ardupilotmega.MAVLINK_MSG_ID_EKF_STATUS_REPORT and flavour == "ardupilot":
         return ekf_status_report(v)
     if msg_id == mavlink.MAVLINK_MSG_ID_MISSION_CURRENT:
-        return mission_current(v)
+        return mission_current(v, flavour)
     if msg_id == mavlink.MAVLINK_MSG_ID_ESTIMATOR_STATUS:
         return estimator_status(v, round(v.sim_t_s * 1e6))
     raise ValueError(f"no telemetry for message {msg_id}")

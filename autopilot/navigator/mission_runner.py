@@ -28,7 +28,13 @@ import numpy as np
 
 from autopilot.flight_tasks.goal import LAND_DOWN_M, Goal, Vertical
 from autopilot.flight_tasks.shaping import Setpoint
-from autopilot.navigator.mission_store import DO_COMMANDS, PAYLOAD_COMMANDS, MissionItem
+from autopilot.navigator.mission_store import (
+    ARDUPILOT_DO_COMMANDS,
+    DO_COMMANDS,
+    PAYLOAD_COMMANDS,
+    MissionItem,
+    is_roi_none,
+)
 from contracts.frames import Home
 from contracts.mavlink import mavlink, ned_from_global
 
@@ -78,9 +84,12 @@ class Event(NamedTuple):
     text: str = ""
 
 
-def item_position_ned(item: MissionItem, here_ned_m: np.ndarray, home: Home) -> np.ndarray:
+def item_position_ned(item: MissionItem, here_ned_m: np.ndarray, home: Home,
+                      zero_latlon_is_here: bool = False) -> np.ndarray:
     """A positioned item's target in local NED around ``home``. A landing item at latitude
-    and longitude 0 (or x, y NaN in LOCAL_NED) lands where the vehicle is."""
+    and longitude 0 (or x, y NaN in LOCAL_NED) lands where the vehicle is; with
+    ``zero_latlon_is_here`` (ArduPilot Copter) so does every position item at 0, 0, at
+    its own altitude."""
     if item.is_global:
         here_latlon = item.x == 0 and item.y == 0
         out = ned_from_global(home, item.frame, item.x * 1e-7, item.y * 1e-7, item.z)
@@ -88,10 +97,18 @@ def item_position_ned(item: MissionItem, here_ned_m: np.ndarray, home: Home) -> 
         here_latlon = not (math.isfinite(item.x) and math.isfinite(item.y))
         out = np.array([item.x, item.y, item.z], dtype=float)
     # A take-off climbs straight up where the vehicle is, as PX4's does.
-    if item.command == M.MAV_CMD_NAV_TAKEOFF or (here_latlon and
-                                                 item.command == M.MAV_CMD_NAV_LAND):
+    if item.command == M.MAV_CMD_NAV_TAKEOFF or (here_latlon and (
+            zero_latlon_is_here or item.command == M.MAV_CMD_NAV_LAND)):
         out[0:2] = here_ned_m[0:2]
     return out
+
+
+def nav_command(items: tuple[MissionItem, ...], seq: int) -> int | None:
+    """The command of the first item from ``seq`` on that is not a do item (None: none)."""
+    for item in items[seq:]:
+        if item.command not in DO_COMMANDS and item.command not in ARDUPILOT_DO_COMMANDS:
+            return item.command
+    return None
 
 
 def heading_to(start_ned_m: np.ndarray, target_ned_m: np.ndarray) -> float:
@@ -132,6 +149,7 @@ class MissionRunner:
     items: tuple[MissionItem, ...]
     parameters: dict[str, float]
     home: Home  # where the items' latitudes and longitudes are taken around
+    zero_latlon_is_here: bool = False  # Copter: a position item at 0, 0 is "here"
     seq: int = 0
     speed_mps: float = math.nan  # DO_CHANGE_SPEED; NaN: MPC_XY_CRUISE
     events: list[Event] = field(default_factory=list)  # for the navigator to act on
@@ -144,6 +162,7 @@ class MissionRunner:
     _hold_from_s: float | None = None
     _wait_until_s: float = 0.0
     _jumps_left: dict[int, int] = field(default_factory=dict)
+    _roi_ned_m: np.ndarray | None = None  # the region of interest the nose points at
 
     def start(self, seq: int, position_ned_m: np.ndarray, yaw_rad: float, landed: bool,
               take_off_alt_m: float) -> None:
@@ -164,16 +183,16 @@ class MissionRunner:
 
     # -- the items ---------------------------------------------------------------------
     def _nav_command(self, seq: int) -> int | None:
-        for item in self.items[seq:]:
-            if item.command not in DO_COMMANDS:
-                return item.command
-        return None
+        return nav_command(self.items, seq)
 
     def _first_position(self, seq: int, here: np.ndarray) -> np.ndarray | None:
         for item in self.items[seq:]:
             if item.command in (*WAYPOINT_COMMANDS, M.MAV_CMD_NAV_TAKEOFF):
-                return item_position_ned(item, here, self.home)
+                return self._position(item, here)
         return None
+
+    def _position(self, item: MissionItem, here: np.ndarray) -> np.ndarray:
+        return item_position_ned(item, here, self.home, self.zero_latlon_is_here)
 
     def _begin_item(self, here: np.ndarray, t_s: float) -> None:
         """Set up the current item, carrying out DO items on the way to the next one
@@ -189,9 +208,9 @@ class MissionRunner:
                     self.speed_mps = float(item.params[1])
                 self.seq += 1
                 continue
-            if command in PAYLOAD_COMMANDS:  # no camera or gimbal to drive
-                self.seq += 1
-                continue
+            if command in PAYLOAD_COMMANDS or command in ARDUPILOT_DO_COMMANDS:
+                self.seq += 1  # no payload to drive; yaw and ROI items ran with the last
+                continue       # position item (_run_conditionals)
             if command == M.MAV_CMD_DO_JUMP:
                 left = self._jumps_left.setdefault(self.seq, int(item.params[1]))
                 if left != 0:
@@ -218,7 +237,7 @@ class MissionRunner:
             self._phase = Phase.WAIT
             self._wait_until_s = t_s + float(item.params[0])
             return
-        target = item_position_ned(item, self._leg_start, self.home)
+        target = self._position(item, self._leg_start)
         if command == M.MAV_CMD_NAV_LAND:
             target[2] = self._leg_start[2]  # fly there at this altitude, then descend
         self._target = target
@@ -227,6 +246,37 @@ class MissionRunner:
         self._yaw_rad = math.radians(yaw) if math.isfinite(yaw) else (
             face if math.isfinite(face) else self._yaw_rad)
         self._phase = Phase.TAKEOFF if command == M.MAV_CMD_NAV_TAKEOFF else Phase.FLY
+        self._run_conditionals(here)
+
+    def _run_conditionals(self, here: np.ndarray) -> None:
+        """ArduPilot Copter's yaw and ROI items (ARDUPILOT_DO_COMMANDS) that follow the
+        item just begun run at once, during its leg, as AP_Mission starts the do and
+        condition commands after a navigation command: CONDITION_YAW turns to a heading
+        (absolute, or relative to the present one, clockwise or not) held until the
+        next position item; a region of interest keeps the nose on it from now on (each
+        leg too) until a DO_SET_ROI_NONE or an ROI at 0, 0."""
+        for item in self.items[self.seq + 1:]:
+            command = item.command
+            if command not in DO_COMMANDS and command not in ARDUPILOT_DO_COMMANDS:
+                return
+            if command == M.MAV_CMD_CONDITION_YAW:
+                angle = math.radians(item.params[0])
+                self._yaw_rad = self._yaw_rad + (-angle if item.params[2] < 0 else angle) \
+                    if item.params[3] == 1.0 else angle
+                self._roi_ned_m = None  # Copter: a fixed heading replaces the ROI
+            elif is_roi_none(item):
+                self._roi_ned_m = None
+            elif command in ARDUPILOT_DO_COMMANDS:  # an ROI at a location
+                self._roi_ned_m = item_position_ned(item, here, self.home)
+
+    def _heading(self, position_ned_m: np.ndarray) -> float:
+        """The heading to fly: facing the region of interest when there is one (and it is
+        not close by), else the item's."""
+        if self._roi_ned_m is not None:
+            face = heading_to(position_ned_m, self._roi_ned_m)
+            if math.isfinite(face):
+                self._yaw_rad = face
+        return self._yaw_rad
 
     def _finish(self, text: str) -> None:
         if not self.finished:
@@ -255,7 +305,7 @@ class MissionRunner:
         following = self.seq + 1
         if following < len(self.items) and \
                 self.items[following].command in WAYPOINT_COMMANDS:
-            after = item_position_ned(self.items[following], self._target, self.home)
+            after = self._position(self.items[following], self._target)
             return corner_speed_mps(turn_angle(self._leg_start, self._target, after),
                                     radius_m, self.parameters["MPC_ACC_HOR"], self._speed())
         return 0.0
@@ -305,7 +355,7 @@ class MissionRunner:
             elif away <= AT_WAYPOINT_M or (away <= radius and self._slowed_for_corner(
                     reference_velocity_ned_mps, radius)):
                 self._next(position_ned_m, t_s)
-        return Goal(Setpoint.hold(self._target, self._yaw_rad), self._speed(),
+        return Goal(Setpoint.hold(self._target, self._heading(position_ned_m)), self._speed(),
                     Vertical.TAKEOFF if self._phase is Phase.TAKEOFF else Vertical.CRUISE)
 
     def _slowed_for_corner(self, velocity_ned_mps: np.ndarray | None,

@@ -39,10 +39,20 @@ FENCE_COMMANDS = {M.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
                   M.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION}
 COMMANDS = {MISSION: NAV_COMMANDS | DO_COMMANDS | WAIT_COMMANDS, FENCE: FENCE_COMMANDS,
             RALLY: {M.MAV_CMD_NAV_RALLY_POINT}}
-WITHOUT_POSITION = DO_COMMANDS | WAIT_COMMANDS | {M.MAV_CMD_NAV_RETURN_TO_LAUNCH}
+# What ArduPilot Copter missions hold beyond PX4's set (taken from ArduPilot-flavour
+# uploads only, so the PX4 flavour takes what it always took): a heading to turn to, and
+# a region of interest the nose points at (DO_SET_ROI, DO_SET_ROI_LOCATION: a location;
+# DO_SET_ROI_NONE, or a location at latitude and longitude 0: none).
+ARDUPILOT_DO_COMMANDS = {M.MAV_CMD_CONDITION_YAW, M.MAV_CMD_DO_SET_ROI,
+                         M.MAV_CMD_DO_SET_ROI_LOCATION, M.MAV_CMD_DO_SET_ROI_NONE}
+ROI_COMMANDS = (M.MAV_CMD_DO_SET_ROI, M.MAV_CMD_DO_SET_ROI_LOCATION)
+WITHOUT_POSITION = DO_COMMANDS | WAIT_COMMANDS | {M.MAV_CMD_NAV_RETURN_TO_LAUNCH,
+                                                  M.MAV_CMD_CONDITION_YAW,
+                                                  M.MAV_CMD_DO_SET_ROI_NONE}
 MAX_ALTITUDE_M = 10_000.0
 MAX_LOCAL_M = 100_000.0
 MAX_SPEED_MPS = 30.0
+SPEED_TYPE_AIRSPEED, SPEED_TYPE_GROUNDSPEED = 0.0, 1.0  # DO_CHANGE_SPEED param1 (SPEED_TYPE)
 
 
 @dataclass(frozen=True)
@@ -74,14 +84,17 @@ class ItemError(ValueError):
         self.result = result
 
 
-def check_item(item: MissionItem, count: int) -> None:
+def check_item(item: MissionItem, count: int, ardupilot: bool = False) -> None:
     """Raise ItemError unless the vehicle can fly (or fence with) this item of a list of
-    ``count`` items."""
+    ``count`` items; ``ardupilot``: an ArduPilot-flavour upload (ARDUPILOT_DO_COMMANDS
+    taken in a mission too)."""
     commands = COMMANDS[item.mission_type]
+    if ardupilot and item.mission_type == MISSION:
+        commands = commands | ARDUPILOT_DO_COMMANDS
     if item.command not in commands:
         raise ItemError(M.MAV_MISSION_UNSUPPORTED,
                         f"item {item.seq}: command {item.command} is not supported here")
-    positioned = item.command not in WITHOUT_POSITION
+    positioned = item.command not in WITHOUT_POSITION and not is_roi_none(item)
     if positioned and item.frame not in POSITION_FRAMES:
         raise ItemError(M.MAV_MISSION_UNSUPPORTED_FRAME,
                         f"item {item.seq}: frame {item.frame} is not supported")
@@ -115,7 +128,27 @@ def check_item(item: MissionItem, count: int) -> None:
         if math.isnan(p2) or p2 < -1 or p2 != int(p2):
             raise ItemError(M.MAV_MISSION_INVALID_PARAM2,
                             f"item {item.seq}: repeat count {p2} (-1 for ever)")
+    elif command == M.MAV_CMD_CONDITION_YAW:
+        if math.isnan(p1) or not 0.0 <= p1 <= 360.0:
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM1,
+                            f"item {item.seq}: heading {p1} deg (0-360)")
+        if math.isnan(p2) or p2 < 0.0:
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM2,
+                            f"item {item.seq}: yaw rate {p2} deg/s (0: the default)")
+        if p3 not in (-1.0, 0.0, 1.0):
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM3,
+                            f"item {item.seq}: direction {p3} (-1 ccw, 1 cw, 0 shortest)")
+        if p4 not in (0.0, 1.0):
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM4,
+                            f"item {item.seq}: {p4} (0 absolute, 1 relative)")
     elif command == M.MAV_CMD_DO_CHANGE_SPEED:
+        if ardupilot and p1 not in (SPEED_TYPE_AIRSPEED, SPEED_TYPE_GROUNDSPEED):
+            # Copter's types 2 and 3 set the climb and descent speeds; the mission here
+            # flies its vertical speeds from the parameters, so they are refused, not
+            # taken and ignored.
+            raise ItemError(M.MAV_MISSION_INVALID_PARAM1,
+                            f"item {item.seq}: speed type {p1} (0 airspeed, 1 ground speed; "
+                            "climb and descent speeds are not flown)")
         if math.isnan(p2) or not (p2 == -1 or 0 < p2 <= MAX_SPEED_MPS):
             raise ItemError(M.MAV_MISSION_INVALID_PARAM2,
                             f"item {item.seq}: speed {p2} m/s (0-{MAX_SPEED_MPS:g}, -1 "
@@ -129,6 +162,14 @@ def check_item(item: MissionItem, count: int) -> None:
                      M.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION) and (math.isnan(p1) or p1 <= 0) \
             and not is_empty_circle(item):
         raise ItemError(M.MAV_MISSION_INVALID_PARAM1, f"item {item.seq}: circle radius {p1} m")
+
+
+def is_roi_none(item: MissionItem) -> bool:
+    """An item that ends the region of interest: DO_SET_ROI_NONE, or a region of interest
+    at latitude and longitude 0 (Copter reads the location, not DO_SET_ROI's mode)."""
+    if item.command == M.MAV_CMD_DO_SET_ROI_NONE:
+        return True
+    return item.command in ROI_COMMANDS and item.is_global and item.x == 0 and item.y == 0
 
 
 def is_empty_circle(item: MissionItem) -> bool:

@@ -13,16 +13,23 @@ from collections.abc import Callable
 import numpy as np
 
 from autopilot.flight_tasks.goal import Goal
-from autopilot.navigator.mission_runner import EventKind, MissionRunner
+from autopilot.navigator.mission_runner import EventKind, MissionRunner, nav_command
 from autopilot.navigator.mission_store import MAX_SPEED_MPS, MISSION, MissionStore
 from autopilot.refusal import RefusedError
 from contracts.frames import DEFAULT_HOME
+from contracts.mavlink import mavlink
+from contracts.modes import FlightMode
 
 
 class Navigator:
     """The mission store and the runner flying (or pausing) its mission."""
 
-    def __init__(self, say: Callable[..., None]) -> None:
+    def __init__(self, say: Callable[..., None], copter_rules: bool = False) -> None:
+        # ArduPilot Copter's mission rules (the ArduPilot flavour): a position item at
+        # latitude and longitude 0 is flown where the vehicle is
+        # (MissionRunner.zero_latlon_is_here), and AUTO on the ground, armed, needs a
+        # take-off first (missing_takeoff).
+        self.copter_rules = copter_rules
         self.store = MissionStore()  # mission, fence and rally lists, kept across modes
         self.runner: MissionRunner | None = None  # the mission being flown (or paused)
         self.complete = False
@@ -55,11 +62,21 @@ class Navigator:
                 self.runner.items is not items:  # from the start, fresh jump counts and speed
             if self.complete or self.store.current >= len(items):
                 self.store.current = 0
-            self.runner = MissionRunner(items, parameters, self.home)
+            self.runner = MissionRunner(items, parameters, self.home,
+                                        zero_latlon_is_here=self.copter_rules)
         self.complete = False  # (resuming keeps the jump counts and the speed)
         self.runner.start(self.store.current, stopping_point, heading_rad, landed,
                           parameters["MIS_TAKEOFF_ALT"])
         return self._take_events()
+
+    def check_mode_entry(self, mode: FlightMode, armed: bool, landed: bool) -> None:
+        """Copter refuses AUTO (MISSION) when armed on the ground with a mission whose
+        next position item is not a take-off (ModeAuto::init: it would drag or flip the
+        vehicle): RefusedError. Only under copter_rules: PX4 climbs first instead."""
+        if mode != FlightMode.MISSION or not (self.copter_rules and armed and landed):
+            return
+        if nav_command(self.mission, self.store.current) != mavlink.MAV_CMD_NAV_TAKEOFF:
+            raise RefusedError("Auto: Missing Takeoff Cmd")
 
     @property
     def uploaded_anew(self) -> bool:

@@ -5,6 +5,7 @@ The autopilot runs its ArduPilot-Copter flavour, the one MAVProxy's mode names k
 
 from __future__ import annotations
 
+import math
 import os
 import re
 import sys
@@ -15,6 +16,7 @@ import pexpect
 import pytest
 
 from autopilot.copter_parameters import ardupilot_parameters
+from contracts.frames import DEFAULT_HOME
 from tests.harness import start_processes
 
 pytestmark = [pytest.mark.process, pytest.mark.groundtool]
@@ -139,3 +141,53 @@ def test_mavproxy_loads_and_lists_a_mission(tmp_path):
         assert (int(command), int(frame)) == (int(a[3]), int(a[2])), (ours, theirs)
         assert [float(v) for v in (p1, p2, p3, p4, lat, lon, alt)] == pytest.approx(
             [float(v) for v in a[4:11]], abs=1e-6), (ours, theirs)
+
+
+def test_mavproxy_wp_save_round_trips_and_auto_flies_the_loaded_mission(tmp_path):
+    """Copter's way, as MAVProxy's users fly it: ``wp load`` of a QGC WPL 110 file whose
+    item 0 is home, ``wp save`` writes the same file back (home from the vehicle), then
+    GUIDED arm and take-off, ``mode auto``: the waypoints are reached in turn (MAVProxy
+    says each new MISSION_CURRENT), numbered after home, and the RTL item brings the
+    vehicle home and down."""
+    procs = start_processes(tmp_path, autopilot_args=["--flavour", "ardupilot"])
+    workdir = tmp_path / "mavproxy"
+    workdir.mkdir()
+    (workdir / "mission.txt").write_text(MISSION)
+    prompt = Prompt(procs.gcs_port, workdir, modules="wp,mode,misc,arm,cmdlong")
+    try:
+        prompt.child.expect(r"online system 1", timeout=40)
+        prompt.type("wp load mission.txt", r"Loaded 5 waypoints from mission.txt",
+                    r"Sent all 5 waypoints")
+        prompt.type("wp save saved.txt", r"Saved 5 waypoints to saved.txt")
+        saved = (workdir / "saved.txt").read_text().splitlines()
+        assert saved[0] == "QGC WPL 110"
+        for ours, theirs in zip(MISSION.splitlines()[1:], saved[1:], strict=True):
+            a, b = ours.split("\t"), theirs.split("\t")
+            assert [int(v) for v in (b[0], b[2], b[3], b[11])] == \
+                [int(v) for v in (a[0], a[2], a[3], a[11])], (ours, theirs)
+            assert [float(v) for v in b[4:11]] == pytest.approx(
+                [float(v) for v in a[4:11]], abs=1e-6), (ours, theirs)
+        prompt.type("mode GUIDED", r"Got COMMAND_ACK: DO_SET_MODE: ACCEPTED")
+        prompt.type("arm throttle", r"Got COMMAND_ACK: COMPONENT_ARM_DISARM: ACCEPTED",
+                    r"(?<!DIS)ARMED")
+        prompt.type("takeoff 5", r"Got COMMAND_ACK: NAV_TAKEOFF: ACCEPTED")
+        deadline = time.monotonic() + 30
+        while prompt.relative_altitude_m() < 4.7 and time.monotonic() < deadline:
+            time.sleep(0.5)
+        start = time.monotonic()
+        prompt.type("mode AUTO", r"Got COMMAND_ACK: DO_SET_MODE: ACCEPTED")
+        for seq in (2, 3, 4):  # the take-off item (1) is done at 5 m already
+            prompt.child.expect(rf"waypoint {seq}\r?\n", timeout=60)
+        prompt.type("status MISSION_ITEM_REACHED", r"seq : 3")  # item 3 reached, then RTL
+        prompt.child.expect(r"DISARMED", timeout=90)  # RTL: home, landed, disarmed
+        flown_s = time.monotonic() - start
+        prompt.type("status GLOBAL_POSITION_INT",
+                    r"lat : (-?\d+), lon : (-?\d+), alt : -?\d+, relative_alt : (-?\d+)")
+        lat_e7, lon_e7, relative_mm = (int(g) for g in prompt.child.match.groups())
+    finally:
+        prompt.close()
+        procs.stop()
+    north, east, _ = DEFAULT_HOME.ned_from_geodetic(lat_e7 * 1e-7, lon_e7 * 1e-7,
+                                                    DEFAULT_HOME.alt_amsl_m)
+    assert math.hypot(north, east) < 1.0 and relative_mm < 100
+    assert flown_s < 90

@@ -90,6 +90,7 @@ def test_mavproxy_param_set_land_speed_slows_the_landing(tmp_path):
         prompt.type("param set LAND_SPEED 5000",
                     r"Param write denied \(LAND_SPEED\): 5000 is outside 10\.\.300 cm/s")
         prompt.type("param show LAND_SPEED", r"LAND_SPEED\s+30\.0")
+        prompt.wait_for_gps_lock()  # telemetry streams once MAVProxy has asked for them
         prompt.type("mode GUIDED", r"Got COMMAND_ACK: DO_SET_MODE: ACCEPTED")
         prompt.type("arm throttle", r"(?<!DIS)ARMED")
         prompt.type("takeoff 3", r"Got COMMAND_ACK: NAV_TAKEOFF: ACCEPTED")

@@ -167,6 +167,7 @@ def test_mavproxy_wp_save_round_trips_and_auto_flies_the_loaded_mission(tmp_path
                 [int(v) for v in (a[0], a[2], a[3], a[11])], (ours, theirs)
             assert [float(v) for v in b[4:11]] == pytest.approx(
                 [float(v) for v in a[4:11]], abs=1e-6), (ours, theirs)
+        prompt.wait_for_gps_lock()  # telemetry streams once MAVProxy has asked for them
         prompt.type("mode GUIDED", r"Got COMMAND_ACK: DO_SET_MODE: ACCEPTED")
         prompt.type("arm throttle", r"Got COMMAND_ACK: COMPONENT_ARM_DISARM: ACCEPTED",
                     r"(?<!DIS)ARMED")

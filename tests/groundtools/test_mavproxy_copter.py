@@ -19,6 +19,8 @@ def test_mavproxy_sees_coppers_modes_and_arming_rules(tmp_path):
     prompt = Prompt(procs.gcs_port, tmp_path / "mavproxy", modules="arm,mode,cmdlong,misc")
     try:
         prompt.child.expect(r"online system 1", timeout=40)
+        # The position estimate first: a Copter checks it before the mode (PreArm before Arm).
+        prompt.wait_for_gps_lock()
         prompt.type("status HEARTBEAT", r"custom_mode : 0,")  # STABILIZE at boot
         # RTL is selected disarmed, as Copter allows, and cannot be armed in.
         prompt.type("mode RTL", r"Got COMMAND_ACK: DO_SET_MODE: ACCEPTED")

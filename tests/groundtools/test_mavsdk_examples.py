@@ -7,6 +7,9 @@ one at a time on this machine (xdist group api-14540)."""
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
 import subprocess
 import sys
 import time
@@ -39,9 +42,11 @@ def run_example(name: str, gcs: GroundTool, timeout_s: float, log: Path) -> dict
     """Run one example to its end while ``gcs`` records what the vehicle says and does."""
     seen: dict = {"params": [], "modes": [], "armed": [], "rel_alt_m": [], "ned": []}
     with open(log, "w") as out:
+        # Its own session: the example and the mavsdk_server it starts are stopped together,
+        # so no server outlives it on udpin 14540 to take the next example's replies.
         example = subprocess.Popen(
             [sys.executable, str(EXAMPLES / "run_grpc_example.py"), str(EXAMPLES / name)],
-            stdout=out, stderr=subprocess.STDOUT)
+            stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
         start = time.monotonic()
         try:
             while example.poll() is None and time.monotonic() - start < timeout_s:
@@ -61,9 +66,9 @@ def run_example(name: str, gcs: GroundTool, timeout_s: float, log: Path) -> dict
                 elif kind == "LOCAL_POSITION_NED":
                     seen["ned"].append((t, msg.x, msg.y, msg.z))
         finally:
-            if example.poll() is None:
-                example.kill()
-            example.wait(10)
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(example.pid, signal.SIGKILL)  # the example, if it still runs,
+            example.wait(10)  # and whatever it started
     seen["returncode"] = example.returncode
     seen["output"] = log.read_text()
     seen["texts"] = list(gcs.texts)

@@ -20,6 +20,7 @@ passes on its own assertions.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -36,12 +37,10 @@ pytestmark = [pytest.mark.process, pytest.mark.groundtool,
               pytest.mark.xdist_group("api-14540")]
 
 M = mavutil.mavlink
-EXAMPLE = Path(__file__).parent / "mavsdk_examples" / "geofence.py"
+EXAMPLES = Path(__file__).parent / "mavsdk_examples"
+EXAMPLE = EXAMPLES / "geofence.py"
 # The file as written, its ``mavsdk`` imports served by mavsdk_grpc (MAVSDK's migration).
-RUNNER = ("import runpy, sys, mavsdk_grpc, mavsdk_grpc.geofence; "
-          "sys.modules['mavsdk'] = mavsdk_grpc; "
-          "sys.modules['mavsdk.geofence'] = mavsdk_grpc.geofence; "
-          "runpy.run_path(sys.argv[1], run_name='__main__')")
+RUNNER = EXAMPLES / "run_grpc_example.py"
 ENDS = ("Geofence uploaded!", "Traceback")
 
 
@@ -49,7 +48,7 @@ def run_example(log: Path, timeout_s: float = 60.0) -> tuple[int | None, str]:
     """Run the example to its end (or ``timeout_s``); its exit code (None: still running
     at the deadline, then stopped with its mavsdk_server) and its output."""
     with open(log, "w") as out:
-        proc = subprocess.Popen([sys.executable, "-c", RUNNER, str(EXAMPLE)], stdout=out,
+        proc = subprocess.Popen([sys.executable, str(RUNNER), str(EXAMPLE)], stdout=out,
                                 stderr=subprocess.STDOUT, start_new_session=True)
     deadline = time.monotonic() + timeout_s
     try:
@@ -62,9 +61,11 @@ def run_example(log: Path, timeout_s: float = 60.0) -> tuple[int | None, str]:
         pass
     finally:
         code = proc.poll()
-        if code is None:
-            os.killpg(proc.pid, signal.SIGTERM)  # the example and its mavsdk_server
-            proc.wait(10)
+        # The example and its mavsdk_server, whether it ended or not: no server may outlive
+        # it on udpin 14540 to take the next example's replies.
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(10)
     return code, log.read_text()
 
 

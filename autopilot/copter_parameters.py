@@ -120,7 +120,9 @@ COPTER_PARAMETERS: tuple[CopterParam, ...] = (
     _stored("FOLL_YAW_BEHAVE", "INT8", "", 1.0),
     _stored("FOLL_POS_P", "REAL32", "", 0.1),
     _stored("FOLL_ALT_TYPE", "INT8", "", 1.0),
-    _mapped("GUID_TIMEOUT", "REAL32", "s", "COM_OF_LOSS_T"),
+    # GUIDED holds its last target (no stream failsafe there): Copter's stop-on-silence
+    # is not built, so the value is only kept.
+    _stored("GUID_TIMEOUT", "REAL32", "s", 3.0),
 )
 
 # Internal parameters only the ArduPilot flavour has, under their own (Copter) names:

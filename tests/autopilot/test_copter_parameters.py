@@ -84,7 +84,7 @@ def test_cast_rounds_and_clamps_as_ap_param_set_float():
     ("FS_GCS_ENABLE", 1.0, INT8, "NAV_DLL_ACT", 2.0, 1.0),  # RTL
     ("FENCE_ACTION", 2.0, INT8, "GF_ACTION", 5.0, 2.0),  # always land
     ("FENCE_RADIUS", 150.0, REAL32, "GF_MAX_HOR_DIST", 150.0, 150.0),
-    ("GUID_TIMEOUT", 2.0, REAL32, "COM_OF_LOSS_T", 2.0, 2.0),
+    ("FS_THR_VALUE", 950.7, REAL32, "FS_THR_VALUE", 950.0, 950.0),  # an ArduPilot-only one
     ("DISARM_DELAY", 5.0, INT8, "COM_DISARM_LAND", 5.0, 5.0),
 ])
 def test_a_set_changes_the_internal_value_and_is_echoed_on_every_link_with_index_minus_1_uint16(

@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+import fcntl
+import socket
+import tempfile
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
+from contracts.mavlink import API_UDP_PORT
 from tests import dronekit_helpers
 
 
@@ -14,3 +19,22 @@ def ardupilot_dialect() -> Iterator[None]:
     """pymavlink's dialect is ardupilotmega while the test's DroneKit runs."""
     with dronekit_helpers.ardupilot_dialect():
         yield
+
+
+API_PORT_LOCK = Path(tempfile.gettempdir()) / "ivfm-sitl-udp-14540.lock"
+
+
+@pytest.fixture
+def api_port_14540() -> Iterator[int]:
+    """MAVSDK's own examples listen on udpin 14540, a fixed port: one test at a time on
+    this machine, whichever pytest worker runs it (an exclusive lock on a file; held for
+    the test's whole run, released by the kernel if the worker dies). xdist's groups do
+    not do it: with pytest 9 and xdist 3.8 they spread a group over the workers."""
+    with open(API_PORT_LOCK, "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        try:
+            with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+                probe.bind(("0.0.0.0", API_UDP_PORT))  # nothing else listens there now
+            yield API_UDP_PORT
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)

@@ -3,7 +3,7 @@ the real processes, as a new PX4 user runs them: each runs to its end, and a pym
 ground station on the GCS link watches what the vehicle did.
 
 The examples connect ``udpin://0.0.0.0:14540`` (the autopilot's API link sends there):
-one at a time on this machine (xdist group api-14540)."""
+one at a time on this machine (the api_port_14540 fixture's lock)."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ from contracts.mavlink import API_UDP_PORT
 from tests.harness import GroundTool, start_processes
 
 pytestmark = [pytest.mark.process, pytest.mark.groundtool,
-              pytest.mark.xdist_group("api-14540")]
+              pytest.mark.usefixtures("api_port_14540")]
 
 EXAMPLES = Path(__file__).parent / "mavsdk_examples"
 M = mavutil.mavlink

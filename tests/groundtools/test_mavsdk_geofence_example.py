@@ -34,7 +34,7 @@ from pymavlink import mavutil
 from tests.harness import GroundTool, start_processes
 
 pytestmark = [pytest.mark.process, pytest.mark.groundtool,
-              pytest.mark.xdist_group("api-14540")]
+              pytest.mark.usefixtures("api_port_14540")]
 
 M = mavutil.mavlink
 EXAMPLES = Path(__file__).parent / "mavsdk_examples"

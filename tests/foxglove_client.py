@@ -1,10 +1,19 @@
 """A Foxglove WebSocket client, as Foxglove's app connects to a live view: it takes the
 advertised channels, subscribes to all of them and collects what arrives (protocol
-``foxglove.sdk.v1``: JSON control messages, binary message data)."""
+``foxglove.sdk.v1``: JSON control messages, binary message data).
+
+The SDK's server (foxglove-sdk, rust/foxglove/src/websocket/connected_client.rs,
+``advertise_channels``) sends a channel's advertisement before it records the channel as
+advertised to that client; a client that subscribes at once can be handled in between and
+is told "Unknown channel ID: N", its subscription dropped for good. That was the live
+view's lost streams (a channel advertised, not one message of it in a whole flight; once
+in 4-6 CI runs). This client subscribes again to a channel refused so that was advertised
+to it, and counts it (``resubscribed``), as a client of that server has to."""
 
 from __future__ import annotations
 
 import json
+import re
 import struct
 import time
 from collections import defaultdict
@@ -16,6 +25,7 @@ from websockets.sync.client import connect
 
 SUBPROTOCOL = "foxglove.sdk.v1"  # the SDK server refuses the older foxglove.websocket.v1
 MESSAGE_DATA = 0x01
+UNKNOWN_CHANNEL = re.compile(r"Unknown channel ID: (\d+)$")
 
 
 @dataclass
@@ -26,6 +36,7 @@ class Received:
     server_info: dict[str, Any] | None = None
     statuses: list[dict[str, Any]] = field(default_factory=list)  # the server's status ops
     ended: str = ""  # why collecting stopped: time, closed (with the code), until
+    resubscribed: list[int] = field(default_factory=list)  # channels refused, asked again
 
     def topics(self) -> set[str]:
         return {c["topic"] for c in self.channels.values()}
@@ -35,7 +46,8 @@ class Received:
         why collecting ended (a lost live-view stream is traced from here)."""
         counts = {topic: len(m) for topic, m in self.messages.items()}
         return (f"ended: {self.ended}; messages per topic: {counts}; advertised: "
-                f"{sorted(self.topics())}; statuses: {self.statuses[:5]}")
+                f"{sorted(self.topics())}; statuses: {self.statuses[:5]}; subscribed "
+                f"again: {self.resubscribed}")
 
 
 def connect_when_up(url: str, timeout_s: float = 30.0):
@@ -55,6 +67,15 @@ def collect(url: str, seconds: float, until: Any = None,
     of wall time, or until ``until(received)`` is true, or the server closes."""
     got = Received()
     subscription_topic: dict[int, str] = {}
+
+    def subscribe(channel_ids: list[int]) -> None:
+        subscriptions = []
+        for channel_id in channel_ids:
+            sub_id = len(subscription_topic) + 1
+            subscription_topic[sub_id] = got.channels[channel_id]["topic"]
+            subscriptions.append({"id": sub_id, "channelId": channel_id})
+        ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+
     with connect_when_up(url, timeout_s) as ws:
         end = time.monotonic() + seconds
         while time.monotonic() < end:
@@ -72,14 +93,15 @@ def collect(url: str, seconds: float, until: Any = None,
                     got.server_info = message
                 elif message["op"] == "status":
                     got.statuses.append(message)
+                    refused = UNKNOWN_CHANNEL.match(message.get("message", ""))
+                    if refused and int(refused.group(1)) in got.channels \
+                            and int(refused.group(1)) not in got.resubscribed:
+                        got.resubscribed.append(int(refused.group(1)))  # the server's race
+                        subscribe([int(refused.group(1))])
                 elif message["op"] == "advertise":
-                    subscriptions = []
                     for channel in message["channels"]:
                         got.channels[channel["id"]] = channel
-                        sub_id = len(subscription_topic) + 1
-                        subscription_topic[sub_id] = channel["topic"]
-                        subscriptions.append({"id": sub_id, "channelId": channel["id"]})
-                    ws.send(json.dumps({"op": "subscribe", "subscriptions": subscriptions}))
+                    subscribe([channel["id"] for channel in message["channels"]])
             elif frame and frame[0] == MESSAGE_DATA:
                 sub_id, log_time_ns = struct.unpack_from("<IQ", frame, 1)
                 got.messages[subscription_topic[sub_id]].append((log_time_ns, frame[13:]))

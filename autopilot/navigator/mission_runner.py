@@ -28,6 +28,7 @@ import numpy as np
 
 from autopilot.flight_tasks.goal import LAND_DOWN_M, Goal, Vertical
 from autopilot.flight_tasks.shaping import Setpoint
+from autopilot.navigator.home import Places
 from autopilot.navigator.mission_store import (
     ARDUPILOT_DO_COMMANDS,
     DO_COMMANDS,
@@ -35,8 +36,7 @@ from autopilot.navigator.mission_store import (
     MissionItem,
     is_roi_none,
 )
-from contracts.frames import Home
-from contracts.mavlink import mavlink, ned_from_global
+from contracts.mavlink import mavlink
 
 M = mavlink
 # A leg that turns starts once the shaped reference has come to within this distance of
@@ -84,15 +84,16 @@ class Event(NamedTuple):
     text: str = ""
 
 
-def item_position_ned(item: MissionItem, here_ned_m: np.ndarray, home: Home,
+def item_position_ned(item: MissionItem, here_ned_m: np.ndarray, places: Places,
                       zero_latlon_is_here: bool = False) -> np.ndarray:
-    """A positioned item's target in local NED around ``home``. A landing item at latitude
+    """A positioned item's target in local NED (around the origin, relative altitudes
+    above home: Places). A landing item at latitude
     and longitude 0 (or x, y NaN in LOCAL_NED) lands where the vehicle is; with
     ``zero_latlon_is_here`` (ArduPilot Copter) so does every position item at 0, 0, at
     its own altitude."""
     if item.is_global:
         here_latlon = item.x == 0 and item.y == 0
-        out = ned_from_global(home, item.frame, item.x * 1e-7, item.y * 1e-7, item.z)
+        out = places.ned_from_global(item.frame, item.x * 1e-7, item.y * 1e-7, item.z)
     else:
         here_latlon = not (math.isfinite(item.x) and math.isfinite(item.y))
         out = np.array([item.x, item.y, item.z], dtype=float)
@@ -148,7 +149,7 @@ class MissionRunner:
 
     items: tuple[MissionItem, ...]
     parameters: dict[str, float]
-    home: Home  # where the items' latitudes and longitudes are taken around
+    places: Places  # the origin items' latitudes and longitudes are taken around, home
     zero_latlon_is_here: bool = False  # Copter: a position item at 0, 0 is "here"
     seq: int = 0
     speed_mps: float = math.nan  # DO_CHANGE_SPEED; NaN: MPC_XY_CRUISE
@@ -192,7 +193,7 @@ class MissionRunner:
         return None
 
     def _position(self, item: MissionItem, here: np.ndarray) -> np.ndarray:
-        return item_position_ned(item, here, self.home, self.zero_latlon_is_here)
+        return item_position_ned(item, here, self.places, self.zero_latlon_is_here)
 
     def _begin_item(self, here: np.ndarray, t_s: float) -> None:
         """Set up the current item, carrying out DO items on the way to the next one
@@ -267,7 +268,7 @@ class MissionRunner:
             elif is_roi_none(item):
                 self._roi_ned_m = None
             elif command in ARDUPILOT_DO_COMMANDS:  # an ROI at a location
-                self._roi_ned_m = item_position_ned(item, here, self.home)
+                self._roi_ned_m = item_position_ned(item, here, self.places)
 
     def _heading(self, position_ned_m: np.ndarray) -> float:
         """The heading to fly: facing the region of interest when there is one (and it is

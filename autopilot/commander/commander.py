@@ -300,15 +300,10 @@ class Commander:
                 self.switch_to(decision.mode)
 
     def set_origin(self, origin: Home) -> None:
-        """Where the local frame is on Earth, and home with it: missions, fences, go-to
-        and telemetry's latitudes and longitudes are taken around it from now on."""
-        self.home_known = True
-        self.navigator.places = Places.at(origin)
+        """Where the local frame is on Earth (home with it): latitudes taken around it."""
+        self.home_known, self.navigator.places = True, Places.at(origin)
 
-    @property
-    def places(self) -> Places:
-        """The local frame's origin and home (autopilot/navigator/home.py)."""
-        return self.navigator.places
+    places = property(lambda self: self.navigator.places)  # origin, home (navigator/home.py)
 
     def position_lost(self, what: str) -> None:
         """The estimator has dead-reckoned past EKF2_NOAID_TOUT: land (PX4 descends)."""

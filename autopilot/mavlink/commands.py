@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 from autopilot.commander.failures import UnsupportedError
 from autopilot.commander.personality import FORCE_ARM_MAGIC
 from autopilot.mavlink.guided import copter_commands
+from autopilot.mavlink.home_command import do_set_home
 from autopilot.mavlink.maintenance import MaintenanceCommands
 from autopilot.mavlink.telemetry import (
     DEFAULT_STREAMS,
@@ -64,6 +65,8 @@ class CommandProtocol:
         }
         # Copter's own commands (none for PX4).
         self.table.update(copter_commands(server, lambda: self.frame))
+        self.table[mavlink.MAV_CMD_DO_SET_HOME] = lambda link, p, now: do_set_home(
+            self.server.vehicle, self.frame, p)
         self.frame = mavlink.MAV_FRAME_GLOBAL  # the command's frame (COMMAND_LONG: AMSL)
 
     def handlers(self) -> dict[str, Callable]:
@@ -105,7 +108,8 @@ class CommandProtocol:
         except RefusedError as exc:
             result = (mavlink.MAV_RESULT_TEMPORARILY_REJECTED if exc.temporary
                       else mavlink.MAV_RESULT_DENIED)
-            if self.server.vehicle.personality.refusals_fail and command in FAILS_IN_COPTER:
+            if self.server.vehicle.personality.refusals_fail and (
+                    exc.failed or command in FAILS_IN_COPTER):
                 result = mavlink.MAV_RESULT_FAILED
             self.ack(link, address, msg, command, result, str(exc))
             return

@@ -17,10 +17,6 @@ import numpy as np
 from contracts.frames import Home
 from contracts.mavlink import ned_from_global
 
-# Copter::far_from_EKF_origin: a home more than this above or below the EKF origin is
-# refused (EKF_ORIGIN_MAX_ALT_KM).
-MAX_HOME_ORIGIN_ALT_DIFF_M = 50_000.0
-
 
 class Places(NamedTuple):
     """The local frame's origin and home on Earth (equal until a tool sets home)."""
@@ -59,10 +55,7 @@ class Places(NamedTuple):
                                self.home.alt_amsl_m)
 
     def moved_to(self, home: Home) -> Places:
-        """These places with home at ``home``; ValueError (Copter's reason) when home
-        is too far above or below the origin."""
-        if abs(home.alt_amsl_m - self.origin.alt_amsl_m) > MAX_HOME_ORIGIN_ALT_DIFF_M:
-            raise ValueError(f"home {home.alt_amsl_m:g} m AMSL is more than "
-                             f"{MAX_HOME_ORIGIN_ALT_DIFF_M / 1000:g} km from the origin's "
-                             "altitude")
+        """These places with home at ``home`` (the origin stays). Copter refuses a home
+        more than 50 km above or below its EKF origin (far_from_EKF_origin); a Home's
+        own altitude range (contracts/frames.py) is far narrower, so that never arises."""
         return Places(self.origin, home)

@@ -36,7 +36,8 @@ from autopilot.navigator.mission_store import (
     MissionItem,
     is_roi_none,
 )
-from contracts.mavlink import mavlink
+from contracts.frames import Home
+from contracts.mavlink import GLOBAL_FRAMES, mavlink
 
 M = mavlink
 # A leg that turns starts once the shaped reference has come to within this distance of
@@ -73,6 +74,7 @@ class Phase(enum.Enum):
 class EventKind(enum.Enum):
     REACHED = "reached"  # an item reached (MISSION_ITEM_REACHED)
     RETURN = "return"  # the mission asks for a return to launch
+    HOME = "home"  # a DO_SET_HOME item moved home (MissionRunner.places)
     FINISHED = "finished"  # the mission ended (the text says how)
 
 
@@ -209,6 +211,8 @@ class MissionRunner:
                     self.speed_mps = float(item.params[1])
                 self.seq += 1
                 continue
+            if command == M.MAV_CMD_DO_SET_HOME and self._phase is Phase.START:
+                self._set_home(item, here)  # before any position item: runs here
             if command in PAYLOAD_COMMANDS or command in ARDUPILOT_DO_COMMANDS:
                 self.seq += 1  # no payload to drive; yaw and ROI items ran with the last
                 continue       # position item (_run_conditionals)
@@ -265,10 +269,31 @@ class MissionRunner:
                 self._yaw_rad = self._yaw_rad + (-angle if item.params[2] < 0 else angle) \
                     if item.params[3] == 1.0 else angle
                 self._roi_ned_m = None  # Copter: a fixed heading replaces the ROI
+            elif command == M.MAV_CMD_DO_SET_HOME:
+                self._set_home(item, here)
             elif is_roi_none(item):
                 self._roi_ned_m = None
             elif command in ARDUPILOT_DO_COMMANDS:  # an ROI at a location
                 self._roi_ned_m = item_position_ned(item, here, self.places)
+
+    def _set_home(self, item: MissionItem, here: np.ndarray) -> None:
+        """DO_SET_HOME as Copter's mission runs it (do_set_home): param1 1 or latitude
+        and longitude 0, home where the vehicle is; else at the item's location (a
+        relative altitude above the present home). A place that is not a home is passed
+        over, as Copter passes over a failed set_home."""
+        origin = self.places.origin
+        if item.params[0] == 1.0 or (item.x == 0 and item.y == 0):
+            lat, lon, alt = origin.geodetic_from_ned(*here)
+        else:
+            lat, lon, alt = item.x * 1e-7, item.y * 1e-7, float(item.z)
+            if GLOBAL_FRAMES[item.frame]:
+                alt += self.places.home.alt_amsl_m
+        try:
+            home = Home.checked(lat, lon, alt)
+        except ValueError:
+            return
+        self.places = self.places.moved_to(home)
+        self.events.append(Event(EventKind.HOME, item.seq))
 
     def _heading(self, position_ned_m: np.ndarray) -> float:
         """The heading to fly: facing the region of interest when there is one (and it is

@@ -94,6 +94,7 @@ class Navigator:
              reference_velocity_ned_mps: np.ndarray | None = None) -> Goal | None:
         """This period's goal; None when the mission asks for a return."""
         self.runner.parameters = parameters  # changed in flight: they apply at once
+        self.runner.places = self.places  # and home, moved by a tool (DO_SET_HOME)
         goal = self.runner.step(sim_t_s, here_ned_m, reference_ned_m,
                                 reference_velocity_ned_mps)
         return None if self._take_events() else goal
@@ -108,6 +109,8 @@ class Navigator:
             event = runner.events.pop(0)
             if event.kind is EventKind.REACHED:
                 self.reached.append(event.seq)
+            elif event.kind is EventKind.HOME:  # the vehicle's home, from now on
+                self.places = runner.places
             elif event.kind is EventKind.FINISHED:
                 self.complete = True
                 self._say(event.text)

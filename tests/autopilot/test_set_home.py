@@ -153,3 +153,72 @@ def test_a_mission_after_set_home_climbs_above_it_and_its_return_lands_there():
     assert log[-1, 3] == pytest.approx(0.0, abs=0.05)  # on the ground below it
     # The local origin did not move: the flight's frame is the one it took off in.
     assert f.vehicle.places.origin == DEFAULT_HOME
+
+
+def home_item(seq: int, frame: int = M.MAV_FRAME_GLOBAL, p1: float = 0.0,
+              alt_m: float = NEW_ALT, lat: float = NEW_LAT, lon: float = NEW_LON):
+    from autopilot.navigator.mission_store import MissionItem
+
+    return MissionItem(seq, frame, SET_HOME, 0, 1, (p1, 0.0, 0.0, 0.0), round(lat * 1e7),
+                       round(lon * 1e7), alt_m)
+
+
+def test_a_do_set_home_item_moves_home_mid_mission_and_the_return_lands_there():
+    """AP_Mission's DO_SET_HOME runs with the position item before it (as a do command
+    after a navigation command): the next waypoint's relative altitude and the return
+    are from the new home."""
+    f = Flight(flavour="ardupilot")
+    f.vehicle.set_origin(DEFAULT_HOME)
+    f.take_off(5.0)
+    f.vehicle.mission.replace(MISSION, (
+        mission_item(0, 10.0, 0.0, 5.0),
+        home_item(1),
+        mission_item(2, 10.0, 10.0, 5.0),  # 5 m above the new home: 7 m up
+        do_item(3, M.MAV_CMD_NAV_RETURN_TO_LAUNCH, (0, 0, 0, 0))))
+    f.vehicle.set_mode(FlightMode.MISSION, f.t_s)
+    start = f.t_s
+    f.run(80.0)
+    log = f.since(start)
+    assert f.vehicle.places.home == pytest.approx((NEW_LAT, NEW_LON, NEW_ALT), abs=1e-7)
+    assert np.linalg.norm(log[:, 1:4] - (10.0, 10.0, -7.0), axis=1).min() < 0.1
+    assert not f.vehicle.armed
+    assert log[-1, 1:3] == pytest.approx((NEW_N, NEW_E), abs=0.1)
+
+
+def test_a_do_set_home_item_at_0_0_or_param1_1_sets_home_where_the_leg_starts():
+    from autopilot.navigator.mission_runner import EventKind, MissionRunner
+    from autopilot.parameters import default_parameters
+
+    for item in (home_item(1, p1=1.0), home_item(1, lat=0.0, lon=0.0)):
+        runner = MissionRunner((mission_item(0, 10.0, 0.0, 5.0), item),
+                               default_parameters(), Places.at(DEFAULT_HOME))
+        runner.start(0, np.array([3.0, 4.0, -5.0]), 0.0, False, 2.5)
+        assert [e.kind for e in runner.events] == [EventKind.HOME]
+        assert runner.places.home_ned_m == pytest.approx((3.0, 4.0, -5.0), abs=1e-6)
+
+
+@pytest.mark.parametrize("flavour", ["ardupilot", "px4"])
+def test_do_set_home_items_upload_in_the_ardupilot_flavour_only_in_a_global_frame(
+        make_station, flavour):
+    from tests.autopilot.test_mission_protocol import item
+    from tests.autopilot.test_mission_protocol_ardupilot import (
+        home_item_as_tools_send_it,
+        upload,
+    )
+
+    def wire(seq: int, frame: int):
+        return M.MAVLink_mission_item_int_message(
+            1, 1, seq, frame, SET_HOME, 0, 1, 0.0, 0.0, 0.0, 0.0, round(NEW_LAT * 1e7),
+            round(NEW_LON * 1e7), NEW_ALT, MISSION)
+
+    s = make_station(flavour=flavour)
+    first = [home_item_as_tools_send_it()] if flavour == "ardupilot" else []
+    n = len(first)
+    ack = upload(s, [*first, item(n), wire(n + 1, M.MAV_FRAME_GLOBAL_INT)])[0]
+    assert ack.type == (M.MAV_MISSION_ACCEPTED if flavour == "ardupilot"
+                        else M.MAV_MISSION_UNSUPPORTED)
+    if flavour == "ardupilot":
+        assert s.vehicle.mission.lists[MISSION][1].command == SET_HOME
+        assert s.vehicle.places == Places.at(DEFAULT_HOME)  # uploaded, not yet run
+        ack = upload(s, [*first, item(1), wire(2, M.MAV_FRAME_LOCAL_NED)])[0]
+        assert ack.type == M.MAV_MISSION_UNSUPPORTED_FRAME

@@ -138,7 +138,7 @@ class AutoCommands:
         target = self.state.setpoint.position_ned_m.copy()
         if not np.all(np.isfinite(target)):
             target = self.state.stopping_point()
-        target[2] = -relative_altitude_m
+        target[2] = -self.navigator.places.local_altitude_m(relative_altitude_m)
         p = self.state.parameters
         if p["GF_MAX_VER_DIST"] > 0 and relative_altitude_m > p["GF_MAX_VER_DIST"]:
             raise RefusedError(f"altitude change denied: {relative_altitude_m:g} m is above "

@@ -144,10 +144,10 @@ class CommandProtocol:
         altitude = p[6]
         if math.isnan(altitude):
             relative = None
-        elif self.server.flavour == "px4":  # PX4: AMSL, flown in the local frame
-            relative = altitude - self.server.vehicle.places.origin.alt_amsl_m
-        else:  # ArduPilot reads it above home
-            relative = self.server.vehicle.places.local_altitude_m(altitude)
+        elif self.server.flavour == "px4":
+            relative = altitude - self.server.vehicle.places.home.alt_amsl_m  # PX4: AMSL
+        else:
+            relative = altitude  # ArduPilot reads it above home
         self.server.vehicle.takeoff(relative)
 
     def _land(self, link, p, now):

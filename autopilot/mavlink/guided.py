@@ -51,9 +51,8 @@ class GuidedItems:
             raise RefusedError("guided item position must be finite")
         relative = GLOBAL_FRAMES[msg.frame]
         if msg.current == ALTITUDE_CHANGE:
-            places = vehicle.places  # the altitude above home, flown in the local frame
-            vehicle.auto.guided_altitude(places.local_altitude_m(alt) if relative
-                                         else alt - places.origin.alt_amsl_m)
+            vehicle.auto.guided_altitude(alt if relative
+                                         else alt - vehicle.places.home.alt_amsl_m)
             return
         if msg.command != M.MAV_CMD_NAV_WAYPOINT:
             raise RefusedError(f"guided item command {msg.command} is not a waypoint")

@@ -222,3 +222,26 @@ def test_do_set_home_items_upload_in_the_ardupilot_flavour_only_in_a_global_fram
         assert s.vehicle.places == Places.at(DEFAULT_HOME)  # uploaded, not yet run
         ack = upload(s, [*first, item(1), wire(2, M.MAV_FRAME_LOCAL_NED)])[0]
         assert ack.type == M.MAV_MISSION_UNSUPPORTED_FRAME
+
+
+def test_take_off_and_altitude_change_are_above_the_new_home():
+    """Copter's NAV_TAKEOFF and GUIDED altitude change take altitudes above home: with
+    home 2 m above the ground, a take-off to 5 m climbs to 7 m and a change to 3 m
+    descends to 5 m (local frame); the 0.5 m floor is above home too."""
+    from autopilot.refusal import RefusedError
+
+    f = Flight(flavour="ardupilot")
+    f.vehicle.set_origin(DEFAULT_HOME)
+    f.run(0.05)
+    do_set_home(f.vehicle, M.MAV_FRAME_GLOBAL, [0.0, 0, 0, 0, NEW_LAT, NEW_LON, NEW_ALT])
+    f.vehicle.set_mode(FlightMode.GUIDED, f.t_s)
+    f.vehicle.arm(f.t_s)
+    f.vehicle.takeoff(5.0)
+    f.run(15.0)
+    assert f.vehicle.takeoff_altitude_m is None  # reached
+    assert -f.log[-1, 3] == pytest.approx(5.0 + NEW_UP, abs=0.1)
+    f.vehicle.auto.guided_altitude(3.0)
+    f.run(8.0)
+    assert -f.log[-1, 3] == pytest.approx(3.0 + NEW_UP, abs=0.05)
+    with pytest.raises(RefusedError, match="outside"):
+        f.vehicle.auto.guided_altitude(0.4)

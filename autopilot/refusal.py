@@ -10,9 +10,10 @@ from collections.abc import Iterable
 class RefusedError(Exception):
     """A request the vehicle will not carry out, with the reason for the ground tool."""
 
-    def __init__(self, reason: str, temporary: bool = False) -> None:
+    def __init__(self, reason: str, temporary: bool = False, failed: bool = False) -> None:
         super().__init__(reason)
         self.temporary = temporary  # MAV_RESULT_TEMPORARILY_REJECTED rather than DENIED
+        self.failed = failed  # Copter answers FAILED (its check failed, not the request)
 
 
 def check_finite(name: str, values: Iterable[float], limit: float) -> None:

@@ -39,14 +39,14 @@ GLOBAL_FRAMES: dict[int, bool] = {
 }
 
 
-def ned_from_global(home: Home, frame: int, lat_deg: float, lon_deg: float,
-                    alt_m: float) -> np.ndarray:
-    """Local NED around ``home`` of a position in one of GLOBAL_FRAMES; a NaN coordinate
-    (one a tool left out) stays NaN."""
-    given = (lat_deg, lon_deg, alt_m + home.alt_amsl_m if GLOBAL_FRAMES[frame] else alt_m)
+def ned_from_global(home: Home, frame: int, lat_deg: float, lon_deg: float, alt_m: float,
+                    relative_to_amsl_m: float | None = None) -> np.ndarray:
+    """Local NED around ``home``; a relative altitude above ``relative_to_amsl_m``."""
+    base = home.alt_amsl_m if relative_to_amsl_m is None else relative_to_amsl_m
+    given = (lat_deg, lon_deg, alt_m + base if GLOBAL_FRAMES[frame] else alt_m)
     ned = home.ned_from_geodetic(*(v if math.isfinite(v) else h for v, h in zip(
         given, home, strict=True)))
-    return np.where(np.isfinite(given), ned, np.nan)
+    return np.where(np.isfinite(given), ned, np.nan)  # a coordinate left out stays NaN
 
 SIM_TCP_PORT = 4560
 GCS_UDP_PORT = 14550  # where a ground station listens (QGroundControl, MAVProxy)

@@ -122,6 +122,51 @@ def test_fuzz_ardupilotmega_into_the_ardupilot_flavour(copter_station, data):
         commands=tuple(server.commands.table))))
 
 
+@pytest.fixture(scope="module", params=["ardupilot", "px4"])
+def home_station(request):
+    """A vehicle of each flavour in the air with its origin known: DO_SET_HOME acts."""
+    from contracts.frames import DEFAULT_HOME
+    from tests.mavlink_station import Station
+
+    s = Station(flavour=request.param)
+    s.vehicle.set_origin(DEFAULT_HOME)
+    s.flying()
+    yield s
+    s.close()
+
+
+@st.composite
+def _set_home_commands(draw) -> list[bytes]:
+    """MAV_CMD_DO_SET_HOME as COMMAND_LONG and COMMAND_INT, every field hostile, half the
+    time in a global frame."""
+    encoder = fz.M.MAVLink(None, srcSystem=255, srcComponent=190)
+    out = []
+    for _ in range(draw(st.integers(1, 4))):
+        msg = draw(fz.hostile_message([fz.M.MAVLink_command_long_message,
+                                       fz.M.MAVLink_command_int_message]))
+        msg.command = fz.M.MAV_CMD_DO_SET_HOME
+        if msg.get_type() == "COMMAND_INT" and draw(st.booleans()):
+            msg.frame = draw(st.sampled_from((0, 3, 5, 6)))
+        try:
+            out.append(msg.pack(encoder))
+        except (struct.error, OverflowError, TypeError, ValueError):
+            continue
+    return out
+
+
+@FUZZ
+@given(datagrams=_set_home_commands())
+def test_fuzz_set_home_commands(home_station, datagrams):
+    """Refused with a reason or carried out: the origin never moves and home stays a
+    place on Earth (every field finite and in range)."""
+    from contracts.frames import DEFAULT_HOME, Home
+
+    fz.mavlink_ground(home_station, datagrams)
+    places = home_station.vehicle.places
+    assert places.origin == DEFAULT_HOME
+    assert Home.checked(*places.home) == places.home
+
+
 SIGNING_KEY = bytes(range(32))
 
 
@@ -171,7 +216,7 @@ def test_fuzz_missions_into_an_ardupilot_vehicle(copter_station, data):
     fz.mavlink_ground(copter_station, data.draw(fz.ground_input(MISSION_MESSAGES)))
     for items in copter_station.vehicle.mission.lists.values():
         for item in items:
-            check_item(item, len(items))
+            check_item(item, len(items), ardupilot=True)
 
 
 @pytest.fixture(scope="module")

@@ -102,9 +102,10 @@ class AutoCommands:
         if np.any(np.abs(target_ned_m) > 1000.0):
             raise RefusedError("go-to position is more than 1 km from home")
         p = self.state.parameters
+        places = self.navigator.places
         outside = breach(target_ned_m, zones_from_items(self.navigator.store.lists[FENCE],
-                                                        self.navigator.home),
-                         p["GF_MAX_HOR_DIST"], p["GF_MAX_VER_DIST"])
+                                                        places.origin),
+                         p["GF_MAX_HOR_DIST"], p["GF_MAX_VER_DIST"], places.home_ned_m)
         if outside is not None:
             raise RefusedError(f"go-to denied: the target is {outside}")
         return np.array(target_ned_m, dtype=float)
@@ -137,7 +138,7 @@ class AutoCommands:
         target = self.state.setpoint.position_ned_m.copy()
         if not np.all(np.isfinite(target)):
             target = self.state.stopping_point()
-        target[2] = -relative_altitude_m
+        target[2] = -self.navigator.places.local_altitude_m(relative_altitude_m)
         p = self.state.parameters
         if p["GF_MAX_VER_DIST"] > 0 and relative_altitude_m > p["GF_MAX_VER_DIST"]:
             raise RefusedError(f"altitude change denied: {relative_altitude_m:g} m is above "

@@ -43,13 +43,14 @@ from autopilot.commander.personality import PERSONALITIES, ArmingView, Personali
 from autopilot.control.controller import Controller
 from autopilot.flight_tasks.manager import FlightControl
 from autopilot.flight_tasks.task import FlightTask, Shaped, TaskEnv, TaskState
+from autopilot.navigator.home import Places
 from autopilot.navigator.mission_store import FENCE, MISSION, MissionStore
 from autopilot.navigator.navigator import Navigator
 from autopilot.parameters import validate_parameters
 from autopilot.refusal import RefusedError
 from autopilot.trajectories import Reference
 from contracts.airframe import max_thrust_n
-from contracts.frames import DEFAULT_HOME, Home
+from contracts.frames import Home
 from contracts.modes import FlightMode
 from contracts.perturbation_book import PerturbationBook
 from contracts.perturbations import Perturbation
@@ -89,9 +90,8 @@ class Commander:
         self.messages: list[tuple[int, str]] = []  # (MAV_SEVERITY, text) for STATUSTEXT
         self.failures = InjectedFailures()  # from ground tools (MAV_CMD_INJECT_FAILURE)
         self.sim_link_ok = False
-        # The local frame's origin on Earth: given or from the simulator's first position;
-        # PX4's default until then (the vehicle has no position to report before it).
-        self.home = DEFAULT_HOME
+        # The local frame's origin on Earth (given or from the simulator's first position;
+        # PX4's default until then) and home: navigator.places (autopilot/navigator/home.py).
         self.home_known = False
         # Why the state is not good enough to arm on (the estimator's reason), None if it is.
         self.navigation_problem: str | None = None
@@ -299,11 +299,11 @@ class Commander:
             if self.mode != decision.mode:
                 self.switch_to(decision.mode)
 
-    def set_home(self, home: Home) -> None:
-        """Where the local frame is on Earth: missions, fences, go-to and telemetry's
-        latitudes and longitudes are taken around it from now on."""
-        self.home, self.home_known = home, True
-        self.navigator.home = home
+    def set_origin(self, origin: Home) -> None:
+        """Where the local frame is on Earth (home with it): latitudes taken around it."""
+        self.home_known, self.navigator.places = True, Places.at(origin)
+
+    places = property(lambda self: self.navigator.places)  # origin, home (navigator/home.py)
 
     def position_lost(self, what: str) -> None:
         """The estimator has dead-reckoned past EKF2_NOAID_TOUT: land (PX4 descends)."""
@@ -329,7 +329,7 @@ class Commander:
         self._detect_landing()
         if self.armed and not self.landed and self.row.geofence:
             self.apply_failsafe(self.failsafes.fence(
-                self.mission.lists[FENCE], self.home,
+                self.mission.lists[FENCE], self.places,
                 self.measurement[MEASUREMENT.position_ned_m], self.parameters,
                 self.failsafe_view()))
 

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from autopilot.navigator.geofence import GeofenceWatch
+from autopilot.navigator.home import Places
 from autopilot.navigator.mission_store import MissionItem
-from contracts.frames import Home
 from contracts.modes import FlightMode
 
 
@@ -171,11 +171,11 @@ class Failsafes:
             return decide(*stream_loss(stream, p), view)
         return FailsafeDecision(Response.FALL_BACK, "", FlightMode.HOLD)
 
-    def fence(self, fence: tuple[MissionItem, ...], home: Home, position_ned_m: np.ndarray,
+    def fence(self, fence: tuple[MissionItem, ...], places: Places, position_ned_m: np.ndarray,
               p: Mapping[str, float], view: FailsafeView) -> FailsafeDecision | None:
         """GF_ACTION on crossing out of the fence (once per breach): a STATUSTEXT, and
         hold, return or land."""
-        reason = self.geofence.crossed_out(fence, home, position_ned_m,
+        reason = self.geofence.crossed_out(fence, places, position_ned_m,
                                            p["GF_MAX_HOR_DIST"], p["GF_MAX_VER_DIST"])
         if reason is None:
             return None

@@ -12,7 +12,7 @@ class ReturnTask(BaseTask):
 
     def activate(self, previous: FlightMode, armed: bool) -> None:
         s = self.state
-        self.returning = ReturnToLaunch(s.parameters)
+        self.returning = ReturnToLaunch(s.parameters, self.env.navigator.places.home_ned_m)
         self.returning.start(s.stopping_point(), s.heading_rad)
 
     def update(self) -> TaskOutput:

@@ -13,11 +13,12 @@ TAKEOFF_REACHED_M = 0.1
 class TakeoffTask(BaseTask):
     def climb_to(self, altitude_m: float) -> None:
         """Hold here, at ``altitude_m`` above home (the climb's limits apply while the
-        state's take-off altitude is set)."""
+        state's take-off altitude, in the local frame, is set)."""
         s = self.state
+        local_m = self.env.navigator.places.local_altitude_m(altitude_m)
         s.hold_here()
-        s.setpoint.position_ned_m[2] = -altitude_m
-        s.takeoff_altitude_m = altitude_m
+        s.setpoint.position_ned_m[2] = -local_m
+        s.takeoff_altitude_m = local_m
 
     def update(self) -> TaskOutput:
         return self.state.translate()

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 from autopilot.commander.failures import UnsupportedError
 from autopilot.commander.personality import FORCE_ARM_MAGIC
 from autopilot.mavlink.guided import copter_commands
+from autopilot.mavlink.home_command import do_set_home
 from autopilot.mavlink.maintenance import MaintenanceCommands
 from autopilot.mavlink.telemetry import (
     DEFAULT_STREAMS,
@@ -21,7 +22,7 @@ from autopilot.mavlink.telemetry import (
 )
 from autopilot.navigator.mission_store import ItemError
 from autopilot.refusal import RefusedError
-from contracts.mavlink import GLOBAL_FRAMES, mavlink, ned_from_global
+from contracts.mavlink import GLOBAL_FRAMES, mavlink
 from contracts.modes import FlightMode, mode_from_custom, px4_custom_mode_from_command
 
 if TYPE_CHECKING:
@@ -51,7 +52,7 @@ class CommandProtocol:
             mavlink.MAV_CMD_REQUEST_AUTOPILOT_CAPABILITIES: lambda *_: [
                 self.server.telemetry(mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION)],
             mavlink.MAV_CMD_GET_HOME_POSITION: lambda *_: [
-                home_position(self.server.vehicle.home)],
+                home_position(self.server.vehicle.places)],
             mavlink.MAV_CMD_SET_MESSAGE_INTERVAL: self._message_interval,
             mavlink.MAV_CMD_DO_SET_MISSION_CURRENT: self._set_mission_current,
             mavlink.MAV_CMD_MISSION_START: self._mission_start,
@@ -64,6 +65,8 @@ class CommandProtocol:
         }
         # Copter's own commands (none for PX4).
         self.table.update(copter_commands(server, lambda: self.frame))
+        self.table[mavlink.MAV_CMD_DO_SET_HOME] = lambda link, p, now: do_set_home(
+            self.server.vehicle, self.frame, p)
         self.frame = mavlink.MAV_FRAME_GLOBAL  # the command's frame (COMMAND_LONG: AMSL)
 
     def handlers(self) -> dict[str, Callable]:
@@ -105,7 +108,8 @@ class CommandProtocol:
         except RefusedError as exc:
             result = (mavlink.MAV_RESULT_TEMPORARILY_REJECTED if exc.temporary
                       else mavlink.MAV_RESULT_DENIED)
-            if self.server.vehicle.personality.refusals_fail and command in FAILS_IN_COPTER:
+            if self.server.vehicle.personality.refusals_fail and (
+                    exc.failed or command in FAILS_IN_COPTER):
                 result = mavlink.MAV_RESULT_FAILED
             self.ack(link, address, msg, command, result, str(exc))
             return
@@ -141,7 +145,7 @@ class CommandProtocol:
         if math.isnan(altitude):
             relative = None
         elif self.server.flavour == "px4":
-            relative = altitude - self.server.vehicle.home.alt_amsl_m  # PX4: AMSL
+            relative = altitude - self.server.vehicle.places.home.alt_amsl_m  # PX4: AMSL
         else:
             relative = altitude  # ArduPilot reads it above home
         self.server.vehicle.takeoff(relative)
@@ -198,7 +202,7 @@ class CommandProtocol:
             raise RefusedError("go-to gives latitude without longitude or the reverse")
         if math.isfinite(lat) and (abs(lat) > 90.0 or abs(lon) > 180.0):
             raise RefusedError(f"go-to latitude/longitude {lat:g}, {lon:g} is not on Earth")
-        target = ned_from_global(self.server.vehicle.home, self.frame, lat, lon, alt)
+        target = self.server.vehicle.places.ned_from_global(self.frame, lat, lon, alt)
         vehicle = self.server.vehicle
         if vehicle.personality.guided_requests:  # Copter: a GUIDED go-to
             flags = int(p[1]) if math.isfinite(p[1]) and 0 <= p[1] < 2**31 else 0
@@ -226,7 +230,7 @@ class CommandProtocol:
             raise RefusedError("orbit values must be finite or NaN")
         vehicle = self.server.vehicle
         task = vehicle.tasks[FlightMode.ORBIT]
-        task.request(ned_from_global(vehicle.home, mavlink.MAV_FRAME_GLOBAL, lat, lon, p[6]),
+        task.request(vehicle.places.ned_from_global(mavlink.MAV_FRAME_GLOBAL, lat, lon, p[6]),
                      p[0], p[1], 0 if math.isnan(p[2]) else int(p[2]))
         if vehicle.mode is FlightMode.ORBIT:
             task.apply()

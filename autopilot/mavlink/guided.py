@@ -14,7 +14,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from autopilot.refusal import RefusedError
-from contracts.mavlink import GLOBAL_FRAMES, mavlink, ned_from_global
+from contracts.mavlink import GLOBAL_FRAMES, mavlink
 
 if TYPE_CHECKING:
     from autopilot.mavlink.link import GroundLink, ServerLink
@@ -51,13 +51,14 @@ class GuidedItems:
             raise RefusedError("guided item position must be finite")
         relative = GLOBAL_FRAMES[msg.frame]
         if msg.current == ALTITUDE_CHANGE:
-            vehicle.auto.guided_altitude(alt if relative else alt - vehicle.home.alt_amsl_m)
+            vehicle.auto.guided_altitude(alt if relative
+                                         else alt - vehicle.places.home.alt_amsl_m)
             return
         if msg.command != M.MAV_CMD_NAV_WAYPOINT:
             raise RefusedError(f"guided item command {msg.command} is not a waypoint")
         if abs(lat) > 90.0 or abs(lon) > 180.0:
             raise RefusedError(f"go-to latitude/longitude {lat:g}, {lon:g} is not on Earth")
-        vehicle.auto.guided_go_to(ned_from_global(vehicle.home, msg.frame, lat, lon, alt))
+        vehicle.auto.guided_go_to(vehicle.places.ned_from_global(msg.frame, lat, lon, alt))
 
 
 def copter_commands(server: ServerLink, frame: Callable[[], int]) -> dict[int, Callable]:
@@ -98,7 +99,7 @@ def copter_commands(server: ServerLink, frame: Callable[[], int]) -> dict[int, C
             vehicle.auto.guided_roi(None)
             return
         alt = alt if math.isfinite(alt) else 0.0
-        vehicle.auto.guided_roi(ned_from_global(vehicle.home, frame(), lat, lon, alt))
+        vehicle.auto.guided_roi(vehicle.places.ned_from_global(frame(), lat, lon, alt))
 
     def roi_none(link, p, now):
         server.vehicle.auto.guided_roi(None)

@@ -269,7 +269,7 @@ class MissionProtocol:
             return
         if t is not None:
             t.heard_s = now
-        item = home_item(self.server.vehicle.home) if msg.seq < home else \
+        item = home_item(self.server.vehicle.places.home) if msg.seq < home else \
             renumbered(items[msg.seq - home], home)
         self.server.send(link, item_message(item, _partner(msg),
                                             msg.get_type() == "MISSION_REQUEST"), address)

@@ -26,9 +26,10 @@ import math
 import numpy as np
 
 from autopilot.flight_tasks.shaping import Setpoint
+from autopilot.navigator.home import Places
 from autopilot.refusal import RefusedError
-from contracts.frames import Home, heading_to_ned
-from contracts.mavlink import GLOBAL_FRAMES, mavlink, ned_from_global
+from contracts.frames import heading_to_ned
+from contracts.mavlink import GLOBAL_FRAMES, mavlink
 
 # POSITION_TARGET_TYPEMASK bits.
 X_IGNORE, Y_IGNORE, Z_IGNORE = 1 << 0, 1 << 1, 1 << 2
@@ -110,9 +111,10 @@ def local_setpoint(frame: int, type_mask: int, position, velocity, accel, yaw: f
     return Setpoint(pos, vel, acc, *_yaw(type_mask, yaw, yaw_rate))
 
 
-def global_setpoint(home: Home, frame: int, type_mask: int, lat_int: int, lon_int: int,
+def global_setpoint(places: Places, frame: int, type_mask: int, lat_int: int, lon_int: int,
                     alt_m: float, velocity, accel, yaw: float, yaw_rate: float) -> Setpoint:
-    """SET_POSITION_TARGET_GLOBAL_INT -> Setpoint in local NED around ``home``."""
+    """SET_POSITION_TARGET_GLOBAL_INT -> Setpoint in local NED (around the origin, a
+    relative altitude above home)."""
     if frame not in GLOBAL_FRAMES:
         raise RefusedError(f"setpoint frame {frame} is not supported (no terrain data)")
     _refuse_force(type_mask)
@@ -121,7 +123,7 @@ def global_setpoint(home: Home, frame: int, type_mask: int, lat_int: int, lon_in
     lat, lon, alt = given
     if abs(lat) > 90.0 or abs(lon) > 180.0:  # False for NaN: left out
         raise RefusedError(f"setpoint latitude/longitude {lat:g}, {lon:g} is not on Earth")
-    pos = ned_from_global(home, frame, lat, lon, alt)
+    pos = places.ned_from_global(frame, lat, lon, alt)
     vel = _masked(type_mask, VELOCITY_BITS, velocity, "velocity")
     acc = _masked(type_mask, ACCEL_BITS, accel, "acceleration")
     return Setpoint(pos, vel, acc, *_yaw(type_mask, yaw, yaw_rate))

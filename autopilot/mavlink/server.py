@@ -330,9 +330,9 @@ class MavlinkServer:
         if self.reboot_pending:
             self._reboot()
         v = self.vehicle
-        if self.flavour == "ardupilot" and v.home_known and v.home != self._home_sent:
-            self._home_sent = v.home  # Copter sends HOME_POSITION when home is set
-            self.broadcast(lambda: home_position(v.home))
+        if self.flavour == "ardupilot" and v.home_known and v.places != self._home_sent:
+            self._home_sent = v.places  # Copter sends HOME_POSITION when home is set
+            self.broadcast(lambda: home_position(v.places))
         self.vehicle.check_links(now)
         if self.rc_pilot is not None:
             self.rc_pilot.check(now)

@@ -15,7 +15,7 @@ from autopilot.commander.rc import manual_control_channels
 from autopilot.flight_tasks.sticks import sticks_from_manual_control
 from autopilot.mavlink.offboard import global_setpoint, local_setpoint
 from autopilot.refusal import RefusedError
-from contracts.mavlink import mavlink, ned_from_global
+from contracts.mavlink import mavlink
 from contracts.vectors import MEASUREMENT
 
 if TYPE_CHECKING:
@@ -59,7 +59,7 @@ class SetpointProtocol:
     def on_global(self, link: GroundLink, address, msg, now: float) -> None:
         try:
             setpoint = global_setpoint(
-                self.server.vehicle.home, msg.coordinate_frame, msg.type_mask, msg.lat_int,
+                self.server.vehicle.places, msg.coordinate_frame, msg.type_mask, msg.lat_int,
                 msg.lon_int, msg.alt, (msg.vx, msg.vy, msg.vz), (msg.afx, msg.afy, msg.afz),
                 msg.yaw, msg.yaw_rate)
             self.server.vehicle.inputs.position_setpoint(now, setpoint)
@@ -125,7 +125,7 @@ class SetpointProtocol:
             if not (abs(lat) <= 90.0 and abs(lon) <= 180.0 and math.isfinite(msg.alt)):
                 raise RefusedError(f"follow target: {lat:g}, {lon:g}, {msg.alt:g} m is not "
                                    "a position on Earth")
-            position = ned_from_global(v.home, mavlink.MAV_FRAME_GLOBAL, lat, lon, msg.alt)
+            position = v.places.ned_from_global(mavlink.MAV_FRAME_GLOBAL, lat, lon, msg.alt)
             # MAVSDK sets only the position bit but sends the velocity its caller gave: a
             # finite velocity counts unless it is all zeros without the velocity bit.
             velocity = np.array(msg.vel, dtype=float)

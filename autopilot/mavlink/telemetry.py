@@ -17,7 +17,7 @@ from autopilot.mavlink.copter import (
     copter_autopilot_version,
     copter_heartbeat,
 )
-from contracts.frames import Home
+from autopilot.navigator.home import Places
 from contracts.frames import quat_from_euler as _quat_from_euler
 from contracts.mavlink import ardupilotmega, mavlink
 from contracts.modes import custom_mode
@@ -202,10 +202,12 @@ def landed_state(v: Commander) -> int:
     return mavlink.MAV_LANDED_STATE_IN_AIR
 
 
-def home_position(home: Home) -> mavlink.MAVLink_home_position_message:
+def home_position(places: Places) -> mavlink.MAVLink_home_position_message:
+    """HOME_POSITION: home on Earth and in the local frame (x, y, z from the origin)."""
+    home = places.home
     return mavlink.MAVLink_home_position_message(
         round(home.lat_deg * 1e7), round(home.lon_deg * 1e7), round(home.alt_amsl_m * 1000),
-        0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
+        *(float(v) for v in places.home_ned_m), [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0)
 
 
 def autopilot_version() -> mavlink.MAVLink_autopilot_version_message:
@@ -240,7 +242,7 @@ def gps_raw_int(v: Commander, m: np.ndarray, time_us: int) -> mavlink.MAVLink_gp
     state or the estimator's GPS is fresh, else no fix): PX4 and Copter stream it and
     DroneKit's wait_ready and is_armable read its fix type."""
     ok = gps_ok(v)
-    lat, lon, alt = v.home.geodetic_from_ned(*m[MEASUREMENT.position_ned_m])
+    lat, lon, alt = v.places.origin.geodetic_from_ned(*m[MEASUREMENT.position_ned_m])
     vn, ve = float(m[MEAS_VEL]), float(m[MEAS_VEL + 1])
     cog = int(round(math.degrees(math.atan2(ve, vn)) % 360.0 * 100)) % 36000
     return mavlink.MAVLink_gps_raw_int_message(
@@ -333,20 +335,22 @@ def telemetry_message(msg_id: int, v: Commander, flavour: str, boot_ms: int,
         return mavlink.MAVLink_local_position_ned_message(
             boot_ms, *m[MEASUREMENT.position_ned_m], *m[MEASUREMENT.velocity_ned_mps])
     if msg_id == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
-        lat, lon, alt = v.home.geodetic_from_ned(*m[MEASUREMENT.position_ned_m])
+        places = v.places
+        lat, lon, alt = places.origin.geodetic_from_ned(*m[MEASUREMENT.position_ned_m])
         heading = int(math.degrees(m[MEAS_YAW]) % 360.0 * 100) % 36000
         return mavlink.MAVLink_global_position_int_message(
             boot_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),
-            int(round(-m[MEAS_Z] * 1000)), *(int(np.clip(round(c * 100), -32768, 32767))
-                                             for c in m[MEASUREMENT.velocity_ned_mps]), heading)
+            int(round(places.above_home_m(m[MEAS_Z]) * 1000)),
+            *(int(np.clip(round(c * 100), -32768, 32767))
+              for c in m[MEASUREMENT.velocity_ned_mps]), heading)
     if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
-        return home_position(v.home)
+        return home_position(v.places)
     if msg_id == mavlink.MAVLINK_MSG_ID_VFR_HUD:
         speed = float(np.hypot(m[MEAS_VEL], m[MEAS_VEL + 1]))
         heading = int(math.degrees(m[MEAS_YAW]) % 360.0)
         throttle = int(round(100 * float(np.mean(v.last_commands))))
         return mavlink.MAVLink_vfr_hud_message(speed, speed, heading, throttle,
-                                               v.home.alt_amsl_m - m[MEAS_Z], -m[MEAS_VZ])
+                                               v.places.origin.alt_amsl_m - m[MEAS_Z], -m[MEAS_VZ])
     if msg_id == mavlink.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
         return copter_autopilot_version() if flavour == "ardupilot" else autopilot_version()
     if msg_id == mavlink.MAVLINK_MSG_ID_GPS_RAW_INT:

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from autopilot.navigator.home import Places
 from autopilot.navigator.mission_store import MissionItem, is_empty_circle
 from contracts.frames import Home
 from contracts.mavlink import mavlink
@@ -43,18 +44,18 @@ class Zone:
         return inside
 
 
-def zones_from_items(items: tuple[MissionItem, ...], home: Home) -> tuple[Zone, ...]:
+def zones_from_items(items: tuple[MissionItem, ...], origin: Home) -> tuple[Zone, ...]:
     """The fence list's zones around ``home``: consecutive polygon vertices (param1 of each
     = their count), circles one item each."""
     zones, i = [], 0
     while i < len(items):
         item = items[i]
-        north, east, _ = home.ned_from_geodetic(item.x * 1e-7, item.y * 1e-7, 0.0)
+        north, east, _ = origin.ned_from_geodetic(item.x * 1e-7, item.y * 1e-7, 0.0)
         inclusion = item.command in INCLUSIONS
         if item.command in POLYGONS:
             count = int(item.params[0])
             group = items[i:i + count]
-            vertices = np.array([home.ned_from_geodetic(g.x * 1e-7, g.y * 1e-7, 0.0)[:2]
+            vertices = np.array([origin.ned_from_geodetic(g.x * 1e-7, g.y * 1e-7, 0.0)[:2]
                                  for g in group])
             zones.append(Zone(inclusion, vertices=vertices))
             i += max(count, 1)
@@ -66,11 +67,14 @@ def zones_from_items(items: tuple[MissionItem, ...], home: Home) -> tuple[Zone, 
 
 
 def breach(position_ned_m: np.ndarray, zones: tuple[Zone, ...], max_horizontal_m: float,
-           max_vertical_m: float) -> str | None:
+           max_vertical_m: float, home_ned_m: np.ndarray | None = None) -> str | None:
     """Why this position is outside the fence, or None when it is inside. A limit of 0
-    is off, as in PX4."""
+    is off, as in PX4; the limits are from home (``home_ned_m``, the origin if None),
+    the zones in the local frame."""
     north, east, down = (float(v) for v in position_ned_m)
-    distance = float(np.hypot(north, east))
+    from_home = position_ned_m if home_ned_m is None else position_ned_m - home_ned_m
+    distance = float(np.hypot(from_home[0], from_home[1]))
+    down = float(from_home[2])
     if max_horizontal_m > 0 and distance > max_horizontal_m:
         return f"{distance:.1f} m from home, beyond {max_horizontal_m:g} m"
     if max_vertical_m > 0 and -down > max_vertical_m:
@@ -88,16 +92,17 @@ class GeofenceWatch:
 
     def __init__(self) -> None:
         self.breach: str | None = None  # why the vehicle is outside its fence
-        self._fence_of: tuple | None = None  # the fence list and home the zones are from
+        self._fence_of: tuple | None = None  # the fence list and origin the zones are from
         self._zones: tuple = ()
 
-    def crossed_out(self, fence: tuple, home: Home, position_ned_m: np.ndarray,
+    def crossed_out(self, fence: tuple, places: Places, position_ned_m: np.ndarray,
                     max_hor_m: float, max_ver_m: float) -> str | None:
         """The reason when this sample is the first outside, else None."""
+        origin = places.origin
         if self._fence_of is None or fence is not self._fence_of[0] or \
-                home != self._fence_of[1]:
-            self._fence_of, self._zones = (fence, home), zones_from_items(fence, home)
-        reason = breach(position_ned_m, self._zones, max_hor_m, max_ver_m)
+                origin != self._fence_of[1]:
+            self._fence_of, self._zones = (fence, origin), zones_from_items(fence, origin)
+        reason = breach(position_ned_m, self._zones, max_hor_m, max_ver_m, places.home_ned_m)
         first = reason is not None and self.breach is None
         self.breach = reason
         return reason if first else None

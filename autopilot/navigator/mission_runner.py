@@ -28,6 +28,7 @@ import numpy as np
 
 from autopilot.flight_tasks.goal import LAND_DOWN_M, Goal, Vertical
 from autopilot.flight_tasks.shaping import Setpoint
+from autopilot.navigator.home import Places
 from autopilot.navigator.mission_store import (
     ARDUPILOT_DO_COMMANDS,
     DO_COMMANDS,
@@ -36,7 +37,7 @@ from autopilot.navigator.mission_store import (
     is_roi_none,
 )
 from contracts.frames import Home
-from contracts.mavlink import mavlink, ned_from_global
+from contracts.mavlink import GLOBAL_FRAMES, mavlink
 
 M = mavlink
 # A leg that turns starts once the shaped reference has come to within this distance of
@@ -73,6 +74,7 @@ class Phase(enum.Enum):
 class EventKind(enum.Enum):
     REACHED = "reached"  # an item reached (MISSION_ITEM_REACHED)
     RETURN = "return"  # the mission asks for a return to launch
+    HOME = "home"  # a DO_SET_HOME item moved home (MissionRunner.places)
     FINISHED = "finished"  # the mission ended (the text says how)
 
 
@@ -84,15 +86,16 @@ class Event(NamedTuple):
     text: str = ""
 
 
-def item_position_ned(item: MissionItem, here_ned_m: np.ndarray, home: Home,
+def item_position_ned(item: MissionItem, here_ned_m: np.ndarray, places: Places,
                       zero_latlon_is_here: bool = False) -> np.ndarray:
-    """A positioned item's target in local NED around ``home``. A landing item at latitude
+    """A positioned item's target in local NED (around the origin, relative altitudes
+    above home: Places). A landing item at latitude
     and longitude 0 (or x, y NaN in LOCAL_NED) lands where the vehicle is; with
     ``zero_latlon_is_here`` (ArduPilot Copter) so does every position item at 0, 0, at
     its own altitude."""
     if item.is_global:
         here_latlon = item.x == 0 and item.y == 0
-        out = ned_from_global(home, item.frame, item.x * 1e-7, item.y * 1e-7, item.z)
+        out = places.ned_from_global(item.frame, item.x * 1e-7, item.y * 1e-7, item.z)
     else:
         here_latlon = not (math.isfinite(item.x) and math.isfinite(item.y))
         out = np.array([item.x, item.y, item.z], dtype=float)
@@ -148,7 +151,7 @@ class MissionRunner:
 
     items: tuple[MissionItem, ...]
     parameters: dict[str, float]
-    home: Home  # where the items' latitudes and longitudes are taken around
+    places: Places  # the origin items' latitudes and longitudes are taken around, home
     zero_latlon_is_here: bool = False  # Copter: a position item at 0, 0 is "here"
     seq: int = 0
     speed_mps: float = math.nan  # DO_CHANGE_SPEED; NaN: MPC_XY_CRUISE
@@ -192,7 +195,7 @@ class MissionRunner:
         return None
 
     def _position(self, item: MissionItem, here: np.ndarray) -> np.ndarray:
-        return item_position_ned(item, here, self.home, self.zero_latlon_is_here)
+        return item_position_ned(item, here, self.places, self.zero_latlon_is_here)
 
     def _begin_item(self, here: np.ndarray, t_s: float) -> None:
         """Set up the current item, carrying out DO items on the way to the next one
@@ -208,6 +211,8 @@ class MissionRunner:
                     self.speed_mps = float(item.params[1])
                 self.seq += 1
                 continue
+            if command == M.MAV_CMD_DO_SET_HOME and self._phase is Phase.START:
+                self._set_home(item, here)  # before any position item: runs here
             if command in PAYLOAD_COMMANDS or command in ARDUPILOT_DO_COMMANDS:
                 self.seq += 1  # no payload to drive; yaw and ROI items ran with the last
                 continue       # position item (_run_conditionals)
@@ -264,10 +269,31 @@ class MissionRunner:
                 self._yaw_rad = self._yaw_rad + (-angle if item.params[2] < 0 else angle) \
                     if item.params[3] == 1.0 else angle
                 self._roi_ned_m = None  # Copter: a fixed heading replaces the ROI
+            elif command == M.MAV_CMD_DO_SET_HOME:
+                self._set_home(item, here)
             elif is_roi_none(item):
                 self._roi_ned_m = None
             elif command in ARDUPILOT_DO_COMMANDS:  # an ROI at a location
-                self._roi_ned_m = item_position_ned(item, here, self.home)
+                self._roi_ned_m = item_position_ned(item, here, self.places)
+
+    def _set_home(self, item: MissionItem, here: np.ndarray) -> None:
+        """DO_SET_HOME as Copter's mission runs it (do_set_home): param1 1 or latitude
+        and longitude 0, home where the vehicle is; else at the item's location (a
+        relative altitude above the present home). A place that is not a home is passed
+        over, as Copter passes over a failed set_home."""
+        origin = self.places.origin
+        if item.params[0] == 1.0 or (item.x == 0 and item.y == 0):
+            lat, lon, alt = origin.geodetic_from_ned(*here)
+        else:
+            lat, lon, alt = item.x * 1e-7, item.y * 1e-7, float(item.z)
+            if GLOBAL_FRAMES[item.frame]:
+                alt += self.places.home.alt_amsl_m
+        try:
+            home = Home.checked(lat, lon, alt)
+        except ValueError:
+            return
+        self.places = self.places.moved_to(home)
+        self.events.append(Event(EventKind.HOME, item.seq))
 
     def _heading(self, position_ned_m: np.ndarray) -> float:
         """The heading to fly: facing the region of interest when there is one (and it is

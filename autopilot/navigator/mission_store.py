@@ -42,9 +42,11 @@ COMMANDS = {MISSION: NAV_COMMANDS | DO_COMMANDS | WAIT_COMMANDS, FENCE: FENCE_CO
 # What ArduPilot Copter missions hold beyond PX4's set (taken from ArduPilot-flavour
 # uploads only, so the PX4 flavour takes what it always took): a heading to turn to, and
 # a region of interest the nose points at (DO_SET_ROI, DO_SET_ROI_LOCATION: a location;
-# DO_SET_ROI_NONE, or a location at latitude and longitude 0: none).
+# DO_SET_ROI_NONE, or a location at latitude and longitude 0: none), and DO_SET_HOME
+# (param1 1 or latitude and longitude 0: here; else the item's global location).
 ARDUPILOT_DO_COMMANDS = {M.MAV_CMD_CONDITION_YAW, M.MAV_CMD_DO_SET_ROI,
-                         M.MAV_CMD_DO_SET_ROI_LOCATION, M.MAV_CMD_DO_SET_ROI_NONE}
+                         M.MAV_CMD_DO_SET_ROI_LOCATION, M.MAV_CMD_DO_SET_ROI_NONE,
+                         M.MAV_CMD_DO_SET_HOME}
 ROI_COMMANDS = (M.MAV_CMD_DO_SET_ROI, M.MAV_CMD_DO_SET_ROI_LOCATION)
 WITHOUT_POSITION = DO_COMMANDS | WAIT_COMMANDS | {M.MAV_CMD_NAV_RETURN_TO_LAUNCH,
                                                   M.MAV_CMD_CONDITION_YAW,
@@ -98,9 +100,10 @@ def check_item(item: MissionItem, count: int, ardupilot: bool = False) -> None:
     if positioned and item.frame not in POSITION_FRAMES:
         raise ItemError(M.MAV_MISSION_UNSUPPORTED_FRAME,
                         f"item {item.seq}: frame {item.frame} is not supported")
-    if item.mission_type != MISSION and item.frame not in GLOBAL_FRAMES:
+    if (item.mission_type != MISSION or item.command == M.MAV_CMD_DO_SET_HOME) and \
+            item.frame not in GLOBAL_FRAMES:
         raise ItemError(M.MAV_MISSION_UNSUPPORTED_FRAME,
-                        f"item {item.seq}: fence and rally items are global")
+                        f"item {item.seq}: fence, rally and home items are global")
     p1, p2, p3, p4 = item.params
     for i, value in enumerate(item.params):
         if math.isinf(value):

@@ -13,6 +13,7 @@ from collections.abc import Callable
 import numpy as np
 
 from autopilot.flight_tasks.goal import Goal
+from autopilot.navigator.home import Places
 from autopilot.navigator.mission_runner import EventKind, MissionRunner, nav_command
 from autopilot.navigator.mission_store import MAX_SPEED_MPS, MISSION, MissionStore
 from autopilot.refusal import RefusedError
@@ -36,7 +37,7 @@ class Navigator:
         self.reached: list[int] = []  # mission items reached, for MISSION_ITEM_REACHED
         self._current_shown = 0  # the current item as the runner last set it
         self._say = say
-        self.home = DEFAULT_HOME  # the vehicle's, set with it
+        self.places = Places.at(DEFAULT_HOME)  # the vehicle's origin and home, set with it
 
     @property
     def mission(self) -> tuple:
@@ -62,7 +63,7 @@ class Navigator:
                 self.runner.items is not items:  # from the start, fresh jump counts and speed
             if self.complete or self.store.current >= len(items):
                 self.store.current = 0
-            self.runner = MissionRunner(items, parameters, self.home,
+            self.runner = MissionRunner(items, parameters, self.places,
                                         zero_latlon_is_here=self.copter_rules)
         self.complete = False  # (resuming keeps the jump counts and the speed)
         self.runner.start(self.store.current, stopping_point, heading_rad, landed,
@@ -93,6 +94,7 @@ class Navigator:
              reference_velocity_ned_mps: np.ndarray | None = None) -> Goal | None:
         """This period's goal; None when the mission asks for a return."""
         self.runner.parameters = parameters  # changed in flight: they apply at once
+        self.runner.places = self.places  # and home, moved by a tool (DO_SET_HOME)
         goal = self.runner.step(sim_t_s, here_ned_m, reference_ned_m,
                                 reference_velocity_ned_mps)
         return None if self._take_events() else goal
@@ -107,6 +109,8 @@ class Navigator:
             event = runner.events.pop(0)
             if event.kind is EventKind.REACHED:
                 self.reached.append(event.seq)
+            elif event.kind is EventKind.HOME:  # the vehicle's home, from now on
+                self.places = runner.places
             elif event.kind is EventKind.FINISHED:
                 self.complete = True
                 self._say(event.text)

@@ -206,7 +206,7 @@ class Autopilot(PacedProcess):
         self.next_control_us = None
 
     def _set_home(self, home: Home, how: str) -> None:
-        self.vehicle.set_home(home)
+        self.vehicle.set_origin(home)  # home with it, until a tool moves home
         self.navigation.set_home(home)
         self.log(f"home {home.lat_deg:.7f}, {home.lon_deg:.7f}, {home.alt_amsl_m:.2f} m "
                  f"({how})")

@@ -66,7 +66,7 @@ class Navigation:
                 if self.vehicle.home_known and math.isfinite(reading.baro_alt_amsl_m):
                     baro = failed.sensor(BARO, reading.baro_alt_amsl_m)
                     baro_alt_m = math.nan if baro is None else \
-                        baro - self.vehicle.home.alt_amsl_m
+                        baro - self.vehicle.places.origin.alt_amsl_m
                 est.imu(reading.time_us, gyro, accel, baro_alt_m,
                         failed.sensor(MAG, reading.mag))
                 samples.append((reading.time_us, est.measurement() if est.aligned else None))

@@ -170,7 +170,7 @@ class TelemetryPublisher:
         identity tells). On sim time, so a lockstep log is the same on every run."""
         v = self.vehicle
         lists = v.mission.lists
-        drawn = (lists[MISSION], lists[FENCE], lists[RALLY], v.home, v.mission.current)
+        drawn = (lists[MISSION], lists[FENCE], lists[RALLY], v.places, v.mission.current)
         if time_us < self._scene_due_us and self._scene_of is not None and all(
                 a is b or a == b for a, b in zip(drawn, self._scene_of, strict=True)):
             return
@@ -191,11 +191,11 @@ class TelemetryPublisher:
 
 
 def scene_fields(vehicle: Commander, airframe: dict) -> dict:
-    """What a viewer draws, in local NED around home [m]: the airframe's rotors (body
+    """What a viewer draws, in local NED around the origin [m]: the airframe's rotors (body
     FRD, with their spin), the positioned mission items and rally points (each
     ``[seq, n, e, d]``), the fence's zones, and the mission's current item
     (ground/telemetry/foxglove_view.py reads it)."""
-    home = vehicle.home
+    places = vehicle.places
     here = (np.zeros(3) if vehicle.measurement is None  # before the first sample
             else vehicle.measurement[MEASUREMENT.position_ned_m])
     lists = vehicle.mission.lists
@@ -206,13 +206,13 @@ def scene_fields(vehicle: Commander, airframe: dict) -> dict:
         for item in items:
             if item.command in WITHOUT_POSITION:
                 continue
-            p = item_position_ned(item, here, home)
+            p = item_position_ned(item, here, places)
             if np.all(np.isfinite(p)):
                 out.append([item.seq, *(round(float(x), 3) for x in p)])
         return out
 
     fence = []
-    for zone in zones_from_items(lists[FENCE], home):
+    for zone in zones_from_items(lists[FENCE], places.origin):
         if zone.vertices is not None:
             fence.append({"inclusion": zone.inclusion,
                           "polygon": [[round(float(n), 3), round(float(e), 3)]
@@ -221,6 +221,6 @@ def scene_fields(vehicle: Commander, airframe: dict) -> dict:
             fence.append({"inclusion": zone.inclusion,
                           "centre": [round(float(c), 3) for c in zone.centre],
                           "radius_m": float(zone.radius_m)})
-    return {"airframe": airframe, "home": list(home), "mission": positions(lists[MISSION]),
+    return {"airframe": airframe, "home": list(places.origin), "mission": positions(lists[MISSION]),
             "current": vehicle.mission.current, "fence": fence,
             "rally": positions(lists[RALLY])}

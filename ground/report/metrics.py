@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from autopilot.navigator.home import Places
 from autopilot.navigator.mission_runner import WAYPOINT_COMMANDS, item_position_ned
 from autopilot.parameters import validate_parameters
 from contracts.frames import wrap_pi_array
@@ -90,7 +91,8 @@ def planned_legs(scenario: Scenario) -> tuple[list[np.ndarray], list[float], lis
     for item in scenario.mission_items:
         if item.command not in (mavlink.MAV_CMD_NAV_TAKEOFF, *WAYPOINT_COMMANDS):
             continue
-        legs.append(item_position_ned(item, legs[-1] if legs else start_ned, scenario.home))
+        legs.append(item_position_ned(item, legs[-1] if legs else start_ned,
+                                      Places.at(scenario.home)))
         given = item.params[1] if item.command == mavlink.MAV_CMD_NAV_WAYPOINT else 0.0
         radii.append(given if np.isfinite(given) and given > 0 else p["NAV_ACC_RAD"])
         seqs.append(item.seq)

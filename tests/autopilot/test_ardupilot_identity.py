@@ -109,8 +109,8 @@ def test_gps_ekf_rc_and_servo_messages_on_the_ground(copter):
     copter.state_up()
     gps = copter.client.request(apm.MAVLINK_MSG_ID_GPS_RAW_INT)
     assert (gps.fix_type, gps.satellites_visible, gps.eph) == (3, 10, 121)
-    assert (gps.lat, gps.lon) == (round(copter.vehicle.home.lat_deg * 1e7),
-                                  round(copter.vehicle.home.lon_deg * 1e7))
+    assert (gps.lat, gps.lon) == (round(copter.vehicle.places.home.lat_deg * 1e7),
+                                  round(copter.vehicle.places.home.lon_deg * 1e7))
     ekf = copter.client.request(apm.MAVLINK_MSG_ID_EKF_STATUS_REPORT)
     assert ekf.flags == 0x33F  # healthy on the simulator's truth, as SITL's
     rc = copter.client.request(apm.MAVLINK_MSG_ID_RC_CHANNELS)
@@ -133,17 +133,17 @@ def test_home_position_sent_when_home_is_set(copter):
     copter.service(T0)
     copter.client.sync()
     assert of_type(copter.client.sync(), "HOME_POSITION") == []  # not known yet
-    copter.vehicle.set_home(copter.vehicle.home)
+    copter.vehicle.set_origin(copter.vehicle.places.origin)
     copter.service(T0 + 0.01)
     (home,) = of_type(copter.client.sync(), "HOME_POSITION")
-    assert home.latitude == round(copter.vehicle.home.lat_deg * 1e7)
+    assert home.latitude == round(copter.vehicle.places.home.lat_deg * 1e7)
     copter.service(T0 + 0.02)
     assert of_type(copter.client.sync(), "HOME_POSITION") == []  # once per change
 
 
 def test_reboot_refused_armed_then_restarts_the_vehicle_keeping_parameters(copter):
     copter.state_up()
-    copter.vehicle.set_home(copter.vehicle.home)
+    copter.vehicle.set_origin(copter.vehicle.places.origin)
     copter.vehicle.set_parameter("MPC_XY_VEL_MAX", 7.0)
     assert copter.client.result(ARM, 1)[0] == ACCEPTED
     assert copter.client.result(apm.MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN, 1) == (

@@ -125,7 +125,7 @@ def test_baro_and_mag_off_reach_the_estimator_as_no_reading():
 
     vehicle = Commander(lambda p: make_controller("pid", PAPER, 0.01, None, p), 0.01,
                         {"SYS_FAILURE_EN": 1.0})
-    vehicle.set_home(DEFAULT_HOME)
+    vehicle.set_origin(DEFAULT_HOME)
     navigation = Navigation(vehicle, Estimator())
     vehicle.inject_failure(BARO, OFF, 0)
     vehicle.inject_failure(M.FAILURE_UNIT_SENSOR_MAG, OFF, 0)

@@ -139,7 +139,7 @@ def test_follow_target_messages_are_read_and_bad_ones_refused_with_a_reason():
     f = Flight()
     f.run(0.1)
     server = MavlinkServer(f.vehicle, [])
-    home = f.vehicle.home
+    home = f.vehicle.places.origin
     lat, lon, alt = home.geodetic_from_ned(10.0, -4.0, -2.0)
     sent = []
     server.send_text = lambda link, severity, text, address=None: sent.append(text)

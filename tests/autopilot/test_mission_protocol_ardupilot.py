@@ -12,6 +12,7 @@ import math
 import numpy as np
 import pytest
 
+from autopilot.navigator.home import Places
 from autopilot.navigator.mission_store import FENCE, MISSION
 from tests.autopilot.test_mission_protocol import (
     HOME_LAT,
@@ -66,7 +67,7 @@ def upload(station, items, mission_type: int = MISSION, legacy_answers: bool = F
 def test_an_empty_mission_downloads_as_home_alone(copter):
     (home,) = download(copter)
     assert (home.seq, home.frame, home.command) == (0, M.MAV_FRAME_GLOBAL, WAYPOINT)
-    h = copter.vehicle.home
+    h = copter.vehicle.places.home
     assert (home.x, home.y) == (round(h.lat_deg * 1e7), round(h.lon_deg * 1e7))
     assert home.z == pytest.approx(h.alt_amsl_m, abs=1e-3)  # above sea level, not home
     (home_legacy,) = download(copter, legacy=True)  # MISSION_REQUEST gets MISSION_ITEM
@@ -84,20 +85,20 @@ def test_an_upload_is_asked_with_mission_request_and_item_0_is_dropped(copter):
     back = download(copter)
     assert [m.seq for m in back] == [0, 1, 2, 3]
     assert [fields(a)[1:] for a in back[1:]] == [fields(b)[1:] for b in items[1:]]
-    assert back[0].z == pytest.approx(copter.vehicle.home.alt_amsl_m, abs=1e-3)
+    assert back[0].z == pytest.approx(copter.vehicle.places.home.alt_amsl_m, abs=1e-3)
     current = copter.server.telemetry(M.MAVLINK_MSG_ID_MISSION_CURRENT)
     assert (current.seq, current.total) == (1, 3)  # the first item after home; the last is 3
 
 
 def test_a_home_item_elsewhere_does_not_move_home(copter):
-    before = copter.vehicle.home
+    before = copter.vehicle.places
     items = mission_with_home()
     items[0] = M.MAVLink_mission_item_int_message(
         1, 1, 0, M.MAV_FRAME_GLOBAL_INT, WAYPOINT, 0, 1, 0.0, 0.0, 0.0, 0.0,
         round((HOME_LAT + 0.01) * 1e7), round(HOME_LON * 1e7), 600.0, MISSION)
     assert upload(copter, items)[0].type == M.MAV_MISSION_ACCEPTED
-    assert copter.vehicle.home == before
-    assert download(copter)[0].x == round(before.lat_deg * 1e7)
+    assert copter.vehicle.places == before
+    assert download(copter)[0].x == round(before.home.lat_deg * 1e7)
 
 
 def test_float_items_are_taken_in_degrees(copter):
@@ -236,7 +237,7 @@ def _runner(items):
     from autopilot.parameters import default_parameters
     from contracts.frames import DEFAULT_HOME
 
-    return MissionRunner(tuple(items), default_parameters(), DEFAULT_HOME)
+    return MissionRunner(tuple(items), default_parameters(), Places.at(DEFAULT_HOME))
 
 
 # Headings to points placed by latitude and longitude (1e-7 deg, 1 cm, of rounding, and the
@@ -314,7 +315,7 @@ def test_a_waypoint_at_latitude_and_longitude_0_is_here_in_copter_missions_only(
     zero = replace(MissionItem_at(0, M.MAV_CMD_NAV_WAYPOINT, 0.0, 0.0), z=12.0)
     items = (mission_item(0, 7.0, -3.0, 5.0), zero)
     for copter, expected_ne in ((True, (7.0, -3.0)), (False, None)):
-        runner = MissionRunner(items, default_parameters(), DEFAULT_HOME,
+        runner = MissionRunner(items, default_parameters(), Places.at(DEFAULT_HOME),
                                zero_latlon_is_here=copter)
         runner.start(1, here, 0.0, False, 2.5)
         goal = runner.step(0.0, here, here)

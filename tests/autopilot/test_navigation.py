@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 from autopilot.flight_tasks.sticks import Sticks, deadband, expo, sticks_from_manual_control
+from autopilot.navigator.home import Places
 from autopilot.navigator.mission_store import MISSION
 from autopilot.refusal import RefusedError
 from contracts.frames import DEFAULT_HOME
@@ -362,7 +363,7 @@ def test_a_jump_loop_without_a_position_ends_the_mission_instead_of_stalling():
 
     items = (mission_item(0, 5, 0, 3.0), do_item(1, M.MAV_CMD_DO_JUMP, (2, -1, 0, 0)),
              do_item(2, M.MAV_CMD_DO_JUMP, (1, -1, 0, 0)))
-    runner = MissionRunner(items, default_parameters(), DEFAULT_HOME)
+    runner = MissionRunner(items, default_parameters(), Places.at(DEFAULT_HOME))
     runner.start(1, np.zeros(3), 0.0, False, 2.5)
     runner.step(0.0, np.zeros(3), np.zeros(3))
     assert runner.finished
@@ -376,11 +377,12 @@ def test_local_ned_items_are_metres_from_home():
 
     item = MissionItem(0, M.MAV_FRAME_LOCAL_NED, WAYPOINT, 0, 1, (0, 0, 0, math.nan),
                        4.0, -3.0, -6.0)
-    assert np.array_equal(item_position_ned(item, np.zeros(3), DEFAULT_HOME), (4.0, -3.0, -6.0))
+    at_home = Places.at(DEFAULT_HOME)
+    assert np.array_equal(item_position_ned(item, np.zeros(3), at_home), (4.0, -3.0, -6.0))
     # GLOBAL_INT: the altitude is AMSL (home is 488 m).
     amsl = dataclasses.replace(mission_item(0, 10.0, 20.0, 0.0), frame=M.MAV_FRAME_GLOBAL_INT,
                                z=498.0)
-    assert np.allclose(item_position_ned(amsl, np.zeros(3), DEFAULT_HOME), (10.0, 20.0, -10.0),
+    assert np.allclose(item_position_ned(amsl, np.zeros(3), at_home), (10.0, 20.0, -10.0),
                        atol=0.01)
 
 
@@ -467,7 +469,7 @@ def test_path_metrics_of_a_flight_along_the_planned_legs():
     corners = [np.zeros(3)]
     for item in scenario.mission_items:
         if item.command in (M.MAV_CMD_NAV_TAKEOFF, *WAYPOINT_COMMANDS):
-            corners.append(item_position_ned(item, corners[-1], scenario.home))
+            corners.append(item_position_ned(item, corners[-1], Places.at(scenario.home)))
     path = np.concatenate([np.linspace(a, b, 200, endpoint=False)
                            for a, b in zip(corners[:-1], corners[1:], strict=True)]
                           + [corners[-1][None, :]])

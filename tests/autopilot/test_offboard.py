@@ -18,6 +18,7 @@ from autopilot.mavlink.offboard import (
     global_setpoint,
     local_setpoint,
 )
+from autopilot.navigator.home import Places
 from autopilot.refusal import RefusedError
 from contracts.frames import DEFAULT_HOME
 from contracts.mavlink import mavlink
@@ -30,6 +31,8 @@ ALL_ACCEL = sum(ACCEL_BITS)
 POSITION_ONLY = ALL_VELOCITY | ALL_ACCEL | YAW_RATE_IGNORE  # MAVSDK's 0x9F8 keeps yaw
 VELOCITY_ONLY = ALL_POSITION | ALL_ACCEL | YAW_RATE_IGNORE
 BODY_VELOCITY = ALL_POSITION | ALL_ACCEL | YAW_IGNORE  # MAVSDK set_velocity_body
+
+AT_HOME = Places.at(DEFAULT_HOME)  # home at the local origin
 
 
 def local(frame, mask, position=(1.0, 2.0, -5.0), velocity=(0.5, 1.0, -0.2),
@@ -116,7 +119,7 @@ def test_the_force_bit_with_every_acceleration_masked_is_a_position_setpoint() -
 
 def test_global_setpoints_in_a_terrain_frame_are_refused() -> None:
     with pytest.raises(RefusedError, match="terrain"):
-        global_setpoint(DEFAULT_HOME, mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT, POSITION_ONLY,
+        global_setpoint(AT_HOME, mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT, POSITION_ONLY,
                         0, 0, 5.0, (0, 0, 0), (0, 0, 0), 0.0, 0.0)
 
 
@@ -128,7 +131,7 @@ def test_global_setpoints_land_where_geodetic_from_ned_puts_them(frame, relative
     target = (35.0, -12.0, -6.0)
     lat, lon, amsl = DEFAULT_HOME.geodetic_from_ned(*target)
     alt = amsl - DEFAULT_HOME.alt_amsl_m if relative else amsl
-    sp = global_setpoint(DEFAULT_HOME, frame, POSITION_ONLY, round(lat * 1e7),
+    sp = global_setpoint(AT_HOME, frame, POSITION_ONLY, round(lat * 1e7),
                          round(lon * 1e7), alt, (0, 0, 0), (0, 0, 0), 1.0, 0.0)
     assert np.allclose(sp.position_ned_m, target, atol=0.02)  # 1e-7 deg is ~1 cm
     assert sp.yaw_rad == 1.0
@@ -136,5 +139,5 @@ def test_global_setpoints_land_where_geodetic_from_ned_puts_them(frame, relative
 
 def test_global_setpoints_off_the_earth_are_refused() -> None:
     with pytest.raises(RefusedError, match="not on Earth"):
-        global_setpoint(DEFAULT_HOME, mavlink.MAV_FRAME_GLOBAL_INT, POSITION_ONLY,
+        global_setpoint(AT_HOME, mavlink.MAV_FRAME_GLOBAL_INT, POSITION_ONLY,
                         950_000_000, 0, 500.0, (0, 0, 0), (0, 0, 0), 0.0, 0.0)

@@ -27,6 +27,7 @@ from autopilot.flight_tasks.shaping import (  # noqa: E402
     limits_from_parameters,  # noqa: E402
 )
 from autopilot.identification.identify import identify_dataset  # noqa: E402
+from autopilot.navigator.home import Places  # noqa: E402
 from autopilot.navigator.mission_runner import MissionRunner  # noqa: E402
 from autopilot.parameters import default_parameters  # noqa: E402
 from contracts.airframe import PAPER, hover_rotor_speeds  # noqa: E402
@@ -74,7 +75,8 @@ def main() -> None:
         print(f"  {what:<20} {us:6.2f} us")
     print("Mission navigator (autopilot/navigator/mission_runner.py), median us per call:")
     runner = MissionRunner(tuple(mission_item(i, 30.0 * (i % 2), 30.0 * (i // 2), 5.0)
-                                 for i in range(6)), default_parameters(), DEFAULT_HOME)
+                                 for i in range(6)), default_parameters(),
+                           Places.at(DEFAULT_HOME))
     runner.start(0, np.array([0.0, 0.0, -5.0]), 0.0, False, 2.5)
     here = np.array([10.0, 0.5, -5.0])
     us = per_call_us(lambda: runner.step(1.0, here, here), 20000)

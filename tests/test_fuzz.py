@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import os
-import struct
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -59,38 +58,26 @@ def copter_station():
 RC_MESSAGES = ("RC_CHANNELS_OVERRIDE", "MANUAL_CONTROL")
 
 
-@st.composite
-def _guided_items(draw) -> list[bytes]:
+def _guided_item(draw, msg) -> None:
     """MISSION_ITEM / MISSION_ITEM_INT with current 2 or 3 (Copter's GUIDED go-to and
-    altitude change), every other field hostile, some in a global frame as DroneKit sends
-    them; and Copter's own commands (arming with 2989, flight termination, modes)."""
-    from tests.mavlink_station import M
-
-    encoder = M.MAVLink(None, srcSystem=255, srcComponent=190)
-    out = []
-    for _ in range(draw(st.integers(1, 4))):
-        msg = draw(fz.hostile_message([M.MAVLink_mission_item_message,
-                                       M.MAVLink_mission_item_int_message,
-                                       M.MAVLink_command_long_message]))
-        if msg.get_type() == "COMMAND_LONG":
-            msg.command = draw(st.sampled_from((M.MAV_CMD_DO_FLIGHTTERMINATION,
-                                                M.MAV_CMD_COMPONENT_ARM_DISARM,
-                                                M.MAV_CMD_DO_SET_MODE, M.MAV_CMD_NAV_TAKEOFF)))
-        else:
-            msg.current = draw(st.sampled_from((2, 3)))
-            msg.mission_type = 0
-            if draw(st.booleans()):
-                msg.frame = draw(st.sampled_from((0, 3, 5, 6)))
-                msg.command = M.MAV_CMD_NAV_WAYPOINT
-        try:
-            out.append(msg.pack(encoder))
-        except (struct.error, OverflowError, TypeError, ValueError):
-            continue
-    return out
+    altitude change), some in a global frame as DroneKit sends them; or one of Copter's
+    own commands (arming with 2989, flight termination, modes, take-off)."""
+    if msg.get_type() == "COMMAND_LONG":
+        msg.command = draw(st.sampled_from((fz.M.MAV_CMD_DO_FLIGHTTERMINATION,
+                                            fz.M.MAV_CMD_COMPONENT_ARM_DISARM,
+                                            fz.M.MAV_CMD_DO_SET_MODE, fz.M.MAV_CMD_NAV_TAKEOFF)))
+        return
+    msg.current = draw(st.sampled_from((2, 3)))
+    msg.mission_type = 0
+    if draw(st.booleans()):
+        msg.frame = draw(st.sampled_from((0, 3, 5, 6)))
+        msg.command = fz.M.MAV_CMD_NAV_WAYPOINT
 
 
 @FUZZ
-@given(datagrams=_guided_items())
+@given(datagrams=fz.shaped_messages([fz.M.MAVLink_mission_item_message,
+                                      fz.M.MAVLink_mission_item_int_message,
+                                      fz.M.MAVLink_command_long_message], _guided_item))
 def test_fuzz_guided_items_and_copter_commands(copter_station, datagrams):
     """Refused with a MISSION_ACK / COMMAND_ACK and a reason, or carried out: the vehicle
     answers and its setpoint stays finite."""
@@ -135,27 +122,17 @@ def home_station(request):
     s.close()
 
 
-@st.composite
-def _set_home_commands(draw) -> list[bytes]:
-    """MAV_CMD_DO_SET_HOME as COMMAND_LONG and COMMAND_INT, every field hostile, half the
-    time in a global frame."""
-    encoder = fz.M.MAVLink(None, srcSystem=255, srcComponent=190)
-    out = []
-    for _ in range(draw(st.integers(1, 4))):
-        msg = draw(fz.hostile_message([fz.M.MAVLink_command_long_message,
-                                       fz.M.MAVLink_command_int_message]))
-        msg.command = fz.M.MAV_CMD_DO_SET_HOME
-        if msg.get_type() == "COMMAND_INT" and draw(st.booleans()):
-            msg.frame = draw(st.sampled_from((0, 3, 5, 6)))
-        try:
-            out.append(msg.pack(encoder))
-        except (struct.error, OverflowError, TypeError, ValueError):
-            continue
-    return out
+def _set_home_command(draw, msg) -> None:
+    """MAV_CMD_DO_SET_HOME, every other field hostile; a COMMAND_INT half the time in a
+    global frame."""
+    msg.command = fz.M.MAV_CMD_DO_SET_HOME
+    if msg.get_type() == "COMMAND_INT" and draw(st.booleans()):
+        msg.frame = draw(st.sampled_from((0, 3, 5, 6)))
 
 
 @FUZZ
-@given(datagrams=_set_home_commands())
+@given(datagrams=fz.shaped_messages([fz.M.MAVLink_command_long_message,
+                                      fz.M.MAVLink_command_int_message], _set_home_command))
 def test_fuzz_set_home_commands(home_station, datagrams):
     """Refused with a reason or carried out: the origin never moves and home stays a
     place on Earth (every field finite and in range)."""

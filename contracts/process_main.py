@@ -12,12 +12,16 @@ teardown.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import NoReturn
 
 from contracts import timeline
 from contracts.warm import WARM_FLAG, exit_process, serve
+
+PROFILE_ENV = "IVFM_PROFILE"  # a folder: a fresh (not warm) process runs under cProfile
 
 
 def run_main(process: str, build_parser: Callable[[], argparse.ArgumentParser],
@@ -38,9 +42,26 @@ def start_process(process: str, main: Callable[..., int],
     """``python -m <process>``: one run of ``main``, or with ``--warm`` as the only
     argument, a warm process serving runs of it; then the exit is marked and the process
     ends (``exit_process``)."""
-    code = serve(main, preload) if sys.argv[1:] == [WARM_FLAG] else main()
+    profile_dir = os.environ.get(PROFILE_ENV)
+    if profile_dir and sys.argv[1:] != [WARM_FLAG]:
+        code = profiled(process, main, Path(profile_dir))
+    else:
+        code = serve(main, preload) if sys.argv[1:] == [WARM_FLAG] else main()
     timeline.mark(process, "exit")
     exit_process(code)
+
+
+def profiled(process: str, main: Callable[..., int], folder: Path) -> int:
+    """One run under cProfile, its statistics into ``folder/PROCESS.prof`` (for the cycle
+    budget in docs/mavlink.md: tests/benchmarks/profile_loops.py reads them)."""
+    import cProfile
+
+    profiler = cProfile.Profile()
+    try:
+        return profiler.runcall(main)
+    finally:
+        folder.mkdir(parents=True, exist_ok=True)
+        profiler.dump_stats(folder / f"{process}.prof")
 
 
 def pin_cpus(process: str, cpus: frozenset[int]) -> None:

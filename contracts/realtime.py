@@ -12,12 +12,33 @@ from __future__ import annotations
 import collections
 import contextlib
 import os
+import resource
 from pathlib import Path
 
 import numpy as np
 
 BIN_S = 1e-6
 BINS = 50_000  # 50 ms of 1 us bins; longer values land in the overflow bin
+
+
+class ProcessUsage:
+    """What a process has cost the machine since it was made: CPU seconds (user and
+    system, every thread) and context switches (voluntary: it waited; involuntary: it
+    was preempted), for a run's final status and the benchmarks' cycle budget."""
+
+    def __init__(self) -> None:
+        self.restart()
+
+    def restart(self) -> None:
+        """Count from now (a loop's first step: start-up is not the loop's cost)."""
+        self._start = resource.getrusage(resource.RUSAGE_SELF)
+
+    def since_start(self) -> dict[str, float | int]:
+        now, start = resource.getrusage(resource.RUSAGE_SELF), self._start
+        return {"cpu_s": round(now.ru_utime + now.ru_stime - start.ru_utime - start.ru_stime, 6),
+                "user_s": round(now.ru_utime - start.ru_utime, 6),
+                "voluntary_switches": now.ru_nvcsw - start.ru_nvcsw,
+                "involuntary_switches": now.ru_nivcsw - start.ru_nivcsw}
 
 
 class Histogram:

@@ -12,6 +12,8 @@ key                                    encoding  what
 ``ivfm/vehicle/V/{proc}/status``       JSON      1 Hz (wall) and final: counters per topic
 ``ivfm/vehicle/V/autopilot/scene``     JSON      what to draw: airframe, home, mission, fence,
                                                  rally (on change and 1 Hz sim time)
+``ivfm/vehicle/V/{proc}/batch``        batch     the CDR records and mirror frames of a span
+                                                 of sim time, in one put (below)
 ``mavlink/V/C/MSG``                    MAVLink   raw MAVLink 2 frames the autopilot produced
 ``ivfm/vehicle/V/{proc}/perturb``      query     perturbation requests (acknowledged)
 ``ivfm/vehicle/V/sitl/start``          query     release a held lockstep simulator
@@ -25,6 +27,14 @@ The CDR records are ROS 2 CDR (little endian) of the ``ros2msg`` schemas below, 
 MCAP log opens in Foxglove and PlotJuggler as is: the logger writes the payload it gets.
 Every record starts with ``uint64 seq`` and ``int64 sim_time_us``; MAVLink mirror frames
 carry the two in the Zenoh attachment (``<Qq``).
+
+A process sends its CDR records and mirror frames in **batches**: one put on its
+``batch`` key per span of sim time (``pack_batch``), each record keeping its own key,
+payload and attachment; a subscriber takes them out with ``unbatched``. A put costs a
+process tens of microseconds and wakes Zenoh's threads and every subscriber, so one put
+per span instead of several per step is most of what telemetry costs the loop. The JSON
+records (status, perturbation events, scene) go out on their own keys, after the batch
+before them.
 """
 
 from __future__ import annotations
@@ -243,6 +253,7 @@ CDR_TOPICS: dict[tuple[str, str], RecordSchema] = {
     (AUTOPILOT, "estimate"): ESTIMATE,
 }
 JSON_TOPICS = ("status", "perturbation", "scene")
+BATCH_TOPIC = "batch"
 
 # Record modes by index (contracts.mavlink.FlightMode order) and flag bits.
 FLAG_ARMED, FLAG_FAILSAFE = 1, 4
@@ -250,7 +261,7 @@ FLAG_ARMED, FLAG_FAILSAFE = 1, 4
 
 def schema_for_key(key: str) -> RecordSchema | str | None:
     """The CDR schema of a key, "json" for JSON records, "mavlink" for mirror frames,
-    None for keys outside the contract."""
+    "batch" for a process's batches, None for keys outside the contract."""
     if key.startswith("mavlink/"):
         return "mavlink"
     parsed = parse_key(key)
@@ -259,6 +270,8 @@ def schema_for_key(key: str) -> RecordSchema | str | None:
     _vehicle, process, topic = parsed
     if topic in JSON_TOPICS and process in (SITL, AUTOPILOT):
         return "json"
+    if topic == BATCH_TOPIC and process in (SITL, AUTOPILOT):
+        return "batch"
     return CDR_TOPICS.get((process, topic))
 
 
@@ -282,3 +295,94 @@ JSON_RECORD_SCHEMA = json.dumps({
     "type": "object", "required": ["seq", "sim_time_us"],
     "properties": {"seq": {"type": "integer"}, "sim_time_us": {"type": "integer"}},
 }).encode()
+
+
+# -- batches ----------------------------------------------------------------------------
+# A batch: b"IVB1", u16 key count, each key (u16 length, UTF-8), u32 record count, then
+# three packed arrays over the records (u16 key index, u32 payload length, u8 attachment
+# length, 0 for none), then the payloads end to end, then the attachments end to end.
+BATCH_MAGIC = b"IVB1"
+MAX_BATCH_KEYS = 1024
+MAX_BATCH_RECORDS = 65_535
+_U16, _U32 = struct.Struct("<H"), struct.Struct("<I")
+Entry = tuple[str, bytes, bytes | None]  # key, payload, attachment
+
+
+def pack_batch(keys: list[str], key_index: list[int], payloads: list[bytes],
+               attachments: list[bytes]) -> bytes:
+    """One batch of records: record i is on ``keys[key_index[i]]`` with ``payloads[i]``
+    and ``attachments[i]`` (b"" for none)."""
+    n = len(payloads)
+    if not 0 < n <= MAX_BATCH_RECORDS or len(keys) > MAX_BATCH_KEYS:
+        raise ValueError(f"a batch holds 1-{MAX_BATCH_RECORDS} records on at most "
+                         f"{MAX_BATCH_KEYS} keys, got {n} on {len(keys)}")
+    parts = [BATCH_MAGIC, _U16.pack(len(keys))]
+    for key in keys:
+        raw = key.encode()
+        parts += (_U16.pack(len(raw)), raw)
+    parts += (_U32.pack(n), np.array(key_index, dtype="<u2").tobytes(),
+              np.fromiter(map(len, payloads), dtype="<u4", count=n).tobytes(),
+              np.fromiter(map(len, attachments), dtype="u1", count=n).tobytes(),
+              *payloads, *attachments)
+    return b"".join(parts)
+
+
+def unpack_batch(batch_key: str, payload: bytes) -> list[Entry]:
+    """The records of a batch put on ``batch_key``; ValueError if it does not parse, or
+    holds a key beyond what its sender publishes (its own ``ivfm/vehicle/V/PROC/...``
+    keys, and ``mavlink/V/...`` for the autopilot's mirror)."""
+    parsed = parse_key(batch_key)
+    if parsed is None or parsed[2] != BATCH_TOPIC:
+        raise ValueError(f"{batch_key} is not a batch key")
+    vehicle, process, _ = parsed
+    own = f"{ROOT}/vehicle/{vehicle}/{process}/"
+    mirror = f"mavlink/{vehicle}/" if process == AUTOPILOT else None
+    size = len(payload)
+    try:
+        if payload[:4] != BATCH_MAGIC:
+            raise ValueError("it does not start with IVB1")
+        (nkeys,), at = _U16.unpack_from(payload, 4), 6
+        if nkeys > MAX_BATCH_KEYS:
+            raise ValueError(f"{nkeys} keys is over {MAX_BATCH_KEYS}")
+        keys = []
+        for _ in range(nkeys):
+            (length,) = _U16.unpack_from(payload, at)
+            key = payload[at + 2:at + 2 + length].decode()
+            if len(key) != length or not (key.startswith(own) or
+                                          (mirror and key.startswith(mirror))):
+                raise ValueError(f"key {key!r} is not one its sender publishes")
+            if key.endswith("/" + BATCH_TOPIC):
+                raise ValueError("a batch inside a batch")
+            keys.append(key)
+            at += 2 + length
+        (n,), at = _U32.unpack_from(payload, at), at + 4
+        if not 0 < n <= MAX_BATCH_RECORDS or at + 7 * n > size:
+            raise ValueError(f"{n} records do not fit its {size} bytes")
+        index = np.frombuffer(payload, "<u2", n, at)
+        lengths = np.frombuffer(payload, "<u4", n, at + 2 * n).astype(np.int64)
+        attached = np.frombuffer(payload, "u1", n, at + 6 * n).astype(np.int64)
+        at += 7 * n
+        if n and int(index.max()) >= nkeys:
+            raise ValueError(f"a record names key {int(index.max())} of {nkeys}")
+        ends = at + np.cumsum(lengths)
+        attach_ends = int(ends[-1]) + np.cumsum(attached)
+        if int(attach_ends[-1]) != size:
+            raise ValueError(f"its records take {int(attach_ends[-1])} of its {size} bytes")
+    except (struct.error, UnicodeDecodeError) as exc:
+        raise ValueError(f"batch on {batch_key} does not parse: {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"batch on {batch_key} refused: {exc}") from None
+    starts = (ends - lengths).tolist()
+    attach_starts = (attach_ends - attached).tolist()
+    out = []
+    for k, start, end, a0, a1 in zip(index.tolist(), starts, ends.tolist(), attach_starts,
+                                     attach_ends.tolist(), strict=True):
+        out.append((keys[k], payload[start:end], payload[a0:a1] if a1 > a0 else None))
+    return out
+
+
+def unbatched(key: str, payload: bytes, attachment: bytes | None) -> list[Entry]:
+    """The records a put carries: a batch's, or the one record (ValueError: a bad batch)."""
+    if key.endswith("/" + BATCH_TOPIC) and schema_for_key(key) == "batch":
+        return unpack_batch(key, payload)
+    return [(key, payload, attachment)]

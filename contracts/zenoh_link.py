@@ -5,39 +5,29 @@ listens on ``tcp/127.0.0.1:7447`` and vehicles connect there, retrying quietly w
 away; multicast scouting is off, gossip lets peers find each other through whoever they
 reach. ``client`` mode goes through a router only (``ivfm ground router``).
 
-A node never blocks its process's control loop: publications use Zenoh's drop-on-
-congestion, a failed put is counted and not raised, and requests (perturbations, start)
-are queued by the Zenoh thread and taken by the loop when it is ready.
+The processes' node on a session (publishers, batches, requests, status) is
+``contracts/telemetry_node.py``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import queue
 import re
-import sys
-import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import zenoh
 
-from contracts import timeline
-from contracts.telemetry import (
-    DEFAULT_GROUND_ENDPOINT,
-    MIRROR_ATTACHMENT,
-    json_record,
-    mavlink_key,
-    vehicle_key,
-)
+from contracts.arguments import number
+from contracts.telemetry import DEFAULT_GROUND_ENDPOINT
 
 MODES = ("peer", "client", "router")
+DEFAULT_BATCH_S = 0.02  # the live view's lag in real time, at most (and one step)
+MAX_BATCH_S = 1.0
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9a-fA-F:]+\]|[A-Za-z0-9.\-]+):\d{1,5}$")
-STATUS_PERIOD_S = 1.0
 
 
 @dataclass(frozen=True)
@@ -93,8 +83,15 @@ class ZenohOptions:
     # True: open waits (up to OPEN_WAIT_MS) for the endpoints, so the first records have a
     # route.
     wait_on_open: bool = True
+    # A vehicle process sends its records in one batch per this much sim time (0: each
+    # on its own): docs/telemetry.md, "Batches".
+    batch_s: float = DEFAULT_BATCH_S
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.batch_s, (int, float)) and 0.0 <= self.batch_s <= MAX_BATCH_S):
+            # (NaN fails the comparison too)
+            raise ValueError(f"telemetry batch span must be in [0, {1e3 * MAX_BATCH_S:g}] ms, "
+                             f"got {self.batch_s!r} s")
         if self.mode not in MODES:
             raise ValueError(f"zenoh mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         for endpoint in [*self.listen, *self.connect]:
@@ -138,6 +135,12 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, listen: list[str],
     g.add_argument("--no-zenoh", action="store_true", help="no telemetry, no requests")
     add_security_arguments(g, identity)
     if vehicle:
+        g.add_argument("--telemetry-batch-ms", type=number(0.0, 1e3 * MAX_BATCH_S, "ms"),
+                       default=1e3 * DEFAULT_BATCH_S,
+                       metavar="MS",
+                       help="send the records of this much sim time in one put (default "
+                            f"{1e3 * DEFAULT_BATCH_S:g}; 0: each record on its own; in "
+                            "real time, the most a live view lags)")
         g.add_argument("--zenoh-commander", action="append", metavar="NAME",
                        help="with --zenoh-tls: a certificate name that may send requests "
                             "(perturbations, start); repeatable; default "
@@ -176,10 +179,11 @@ def zenoh_options_from_args(args: argparse.Namespace) -> ZenohOptions:
     commanders = None
     if hasattr(args, "zenoh_commander"):
         commanders = tuple(args.zenoh_commander or DEFAULT_COMMANDERS)
+    batch_ms = getattr(args, "telemetry_batch_ms", 1e3 * DEFAULT_BATCH_S)
     return ZenohOptions(args.zenoh_mode, listen,
                         pick(args.zenoh_connect, args._zenoh_connect_default),
                         enabled=not args.no_zenoh, tls=tls, commanders=commanders,
-                        insecure=args.zenoh_insecure)
+                        insecure=args.zenoh_insecure, batch_s=batch_ms / 1e3)
 
 
 VEHICLE_LISTEN = ["tcp/127.0.0.1:0"]
@@ -253,8 +257,6 @@ def access_control(commanders: tuple[str, ...]) -> dict[str, Any]:
 
 
 CLIENT_CONNECT_TIMEOUT_S = 15.0
-PERTURBATIONS_OFF = ("perturbations are off on this vehicle: start its processes with "
-                     "--perturbations (scenario runs do) to take them")
 
 
 def open_session(options: ZenohOptions, exit_on_listen_failure: bool = False) -> zenoh.Session:
@@ -270,181 +272,3 @@ def open_session(options: ZenohOptions, exit_on_listen_failure: bool = False) ->
                 continue
             raise ValueError(f"cannot open a zenoh session (listen {options.listen}, connect "
                              f"{options.connect}): {exc}") from None
-
-
-class Publisher:
-    """One key: counts what it published, never raises into the caller's loop."""
-
-    def __init__(self, session: zenoh.Session | None, key: str) -> None:
-        self.key = key
-        self.count = 0
-        self.failed = 0
-        self._pub = None
-        if session is not None:
-            self._pub = session.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.DROP)
-
-    @property
-    def matched(self) -> bool:
-        return self._pub is not None and self._pub.matching_status.matching
-
-    def put(self, payload: bytes, attachment: bytes | None = None) -> None:
-        if self._pub is None:
-            return
-        try:
-            if attachment is None:
-                self._pub.put(payload)
-            else:
-                self._pub.put(payload, attachment=attachment)
-            self.count += 1
-        except zenoh.ZError:
-            self.failed += 1
-
-
-@dataclass
-class Request:
-    """A query taken off the Zenoh thread; the loop answers it with ``reply``."""
-
-    topic: str
-    data: Any
-    _query: Any
-    answered: threading.Event = field(default_factory=threading.Event)
-
-    def reply(self, ok: bool, **body: Any) -> None:
-        payload = json.dumps({"ok": ok, **body}, allow_nan=False, default=str).encode()
-        try:
-            if ok:
-                self._query.reply(self._query.key_expr, payload)
-            else:
-                self._query.reply_err(payload)
-            self._query.drop()
-        except zenoh.ZError:
-            pass  # the asker has gone: nothing to tell
-        self.answered.set()
-
-    def refuse(self, exc: Exception, log: Callable[[str], None]) -> None:
-        """Refuse with the reason: a ValueError's message (bad input), or any other
-        exception as an internal error, so that a defect in a handler refuses one request
-        instead of ending the process's loop. Said in the process's log too."""
-        if isinstance(exc, ValueError):
-            log(f"refused {self.topic} request: {exc}")
-            self.reply(False, error=str(exc))
-        else:
-            log(f"refused {self.topic} request on an internal error: {exc!r}")
-            self.reply(False, error=f"internal error: {type(exc).__name__}")
-
-
-# Bounds on what askers can queue in a vehicle process (the loop answers a few per step).
-MAX_REQUEST_BYTES = 64 * 1024
-MAX_PENDING_REQUESTS = 64
-
-
-class TelemetryNode:
-    """A vehicle process's Zenoh side: publishers, liveliness, request queues, status."""
-
-    def __init__(self, options: ZenohOptions, vehicle: int, process: str,
-                 log: Callable[[str], None] | None = None) -> None:
-        self.vehicle = vehicle
-        self.process = process
-        self.log = log or (lambda text: print(f"{process}: {text}", file=sys.stderr))
-        self.session = open_session(options) if options.enabled else None
-        timeline.mark(process, "zenoh session open")
-        self.token = None
-        if self.session is not None:
-            self.token = self.session.liveliness().declare_token(vehicle_key(vehicle, process))
-        self.publishers: dict[str, Publisher] = {}
-        self._mirror: dict[str, Publisher] = {}
-        self.requests: queue.SimpleQueue[Request] = queue.SimpleQueue()
-        self._queryables: list[Any] = []
-        self._status = self.publisher("status")
-        self._status_due_s = 0.0
-        self.mirror_seq = 0
-
-    @property
-    def enabled(self) -> bool:
-        return self.session is not None
-
-    def publisher(self, topic: str) -> Publisher:
-        pub = Publisher(self.session, vehicle_key(self.vehicle, self.process, topic))
-        self.publishers[topic] = pub
-        return pub
-
-    def serve(self, topic: str, refuse: str | None = None) -> None:
-        """Accept queries on ``topic``: JSON payloads go to ``requests``; a payload that is
-        not JSON is refused here, on the Zenoh thread. ``refuse``: a service that is off
-        answers every query with this error."""
-        if self.session is None:
-            return
-
-        def on_query(query: zenoh.Query) -> None:
-            if refuse is not None:
-                Request(topic, None, query).reply(False, error=refuse)
-                return
-            raw = query.payload.to_bytes() if query.payload is not None else b""
-            if len(raw) > MAX_REQUEST_BYTES:
-                Request(topic, None, query).reply(
-                    False, error=f"payload of {len(raw)} bytes is over {MAX_REQUEST_BYTES}")
-                return
-            if self.requests.qsize() >= MAX_PENDING_REQUESTS:
-                Request(topic, None, query).reply(
-                    False, error=f"busy: {MAX_PENDING_REQUESTS} requests are waiting")
-                return
-            try:
-                data = json.loads(raw) if raw else {}
-            except (ValueError, UnicodeDecodeError) as exc:
-                Request(topic, None, query).reply(False, error=f"payload is not JSON: {exc}")
-                return
-            self.requests.put(Request(topic, data, query))
-
-        self._queryables.append(self.session.declare_queryable(
-            vehicle_key(self.vehicle, self.process, topic), on_query))
-
-    def mirror(self, sysid: int, compid: int, message_name: str, frame: bytes,
-               sim_time_us: int) -> None:
-        """A MAVLink frame onto ``mavlink/sysid/compid/NAME`` (sim time in the attachment)."""
-        if self.session is None:
-            return
-        pub = self.mirror_publisher(sysid, compid, message_name)
-        pub.put(frame, MIRROR_ATTACHMENT.pack(self.mirror_seq, sim_time_us))
-        self.mirror_seq += 1
-
-    def mirror_publisher(self, sysid: int, compid: int, message_name: str) -> Publisher:
-        """The publisher of a mirror key (declared on first use, or ahead of a loop)."""
-        key = mavlink_key(sysid, compid, message_name)
-        pub = self._mirror.get(key)
-        if pub is None:
-            pub = self._mirror[key] = Publisher(self.session, key)
-        return pub
-
-    def counts(self) -> dict[str, int]:
-        out = {pub.key: pub.count for pub in self.publishers.values() if pub is not self._status}
-        out.update({key: pub.count for key, pub in self._mirror.items()})
-        return out
-
-    def status(self, sim_time_us: int, final: bool = False, force: bool = False,
-               **extra: Any) -> None:
-        """Counters at most once a second of wall time (always when final or forced)."""
-        if not self.status_due(final or force):
-            return
-        now = time.monotonic()
-        self._status_due_s = now + STATUS_PERIOD_S
-        failed = sum(p.failed for p in [*self.publishers.values(), *self._mirror.values()])
-        self._status.put(json_record(self._status.count, sim_time_us, process=self.process,
-                                     vehicle=self.vehicle, final=final,
-                                     published=self.counts(), failed_puts=failed, **extra))
-
-    def status_due(self, final: bool = False) -> bool:
-        """Whether ``status`` would publish now: callers skip gathering its fields."""
-        return self.session is not None and (final or time.monotonic() >= self._status_due_s)
-
-    def close(self) -> None:
-        if self.session is None:
-            return
-        try:
-            if self.token is not None:
-                self.token.undeclare()
-            self.session.close()
-        except zenoh.ZError as exc:
-            self.log(f"zenoh session close: {exc}")
-        self.session = None
-        timeline.mark(self.process, "zenoh session closed")

@@ -22,7 +22,7 @@ from contracts.perturbations import (
     plant_perturbations_at,
     sensor_effects_at,
 )
-from contracts.zenoh_link import Request
+from contracts.telemetry_node import Request
 from sitl.plant import Plant
 
 EventSink = Callable[[int, str, Perturbation], None]  # (sim time [us], event, entry)

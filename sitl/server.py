@@ -32,7 +32,8 @@ from contracts.frames import DEFAULT_HOME, Home
 from contracts.mavlink import SIM_TCP_PORT, LinkDataError, commands_from_actuator
 from contracts.paced_loop import Deadlines, PacedProcess
 from contracts.perturbations import Perturbation
-from contracts.zenoh_link import Request, ZenohOptions
+from contracts.telemetry_node import Request
+from contracts.zenoh_link import ZenohOptions
 from sitl.link import AutopilotLink, LinkStats, RealtimeConnection
 from sitl.perturbation_service import PerturbationService
 from sitl.plant import Plant
@@ -237,6 +238,7 @@ class Simulator(PacedProcess):
                 self.stats.samples_sent += 1
                 if self.stats.samples_sent == 1:
                     timeline.mark(SITL, "first sample sent")
+                    self.telemetry.node.usage.restart()
                 answered = False
                 while not answered and not self._stop:
                     msgs = self.link.read(conn)

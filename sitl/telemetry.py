@@ -1,6 +1,6 @@
-"""The simulator on Zenoh: its truth state each sample, each perturbation as it starts and
-ends, its status (at most once a second, and a final one with the link's latency), and the
-requests it serves (``perturb``, ``start``), queued for the loop to take.
+"""The simulator on Zenoh: its truth state each sample (sent in batches), each perturbation
+as it starts and ends, its status (at most once a second, and a final one with the link's
+latency), and the requests it serves (``perturb``, ``start``), queued for the loop to take.
 """
 
 from __future__ import annotations
@@ -15,7 +15,8 @@ from contracts import SITL
 from contracts.perturbation_effects import PLANT_EFFECTS
 from contracts.perturbations import Perturbation, Perturbations
 from contracts.telemetry import STATE, json_record
-from contracts.zenoh_link import PERTURBATIONS_OFF, Request, TelemetryNode, ZenohOptions
+from contracts.telemetry_node import PERTURBATIONS_OFF, Request, TelemetryNode
+from contracts.zenoh_link import ZenohOptions
 from sitl.link import LinkStats
 from sitl.plant import VehicleState
 
@@ -59,6 +60,7 @@ class SimulatorTelemetry:
             record[name] = getattr(active, name)
         record["motor_commands"] = motor_commands
         self._state_pub.put(record.encode())
+        self.node.end_step(time_us)
 
     def publish_event(self, time_us: int, event: str, entry: Perturbation) -> None:
         """A perturbation that started or ended at ``time_us``."""

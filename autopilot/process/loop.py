@@ -50,7 +50,8 @@ from contracts.mavlink import (
 from contracts.paced_loop import Deadlines, PacedProcess
 from contracts.realtime import LoopTiming
 from contracts.telemetry import AUTOPILOT
-from contracts.zenoh_link import PERTURBATIONS_OFF, Request, TelemetryNode, ZenohOptions
+from contracts.telemetry_node import PERTURBATIONS_OFF, Request, TelemetryNode
+from contracts.zenoh_link import ZenohOptions
 
 # Ground links get a bounded share of each period, after the control step (bad input:
 # docs/architecture.md).
@@ -158,6 +159,7 @@ class Autopilot(PacedProcess):
         self.steps += 1
         if self.steps == 1:
             timeline.mark(AUTOPILOT, "first control step")
+            self.node.usage.restart()
         if self.max_steps < math.inf and self.steps >= self._progress_at * self.max_steps:
             self.log(f"{100 * self._progress_at:.0f} % ({time_us / 1e6:.1f} s sim)")
             self._progress_at += 0.1
@@ -180,6 +182,7 @@ class Autopilot(PacedProcess):
             self.telemetry.publish_step(time_us, self._command_sent - self._step_start,
                                         self._step_start)
         self.telemetry.mirror_actuators(frame, time_us)
+        self.telemetry.end_step(time_us)
 
     def _service_requests(self) -> None:
         """Perturbation requests over Zenoh, answered on sim time."""

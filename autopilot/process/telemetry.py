@@ -36,8 +36,8 @@ from contracts.telemetry import (
     TIMING,
     json_record,
 )
+from contracts.telemetry_node import TelemetryNode
 from contracts.vectors import CHANNEL_INTERNALS, MEASUREMENT
-from contracts.zenoh_link import TelemetryNode
 
 MODE_INDEX = {mode: i for i, mode in enumerate(FlightMode)}
 # The MAVLink mirror's sim-time streams (message, period in microseconds of sim time).
@@ -155,6 +155,10 @@ class TelemetryPublisher:
         self.node.mirror(self.sysid, AUTOPILOT_COMPID, "HIL_ACTUATOR_CONTROLS", frame,
                          time_us)
 
+    def end_step(self, time_us: int) -> None:
+        """The step's records are all out: the batch goes if its span is over."""
+        self.node.end_step(time_us)
+
     def mirror_tool_message(self, link: object, msg: mavlink.MAVLink_message,
                             frame: bytes) -> None:
         """Announcements and acknowledgements to ground tools go into the log too."""
@@ -181,6 +185,7 @@ class TelemetryPublisher:
 
     def status(self, steps: int, final: bool = False) -> None:
         """The status record, when due (once a second) or ``final``."""
+        self.node.flush_stale()
         if not self.node.status_due(final):
             return  # asked every 5 ms, published once a second: gather nothing till then
         # The timing summary only goes into the final status (it reads whole histograms).

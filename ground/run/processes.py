@@ -231,8 +231,12 @@ def telemetry_accounting(logger_status: dict[str, Any]) -> dict[str, Any]:
             timing = record["timing"]
     logged = logger_status["per_key"]
     lost = {k: n - logged.get(k, 0) for k, n in published.items() if n != logged.get(k, 0)}
+    usage = {record["process"]: record["usage"] for record in logger_status["heard"].values()
+             if "usage" in record}
+    usage["logger"] = logger_status.get("usage", {})
     return {"published": published, "logged": {k: logged.get(k, 0) for k in published},
-            "lost": lost, "refused_by_logger": logger_status["rejected"], "timing": timing}
+            "lost": lost, "refused_by_logger": logger_status["rejected"], "timing": timing,
+            "usage": usage}
 
 
 def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen | WarmProcess],

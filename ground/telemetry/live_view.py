@@ -30,6 +30,7 @@ from foxglove import channels as fg_channels
 
 from contracts.arguments import number
 from contracts.stop_request import StopRequest
+from contracts.telemetry import unbatched
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.telemetry.foxglove_scene import encode, json_schema
 from ground.telemetry.foxglove_view import DEFAULT_RATE_HZ, FoxgloveView, Output
@@ -158,7 +159,8 @@ def serve_view(options: ZenohOptions, host: str, port: int, rate_hz: float = DEF
             while inbox:
                 key, payload, attachment = inbox.popleft()
                 try:
-                    outputs = view.feed(key, payload, attachment)
+                    outputs = [out for record in unbatched(key, payload, attachment)
+                               for out in view.feed(*record)]
                 except (ValueError, TypeError, KeyError) as exc:
                     refused += 1
                     if refused == 1 or refused % 1000 == 0:

@@ -39,6 +39,7 @@ from typing import Any
 import zenoh
 
 from contracts import timeline
+from contracts.realtime import ProcessUsage
 from contracts.stop_request import StopRequest
 from contracts.telemetry import (
     MIRROR_ATTACHMENT,
@@ -47,6 +48,7 @@ from contracts.telemetry import (
     logger_key,
     parse_key,
     schema_for_key,
+    unpack_batch,
 )
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.telemetry.drawing import Drawing
@@ -141,6 +143,7 @@ class Logger:
                                 self.counters, self.log)
                         if config.foxglove or live is not None else None)
         self._warned: dict[str, float] = {}
+        self.usage = ProcessUsage()
 
     def stop(self, *_args: Any) -> None:
         timeline.mark(PROCESS, "stop asked")
@@ -168,6 +171,15 @@ class Logger:
                             f"over {MAX_KEY_CHARS} characters ({c.keys_over_limit} so far)")
             return
         schema = schema_for_key(key)
+        if schema == "batch":  # a span of a process's records: each written as it came
+            try:
+                entries = unpack_batch(key, payload)
+            except ValueError as exc:
+                self._refuse(key, str(exc))
+                return
+            for entry in entries:
+                self._write(*entry, log_time_ns)
+            return
         try:
             seq, sim_time_us = self._check(key, schema, payload, attachment)
         except ValueError as exc:
@@ -235,7 +247,7 @@ class Logger:
                 "write_error": c.write_error, "unwritten": c.unwritten,
                 "view_messages": c.view_messages, "view_refused": c.view_refused,
                 "file": str(self.files.file.active_path) if self.files.file else None,
-                "finished_files": c.files}
+                "finished_files": c.files, "usage": self.usage.since_start()}
 
     # -- the loop ------------------------------------------------------------------------
     def run(self, ready: Callable[[], None] | None = None) -> int:

@@ -36,7 +36,8 @@ import sys, time, json
 sys.path.insert(0, {root!r})
 import numpy as np
 from contracts.telemetry import CONTROL
-from contracts.zenoh_link import TelemetryNode, ZenohOptions
+from contracts.telemetry_node import TelemetryNode
+from contracts.zenoh_link import ZenohOptions
 vehicles, rate_hz, seconds, endpoint = json.loads(sys.argv[1])
 opts = ZenohOptions(listen=["tcp/127.0.0.1:0"], connect=[endpoint])
 nodes = [TelemetryNode(opts, v, "autopilot", log=lambda t: None) for v in vehicles]

@@ -35,7 +35,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 from contracts.arguments import cpu_list  # noqa: E402
 from contracts.mavlink import mavlink  # noqa: E402
 from contracts.realtime import Histogram, shield_cpus  # noqa: E402
-from contracts.telemetry import AUTOPILOT, SITL, TIMING, vehicle_key  # noqa: E402
+from contracts.telemetry import (  # noqa: E402
+    AUTOPILOT,
+    BATCH_TOPIC,
+    SITL,
+    TIMING,
+    unbatched,
+    vehicle_key,
+)
 from contracts.zenoh_link import ZenohOptions, open_session  # noqa: E402
 from ground.run.children import LoggerProcess, free_tcp_port, free_udp_port  # noqa: E402
 from ground.run.processes import telemetry_accounting  # noqa: E402
@@ -102,13 +109,17 @@ class MinuteTiming:
         self.misses_at_start = self.misses_seen
 
     def on_sample(self, sample) -> None:
-        r = TIMING.decode(sample.payload.to_bytes())
-        with self.lock:
-            self.records += 1
-            self.misses_seen = int(r["deadline_misses"])
-            self.compute.add(float(r["compute_s"]))
-            if r["period_s"] == r["period_s"]:  # NaN after a restart of the loop
-                self.jitter.add(abs(float(r["period_s"]) - self.period_s))
+        timing_key = vehicle_key(1, AUTOPILOT, "timing")
+        for key, payload, _ in unbatched(str(sample.key_expr), sample.payload.to_bytes(), None):
+            if key != timing_key:
+                continue
+            r = TIMING.decode(payload)
+            with self.lock:
+                self.records += 1
+                self.misses_seen = int(r["deadline_misses"])
+                self.compute.add(float(r["compute_s"]))
+                if r["period_s"] == r["period_s"]:  # NaN after a restart of the loop
+                    self.jitter.add(abs(float(r["period_s"]) - self.period_s))
 
     def take(self) -> dict:
         with self.lock:
@@ -181,7 +192,8 @@ def soak(args: argparse.Namespace) -> None:
             start_new_session=True) for i in range(args.neighbours)]
         timing = MinuteTiming(1.0 / args.rate_hz)
         session = open_session(ZenohOptions(mode="peer", connect=[endpoint], listen=[]))
-        sub = session.declare_subscriber(vehicle_key(1, AUTOPILOT, "timing"), timing.on_sample)
+        sub = session.declare_subscriber(vehicle_key(1, AUTOPILOT, BATCH_TOPIC),
+                                         timing.on_sample)
         station = GroundStation(GroundStationPlan(heartbeat_hz=1.0, offboard_at_s=5.0,
                                                   setpoint_hz=20.0),
                                 gcs_port, 1, (0.0, 0.0, -1.0), 0.0)

@@ -8,13 +8,8 @@ import json
 import time
 
 from contracts.telemetry import vehicle_key
-from contracts.zenoh_link import (
-    MAX_PENDING_REQUESTS,
-    MAX_REQUEST_BYTES,
-    TelemetryNode,
-    ZenohOptions,
-    open_session,
-)
+from contracts.telemetry_node import MAX_PENDING_REQUESTS, MAX_REQUEST_BYTES, TelemetryNode
+from contracts.zenoh_link import ZenohOptions, open_session
 from ground.run.children import free_tcp_port
 
 

@@ -1,0 +1,85 @@
+"""The lockstep path through the processes beside the in-process path, measured in the same
+run (the machine's speed moves up to 3x between days: the ratio is the figure).
+
+    python tests/benchmarks/bench_lockstep.py             # 3 rounds of 60 s attitude-sine
+    python tests/benchmarks/bench_lockstep.py --rounds 5 --duration 30
+
+Each round flies the scenario in process, then through the logger, simulator and
+autopilot (lockstep, every record logged). The processes' loop is the autopilot's
+first to last control step (timeline.json); CPU and context switches come from each
+process's final status (getrusage: every thread of the process). Prints figures;
+asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import statistics
+import sys
+import tempfile
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from autopilot.control.factory import load_models  # noqa: E402
+from contracts.airframe import PAPER  # noqa: E402
+from ground.run.inprocess import run_inprocess  # noqa: E402
+from ground.run.processes import RunSettings, run_processes  # noqa: E402
+from ground.scenario.scenario_file import scenario_by_name  # noqa: E402
+
+PROCESSES = ("sitl", "autopilot", "logger")
+
+
+def round_trip(scenario, settings: RunSettings, models) -> dict:
+    """One in-process flight and one through the processes: their figures."""
+    inprocess = run_inprocess(scenario, "ivfc", "paper", PAPER, models)
+    with tempfile.TemporaryDirectory() as tmp:
+        accounting = run_processes(scenario, settings, Path(tmp), quiet=True)
+        timeline = json.loads((Path(tmp) / "timeline.json").read_text())
+    steps = round(scenario.duration_s * settings.rate_hz)
+    return {"inprocess_rtf": scenario.duration_s / inprocess.wall_time_s,
+            "processes_rtf": timeline["loop_real_time_factor"],
+            "usage": accounting["usage"], "steps": steps,
+            "lost": sum(accounting["lost"].values())}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--duration", type=float, default=60.0, help="sim seconds")
+    args = parser.parse_args()
+    scenario = dataclasses.replace(scenario_by_name("attitude-sine"),
+                                   duration_s=args.duration)
+    settings = RunSettings("ivfc", "paper", "paper")
+    models = load_models(None)
+    rows = []
+    for k in range(args.rounds):
+        row = round_trip(scenario, settings, models)
+        rows.append(row)
+        print(f"round {k + 1}: in process {row['inprocess_rtf']:.1f}x, processes "
+              f"{row['processes_rtf']:.1f}x real time "
+              f"({100 * row['processes_rtf'] / row['inprocess_rtf']:.0f} %); "
+              f"records lost {row['lost']}", flush=True)
+    ratio = [r["processes_rtf"] / r["inprocess_rtf"] for r in rows]
+    best = rows[ratio.index(statistics.median(ratio))] if len(rows) % 2 else rows[0]
+    print(f"lockstep attitude-sine, {args.duration:g} s sim, logger on: median "
+          f"{100 * statistics.median(ratio):.0f} % of the in-process real-time factor "
+          f"(processes {statistics.median(r['processes_rtf'] for r in rows):.1f}x, in "
+          f"process {statistics.median(r['inprocess_rtf'] for r in rows):.1f}x)")
+    print("per process, the median round's run (CPU: every thread; switches per 10 ms "
+          "cycle):")
+    for name in PROCESSES:
+        u = best["usage"].get(name)
+        if not u:
+            continue
+        print(f"  {name:9s} CPU {1e3 * u['cpu_s'] / args.duration:6.1f} ms per sim second "
+              f"({1e6 * u['cpu_s'] / best['steps']:5.0f} us per cycle, user "
+              f"{1e6 * u['user_s'] / best['steps']:5.0f}); switches per cycle "
+              f"{u['voluntary_switches'] / best['steps']:.2f} voluntary, "
+              f"{u['involuntary_switches'] / best['steps']:.2f} involuntary")
+
+
+if __name__ == "__main__":
+    main()

@@ -320,10 +320,8 @@ def pack_batch(keys: list[str], key_index: list[int], payloads: list[bytes],
     for key in keys:
         raw = key.encode()
         parts += (_U16.pack(len(raw)), raw)
-    parts += (_U32.pack(n), np.array(key_index, dtype="<u2").tobytes(),
-              np.fromiter(map(len, payloads), dtype="<u4", count=n).tobytes(),
-              np.fromiter(map(len, attachments), dtype="u1", count=n).tobytes(),
-              *payloads, *attachments)
+    parts += (struct.pack(f"<I{n}H{n}I", n, *key_index, *map(len, payloads)),
+              bytes(map(len, attachments)), *payloads, *attachments)
     return b"".join(parts)
 
 
@@ -358,26 +356,29 @@ def unpack_batch(batch_key: str, payload: bytes) -> list[Entry]:
         (n,), at = _U32.unpack_from(payload, at), at + 4
         if not 0 < n <= MAX_BATCH_RECORDS or at + 7 * n > size:
             raise ValueError(f"{n} records do not fit its {size} bytes")
-        index = np.frombuffer(payload, "<u2", n, at)
-        lengths = np.frombuffer(payload, "<u4", n, at + 2 * n).astype(np.int64)
-        attached = np.frombuffer(payload, "u1", n, at + 6 * n).astype(np.int64)
+        index = struct.unpack_from(f"<{n}H", payload, at)
+        lengths = struct.unpack_from(f"<{n}I", payload, at + 2 * n)
+        attached = payload[at + 6 * n:at + 7 * n]
         at += 7 * n
-        if n and int(index.max()) >= nkeys:
-            raise ValueError(f"a record names key {int(index.max())} of {nkeys}")
-        ends = at + np.cumsum(lengths)
-        attach_ends = int(ends[-1]) + np.cumsum(attached)
-        if int(attach_ends[-1]) != size:
-            raise ValueError(f"its records take {int(attach_ends[-1])} of its {size} bytes")
+        if max(index) >= nkeys:
+            raise ValueError(f"a record names key {max(index)} of {nkeys}")
+        if at + sum(lengths) + sum(attached) != size:
+            raise ValueError(f"its records take {at + sum(lengths) + sum(attached)} of its "
+                             f"{size} bytes")
     except (struct.error, UnicodeDecodeError) as exc:
         raise ValueError(f"batch on {batch_key} does not parse: {exc}") from None
     except ValueError as exc:
         raise ValueError(f"batch on {batch_key} refused: {exc}") from None
-    starts = (ends - lengths).tolist()
-    attach_starts = (attach_ends - attached).tolist()
     out = []
-    for k, start, end, a0, a1 in zip(index.tolist(), starts, ends.tolist(), attach_starts,
-                                     attach_ends.tolist(), strict=True):
-        out.append((keys[k], payload[start:end], payload[a0:a1] if a1 > a0 else None))
+    extra = at + sum(lengths)  # the attachments follow the payloads
+    for k, length, attached_length in zip(index, lengths, attached, strict=True):
+        record = payload[at:at + length]
+        at += length
+        if attached_length:
+            out.append((keys[k], record, payload[extra:extra + attached_length]))
+            extra += attached_length
+        else:
+            out.append((keys[k], record, None))
     return out
 
 

@@ -37,7 +37,7 @@ from contracts.telemetry import (
 from contracts.zenoh_link import ZenohOptions, open_session
 
 STATUS_PERIOD_S = 1.0
-BATCH_MAX_RECORDS = 4096  # a batch goes when it holds this many, whatever its span
+BATCH_MAX_RECORDS = 256  # a batch goes when it holds this many, whatever its span
 PERTURBATIONS_OFF = ("perturbations are off on this vehicle: start its processes with "
                      "--perturbations (scenario runs do) to take them")
 
@@ -213,10 +213,11 @@ class TelemetryNode:
         if self._batch:
             self._batch_pub.put(self._batch.take())
 
-    def flush_stale(self) -> None:
+    def flush_stale(self, now_s: float | None = None) -> None:
         """While sim time stands still (or steps come slowly): records wait at most a span
-        of wall time too."""
-        if self._batch and time.monotonic() - self._batch.since_s >= self.batch_span_s:
+        of wall time too (``now_s``: time.monotonic, or now)."""
+        if self._batch and (time.monotonic() if now_s is None else now_s) \
+                - self._batch.since_s >= self.batch_span_s:
             self.flush()
 
     def serve(self, topic: str, refuse: str | None = None) -> None:

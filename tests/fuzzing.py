@@ -40,6 +40,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 from contracts.mavlink import ardupilotmega, mavlink
+from contracts.telemetry import pack_batch, unbatched
 
 M = mavlink
 HOSTILE_FLOATS = (math.nan, math.inf, -math.inf, 0.0, -0.0, 1e38, -1e38, 3.4e38, 1e-45,
@@ -321,10 +322,15 @@ def perturbation(book, request: Any, now_s: float) -> None:
 
 
 def logger_record(logger, key: str, payload: bytes, attachment: bytes | None) -> None:
-    """A record on any key: written or refused (counted); never an exception."""
+    """A record (or a batch of them) on any key: each written or refused (counted), a
+    batch that does not parse refused whole; never an exception."""
+    try:
+        expected = len(unbatched(key, payload, attachment))
+    except ValueError:
+        expected = 1
     before = logger.counters.records + logger.counters.rejected
     logger._write(key, payload, attachment, 0)
-    assert logger.counters.records + logger.counters.rejected == before + 1
+    assert logger.counters.records + logger.counters.rejected == before + expected
 
 
 def scratch_dir() -> Path:

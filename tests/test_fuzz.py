@@ -264,6 +264,7 @@ def logger(tmp_path_factory):
 
 KEYS = st.one_of(st.sampled_from((
     "ivfm/vehicle/1/autopilot/control", "ivfm/vehicle/1/sitl/state",
+    "ivfm/vehicle/1/autopilot/batch", "ivfm/vehicle/1/sitl/batch",
     "ivfm/vehicle/1/autopilot/status", "ivfm/vehicle/1/sitl/perturbation",
     "mavlink/1/1/HEARTBEAT", "ivfm/vehicle/999/x/y", "ivfm/logger/run/status")),
     st.text(max_size=80))
@@ -275,6 +276,31 @@ KEYS = st.one_of(st.sampled_from((
                                                                  st.binary(max_size=24)))
 def test_fuzz_records_into_the_logger(logger, key, payload, attachment):
     fz.logger_record(logger, key, payload, attachment)
+
+
+@st.composite
+def _hostile_batch(draw) -> bytes:
+    """A batch that packs (keys its sender may and may not publish, any payloads), then
+    maybe cut, grown or with bytes overwritten."""
+    keys = draw(st.lists(st.one_of(KEYS, st.sampled_from((
+        "ivfm/vehicle/1/autopilot/timing", "mavlink/1/1/HIL_ACTUATOR_CONTROLS",
+        "mavlink/2/1/HEARTBEAT", "ivfm/vehicle/1/autopilot/batch"))), min_size=1,
+        max_size=4, unique=True))
+    n = draw(st.integers(1, 6))
+    batch = fz.pack_batch(keys, [draw(st.integers(0, len(keys) - 1)) for _ in range(n)],
+                          [draw(st.binary(max_size=200)) for _ in range(n)],
+                          [draw(st.binary(max_size=20)) for _ in range(n)])
+    cut = draw(st.integers(0, len(batch)))
+    return draw(st.sampled_from((batch, batch[:cut], batch + draw(st.binary(max_size=8)),
+                                 batch[:cut] + draw(st.binary(min_size=1, max_size=4))
+                                 + batch[cut + 4:])))
+
+
+@FUZZ
+@given(key=st.sampled_from(("ivfm/vehicle/1/autopilot/batch", "ivfm/vehicle/1/sitl/batch")),
+       batch=_hostile_batch())
+def test_fuzz_batches_into_the_logger(logger, key, batch):
+    fz.logger_record(logger, key, batch, None)
 
 
 # -- files -----------------------------------------------------------------------------------

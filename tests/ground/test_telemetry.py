@@ -19,7 +19,7 @@ import zenoh
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 
-from contracts.telemetry import CONTROL, STATE, TIMING, vehicle_key
+from contracts.telemetry import CONTROL, STATE, TIMING, pack_batch, vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.record.run_files import control_records, iter_messages
 from ground.run.children import LoggerProcess, ProcessRunError, free_tcp_port
@@ -238,18 +238,27 @@ def test_bad_requests_and_payloads_are_refused_and_change_nothing(tmp_path, sess
         pub.put(b"\x00\x01\x00\x00garbage")
         s.put(vehicle_key(9, "sitl", "status"), b"{not json")
         s.put("mavlink/9/1/HEARTBEAT", b"\xfd\x09")  # no attachment
+        # A batch that does not parse, and one holding another vehicle's record: refused
+        # whole; a good batch's records are written on their own keys.
+        s.put(vehicle_key(9, "autopilot", "batch"), b"IVB1\x01\x00garbage")
         good_payload = CONTROL.buffer().encode(((), (), ()))
+        s.put(vehicle_key(9, "autopilot", "batch"), pack_batch(
+            [vehicle_key(8, "autopilot", "control")], [0], [good_payload], [b""]))
+        s.put(vehicle_key(9, "autopilot", "batch"), pack_batch(
+            [vehicle_key(9, "autopilot", "timing")], [0], [TIMING.buffer().encode()], [b""]))
         pub.put(good_payload)
         deadline = time.monotonic() + 10
         while True:
             status = logger.status(s)
-            if status and status["rejected"] >= 3 and \
+            if status and status["rejected"] >= 5 and \
                     status["per_key"].get(vehicle_key(9, "autopilot", "control")):
                 break
             assert time.monotonic() < deadline, status
             time.sleep(0.1)
-        assert status["rejected"] == 3
+        assert status["rejected"] == 5
         assert status["per_key"][vehicle_key(9, "autopilot", "control")] == 1
+        assert status["per_key"][vehicle_key(9, "autopilot", "timing")] == 1
+        assert status["rejected_per_key"][vehicle_key(9, "autopilot", "batch")] == 2
         # ... and the vehicle flies its run once started, with only the good perturbation.
         client.start(1)
         vehicle.wait()

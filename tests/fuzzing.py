@@ -40,7 +40,7 @@ import numpy as np
 from hypothesis import strategies as st
 
 from contracts.mavlink import ardupilotmega, mavlink
-from contracts.telemetry import pack_batch, unbatched
+from contracts.telemetry import unbatched
 
 M = mavlink
 HOSTILE_FLOATS = (math.nan, math.inf, -math.inf, 0.0, -0.0, 1e38, -1e38, 3.4e38, 1e-45,

@@ -12,6 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from autopilot.copter_parameters import ardupilot_parameters
+from contracts.telemetry import pack_batch
 from tests import fuzzing as fz
 
 # FUZZ_EXAMPLES raises every target's count (the long script sets it).
@@ -287,7 +288,7 @@ def _hostile_batch(draw) -> bytes:
         "mavlink/2/1/HEARTBEAT", "ivfm/vehicle/1/autopilot/batch"))), min_size=1,
         max_size=4, unique=True))
     n = draw(st.integers(1, 6))
-    batch = fz.pack_batch(keys, [draw(st.integers(0, len(keys) - 1)) for _ in range(n)],
+    batch = pack_batch(keys, [draw(st.integers(0, len(keys) - 1)) for _ in range(n)],
                           [draw(st.binary(max_size=200)) for _ in range(n)],
                           [draw(st.binary(max_size=20)) for _ in range(n)])
     cut = draw(st.integers(0, len(batch)))

@@ -3,7 +3,7 @@
 Why: each lockstep cycle the simulator packs HIL_GPS, HIL_SENSOR, HIL_STATE_QUATERNION and
 ODOMETRY, the autopilot parses the ones it flies on and answers with HIL_ACTUATOR_CONTROLS,
 which the simulator parses. pymavlink does that generically (a header object, a Python
-trim loop, a message object built field by field on parsing): 5-20 us a message, a large
+trim loop, a message object built field by field on parsing): 4-15 us a message, a large
 part of a cycle. Here each of those five messages has one ``struct.Struct`` of its whole
 payload, built once from pymavlink's own metadata of the message (wire order, types,
 array lengths, CRC extra), so the bytes are pymavlink's byte for byte.

@@ -3,7 +3,9 @@ time, the connection to it and what the simulator measures about it.
 
 The MAVLink object that encodes the samples also parses what comes back; it is made anew
 for each connection, so a half message from the last one does not linger (and the
-sequence numbers of a connection's samples start at 0).
+sequence numbers of a connection's samples start at 0). The samples and the actuator
+answers go through the simulator link's layouts (contracts/sim_link_codec.py), the rest
+through pymavlink.
 """
 
 from __future__ import annotations
@@ -15,8 +17,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from contracts import SITL, timeline
-from contracts.mavlink import SIMULATOR_COMPID, SIMULATOR_SYSID, new_mavlink
+from contracts.mavlink import SIMULATOR_COMPID, SIMULATOR_SYSID, new_mavlink, split_frames
 from contracts.realtime import Histogram
+from contracts.sim_link_codec import pack_messages, parse_frames
 
 
 @dataclass
@@ -41,6 +44,7 @@ class AutopilotLink:
         self.stats = stats
         self.log = log
         self.mav = new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID)
+        self._pending = b""  # the start of a frame whose end has not come yet
         self._server: socket.socket | None = None
 
     def listen(self) -> int:
@@ -67,11 +71,12 @@ class AutopilotLink:
         self.log(f"autopilot connected from {peer[0]}:{peer[1]} at t={time_us / 1e6:.3f} s")
         # A fresh parser per connection: a half message from the last one must not linger.
         self.mav = new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID)
+        self._pending = b""
         return conn
 
     def pack(self, msgs: list) -> bytes:
         """A sample's messages as the bytes to send on this connection."""
-        return b"".join(m.pack(self.mav) for m in msgs)
+        return pack_messages(msgs, self.mav)
 
     def read(self, conn: socket.socket) -> list | None:
         """Messages available now; None when the autopilot has gone."""
@@ -83,7 +88,8 @@ class AutopilotLink:
             return None
         if not data:
             return None
-        msgs = self.mav.parse_buffer(data) or []
+        frames, self._pending = split_frames(self._pending + data)
+        msgs = parse_frames(frames, self.mav)
         bad = [m for m in msgs if m.get_type() == "BAD_DATA"]
         if bad:
             self.stats.bad_messages += len(bad)

@@ -49,6 +49,7 @@ from contracts.mavlink import (
 )
 from contracts.paced_loop import Deadlines, PacedProcess
 from contracts.realtime import LoopTiming
+from contracts.sim_link_codec import pack_message
 from contracts.telemetry import AUTOPILOT
 from contracts.telemetry_node import PERTURBATIONS_OFF, Request, TelemetryNode
 from contracts.zenoh_link import ZenohOptions
@@ -169,7 +170,7 @@ class Autopilot(PacedProcess):
         """The motor command goes out first; telemetry of the step after it."""
         commands = self.vehicle.failures.motor_outputs(commands)  # injected motor failures
         msg = actuator_message(time_us, commands, self.vehicle.armed, self.config.lockstep)
-        frame = msg.pack(self.sim.mav)
+        frame = pack_message(msg, self.sim.mav)
         if not self.sim.send(frame):
             self._sim_lost()
             return

@@ -31,6 +31,7 @@ from contracts.mavlink import (
     new_mavlink,
     split_frames,
 )
+from contracts.sim_link_codec import parse_frames
 
 # The messages a home can come from, read for it whatever the vehicle flies on.
 HOME_IDS = frozenset((mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION, mavlink.MAVLINK_MSG_ID_HIL_GPS))
@@ -180,8 +181,7 @@ class SimLink:
             return None
         frames, self._pending = split_frames(self._pending + data)
         ids = self.source_ids if self.home is not None else self.source_ids | HOME_IDS
-        wanted = b"".join(f for msgid, f in frames if msgid in ids)
-        parsed = (self.mav.parse_buffer(wanted) if wanted else None) or []
+        parsed = parse_frames((f for f in frames if f[0] in ids), self.mav)
         if self.home is None:
             self._take_home(parsed)
         msgs = [m for m in parsed if m.get_type() in self.source_types]

@@ -1,5 +1,6 @@
 """Benchmarks of the SITL processes (logger + simulator + autopilot): lockstep real-time
-factor and one cycle's parts.
+factor and one cycle's parts (the simulator link's codec as the processes run it: its
+layouts, contracts/sim_link_codec.py; pymavlink's codec in the same parts beside them).
 
     python tests/benchmarks/bench_processes.py            # lockstep figures
     python tests/benchmarks/bench_processes.py --realtime # 60 s real-time jitter, 100/250 Hz
@@ -36,6 +37,7 @@ from contracts.mavlink import (  # noqa: E402
     sample_messages,
     split_frames,
 )
+from contracts.sim_link_codec import pack_message, pack_messages, parse_frames  # noqa: E402
 from ground.run.processes import RunSettings, fly  # noqa: E402
 from ground.scenario.scenario_file import scenario_by_name  # noqa: E402
 from sitl.plant import Plant
@@ -64,7 +66,9 @@ def _per_call_us(fn, n: int = 3000) -> float:
     return min(best)
 
 
-def cycle_parts() -> dict[str, float]:
+def cycle_parts() -> tuple[dict[str, float], dict[str, float]]:
+    """(the cycle's parts as the processes run them, pymavlink's codec in the same parts
+    for comparison) in microseconds per call."""
     models = load_models(None)
     plant = Plant(PAPER, "paper", 0.001, position_ned_m=(0, 0, -1),
                   rotor_rad_s=hover_rotor_speeds(PAPER), ground_contact=True)
@@ -76,22 +80,37 @@ def cycle_parts() -> dict[str, float]:
     ap_mav = mavlink.MAVLink(None, 1, 1)
     s = plant.state()
 
-    def encode_sample():
+    def encode_sample(pymavlink: bool = False) -> bytes:
         msgs = sample_messages(*ideal_readings(0, s, np.zeros(3)), DEFAULT_HOME)
-        return b"".join(m.pack(sim_mav) for m in msgs)
+        if pymavlink:
+            return b"".join(m.pack(sim_mav) for m in msgs)
+        return pack_messages(msgs, sim_mav)
 
     sample = encode_sample()
+    odometry_id = mavlink.MAVLINK_MSG_ID_ODOMETRY
 
-    def decode_sample():  # as the autopilot's SimLink: only the state message is parsed
+    def decode_sample(pymavlink: bool = False) -> None:
+        # As the autopilot's SimLink: only the state message is parsed.
         frames, _ = split_frames(sample)
-        wanted = b"".join(f for msgid, f in frames if msgid == mavlink.MAVLINK_MSG_ID_ODOMETRY)
-        for msg in ap_mav.parse_buffer(wanted):
+        if pymavlink:
+            msgs = ap_mav.parse_buffer(b"".join(f for i, f in frames if i == odometry_id))
+        else:
+            msgs = parse_frames((f for f in frames if f[0] == odometry_id), ap_mav)
+        for msg in msgs:
             measurement_from_odometry(msg)
 
-    actuator = actuator_message(0, np.full(4, 0.5), True, True).pack(ap_mav)
+    def encode_actuator(pymavlink: bool = False) -> bytes:
+        msg = actuator_message(0, np.full(4, 0.5), True, True)
+        return msg.pack(ap_mav) if pymavlink else pack_message(msg, ap_mav)
 
-    def decode_actuator():
-        for msg in sim_mav.parse_buffer(actuator):
+    actuator = encode_actuator()
+
+    def decode_actuator(pymavlink: bool = False) -> None:
+        if pymavlink:
+            msgs = sim_mav.parse_buffer(actuator)
+        else:
+            msgs = parse_frames(split_frames(actuator)[0], sim_mav)
+        for msg in msgs:
             commands_from_actuator(msg)
 
     parts = {
@@ -99,12 +118,16 @@ def cycle_parts() -> dict[str, float]:
         "autopilot: 4 messages -> measurement (decode)": _per_call_us(decode_sample),
         "autopilot: control step (IVFC + vehicle logic)": _per_call_us(
             lambda: vehicle.step(0.0, plant.true_measurement())),
-        "autopilot: actuator message (encode)": _per_call_us(
-            lambda: actuator_message(0, np.full(4, 0.5), True, True).pack(ap_mav)),
+        "autopilot: actuator message (encode)": _per_call_us(encode_actuator),
         "sim: actuator message (decode)": _per_call_us(decode_actuator),
         "sim: plant 10 ms (10 RK4 steps) + state": _per_call_us(
             lambda: (plant.advance(0.01), plant.state())),
     }
+    pymavlink = {name: _per_call_us(lambda fn=fn: fn(True)) for name, fn in (
+        ("sim: state -> 4 messages (encode)", encode_sample),
+        ("autopilot: 4 messages -> measurement (decode)", decode_sample),
+        ("autopilot: actuator message (encode)", encode_actuator),
+        ("sim: actuator message (decode)", decode_actuator))}
     # Transport: the same bytes ping-ponged with a second process over TCP loopback.
     echo = subprocess.Popen([sys.executable, "-c", ECHO, str(len(actuator))],
                             stdout=subprocess.PIPE, text=True)
@@ -122,7 +145,7 @@ def cycle_parts() -> dict[str, float]:
                                                                                 2000)
     conn.close()
     echo.wait(5)
-    return parts
+    return parts, pymavlink
 
 
 PAPER_IVFC = RunSettings("ivfc", "paper", "paper")
@@ -158,12 +181,13 @@ def main() -> None:
                   f"compute p50 {t['compute_p50_ms']:.3f} ms, p99 {t['compute_p99_ms']:.3f} "
                   f"ms; deadline misses {t['deadline_misses']} of {t['steps']} steps")
         return
-    parts = cycle_parts()
-    print("one lockstep cycle, by part (us, best of 3):")
+    parts, pymavlink = cycle_parts()
+    print("one lockstep cycle, by part (us, best of 3; pymavlink's codec in brackets):")
     for name, us in parts.items():
-        print(f"  {us:8.1f}  {name}")
+        before = f"({pymavlink[name]:6.1f})" if name in pymavlink else " " * 8
+        print(f"  {us:8.1f} {before}  {name}")
     total = sum(parts.values())
-    print(f"  {total:8.1f}  sum -> at most {1e4 / total:.0f}x real time at 100 Hz")
+    print(f"  {total:8.1f}           sum -> at most {1e4 / total:.0f}x real time at 100 Hz")
     rtf = lockstep_rtf()
     print(f"lockstep attitude-sine, 60 s sim, both processes and all messages: "
           f"{statistics.median(rtf):.0f}x real time (runs: "

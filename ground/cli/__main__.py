@@ -13,6 +13,9 @@ from ground.cli.main import main
 def _preload_logger() -> None:
     """What the logger of a run imports, loaded by a warm process before its first run."""
     import ground.cli.ground_log  # noqa: F401
+    from ground.telemetry.foxglove_view import warm_up
+
+    warm_up()
 
 
 if sys.argv[1:] == [WARM_FLAG]:

@@ -52,7 +52,7 @@ from contracts.telemetry import (
 )
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.telemetry.drawing import Drawing
-from ground.telemetry.foxglove_view import Output
+from ground.telemetry.foxglove_view import Output, warm_up
 from ground.telemetry.log_files import PROCESS, Counters, LogFiles
 
 SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
@@ -261,6 +261,8 @@ class Logger:
         queryable = session.declare_queryable(logger_key(self.config.name, "status"),
                                               self._on_query)
         token = session.liveliness().declare_token(logger_key(self.config.name))
+        if self.drawing is not None:  # records wait in the inbox meanwhile
+            warm_up()
         self.log(f"listening on {', '.join(self.config.zenoh.listen) or 'no endpoint'}"
                  f"{'; connecting to ' + ', '.join(self.config.zenoh.connect) if self.config.zenoh.connect else ''}"  # noqa: E501
                  f" ({self.config.zenoh.mode}); logging to {self.config.out_dir}")

@@ -193,7 +193,8 @@ def run(args: argparse.Namespace) -> int:
                              duration_s=args.duration, sysid=check_vehicle_id(args.sysid),
                              rt_priority=args.rt_priority,
                              zenoh=zenoh_options_from_args(args), home=args.home,
-                             perturbations=args.perturbations, airframe=args.airframe)
+                             perturbations=args.perturbations, airframe=args.airframe,
+                             handover_cpu=args.handover_cpu)
     spec = args.airframe  # the airframe file, read once by the command line (spec_argument)
     airframe = airframe_from_spec(spec)
     # The airframe file's own defaults, then the command line's.

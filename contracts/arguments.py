@@ -107,6 +107,14 @@ def cpu_list(text: str) -> frozenset[int]:
     return frozenset(cpus)
 
 
+def cpu_number(text: str) -> int:
+    """argparse type: one CPU of this machine."""
+    cpus = cpu_list(text)
+    if len(cpus) != 1:
+        raise argparse.ArgumentTypeError(f"expected one CPU, got {text!r}")
+    return next(iter(cpus))
+
+
 def add_vehicle_process_arguments(parser: argparse.ArgumentParser) -> None:
     """The options the simulator and the autopilot share beyond Zenoh's."""
     parser.add_argument("--perturbations", action="store_true",
@@ -117,6 +125,11 @@ def add_vehicle_process_arguments(parser: argparse.ArgumentParser) -> None:
                         help="keep the process on these CPUs (0, 0-1, 0,2): with 'ivfm "
                              "shield' on the same list, CPUs nothing else runs on "
                              "(docs/realtime.md)")
+    parser.add_argument("--handover-cpu", type=cpu_number, metavar="CPU",
+                        help="lockstep: run the loop on this CPU (its Zenoh threads stay "
+                             "free); give the simulator and the autopilot the same one and "
+                             "each hand-over between them stays on it (scenario runs do: "
+                             "docs/mavlink.md)")
 
 
 def address(text: str) -> tuple[str, int] | None:

@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable
 
 from contracts import timeline
-from contracts.realtime import set_realtime_priority
+from contracts.realtime import pin_this_thread, set_realtime_priority
 
 SPIN_S = 0.0005  # the last stretch before a precise deadline is busy-waited
 POLL_MIN_S = 0.0015  # below this, sleep (ns resolution) instead of epoll (ms resolution)
@@ -114,10 +114,11 @@ class PacedProcess:
     process = "process"
 
     def __init__(self, lockstep: bool, rt_priority: int,
-                 log: Callable[[str], None]) -> None:
+                 log: Callable[[str], None], handover_cpu: int | None = None) -> None:
         self.lockstep = lockstep
         self.rt_priority = rt_priority
         self.log = log
+        self.handover_cpu = handover_cpu  # lockstep: the loop's CPU (None: any)
         self._stop = False
 
     def stop(self, *_args: object) -> None:
@@ -129,6 +130,8 @@ class PacedProcess:
         timeline.mark(self.process, "loop start")
         try:
             if self.lockstep:
+                if self.handover_cpu is not None:
+                    self.log(pin_this_thread(self.handover_cpu))
                 self.run_lockstep()
             else:
                 self.log(set_realtime_priority(self.rt_priority))

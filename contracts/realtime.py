@@ -148,6 +148,18 @@ def _cpus_text(cpus: frozenset[int] | set[int]) -> str:
     return ",".join(str(c) for c in sorted(cpus))
 
 
+def pin_this_thread(cpu: int) -> str:
+    """Lockstep: the calling thread (the loop) on ``cpu`` only; the process's other
+    threads (Zenoh's) stay where they were. The simulator and the autopilot alternate, so
+    with both loops on one CPU a hand-over is a switch on that CPU instead of waking a
+    sleeping thread on another (docs/mavlink.md, "The cycle budget")."""
+    try:
+        os.sched_setaffinity(0, {cpu})  # 0: the calling thread
+    except OSError as exc:
+        return f"loop on any CPU: CPU {cpu} refused ({exc})"
+    return f"loop on CPU {cpu}"
+
+
 def pin_to_cpus(cpus: frozenset[int]) -> str:
     """Keep every thread of this process on ``cpus`` (threads started later, such as
     Zenoh's, inherit it). With ``shield_cpus`` the real-time loops get CPUs nothing else

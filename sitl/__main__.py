@@ -97,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         exit_on_disconnect=args.exit_on_disconnect, duration_s=args.duration,
         vehicle_id=args.vehicle, zenoh=zenoh_options_from_args(args), hold=args.hold,
         seed=args.seed, rt_priority=args.rt_priority, sensors=read_profile(args.sensors),
-        home=args.home, perturbations=args.perturbations)
+        home=args.home, perturbations=args.perturbations, handover_cpu=args.handover_cpu)
     return Simulator(config).run()
 
 

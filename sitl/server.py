@@ -66,6 +66,7 @@ class SimulatorConfig:
     sensors: SensorProfile = field(default_factory=SensorProfile)  # ideal by default
     rt_priority: int = 40  # real time: SCHED_FIFO priority (0: normal), below the autopilot's
     home: Home = DEFAULT_HOME  # where on Earth the local frame's origin is
+    handover_cpu: int | None = None  # lockstep: the loop's CPU (None: any)
 
     def __post_init__(self) -> None:
         if not 0 <= self.rt_priority <= 99:
@@ -97,7 +98,8 @@ class Simulator(PacedProcess):
     def __init__(self, config: SimulatorConfig,
                  log: Callable[[str], None] | None = None) -> None:
         super().__init__(config.lockstep, config.rt_priority, log or (
-            lambda text: print(f"sitl: {text}", file=sys.stderr, flush=True)))
+            lambda text: print(f"sitl: {text}", file=sys.stderr, flush=True)),
+            config.handover_cpu)
         self.config = config
         alt = config.start_altitude_m
         model = (airframe_from_spec(config.airframe)

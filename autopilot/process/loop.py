@@ -79,6 +79,7 @@ class AutopilotConfig:
     zenoh: ZenohOptions = field(default_factory=lambda: ZenohOptions(enabled=False))
     home: Home | None = None  # None: the simulator's first position, as PX4 takes it
     airframe: AirframeSpec | None = None  # drawn by viewers (the scene record)
+    handover_cpu: int | None = None  # lockstep: the loop's CPU (None: any)
 
     def __post_init__(self) -> None:
         low, high = CONTROL_RATE_RANGE_HZ
@@ -113,7 +114,8 @@ class Autopilot(PacedProcess):
                  arm_in_reference: bool = False, start_mission: bool = False,
                  log: Callable[[str], None] | None = None) -> None:
         super().__init__(config.lockstep, config.rt_priority, log or (
-            lambda text: print(f"autopilot: {text}", file=sys.stderr, flush=True)))
+            lambda text: print(f"autopilot: {text}", file=sys.stderr, flush=True)),
+            config.handover_cpu)
         self.config = config
         self.vehicle = vehicle
         self.ground = ground

@@ -12,6 +12,7 @@ everything else from the log.
 
 from __future__ import annotations
 
+import collections
 import importlib
 import json
 import os
@@ -68,10 +69,39 @@ class RunSettings:
     rt_cpus: frozenset[int] | None = None  # both vehicle processes' CPUs (None: any)
 
 
+class HandoverCpus:
+    """The CPU each lockstep run's two loops share, over the runs in flight in this
+    process (``ivfm check -j N``): a run takes the CPU fewest runs use, the last one
+    first (CPU 0 serves most interrupts); none on a one-CPU machine."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._runs: collections.Counter[int] = collections.Counter()
+
+    def take(self) -> int | None:
+        cpus = sorted(os.sched_getaffinity(0), reverse=True)
+        if len(cpus) < 2:
+            return None
+        with self._lock:
+            cpu = min(cpus, key=lambda c: self._runs[c])
+            self._runs[cpu] += 1
+        return cpu
+
+    def give(self, cpu: int | None) -> None:
+        if cpu is not None:
+            with self._lock:
+                self._runs[cpu] -= 1
+
+
+HANDOVER_CPUS = HandoverCpus()
+
+
 def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
-                     endpoint: str, gcs_port: int = 0) -> tuple[list, list]:
+                     endpoint: str, gcs_port: int = 0,
+                     handover_cpu: int | None = None) -> tuple[list, list]:
     """The simulator's and the autopilot's command lines for one vehicle of a run
-    (``gcs_port``: the autopilot's ground link, for a scenario's ground station)."""
+    (``gcs_port``: the autopilot's ground link, for a scenario's ground station;
+    ``handover_cpu``: lockstep, both loops' CPU)."""
     pace = ["--realtime"] if settings.realtime else ["--lockstep"]
     # "--home=": a southern or western home starts with "-", which argparse would take
     # for an option if it came as its own argument.
@@ -80,6 +110,8 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
                   "--home=" + ",".join(repr(v) for v in settings.home)]
     if settings.rt_cpus is not None:
         zenoh_args += ["--rt-cpus", ",".join(map(str, sorted(settings.rt_cpus)))]
+    if handover_cpu is not None and not settings.realtime:
+        zenoh_args += ["--handover-cpu", str(handover_cpu)]
     ref = scenario.reference
     sim = [sys.executable, "-m", "sitl", "--port", str(sim_port), *pace,
            "--rate-hz", str(settings.rate_hz), "--plant", settings.plant,
@@ -138,7 +170,11 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
     v = settings.vehicle
     logs = {name: out_dir / f"{name}.log" for name in ("logger", SITL, AUTOPILOT)}
     gcs_port = free_udp_port() if scenario.ground_station is not None else 0
-    sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint, gcs_port)
+    # Lockstep: both loops on one CPU, so a hand-over does not wake a thread elsewhere.
+    handover_cpu = (HANDOVER_CPUS.take() if not settings.realtime and settings.rt_cpus is None
+                    else None)
+    sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint, gcs_port,
+                                       handover_cpu)
     ground_station = None
     logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm, env=env,
                            extra=["--view", f"{view[0]}:{view[1]}"] if view else None)
@@ -208,6 +244,7 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
             run_timeline.mark(out_dir, "zenoh session closed")
         logger_rc = logger.stop()
         run_timeline.mark(out_dir, "logger stopped")
+        HANDOVER_CPUS.give(handover_cpu)
     if procs[AUTOPILOT].returncode != 0:
         raise ProcessRunError(f"the autopilot failed (exit {procs['autopilot'].returncode}):\n"
                               f"{tail(logs['autopilot'])}\nsimulator log:\n"

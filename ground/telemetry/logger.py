@@ -197,6 +197,8 @@ class Logger:
             c.unwritten += 1
             return
         c.records += 1
+        if c.records == 1:  # the flight's cost from its first record, not the start-up's
+            self.usage.restart()
         c.per_key[key] += 1
         if self.drawing is not None:
             self.drawing.draw(key, payload, attachment, log_time_ns)

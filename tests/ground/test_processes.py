@@ -83,3 +83,19 @@ def test_real_time_run_reports_loop_timing(tmp_path):
     # period old), not identical.
     metrics = compute_metrics(record, scenario, "paper")
     assert metrics["axes"]["phi"]["rmse"] < 0.01 and metrics["axes"]["theta"]["rmse"] < 0.01
+
+
+def test_lockstep_runs_in_flight_share_out_the_cpus_for_their_hand_overs(monkeypatch):
+    """Each lockstep run's two loops share one CPU; runs in flight together (ivfm check
+    -j 2) take different ones, the last CPU first; a one-CPU machine pins nothing."""
+    from ground.run.processes import HandoverCpus
+
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1})
+    cpus = HandoverCpus()
+    first, second = cpus.take(), cpus.take()
+    assert (first, second) == (1, 0)
+    cpus.give(first)
+    assert cpus.take() == 1  # the one given back
+    assert cpus.take() in (0, 1)  # a third run shares
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {3})
+    assert HandoverCpus().take() is None

@@ -202,9 +202,13 @@ def session_config(options: ZenohOptions, exit_on_listen_failure: bool = False) 
     config.insert_json5("connect/endpoints", json.dumps(options.connect))
     config.insert_json5("listen/exit_on_failure", json.dumps(exit_on_listen_failure))
     config.insert_json5("connect/exit_on_failure", "false")
-    # Reconnect quickly when the other side comes (back): ground stations start late.
+    # Reconnect quickly when the other side comes (back): ground stations start late. A
+    # session that does not wait on open (a run's own, while its logger starts) keeps
+    # trying every 20-50 ms: backing off to a second, it met a logger that took 2 s to
+    # start up to 0.7 s after it listened.
     config.insert_json5("connect/retry", json.dumps(
-        {"period_init_ms": 200 if options.wait_on_open else 20, "period_max_ms": 1000,
+        {"period_init_ms": 200 if options.wait_on_open else 20,
+         "period_max_ms": 1000 if options.wait_on_open else 50,
          "period_increase_factor": 1.5}))
     # How long open waits for its endpoints and the peers gossip tells it of. Zenoh's
     # 0.5 s made every other warm run wait for a peer of the run before (gone); a

@@ -17,7 +17,7 @@ import numpy as np
 from contracts.mavlink import AUTOPILOT_COMPID, StatustextAssembler, mavlink
 from contracts.modes import FlightMode
 from contracts.telemetry import FLAG_ARMED, FLAG_FAILSAFE, mavlink_key
-from ground.record.run_files import iter_messages
+from ground.record.run_files import LogRecords, iter_messages
 
 MODES = tuple(FlightMode)
 # Disarmed this close to the ground (true altitude above the start of NED's ground plane,
@@ -63,7 +63,7 @@ def step_events(sim_time_s: np.ndarray, mode_index: np.ndarray, flags: np.ndarra
     return events
 
 
-def statustext_events(log: Path, sysid: int) -> list[Event]:
+def statustext_events(log: Path | LogRecords, sysid: int) -> list[Event]:
     """The vehicle's STATUSTEXT announcements, at the sim time each was sent."""
 
     key = mavlink_key(sysid, AUTOPILOT_COMPID, "STATUSTEXT")
@@ -84,7 +84,7 @@ def statustext_events(log: Path, sysid: int) -> list[Event]:
     return events
 
 
-def run_events(log: Path, sysid: int, sim_time_us: np.ndarray, mode_index: np.ndarray,
+def run_events(log: Path | LogRecords, sysid: int, sim_time_us: np.ndarray, mode_index: np.ndarray,
                flags: np.ndarray, altitude_m: np.ndarray) -> list[Event]:
     """Every event of a run, in time order (steps first at equal times)."""
     events = step_events(sim_time_us / 1e6, mode_index, flags, altitude_m)

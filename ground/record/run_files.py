@@ -89,8 +89,27 @@ def log_files(path: Path) -> list[Path]:
     return [path]
 
 
-def iter_messages(path: Path, topic_prefix: str = "") -> Iterator[tuple[str, Any, bytes]]:
-    """(topic, MCAP message, data) over the log files of ``path``."""
+class LogRecords:
+    """The messages of a log on some topics, read in one pass: a report takes several
+    sets of records (the control records, perturbation events, texts), and each pass over
+    the file costs the same whatever it keeps. ``iter_messages`` takes it as a log."""
+
+    def __init__(self, path: Path, topic_prefixes: tuple[str, ...]) -> None:
+        self.path = Path(path)
+        self.messages = [m for m in iter_messages(path)
+                         if m[0].startswith(topic_prefixes)]
+
+    def __str__(self) -> str:
+        return str(self.path)
+
+
+def iter_messages(path: Path | LogRecords, topic_prefix: str = ""
+                  ) -> Iterator[tuple[str, Any, bytes]]:
+    """(topic, MCAP message, data) over the log files of ``path`` (or of the records read
+    once)."""
+    if isinstance(path, LogRecords):
+        yield from (m for m in path.messages if m[0].startswith(topic_prefix))
+        return
     for file in log_files(path):
         with open(file, "rb") as f:
             try:
@@ -107,7 +126,7 @@ def iter_messages(path: Path, topic_prefix: str = "") -> Iterator[tuple[str, Any
                 raise ValueError(f"{file} is damaged: {type(exc).__name__}: {exc}") from None
 
 
-def control_records(log: Path, vehicle: int) -> dict[str, np.ndarray]:
+def control_records(log: Path | LogRecords, vehicle: int) -> dict[str, np.ndarray]:
     """The autopilot's control records of one vehicle as arrays (one row per step), plus
     ``log_time_ns``; checks that no sequence number is missing."""
     key = vehicle_key(vehicle, AUTOPILOT, "control")
@@ -138,7 +157,7 @@ def missing_count(seq: np.ndarray) -> int:
     return int(seq[-1]) - int(seq[0]) + 1 - len(set(seq.tolist()))
 
 
-def truth_at(log: Path, vehicle: int, sim_time_us: np.ndarray) -> np.ndarray:
+def truth_at(log: Path | LogRecords, vehicle: int, sim_time_us: np.ndarray) -> np.ndarray:
     """The simulator's true state (the measurement layout) at each of the given sample
     times, from its STATE records."""
     key = vehicle_key(vehicle, SITL, "state")
@@ -160,8 +179,9 @@ def truth_at(log: Path, vehicle: int, sim_time_us: np.ndarray) -> np.ndarray:
     return np.array([by_time[int(t)] for t in sim_time_us])
 
 
-def record_from_log(log: Path, vehicle: int, scenario: Scenario, controller: str, plant: str,
-                    rate_hz: float, with_truth: bool = False) -> RunRecord:
+def record_from_log(log: Path | LogRecords, vehicle: int, scenario: Scenario,
+                    controller: str, plant: str, rate_hz: float,
+                    with_truth: bool = False) -> RunRecord:
     """The run as arrays; ``with_truth``: the controller flew on an estimate, so the truth
     comes from the simulator's records."""
     r = control_records(log, vehicle)
@@ -181,7 +201,7 @@ def record_from_log(log: Path, vehicle: int, scenario: Scenario, controller: str
         sim_time_us=r["sim_time_us"], mode_index=r["mode"], flags=r["flags"])
 
 
-def perturbation_events(log: Path, vehicle: int) -> list[dict[str, Any]]:
+def perturbation_events(log: Path | LogRecords, vehicle: int) -> list[dict[str, Any]]:
     """Every perturbation the vehicle's processes applied, with the sim time it took effect."""
     events = []
     for process in (SITL, AUTOPILOT):

@@ -14,12 +14,15 @@ from typing import Any
 import numpy as np
 
 from contracts.atomic_file import write_atomic
+from contracts.mavlink import AUTOPILOT_COMPID
+from contracts.telemetry import AUTOPILOT, SITL, mavlink_key, vehicle_key
 from contracts.vectors import MEAS_Z
 from ground.record.events import run_events
 from ground.record.run_files import (
     METRICS_FILE,
     RUN_FILE,
     SCENARIO_FILE,
+    LogRecords,
     RunRecord,
     perturbation_events,
     record_from_log,
@@ -45,8 +48,14 @@ def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunReco
     except ValueError as exc:
         raise ValueError(f"{run_dir / RUN_FILE} is not JSON: {exc}") from None
     scenario = load_scenario(run_dir / SCENARIO_FILE)
-    record = record_from_log(run_dir, run["vehicle"], scenario, run["controller"], run["plant"],
-                             run["rate_hz"], with_truth=run.get("state_source") == "estimator")
+    vehicle, with_truth = run["vehicle"], run.get("state_source") == "estimator"
+    log = LogRecords(run_dir, (  # one pass over the log for everything below
+        vehicle_key(vehicle, AUTOPILOT, "control"),
+        *((vehicle_key(vehicle, SITL, "state"),) if with_truth else ()),
+        *(vehicle_key(vehicle, p, "perturbation") for p in (SITL, AUTOPILOT)),
+        mavlink_key(vehicle, AUTOPILOT_COMPID, "STATUSTEXT")))
+    record = record_from_log(log, vehicle, scenario, run["controller"], run["plant"],
+                             run["rate_hz"], with_truth=with_truth)
     metrics = compute_metrics(record, scenario, run["airframe"])
     metrics["mode"] = run["mode"]
     metrics["sensors"] = run.get("sensors", "ideal")
@@ -55,9 +64,9 @@ def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunReco
     metrics["parameters"] = run.get("parameters", {})
     metrics["perturbations_applied"] = [
         {k: e[k] for k in ("process", "sim_time_us", "event", "id", "kind")}
-        for e in perturbation_events(run_dir, run["vehicle"])]
+        for e in perturbation_events(log, vehicle)]
     metrics["events"] = [e.to_json() for e in run_events(
-        run_dir, run["vehicle"], record.sim_time_us, record.mode_index, record.flags,
+        log, vehicle, record.sim_time_us, record.mode_index, record.flags,
         -record.true_state[:, MEAS_Z])]
     for extra in ("telemetry", "timing"):
         if run.get(extra):

@@ -16,9 +16,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import statistics
 import sys
 import tempfile
+import threading
+import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
@@ -32,15 +35,67 @@ from ground.scenario.scenario_file import scenario_by_name  # noqa: E402
 PROCESSES = ("sitl", "autopilot", "logger")
 
 
+def _thread_switches() -> dict[tuple[str, str], tuple[int, int]]:
+    """(process, thread name) -> (voluntary, involuntary) switches of this process's
+    children's threads (a process's threads of one name summed)."""
+    out: dict[tuple[str, str], tuple[int, int]] = {}
+    me = os.getpid()
+    children = Path(f"/proc/{me}/task/{me}/children").read_text().split()
+    for pid in children:
+        try:
+            cmdline = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+            name = ("logger" if b"log" in cmdline else cmdline[2].decode()
+                    if len(cmdline) > 2 else "?")
+            for task in Path(f"/proc/{pid}/task").iterdir():
+                status = dict(line.split(":\t", 1) for line in
+                              (task / "status").read_text().splitlines() if ":\t" in line)
+                key = (name, status["Name"].strip())
+                v, n = out.get(key, (0, 0))
+                out[key] = (v + int(status["voluntary_ctxt_switches"]),
+                            n + int(status["nonvoluntary_ctxt_switches"]))
+        except (OSError, KeyError, IndexError):
+            continue  # a process or thread that has just ended
+    return out
+
+
+class SwitchWindow:
+    """Context switches per thread over a window of the flight (from 1.5 s to 3.5 s after
+    the start, inside the loop of a 30-60 s flight at up to ~50x)."""
+
+    def __init__(self) -> None:
+        self.before: dict = {}
+        self.after: dict = {}
+        self.thread = threading.Thread(target=self._sample, daemon=True)
+        self.thread.start()
+
+    def _sample(self) -> None:
+        time.sleep(1.5)
+        self.before, t0 = _thread_switches(), time.monotonic()
+        time.sleep(2.0)
+        self.after, self.window_s = _thread_switches(), time.monotonic() - t0
+
+    def per_cycle(self, rtf: float) -> list[tuple[str, str, float, float]]:
+        self.thread.join()
+        cycles = self.window_s * rtf * 100
+        rows = []
+        for key, (v1, n1) in self.after.items():
+            v0, n0 = self.before.get(key, (v1, n1))
+            if v1 - v0 + n1 - n0 > 0.05 * cycles:
+                rows.append((*key, (v1 - v0) / cycles, (n1 - n0) / cycles))
+        return sorted(rows)
+
+
 def round_trip(scenario, settings: RunSettings, models) -> dict:
     """One in-process flight and one through the processes: their figures."""
     inprocess = run_inprocess(scenario, "ivfc", "paper", PAPER, models)
     with tempfile.TemporaryDirectory() as tmp:
+        window = SwitchWindow()
         accounting = run_processes(scenario, settings, Path(tmp), quiet=True)
         timeline = json.loads((Path(tmp) / "timeline.json").read_text())
     steps = round(scenario.duration_s * settings.rate_hz)
+    rtf = timeline["loop_real_time_factor"]
     return {"inprocess_rtf": scenario.duration_s / inprocess.wall_time_s,
-            "processes_rtf": timeline["loop_real_time_factor"],
+            "processes_rtf": rtf, "threads": window.per_cycle(rtf),
             "usage": accounting["usage"], "steps": steps,
             "lost": sum(accounting["lost"].values())}
 
@@ -79,6 +134,10 @@ def main() -> None:
               f"{1e6 * u['user_s'] / best['steps']:5.0f}); switches per cycle "
               f"{u['voluntary_switches'] / best['steps']:.2f} voluntary, "
               f"{u['involuntary_switches'] / best['steps']:.2f} involuntary")
+    print("per thread, switches per cycle over 2 s of the median round's loop (voluntary, "
+          "involuntary; threads with more than 0.05):")
+    for process, thread, voluntary, involuntary in best["threads"]:
+        print(f"  {process:9s} {thread:16s} {voluntary:5.2f} {involuntary:5.2f}")
 
 
 if __name__ == "__main__":

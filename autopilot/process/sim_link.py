@@ -40,6 +40,10 @@ HOME_IDS = frozenset((mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION, mavlink.MAVLI
 # decimetres, which the vehicle's idea of where it stands inherits).
 HOME_FROM_GPS_AFTER_US = 500_000
 SIM_HEARTBEAT_S = 1.0  # to the simulator, from the connection on (jMAVSim waits for one)
+# Connection attempts: every 20 ms at first, backing off to every 0.5 s. A scenario run
+# starts both processes at once and the simulator listens a few hundred milliseconds
+# later; at a flat 0.5 s the autopilot met it up to half a second late.
+RECONNECT_FIRST_S = 0.02
 RECONNECT_S = 0.5
 
 
@@ -92,18 +96,23 @@ class SimLink:
         self.sysid = sysid
         self.mav = new_mavlink(sysid, AUTOPILOT_COMPID)
         self.next_attempt_s = 0.0
+        self._retry_s = RECONNECT_FIRST_S
         self.bad_messages = 0
         self.last_bad: str | None = None
 
     def connect(self, now: float) -> bool:
-        """Try to connect (at most every RECONNECT_S); True when a connection is new."""
+        """Try to connect (every RECONNECT_FIRST_S at first, backing off to RECONNECT_S);
+        True when a connection is new."""
         if self.sock is not None or now < self.next_attempt_s:
             return False
-        self.next_attempt_s = now + RECONNECT_S
+        self.next_attempt_s = now + self._retry_s
         try:
             sock = socket.create_connection(self.address, timeout=0.2)
         except OSError:
+            self._retry_s = min(RECONNECT_S, 1.5 * self._retry_s)
             return False
+        self._retry_s = RECONNECT_FIRST_S  # after this one is lost: quickly again
+        self.next_attempt_s = now + RECONNECT_FIRST_S
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setblocking(False)
         self.sock = sock

@@ -389,3 +389,34 @@ def test_a_stall_is_a_gap_over_two_periods_counted_once_per_episode():
     autopilot._sample_period_us = 50_000  # a 20 Hz simulator: its period rules
     assert not autopilot._stalled(100.130, 0.01)
     assert autopilot._stalled(100.140, 0.01)
+
+
+def test_the_autopilot_tries_the_simulator_every_20_ms_at_first_then_backs_off():
+    """A scenario run starts both processes at once; the simulator listens a few hundred
+    milliseconds later: the autopilot's attempts come every 20 ms at first (growing by
+    half each time, to 0.5 s), so it connects within a fraction of that once it listens,
+    and quickly again after losing it."""
+    from autopilot.process.sim_link import RECONNECT_S, SimLink
+
+    port = free_port()  # nothing listens there yet
+    link = SimLink("127.0.0.1", port, "auto")
+    attempts, now = [], 0.0
+    while now < 3.0:
+        before = link.next_attempt_s
+        link.connect(now)
+        if link.next_attempt_s != before:
+            attempts.append(round(now, 3))
+        now += 0.001
+    gaps = [round(b - a, 3) for a, b in zip(attempts, attempts[1:], strict=False)]
+    assert gaps[:4] == [0.02, 0.03, 0.045, 0.068]  # 20 ms, then x1.5 (to the ms tick)
+    assert max(gaps) <= RECONNECT_S + 0.001 and gaps[-1] > 0.4
+    server = socket.create_server(("127.0.0.1", port))
+    try:
+        while not link.connect(now):
+            now += 0.001
+        assert link.sock is not None
+        link.close()  # lost: the next attempt comes 20 ms on, not 0.5 s
+        assert not link.connect(now + 0.019) and link.connect(now + 0.021)
+    finally:
+        link.close()
+        server.close()

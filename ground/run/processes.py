@@ -98,15 +98,19 @@ HANDOVER_CPUS = HandoverCpus()
 
 def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
                      endpoint: str, gcs_port: int = 0,
-                     handover_cpu: int | None = None) -> tuple[list, list]:
+                     handover_cpu: int | None = None,
+                     ground_endpoint: str | None = None) -> tuple[list, list]:
     """The simulator's and the autopilot's command lines for one vehicle of a run
     (``gcs_port``: the autopilot's ground link, for a scenario's ground station;
-    ``handover_cpu``: lockstep, both loops' CPU)."""
+    ``handover_cpu``: lockstep, both loops' CPU; ``ground_endpoint``: where the run's own
+    session listens, connected to at once instead of found through the logger)."""
     pace = ["--realtime"] if settings.realtime else ["--lockstep"]
     # "--home=": a southern or western home starts with "-", which argparse would take
     # for an option if it came as its own argument.
     # "--perturbations": the run delivers the scenario's perturbations over Zenoh.
-    zenoh_args = ["--zenoh-connect", endpoint, "--perturbations",
+    zenoh_args = ["--zenoh-connect", endpoint,
+                  *(["--zenoh-connect", ground_endpoint] if ground_endpoint else []),
+                  "--perturbations",
                   "--home=" + ",".join(repr(v) for v in settings.home)]
     if settings.rt_cpus is not None:
         zenoh_args += ["--rt-cpus", ",".join(map(str, sorted(settings.rt_cpus)))]
@@ -173,8 +177,11 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
     # Lockstep: both loops on one CPU, so a hand-over does not wake a thread elsewhere.
     handover_cpu = (HANDOVER_CPUS.take() if not settings.realtime and settings.rt_cpus is None
                     else None)
+    # The run's own session listens where the vehicles connect at once: found through
+    # the logger (gossip), its requests waited ~0.2 s for a route to a new vehicle.
+    ground_endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
     sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint, gcs_port,
-                                       handover_cpu)
+                                       handover_cpu, ground_endpoint)
     ground_station = None
     logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm, env=env,
                            extra=["--view", f"{view[0]}:{view[1]}"] if view else None)
@@ -186,7 +193,7 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
     try:
         # The vehicles start once the logger listens: a vehicle's session opened before
         # would wait half a second for it (warm processes: a few milliseconds).
-        session = open_session(ZenohOptions(connect=[endpoint], listen=["tcp/127.0.0.1:0"],
+        session = open_session(ZenohOptions(connect=[endpoint], listen=[ground_endpoint],
                                             wait_on_open=False))
         run_timeline.mark(out_dir, "zenoh session open")
         logger.wait_listening(session, timeout_s=60.0)

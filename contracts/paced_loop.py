@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable
 
 from contracts import timeline
-from contracts.realtime import pin_this_thread, set_realtime_priority
+from contracts.realtime import any_cpu, pin_this_thread, set_realtime_priority
 
 SPIN_S = 0.0005  # the last stretch before a precise deadline is busy-waited
 POLL_MIN_S = 0.0015  # below this, sleep (ns resolution) instead of epoll (ms resolution)
@@ -139,6 +139,8 @@ class PacedProcess:
         except KeyboardInterrupt:
             pass
         finally:
+            if self.lockstep and self.handover_cpu is not None:
+                any_cpu()
             timeline.mark(self.process, "loop end")
             self.shut_down()
             timeline.mark(self.process, "shut down")

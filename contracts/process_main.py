@@ -64,6 +64,14 @@ def profiled(process: str, main: Callable[..., int], folder: Path) -> int:
         profiler.dump_stats(folder / f"{process}.prof")
 
 
+def place_for_handover(process: str, cpu: int) -> None:
+    """``--handover-cpu`` in lockstep: the process's threads (Zenoh's) off the CPU its loop
+    will take, said on standard error."""
+    from contracts.realtime import keep_off_cpu
+
+    print(f"{process}: {keep_off_cpu(cpu)}", file=sys.stderr, flush=True)
+
+
 def pin_cpus(process: str, cpus: frozenset[int]) -> None:
     """``--rt-cpus``: pin the process (before Zenoh's threads start: they inherit it) and
     say so on standard error."""

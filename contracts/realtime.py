@@ -160,6 +160,27 @@ def pin_this_thread(cpu: int) -> str:
     return f"loop on CPU {cpu}"
 
 
+def any_cpu() -> None:
+    """Every thread of this process back on every CPU (a warm process's next run starts
+    as a fresh one would)."""
+    with contextlib.suppress(OSError):
+        pin_to_cpus(frozenset(range(os.cpu_count() or 1)))
+
+
+def keep_off_cpu(cpu: int) -> str:
+    """Lockstep: every thread of this process (Zenoh's, those to come inherit it) on every
+    CPU but ``cpu``, the two loops' (a loop then pins itself there: ``pin_this_thread``),
+    so nothing else of the run wakes up on the hand-over's CPU."""
+    others = frozenset(range(os.cpu_count() or 1)) - {cpu}
+    if not others:
+        return "one CPU: nothing kept off it"
+    try:
+        pin_to_cpus(others)
+    except OSError as exc:
+        return f"threads on any CPU: {exc}"
+    return f"threads kept off CPU {cpu}"
+
+
 def pin_to_cpus(cpus: frozenset[int]) -> str:
     """Keep every thread of this process on ``cpus`` (threads started later, such as
     Zenoh's, inherit it). With ``shield_cpus`` the real-time loops get CPUs nothing else

@@ -7,7 +7,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from contracts.arguments import number
+from contracts.arguments import cpu_number, number
+from contracts.realtime import any_cpu, keep_off_cpu
 from contracts.telemetry import DEFAULT_GROUND_ENDPOINT
 from contracts.zenoh_link import add_zenoh_arguments, zenoh_options_from_args
 from ground.telemetry.live_view import (
@@ -39,6 +40,9 @@ def add_arguments(log: argparse.ArgumentParser) -> None:
     add_view_arguments(log)
     log.add_argument("--no-foxglove", action="store_true",
                      help="write only the records, not what Foxglove draws beside them")
+    log.add_argument("--off-cpu", type=cpu_number, metavar="CPU",
+                     help="keep off this CPU (a lockstep run's hand-over CPU: scenario "
+                          "runs pass it)")
     add_zenoh_arguments(log, [DEFAULT_GROUND_ENDPOINT], [])
 
 
@@ -49,11 +53,17 @@ def handle(args: argparse.Namespace) -> int:
                           rotate_chunks=args.rotate_chunks,
                           compression=args.compression, foxglove=not args.no_foxglove,
                           view_rate_hz=args.view_rate_hz)
-    if args.view is None:
-        return Logger(config).run()
-    live = LiveView(*args.view)
-    print(f"logger: serving the live view on {live.url}", file=sys.stderr, flush=True)
+    if args.off_cpu is not None:
+        print(f"logger: {keep_off_cpu(args.off_cpu)}", file=sys.stderr, flush=True)
+    live = None
     try:
+        if args.view is None:
+            return Logger(config).run()
+        live = LiveView(*args.view)
+        print(f"logger: serving the live view on {live.url}", file=sys.stderr, flush=True)
         return Logger(config, live=live.publish).run()
     finally:
-        live.close()
+        if live is not None:
+            live.close()
+        if args.off_cpu is not None:
+            any_cpu()

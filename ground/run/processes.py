@@ -184,7 +184,9 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
                                        handover_cpu, ground_endpoint)
     ground_station = None
     logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm, env=env,
-                           extra=["--view", f"{view[0]}:{view[1]}"] if view else None)
+                           extra=[*(["--view", f"{view[0]}:{view[1]}"] if view else []),
+                                  *(["--off-cpu", str(handover_cpu)]
+                                    if handover_cpu is not None else [])])
     run_timeline.mark(out_dir, "logger started")
     procs: dict[str, subprocess.Popen | WarmProcess] = {}
     outs = []

@@ -68,3 +68,36 @@ def test_a_pinned_simulator_keeps_every_thread_on_its_cpu(tmp_path):
     assert len(threads) > 1  # Zenoh's threads as well as the loop
     assert set(map(frozenset, affinities.values())) == {frozenset({1})}, affinities
     assert "sitl: pinned to CPU 1" in (tmp_path / "sitl.txt").read_text()
+
+
+HANDOVER = """
+import json, os, threading, time
+from contracts.realtime import any_cpu, keep_off_cpu, pin_this_thread
+said = [keep_off_cpu(1)]
+ready, done = threading.Event(), threading.Event()
+other = threading.Thread(target=lambda: (ready.set(), done.wait()))
+other.start(); ready.wait()  # started after: inherits the process's placement
+said.append(pin_this_thread(1))
+placed = {"main": sorted(os.sched_getaffinity(0)),
+          "other": sorted(os.sched_getaffinity(other.native_id))}
+any_cpu()
+placed["after"] = sorted(os.sched_getaffinity(other.native_id))
+done.set(); other.join()
+print(json.dumps({"said": said, **placed}))
+"""
+
+
+def test_lockstep_loops_take_the_handover_cpu_and_their_other_threads_keep_off_it():
+    """--handover-cpu: the process's threads (Zenoh's, started later too) keep off the CPU,
+    the loop's thread alone takes it; after the run every thread is back on every CPU
+    (a warm process's next run starts as a fresh one)."""
+    import json
+
+    out = subprocess.run([sys.executable, "-c", HANDOVER], capture_output=True, text=True,
+                         check=True, cwd=os.path.dirname(os.path.dirname(os.path.dirname(
+                             os.path.abspath(__file__)))))
+    placed = json.loads(out.stdout)
+    assert placed["said"] == ["threads kept off CPU 1", "loop on CPU 1"]
+    assert placed["main"] == [1]
+    assert placed["other"] == sorted(EVERY - {1})
+    assert placed["after"] == sorted(EVERY)

@@ -2,16 +2,14 @@
 advertised channels, subscribes to all of them and collects what arrives (protocol
 ``foxglove.sdk.v1``: JSON control messages, binary message data).
 
-Now and then the SDK's server answers a subscription to a channel it advertised with
-"Unknown channel ID: N" (docs/telemetry.md: not yet traced). This client asks once more
-and records it (``resubscribed``), so a failure message shows whether the server still
-refused (it did, in the one run that failed since: the fault is not the timing of the
-first request)."""
+It subscribes once to each channel, as a viewer does, and does not ask again when the
+server refuses ("Unknown channel ID: N", the SDK's race: docs/telemetry.md); the live
+view must then advertise that channel again, which this client subscribes to as to any
+new one. The refusals stay in ``statuses`` for a failure message."""
 
 from __future__ import annotations
 
 import json
-import re
 import struct
 import time
 from collections import defaultdict
@@ -23,18 +21,17 @@ from websockets.sync.client import connect
 
 SUBPROTOCOL = "foxglove.sdk.v1"  # the SDK server refuses the older foxglove.websocket.v1
 MESSAGE_DATA = 0x01
-UNKNOWN_CHANNEL = re.compile(r"Unknown channel ID: (\d+)$")
 
 
 @dataclass
 class Received:
     channels: dict[int, dict[str, Any]] = field(default_factory=dict)  # id -> advertisement
+    # (channels unadvertised since are dropped)
     messages: dict[str, list[tuple[int, bytes]]] = field(
         default_factory=lambda: defaultdict(list))  # topic -> (log time ns, payload)
     server_info: dict[str, Any] | None = None
     statuses: list[dict[str, Any]] = field(default_factory=list)  # the server's status ops
     ended: str = ""  # why collecting stopped: time, closed (with the code), until
-    resubscribed: list[int] = field(default_factory=list)  # channels refused, asked again
 
     def topics(self) -> set[str]:
         return {c["topic"] for c in self.channels.values()}
@@ -44,15 +41,17 @@ class Received:
         why collecting ended (a lost live-view stream is traced from here)."""
         counts = {topic: len(m) for topic, m in self.messages.items()}
         return (f"ended: {self.ended}; messages per topic: {counts}; advertised: "
-                f"{sorted(self.topics())}; statuses: {self.statuses[:5]}; subscribed "
-                f"again: {self.resubscribed}")
+                f"{sorted(self.topics())}; statuses: {self.statuses[:5]}")
 
 
 def connect_when_up(url: str, timeout_s: float = 30.0):
     deadline = time.monotonic() + timeout_s
     while True:
         try:
-            return connect(url, subprotocols=[SUBPROTOCOL], open_timeout=2.0)
+            # close_timeout: the SDK's server stops reading at a viewer's close frame and
+            # does not always answer it (the default waits 10 s for the answer).
+            return connect(url, subprotocols=[SUBPROTOCOL], open_timeout=2.0,
+                           close_timeout=1.0)
         except OSError:
             if time.monotonic() > deadline:
                 raise
@@ -61,8 +60,9 @@ def connect_when_up(url: str, timeout_s: float = 30.0):
 
 def collect(url: str, seconds: float, until: Any = None,
             timeout_s: float = 30.0) -> Received:
-    """Subscribe to every channel advertised (now or later) and collect for ``seconds``
-    of wall time, or until ``until(received)`` is true, or the server closes."""
+    """Subscribe once to every channel advertised (now or later) and collect for
+    ``seconds`` of wall time, or until ``until(received)`` is true, or the server
+    closes."""
     got = Received()
     subscription_topic: dict[int, str] = {}
 
@@ -91,11 +91,9 @@ def collect(url: str, seconds: float, until: Any = None,
                     got.server_info = message
                 elif message["op"] == "status":
                     got.statuses.append(message)
-                    refused = UNKNOWN_CHANNEL.match(message.get("message", ""))
-                    if refused and int(refused.group(1)) in got.channels \
-                            and int(refused.group(1)) not in got.resubscribed:
-                        got.resubscribed.append(int(refused.group(1)))  # the server's race
-                        subscribe([int(refused.group(1))])
+                elif message["op"] == "unadvertise":
+                    for channel_id in message["channelIds"]:
+                        got.channels.pop(channel_id, None)
                 elif message["op"] == "advertise":
                     for channel in message["channels"]:
                         got.channels[channel["id"]] = channel

@@ -11,6 +11,12 @@ drops the oldest when a viewer is slow; ``ivfm ground view``'s inbox holds at mo
 ``MAX_INBOX`` records and drops new ones past it (counted). Nothing here waits for a
 viewer, so a slow or absent one costs the logger only the conversion, and the vehicles
 nothing.
+
+A channel is created with its topic's first message, often while a viewer is connected;
+the SDK (foxglove-sdk 0.30) then refuses, now and then, the viewer's subscription to it
+("Unknown channel ID: N"), and a viewer subscribes once. ``LiveView`` hears the refusal
+in the SDK's log and advertises that channel again under a new id, which the viewer
+subscribes to (docs/telemetry.md, "A subscription refused").
 """
 
 from __future__ import annotations
@@ -18,6 +24,8 @@ from __future__ import annotations
 import argparse
 import collections
 import json
+import logging
+import re
 import sys
 import threading
 from collections.abc import Callable
@@ -41,6 +49,15 @@ DEFAULT_VIEW_PORT = 8765
 LAYOUT_FILE = Path(__file__).parent / "layouts" / "ivfm-sitl.foxglove-layout.json"
 MAX_INBOX = 50_000
 SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
+# Where foxglove-sdk logs a subscription it refused (its Rust target, through Python's
+# logging), and how: the only report of one the SDK gives its host.
+SDK_CLIENT_LOGGER = "foxglove.websocket.connected_client"
+REFUSED = re.compile(r"subscribe to unknown channel: (\d+)$")
+# Advertisements again per topic, at most: a refusal is the SDK's race, met at most 11
+# times in a row for one topic even by a publishing thread that always loses the CPU
+# (tests/ground/test_live_view.py); 50 in a row is a viewer asking for channel ids
+# before they exist.
+MAX_READVERTISED = 50
 
 
 def view_address(text: str) -> tuple[str, int]:
@@ -64,21 +81,48 @@ def add_view_arguments(parser: argparse.ArgumentParser) -> None:
                              f"(default {DEFAULT_RATE_HZ:g} Hz; the path at 2 Hz)")
 
 
+class _Refusals(logging.Handler):
+    """The ids of the channels whose subscription the SDK refused, read from its log.
+    This runs on the server's thread, inside the SDK's locks: it only takes note, and
+    the publishing thread acts (``LiveView._advertise_again``)."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.ERROR)
+        self.ids: collections.deque[int] = collections.deque(maxlen=1024)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        refused = REFUSED.search(record.getMessage())
+        if refused:
+            self.ids.append(int(refused.group(1)))
+
+
 class LiveView:
     """A Foxglove WebSocket server; ``publish`` sends one converted message to every
-    viewer subscribed to its topic (none subscribed: the SDK sends nothing)."""
+    viewer subscribed to its topic (none subscribed: the SDK sends nothing). One thread
+    publishes."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = DEFAULT_VIEW_PORT,
-                 backlog: int = 1024) -> None:
+                 backlog: int = 1024, log: Callable[[str], None] | None = None) -> None:
+        self.log = log or (lambda text: print(f"live view: {text}", file=sys.stderr,
+                                              flush=True))
         self.context = foxglove.Context()
+        self._refusals = _Refusals()
+        sdk_log = logging.getLogger(SDK_CLIENT_LOGGER)
+        if sdk_log.getEffectiveLevel() > logging.ERROR:  # the SDK logs a refusal as an error
+            sdk_log.setLevel(logging.ERROR)
+        sdk_log.addHandler(self._refusals)
         try:
             self.server = foxglove.start_server(name="ivfm-sitl", host=host, port=port,
                                                 context=self.context,
                                                 message_backlog_size=backlog)
         except RuntimeError as exc:  # the SDK's error for a port in use, a bad host
+            sdk_log.removeHandler(self._refusals)
             raise OSError(f"cannot serve the live view on {host}:{port}: {exc}") from None
         self.host = host
-        self.channels: dict[str, Any] = {}
+        self.channels: dict[str, Any] = {}  # topic -> the SDK's channel
+        self._makers: dict[str, Callable[[], Any]] = {}  # topic -> makes its channel
+        self._topics: dict[int, str] = {}  # channel id -> topic, for this server's channels
+        self.advertised_again: collections.Counter[str] = collections.Counter()
         self.published = 0
 
     @property
@@ -90,33 +134,56 @@ class LiveView:
         return f"ws://{self.host}:{self.port}"
 
     def publish(self, output: Output) -> None:
+        if self._refusals.ids:
+            self._advertise_again()
         channel = self.channels.get(output.topic)
         if channel is None:
-            channel = self.channels[output.topic] = self._channel(output)
-        # Logged whether or not a viewer is subscribed (the SDK sends nothing then). Not
-        # gated on channel.has_sinks(): that read False for good, now and then, for a
-        # channel a viewer subscribed to while it was being created (the mission test lost
-        # every scene update in 1 run of 5 so; 0 of 8 since). It did again, ungated, in 1
-        # CI run of 5 on 2026-12-04; 140 runs of a synthetic burst did not reproduce it.
-        # Not traced.
+            channel = self._add(output.topic, self._maker(output))
+        # Logged whether or not a viewer is subscribed (the SDK sends nothing then).
         message = output.message
         channel.log(encode(message) if isinstance(message, dict) else message,
                     log_time=output.sim_time_ns)
         self.published += 1
 
-    def _channel(self, output: Output) -> Any:
-        message = output.message
+    def _maker(self, output: Output) -> Callable[[], Any]:
+        """What makes the channel of ``output``'s topic (its schema from this first
+        message), kept to make it again."""
+        message, topic, context = output.message, output.topic, self.context
         if isinstance(message, dict):
-            schema = foxglove.Schema(name=f"ivfm.view{output.topic.replace('/', '.')}",
+            schema = foxglove.Schema(name=f"ivfm.view{topic.replace('/', '.')}",
                                      encoding="jsonschema",
                                      data=json.dumps(json_schema(message)).encode())
-            return foxglove.Channel(output.topic, message_encoding="json", schema=schema,
-                                    context=self.context)
+            return lambda: foxglove.Channel(topic, message_encoding="json", schema=schema,
+                                            context=context)
         typed = getattr(fg_channels, f"{type(message).__name__}Channel")
-        return typed(output.topic, context=self.context)
+        return lambda: typed(topic, context=context)
+
+    def _add(self, topic: str, make: Callable[[], Any]) -> Any:
+        channel = self.channels[topic] = make()  # advertised to every viewer connected
+        self._makers[topic] = make
+        self._topics[channel.id()] = topic
+        return channel
+
+    def _advertise_again(self) -> None:
+        """Each channel whose subscription the SDK refused: closed (unadvertised) and
+        made again under a new id, which the viewer subscribes to. The SDK sends a
+        channel's advertisement before it records the channel for the viewer, and
+        refuses a subscription that comes in between; its thread then records it, but
+        the viewer, refused, does not ask again (docs/telemetry.md)."""
+        while self._refusals.ids:
+            topic = self._topics.pop(self._refusals.ids.popleft(), None)
+            if topic is None or self.advertised_again[topic] >= MAX_READVERTISED:
+                continue  # another server's channel, one advertised again, or past the cap
+            self.advertised_again[topic] += 1
+            # Closed first: the SDK would hand back an equal open channel, same id.
+            self.channels.pop(topic).close()
+            self._add(topic, self._makers[topic])
+            self.log(f"advertised {topic} again: a viewer's subscription to it was refused "
+                     f"by the SDK ({self.advertised_again[topic]} for this topic)")
 
     def close(self) -> None:
         self.server.stop()
+        logging.getLogger(SDK_CLIENT_LOGGER).removeHandler(self._refusals)
 
 
 def serve_view(options: ZenohOptions, host: str, port: int, rate_hz: float = DEFAULT_RATE_HZ,
@@ -130,7 +197,7 @@ def serve_view(options: ZenohOptions, host: str, port: int, rate_hz: float = DEF
     if threading.current_thread() is threading.main_thread():
         stop.on_signals()
     view = FoxgloveView(rate_hz)
-    live = LiveView(host, port)
+    live = LiveView(host, port, log=log)
     inbox: collections.deque[tuple[str, bytes, bytes | None]] = collections.deque()
     dropped = refused = 0
 

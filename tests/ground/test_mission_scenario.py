@@ -95,6 +95,10 @@ def test_the_live_view_serves_the_mission_flight_to_a_foxglove_client(six_waypoi
         "/vehicle1/reference_path": "foxglove.PosesInFrame",
         "/vehicle1/reference": "foxglove.PoseInFrame", "/log": "foxglove.Log",
         "/vehicle1/controller": "ivfm.view.vehicle1.controller"}
+    # Every topic served, a subscription the SDK refused included (docs/telemetry.md, "A
+    # subscription refused"); /log aside: this flight says two things, and the first
+    # goes out with its channel's creation, before any subscription.
+    assert all(received.messages[t] for t in schemas if t != "/log"), received.summary()
     # Rates in sim time (the view decimates on it): transforms and plots at 50 Hz, the
     # path at 2 Hz, without a gap to the flight's end. (A channel is advertised with its
     # first message; what comes before the viewer's subscription reaches it is not sent:

@@ -1,15 +1,15 @@
 """MAVLink conventions shared by the simulator, the autopilot and the ground side.
 
-One place for: the dialect, ports and ids, the simulator-link message mapping (sensor
-readings -> HIL_SENSOR / HIL_GPS / HIL_STATE_QUATERNION / ODOMETRY -> controller
-measurement, and motor commands <-> HIL_ACTUATOR_CONTROLS) and MAVLink framing. The
-flight modes and their numbers are in ``contracts/modes.py``.
+One place for: the dialect, ports and ids, the simulator-link message mapping (HIL_SENSOR
+/ HIL_GPS / HIL_STATE_QUATERNION / ODOMETRY -> controller measurement, IMU reading, fix;
+motor commands <-> HIL_ACTUATOR_CONTROLS) and MAVLink framing. The simulator's side of
+the samples (its readings -> those messages) is ``contracts/sim_samples.py``; the flight
+modes and their numbers are in ``contracts/modes.py``.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
 
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega
@@ -88,46 +88,6 @@ HIL_SENSOR_ALL_FIELDS = HIL_SENSOR_IMU | HIL_SENSOR_MAG | HIL_SENSOR_BARO
 MG_PER_MPS2 = 1000.0 / GRAVITY_MPS2
 
 
-class TruthSample(NamedTuple):
-    """The simulator's true state at one sample: HIL_STATE_QUATERNION and ODOMETRY carry
-    it (ground truth, what an autopilot flies on when it does not estimate)."""
-
-    time_us: int
-    position_ned_m: tuple[float, float, float]
-    velocity_ned_mps: tuple[float, float, float]
-    quaternion: tuple[float, float, float, float]  # body FRD -> NED, [w, x, y, z]
-    body_rate_frd_rad_s: tuple[float, float, float]
-    specific_force_frd_mps2: tuple[float, float, float]  # R^T (a - g)
-
-
-class SensorSample(NamedTuple):
-    """HIL_SENSOR: the IMU, and the magnetometer and barometer when ``fields_updated``
-    says they are fresh (sitl/sensors.py computes it)."""
-
-    time_us: int
-    accel_frd_mps2: tuple[float, float, float]  # specific force
-    gyro_frd_rad_s: tuple[float, float, float]
-    mag_frd_gauss: tuple[float, float, float]
-    pressure_hpa: float
-    pressure_alt_m: float
-    temperature_c: float
-    fields_updated: int  # HIL_SENSOR_* bits
-
-
-class GpsSample(NamedTuple):
-    """HIL_GPS: one fix, as the receiver reports it."""
-
-    time_us: int
-    lat_deg: float
-    lon_deg: float
-    alt_amsl_m: float
-    velocity_ned_mps: tuple[float, float, float]
-    hdop: float  # horizontal dilution of precision (HIL_GPS carries it x 100)
-    vdop: float
-    fix_type: int  # 0-1 no fix, 2 2D, 3 3D
-    satellites: int
-
-
 def new_mavlink(sysid: int, compid: int, flavour: str = "px4") -> mavlink.MAVLink:
     """An encoder/parser for one link, in the flavour's dialect (DIALECTS). Robust
     parsing: bytes that are not a valid frame become BAD_DATA messages (which every
@@ -136,63 +96,6 @@ def new_mavlink(sysid: int, compid: int, flavour: str = "px4") -> mavlink.MAVLin
     mav = DIALECTS[flavour].MAVLink(None, srcSystem=sysid, srcComponent=compid)
     mav.robust_parsing = True
     return mav
-
-
-def _int_clamped(value: float, low: int, high: int) -> int:
-    return int(min(high, max(low, round(value))))
-
-
-def truth_messages(t: TruthSample, home: Home) -> list[mavlink.MAVLink_message]:
-    """HIL_STATE_QUATERNION (its position around ``home``) and ODOMETRY of the true state
-    (units and integer scalings as PX4's simulator_mavlink reads them)."""
-    w, x, y, z = t.quaternion
-    n, e, d = t.position_ned_m
-    vn, ve, vd = t.velocity_ned_mps
-    p, q, r = t.body_rate_frd_rad_s
-    lat, lon, alt = home.geodetic_from_ned(n, e, d)
-    lat_e7 = _int_clamped(lat * 1e7, -2**31, 2**31 - 1)
-    lon_e7 = _int_clamped(lon * 1e7, -2**31, 2**31 - 1)
-    alt_mm = _int_clamped(alt * 1000, -2**31, 2**31 - 1)
-    vn_cm, ve_cm, vd_cm = (_int_clamped(v * 100, -32768, 32767) for v in (vn, ve, vd))
-    speed_cm = _int_clamped(math.hypot(vn, ve) * 100, 0, 65535)
-    accel_mg = (_int_clamped(a * MG_PER_MPS2, -32768, 32767)
-                for a in t.specific_force_frd_mps2)
-    return [
-        mavlink.MAVLink_hil_state_quaternion_message(
-            t.time_us, [w, x, y, z], p, q, r, lat_e7, lon_e7, alt_mm, vn_cm, ve_cm, vd_cm,
-            speed_cm, speed_cm, *accel_mg),
-        mavlink.MAVLink_odometry_message(
-            t.time_us, mavlink.MAV_FRAME_LOCAL_NED, mavlink.MAV_FRAME_LOCAL_NED, n, e, d,
-            [w, x, y, z], vn, ve, vd, p, q, r, [math.nan] * 21, [math.nan] * 21, 0,
-            mavlink.MAV_ESTIMATOR_TYPE_MOCAP, 100),
-    ]
-
-
-def sensor_message(s: SensorSample) -> mavlink.MAVLink_hil_sensor_message:
-    return mavlink.MAVLink_hil_sensor_message(
-        s.time_us, *s.accel_frd_mps2, *s.gyro_frd_rad_s, *s.mag_frd_gauss, s.pressure_hpa, 0.0,
-        s.pressure_alt_m, s.temperature_c, s.fields_updated, 0)
-
-
-def gps_message(g: GpsSample) -> mavlink.MAVLink_hil_gps_message:
-    vn, ve, vd = g.velocity_ned_mps
-    course_cdeg = math.degrees(math.atan2(ve, vn)) % 360.0 * 100.0
-    return mavlink.MAVLink_hil_gps_message(
-        g.time_us, g.fix_type, _int_clamped(g.lat_deg * 1e7, -2**31, 2**31 - 1),
-        _int_clamped(g.lon_deg * 1e7, -2**31, 2**31 - 1),
-        _int_clamped(g.alt_amsl_m * 1000, -2**31, 2**31 - 1),
-        _int_clamped(g.hdop * 100, 0, 65535), _int_clamped(g.vdop * 100, 0, 65535),
-        _int_clamped(math.hypot(vn, ve) * 100, 0, 65534),
-        *(_int_clamped(v * 100, -32768, 32767) for v in (vn, ve, vd)),
-        _int_clamped(course_cdeg, 0, 35999), g.satellites)
-
-
-def sample_messages(truth: TruthSample, sensor: SensorSample, gps: GpsSample | None,
-                    home: Home) -> list[mavlink.MAVLink_message]:
-    """One sample's messages: HIL_GPS when a fix is out (first, so a receiver has it with
-    the sample's IMU), HIL_SENSOR, then the truth."""
-    return ([gps_message(gps)] if gps is not None else []) + [sensor_message(sensor)] + \
-        truth_messages(truth, home)
 
 
 class LinkDataError(ValueError):

@@ -8,7 +8,8 @@ part of a cycle. Here each of those five messages has one ``struct.Struct`` of i
 payload, built once from pymavlink's own metadata of the message (wire order, types,
 array lengths, CRC extra), so the bytes are pymavlink's byte for byte.
 
-* Packing (``pack_messages``, ``pack_message``): the payload in one struct call, its
+* Packing (``pack_messages``, ``pack_message``, and ``pack_fields`` from a message's
+  constructor arguments, without the message object): the payload in one struct call, its
   trailing zero bytes trimmed as MAVLink 2 (and pymavlink) trims them, the header from
   the link's MAVLink object (its ``seq``, ``srcSystem``, ``srcComponent``: pymavlink's
   pack reads ``seq`` and does not advance it) and the X.25 checksum (CRC-16/MCRF4XX over
@@ -30,6 +31,7 @@ tests/contracts/test_sim_link_codec.py cross-checks both directions against pyma
 
 from __future__ import annotations
 
+import inspect
 import operator
 import struct
 from collections import namedtuple
@@ -82,6 +84,11 @@ class Layout:
         # Packing: the fields in wire order, arrays spliced in flat (the last first, so
         # the earlier ones' indices stay put).
         self._wire_values = operator.attrgetter(*cls.ordered_fieldnames)
+        self._wire_from_fields = operator.itemgetter(*map(cls.fieldnames.index,
+                                                          cls.ordered_fieldnames))
+        # The constructor's defaults (MAVLink 2 extension fields), for fields left out.
+        self._defaults = tuple(p.default for p in list(
+            inspect.signature(cls.__init__).parameters.values())[1:])
         self._arrays = [i for i, n in enumerate(cls.array_lengths) if n][::-1]
         # Parsing: each field (pymavlink's constructor order) as an index or a slice of
         # the flat unpacked values.
@@ -100,7 +107,21 @@ class Layout:
 
     def pack(self, msg: Any, mav: mavlink.MAVLink) -> bytes:
         """The frame pymavlink's ``msg.pack(mav)`` gives (``mav`` unsigned)."""
-        values = list(self._wire_values(msg))
+        return self._frame(list(self._wire_values(msg)), mav)
+
+    def pack_fields(self, fields: tuple, mav: mavlink.MAVLink) -> bytes:
+        """The frame of ``cls(*fields).pack(mav)``, without the message (``mav``
+        unsigned)."""
+        if len(fields) < len(self._defaults):
+            missing = self._defaults[len(fields):]
+            if inspect.Parameter.empty in missing:
+                raise TypeError(f"{self.msgname} takes {len(self._defaults)} fields, got "
+                                f"{len(fields)}")
+            fields = (*fields, *missing)
+        return self._frame(list(self._wire_from_fields(fields)), mav)
+
+    def _frame(self, values: list, mav: mavlink.MAVLink) -> bytes:
+        """The frame of the field values in wire order, arrays not yet spliced in."""
         for i in self._arrays:
             values[i:i + 1] = values[i]  # one of another length: struct.error
         payload = self.payload.pack(*values)
@@ -146,6 +167,15 @@ def pack_message(msg: mavlink.MAVLink_message, mav: mavlink.MAVLink) -> bytes:
     if layout is None or mav.signing.sign_outgoing:
         return msg.pack(mav)
     return layout.pack(msg, mav)
+
+
+def pack_fields(cls: type[mavlink.MAVLink_message], fields: tuple,
+                mav: mavlink.MAVLink) -> bytes:
+    """``cls(*fields).pack(mav)`` for a message with a layout, without building the
+    message unless ``mav`` signs (the simulator's samples, the autopilot's answer)."""
+    if mav.signing.sign_outgoing:
+        return cls(*fields).pack(mav)
+    return _BY_CLASS[cls].pack_fields(fields, mav)
 
 
 def pack_messages(msgs: Iterable[mavlink.MAVLink_message], mav: mavlink.MAVLink) -> bytes:

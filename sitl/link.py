@@ -1,9 +1,10 @@
 """The simulator's end of PX4's simulator protocol: a TCP listener for one autopilot at a
 time, the connection to it and what the simulator measures about it.
 
-The MAVLink object that encodes the samples also parses what comes back; it is made anew
-for each connection, so a half message from the last one does not linger (and the
-sequence numbers of a connection's samples start at 0). The samples and the actuator
+The MAVLink object that encodes the samples (``mav``, for ``SampleSource.frames``) also
+parses what comes back; it is made anew for each connection, so a half message from the
+last one does not linger (and the sequence numbers of a connection's samples start at
+0). The samples and the actuator
 answers go through the simulator link's layouts (contracts/sim_link_codec.py), the rest
 through pymavlink.
 """
@@ -19,7 +20,7 @@ from dataclasses import dataclass, field
 from contracts import SITL, timeline
 from contracts.mavlink import SIMULATOR_COMPID, SIMULATOR_SYSID, new_mavlink, split_frames
 from contracts.realtime import Histogram
-from contracts.sim_link_codec import pack_messages, parse_frames
+from contracts.sim_link_codec import parse_frames
 
 
 @dataclass
@@ -73,10 +74,6 @@ class AutopilotLink:
         self.mav = new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID)
         self._pending = b""
         return conn
-
-    def pack(self, msgs: list) -> bytes:
-        """A sample's messages as the bytes to send on this connection."""
-        return pack_messages(msgs, self.mav)
 
     def read(self, conn: socket.socket) -> list | None:
         """Messages available now; None when the autopilot has gone."""

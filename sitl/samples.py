@@ -13,8 +13,9 @@ import collections
 import numpy as np
 
 from contracts.frames import Home
-from contracts.mavlink import sample_messages
+from contracts.mavlink import mavlink
 from contracts.perturbations import NO_SENSOR_EFFECTS, SensorEffects
+from contracts.sim_samples import sample_frames
 from sitl.plant import VehicleState
 from sitl.sensors import (
     SensorProfile,
@@ -51,10 +52,10 @@ class SampleSource:
         self._acceleration = (velocity - self._previous_velocity) / period_s
         self._previous_velocity = velocity
 
-    def messages(self, time_us: int, state: VehicleState,
-                 effects: SensorEffects) -> list | None:
-        """The sample at ``time_us`` (``state``: the plant's then) under ``effects``; None
-        when the link loses it."""
+    def frames(self, time_us: int, state: VehicleState, effects: SensorEffects,
+               mav: mavlink.MAVLink) -> bytes | None:
+        """The sample at ``time_us`` (``state``: the plant's then) under ``effects``,
+        packed on ``mav``; None when the link loses it."""
         readings, fix = self.sensors.sample(time_us, self._imu_state, self._acceleration,
                                             effects)
         if effects is NO_SENSOR_EFFECTS:
@@ -66,4 +67,4 @@ class SampleSource:
                 state, self._history, effects, self.rng)
             truth = truth_sample(time_us, state, self._acceleration, position, velocity,
                                  quaternion, body_rate)
-        return sample_messages(truth, readings, fix, self.home)
+        return sample_frames(truth, readings, fix, self.home, mav)

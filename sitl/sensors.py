@@ -26,21 +26,16 @@ from contracts.frames import (
     quat_from_euler,
     rotation_from_quat,
 )
-from contracts.mavlink import (
-    HIL_SENSOR_BARO,
-    HIL_SENSOR_IMU,
-    HIL_SENSOR_MAG,
-    GpsSample,
-    SensorSample,
-    TruthSample,
-)
+from contracts.mavlink import HIL_SENSOR_BARO, HIL_SENSOR_IMU, HIL_SENSOR_MAG
 from contracts.perturbations import NO_SENSOR_EFFECTS, SensorEffects
+from contracts.sim_samples import GpsSample, SensorSample, TruthSample
 from contracts.toml_files import read_named_toml, shipped_names
 from contracts.toml_tables import check_fields, number
 from sitl.plant import VehicleState
 
 TEMPERATURE_C = 20.0
 PROFILES_DIR = "sensor_profiles"
+_GRAVITY_NED = np.array((0.0, 0.0, GRAVITY_MPS2))
 
 
 def truth_sample(time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
@@ -48,7 +43,7 @@ def truth_sample(time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
     """The true state of one sample (or the given replacements, e.g. perturbed); the
     specific force is R^T (a - g) of the kinematic acceleration."""
     q = np.asarray(state.quaternion if quaternion is None else quaternion, dtype=float)
-    specific = rotation_from_quat(q).T @ (np.asarray(accel_ned_mps2) - (0.0, 0.0, GRAVITY_MPS2))
+    specific = rotation_from_quat(q).T @ (np.asarray(accel_ned_mps2) - _GRAVITY_NED)
     return TruthSample(
         time_us, _tuple(state.position_ned_m if position is None else position),
         _tuple(state.velocity_ned_mps if velocity is None else velocity), _tuple(q),
@@ -96,7 +91,8 @@ def seen_by_the_gyro(before: VehicleState, after: VehicleState, period_s: float
 
 
 def _tuple(values) -> tuple[float, ...]:
-    return tuple(float(v) for v in values)
+    """Python floats (what the messages take), in one conversion."""
+    return tuple(np.asarray(values, dtype=float).tolist())
 
 
 @dataclass(frozen=True)
@@ -263,6 +259,10 @@ class SensorSuite:
             + [p.gyro_noise_rad_s_rthz / root_dt] * 3 + [p.accel_noise_mps2_rthz / root_dt] * 3
             + [p.mag_noise_gauss] * 3 + [p.baro_drift_m_rts * root_dt, p.baro_noise_m])
         self._out = np.empty(9)
+        # The sensor effects' gyro, accelerometer and field offsets as arrays, made when
+        # the effects change.
+        self._offsets_of: SensorEffects | None = None
+        self._offsets: tuple[np.ndarray, ...] = ()
         self._last_mag = (0.0, 0.0, 0.0)
         self._last_baro = (SEA_LEVEL_PRESSURE_HPA, 0.0)
         # Fixes waiting out the receiver's latency: (release time, fix).
@@ -278,13 +278,14 @@ class SensorSuite:
         # One draw a sample, whatever is fresh: the IMU, magnetometer and barometer streams
         # do not depend on those sensors' rates (the GPS draws at its own).
         z = self.rng.standard_normal(_DRAWS) * self._scales
+        if fx is not self._offsets_of:  # effects are replaced whole (frozen)
+            self._offsets_of = fx
+            self._offsets = tuple(np.asarray(v, dtype=np.float64) for v in (
+                fx.gyro_bias_rad_s, fx.accel_bias_mps2, fx.mag_field_gauss))
         _read_imu_and_mag(np.asarray(state.quaternion, dtype=np.float64),
                           np.asarray(state.body_rate_rad_s, dtype=np.float64),
                           np.asarray(accel_ned_mps2, dtype=np.float64), z, self.gyro_bias,
-                          self.accel_bias, self.mag_offset, self._field_ned,
-                          np.asarray(fx.gyro_bias_rad_s, dtype=np.float64),
-                          np.asarray(fx.accel_bias_mps2, dtype=np.float64),
-                          np.asarray(fx.mag_field_gauss, dtype=np.float64),
+                          self.accel_bias, self.mag_offset, self._field_ned, *self._offsets,
                           p.gyro_range_rad_s, p.accel_range_mps2, self._out)
         readings = self._out.tolist()
         self.baro_offset_m += z[_BARO_WALK] + fx.baro_drift_mps * dt

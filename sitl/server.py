@@ -144,9 +144,8 @@ class Simulator(PacedProcess):
         self.telemetry.publish_state(self.time_us, self._state, self.perturbations.active,
                                      self._commands)
         self.telemetry.status(self.time_us, self.stats, self.started)
-        msgs = self.samples.messages(self.time_us, self._state,
-                                     self.perturbations.sensor_effects)
-        return None if msgs is None else self.link.pack(msgs)
+        return self.samples.frames(self.time_us, self._state,
+                                   self.perturbations.sensor_effects, self.link.mav)
 
     def advance(self) -> None:
         """One sample period of plant time with the commands in force."""

@@ -26,13 +26,8 @@ from contracts.frames import (
     euler_from_quat,
     wrap_pi,
 )
-from contracts.mavlink import (
-    HIL_SENSOR_ALL_FIELDS,
-    GpsSample,
-    SensorSample,
-    TruthSample,
-    sample_messages,
-)
+from contracts.mavlink import HIL_SENSOR_ALL_FIELDS
+from contracts.sim_samples import GpsSample, SensorSample, TruthSample, sample_messages
 from contracts.vectors import MEAS_Z, MEASUREMENT_SIZE, REF_SIZE
 
 

@@ -18,19 +18,14 @@ from autopilot.models.ts_model import FuzzyModelSet
 from autopilot.parameters import validate_parameters
 from contracts.airframe import Airframe, hover_rotor_speeds
 from contracts.frames import DEFAULT_HOME, Home
-from contracts.mavlink import (
-    fix_from_hil_gps,
-    gps_message,
-    imu_from_hil_sensor,
-    new_mavlink,
-    sensor_message,
-)
+from contracts.mavlink import fix_from_hil_gps, imu_from_hil_sensor, new_mavlink
 from contracts.perturbations import (
     IN_PROCESS_KINDS,
     Perturbations,
     SensorEffects,
     sensor_effects_at,
 )
+from contracts.sim_samples import gps_message, sensor_message
 from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT_SIZE, REF_SIZE
 from ground.record.run_files import RunRecord, left_the_envelope
 from ground.scenario.scenario_file import Scenario

@@ -169,9 +169,8 @@ def wrap_parts(pair: Pair) -> Parts:
     for label, owner, name in (
             ("sim next_sample", sim, "next_sample"),
             ("  publish_state", sim.telemetry, "publish_state"),
-            ("  samples.messages", sim.samples, "messages"),
+            ("  samples.frames", sim.samples, "frames"),
             ("    sensors.sample", sim.samples.sensors, "sample"),
-            ("  link.pack", sim.link, "pack"),
             ("sim link.read", sim.link, "read"),
             ("sim apply_actuators", sim, "apply_actuators"),
             ("sim advance", sim, "advance"),

@@ -34,10 +34,10 @@ from contracts.mavlink import (  # noqa: E402
     commands_from_actuator,
     mavlink,
     measurement_from_odometry,
-    sample_messages,
     split_frames,
 )
 from contracts.sim_link_codec import pack_message, pack_messages, parse_frames  # noqa: E402
+from contracts.sim_samples import sample_messages  # noqa: E402
 from ground.run.processes import RunSettings, fly  # noqa: E402
 from ground.scenario.scenario_file import scenario_by_name  # noqa: E402
 from sitl.plant import Plant

@@ -111,7 +111,8 @@ def _sample_with_an_erring_fix(time_us: int, kinds: tuple[str, ...]) -> bytes:
     """One sample from a vehicle standing at DEFAULT_HOME whose GPS fix is 0.5 m north and
     0.4 m low (a receiver's error), its messages in the order our simulator sends them:
     HIL_GPS first."""
-    from contracts.mavlink import mavlink, sample_messages
+    from contracts.mavlink import mavlink
+    from contracts.sim_samples import sample_messages
     from sitl.plant import VehicleState
     from sitl.sensors import ideal_readings
 

@@ -19,16 +19,17 @@ from contracts.mavlink import (
     actuator_message,
     mavlink,
     new_mavlink,
-    sample_messages,
     split_frames,
 )
 from contracts.sim_link_codec import (
     LAYOUTS,
     LinkMessage,
+    pack_fields,
     pack_message,
     pack_messages,
     parse_frames,
 )
+from contracts.sim_samples import sample_frames, sample_messages
 
 CLASSES = [layout.cls for layout in LAYOUTS.values()]
 INT_RANGES = {"uint8_t": (0, 2**8 - 1), "int8_t": (-2**7, 2**7 - 1),
@@ -137,9 +138,26 @@ def test_packing_is_pymavlinks_byte_for_byte():
         except (struct.error, OverflowError):
             continue
         assert pack_message(msg, mav) == expected, (msg.get_type(), k)
+        assert pack_fields(type(msg), _fields(msg), mav) == expected, (msg.get_type(), k)
         assert mav.seq == k % 256  # packing does not advance it, as pymavlink's pack
         packed += 1
     assert packed > 1900
+
+
+def _fields(msg: mavlink.MAVLink_message) -> tuple:
+    """The message's constructor arguments."""
+    return tuple(getattr(msg, name) for name in msg.fieldnames)
+
+
+def test_fields_left_out_take_the_constructors_defaults():
+    """HIL_GPS's MAVLink 2 extensions (id, yaw) default to 0, as its constructor has them;
+    a field without a default cannot be left out."""
+    mav = mavlink.MAVLink(None, 1, 51)
+    fields = (5, 3, 473977420, 85455940, 488000, 80, 120, 100, 30, -40, 5, 12000, 14)
+    assert pack_fields(mavlink.MAVLink_hil_gps_message, fields, mav) == \
+        mavlink.MAVLink_hil_gps_message(*fields).pack(mav)
+    with pytest.raises(TypeError, match="takes 15 fields, got 12"):
+        pack_fields(mavlink.MAVLink_hil_gps_message, fields[:-1], mav)
 
 
 def test_all_zero_payloads_keep_one_byte_and_trailing_zeros_are_trimmed():
@@ -166,11 +184,12 @@ def test_the_simulators_samples_pack_as_pymavlink_packs_them():
         s = plant.state()
         t = k * 10_000
         if k % 2:
-            readings, fix = suite.sample(t, s, np.zeros(3))
-            msgs = sample_messages(truth_sample(t, s, np.zeros(3)), readings, fix,
-                                   DEFAULT_HOME)
+            sample = truth_sample(t, s, np.zeros(3)), *suite.sample(t, s, np.zeros(3))
         else:
-            msgs = sample_messages(*ideal_readings(t, s, np.zeros(3)), DEFAULT_HOME)
+            sample = ideal_readings(t, s, np.zeros(3))
+        msgs = sample_messages(*sample, DEFAULT_HOME)
+        assert sample_frames(*sample, DEFAULT_HOME, sim) == b"".join(m.pack(twin)
+                                                                      for m in msgs)
         msgs.append(actuator_message(t, np.array([0.5, 0.0, 1.0, 0.25]), k % 3 > 0, True))
         assert pack_messages(msgs, sim) == b"".join(m.pack(twin) for m in msgs)
         sim.seq = twin.seq = (sim.seq + 1) % 256
@@ -192,6 +211,7 @@ def test_a_signing_link_packs_by_pymavlink_byte_for_byte():
         frame = pack_message(msg, ours)
         assert frame == expected and frame[2] == mavlink.MAVLINK_IFLAG_SIGNED
         assert ours.signing.timestamp == theirs.signing.timestamp
+        assert pack_fields(type(msg), _fields(msg), ours) == msg.pack(theirs)
     msgs = [actuator_message(1, np.full(4, 0.5), True, True)] * 3
     assert pack_messages(msgs, ours) == b"".join(m.pack(theirs) for m in msgs)
 

@@ -17,12 +17,11 @@ from contracts.mavlink import (
     HIL_SENSOR_MAG,
     LinkDataError,
     fix_from_hil_gps,
-    gps_message,
     imu_from_hil_sensor,
     mavlink,
-    sensor_message,
 )
 from contracts.perturbations import SensorEffects
+from contracts.sim_samples import gps_message, sensor_message
 from sitl.plant import VehicleState
 from sitl.sensors import (
     SensorProfile,

@@ -20,9 +20,9 @@ from contracts.mavlink import (
     mavlink,
     measurement_from_hil_state,
     measurement_from_odometry,
-    sample_messages,
     split_frames,
 )
+from contracts.sim_samples import sample_messages
 from contracts.vectors import MEASUREMENT
 from sitl.plant import Plant
 from sitl.sensors import ideal_readings

@@ -189,6 +189,19 @@ class RecordBuffer:
         return np.ndarray((len(names), size // 8), dtype="<f8", buffer=self._row,
                           offset=first)
 
+    def run(self, names: tuple[str, ...]) -> np.ndarray:
+        """One writable flat view over the consecutive float fields ``names`` (in record
+        order, of any sizes), so one assignment or ``np.concatenate(..., out=)`` fills
+        them all."""
+        fields = self._row.dtype.fields
+        first = at = fields[names[0]][1]
+        for name in names:
+            sub, offset = fields[name][:2]
+            if offset != at or sub.base != np.float64:
+                raise ValueError(f"{', '.join(names)} are not consecutive float fields")
+            at += sub.itemsize
+        return np.ndarray(((at - first) // 8,), dtype="<f8", buffer=self._row, offset=first)
+
     def encode(self, sequences: tuple[np.ndarray, ...] = ()) -> bytes:
         """The CDR payload: the fixed fields as filled, then ``sequences`` in schema order."""
         if len(sequences) != len(self.schema.sequences):

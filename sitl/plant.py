@@ -102,7 +102,7 @@ class Plant:
         """Normalised motor commands c_i in [0, 1] -> rotor speed commands through the
         airframe's command map (``contracts.airframe.rotor_speeds``)."""
         c = np.asarray(commands, dtype=float)
-        if c.shape != (4,) or not np.all(np.isfinite(c)):
+        if c.shape != (4,) or not all(map(math.isfinite, c.tolist())):
             raise ValueError(f"motor commands must be 4 finite numbers, got {commands!r}")
         self._command_rad_s = rotor_speeds(c, self._model)
 
@@ -148,28 +148,28 @@ class Plant:
         return out
 
     def state(self) -> VehicleState:
-        s = self._state
+        # One copy of the state, its vectors views of it: nobody writes into it.
+        s = self._state.copy()
         if self._fidelity_code == dynamics.FIDELITY_PAPER:
-            euler = s[6:9].copy()
-            euler_rate = s[9:12].copy()
+            euler = s[6:9]
+            euler_rate = s[9:12]
+            phi, theta, psi, *rates = s[6:12].tolist()
             # The paper's model integrates Euler rates; report the body rates a gyro would
             # see, so a receiver that converts them back recovers the same Euler rates.
-            body_rate = body_rates_from_euler_rates(euler[0], euler[1], *euler_rate)
-            quat = quat_from_euler(euler[0], euler[1], euler[2])
+            body_rate = body_rates_from_euler_rates(phi, theta, *rates)
+            quat = quat_from_euler(phi, theta, psi)
         else:
-            quat = s[6:10].copy()
+            quat = s[6:10]
             euler = euler_from_quat(quat)
-            body_rate = s[10:13].copy()
-            euler_rate = euler_rates_from_body_rates(
-                euler[0], euler[1], body_rate[0], body_rate[1], body_rate[2]
-            )
+            body_rate = s[10:13]
+            euler_rate = euler_rates_from_body_rates(euler[0], euler[1], *s[10:13].tolist())
         return VehicleState(
             time_s=self.time_s,
-            position_ned_m=s[0:3].copy(),
-            velocity_ned_mps=s[3:6].copy(),
+            position_ned_m=s[0:3],
+            velocity_ned_mps=s[3:6],
             euler_rad=euler,
             euler_rate_rad_s=euler_rate,
             body_rate_rad_s=body_rate,
             quaternion=quat,
-            rotor_rad_s=s[self._rotor_at:self._rotor_at + 4].copy(),
+            rotor_rad_s=s[self._rotor_at:self._rotor_at + 4],
         )

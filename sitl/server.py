@@ -140,12 +140,13 @@ class Simulator(PacedProcess):
         """Take requests, apply the perturbations in force at this sample's time, publish
         the truth; the bytes to send, or None when the link loses this sample."""
         self._service_requests()
-        self.perturbations.update(self.time_us)
-        self.telemetry.publish_state(self.time_us, self._state, self.perturbations.active,
+        time_us = self.time_us
+        self.perturbations.update(time_us)
+        self.telemetry.publish_state(time_us, self._state, self.perturbations.active,
                                      self._commands)
-        self.telemetry.status(self.time_us, self.stats, self.started)
-        return self.samples.frames(self.time_us, self._state,
-                                   self.perturbations.sensor_effects, self.link.mav)
+        self.telemetry.status(time_us, self.stats, self.started)
+        return self.samples.frames(time_us, self._state, self.perturbations.sensor_effects,
+                                   self.link.mav)
 
     def advance(self) -> None:
         """One sample period of plant time with the commands in force."""

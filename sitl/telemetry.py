@@ -5,6 +5,7 @@ latency), and the requests it serves (``perturb``, ``start``), queued for the lo
 
 from __future__ import annotations
 
+import operator
 import queue
 from collections.abc import Callable
 from typing import Any
@@ -20,7 +21,8 @@ from contracts.zenoh_link import ZenohOptions
 from sitl.link import LinkStats
 from sitl.plant import VehicleState
 
-# STATE record fields that are VehicleState's of the same name (then the plant effects).
+# STATE record fields that are VehicleState's of the same name (then the motor commands,
+# then the plant effects).
 STATE_FROM_PLANT = ("position_ned_m", "velocity_ned_mps", "quaternion", "euler_rad",
                     "euler_rate_rad_s", "body_rate_rad_s", "rotor_rad_s")
 
@@ -38,11 +40,20 @@ class SimulatorTelemetry:
         self.node.serve("perturb", None if serve_perturbations else PERTURBATIONS_OFF)
         self.node.serve("start")
         self._state_record = STATE.buffer()  # one record, refilled each sample
+        # Its truth and motor commands in one view, filled by one concatenation; the plant
+        # effects refilled when they change (they are replaced whole: frozen).
+        self._truth = self._state_record.run((*STATE_FROM_PLANT, "motor_commands"))
+        self._of_state = operator.attrgetter(*STATE_FROM_PLANT)
+        self._effects_of: Perturbations | None = None
 
     def next_request(self) -> Request | None:
-        """The oldest request not yet taken, or None."""
+        """The oldest request not yet taken, or None (asked each sample: no exception
+        raised when there is none)."""
+        requests = self.node.requests
+        if requests.empty():
+            return None
         try:
-            return self.node.requests.get_nowait()
+            return requests.get_nowait()
         except queue.Empty:
             return None
 
@@ -54,11 +65,11 @@ class SimulatorTelemetry:
             return
         record = self._state_record
         record["seq"], record["sim_time_us"] = self._state_pub.count, time_us
-        for name in STATE_FROM_PLANT:
-            record[name] = getattr(state, name)
-        for name in PLANT_EFFECTS:
-            record[name] = getattr(active, name)
-        record["motor_commands"] = motor_commands
+        np.concatenate((*self._of_state(state), motor_commands), out=self._truth)
+        if active is not self._effects_of:
+            self._effects_of = active
+            for name in PLANT_EFFECTS:
+                record[name] = getattr(active, name)
         self._state_pub.put(record.encode())
         self.node.end_step(time_us)
 
@@ -70,7 +81,9 @@ class SimulatorTelemetry:
     def status(self, time_us: int, stats: LinkStats, started: bool) -> None:
         """The link's counters, at most once a second of wall time: a ground station sees
         the simulator alive even while sim time stands still."""
-        self.node.status(time_us, **_status_fields(stats, started))
+        self.node.flush_stale()
+        if self.node.status_due():  # asked each sample: gather nothing till then
+            self.node.status(time_us, **_status_fields(stats, started))
 
     def close(self, time_us: int, stats: LinkStats, started: bool) -> None:
         """The final status, with the latency of the autopilot's answers; then the session

@@ -102,8 +102,8 @@ class LinkDataError(ValueError):
     """A simulator-link message that must not reach the controller."""
 
 
-def _finite(values: list[float], what: str) -> None:
-    if not all(math.isfinite(v) for v in values):
+def _finite(values: tuple[float, ...], what: str) -> None:
+    if not all(map(math.isfinite, values)):
         raise LinkDataError(f"{what} holds NaN or infinity")
 
 
@@ -117,8 +117,9 @@ def _measurement(position, velocity, quaternion, body_rate) -> np.ndarray:
     out[MEASUREMENT.position_ned_m] = position
     out[MEASUREMENT.velocity_ned_mps] = velocity
     out[MEASUREMENT.euler_rad] = euler
+    # Python floats: numba takes them faster than numpy's
     out[MEASUREMENT.euler_rate_rad_s] = euler_rates_from_body_rates(
-        euler[0], euler[1], *(float(b) for b in body_rate))
+        *euler[:2].tolist(), *map(float, body_rate))
     return out
 
 
@@ -135,9 +136,8 @@ def measurement_from_odometry(msg: mavlink.MAVLink_odometry_message) -> np.ndarr
             f"ODOMETRY frames {msg.frame_id}/{msg.child_frame_id}: position in "
             f"MAV_FRAME_LOCAL_NED ({mavlink.MAV_FRAME_LOCAL_NED}) and velocity in it or in "
             f"MAV_FRAME_BODY_FRD ({mavlink.MAV_FRAME_BODY_FRD}) are understood")
-    values = [msg.x, msg.y, msg.z, *msg.q, msg.vx, msg.vy, msg.vz, msg.rollspeed,
-              msg.pitchspeed, msg.yawspeed]
-    _finite(values, "ODOMETRY")
+    _finite((msg.x, msg.y, msg.z, *msg.q, msg.vx, msg.vy, msg.vz, msg.rollspeed,
+             msg.pitchspeed, msg.yawspeed), "ODOMETRY")
     velocity = (msg.vx, msg.vy, msg.vz)
     if msg.child_frame_id == mavlink.MAV_FRAME_BODY_FRD:
         w, x, y, z = (float(v) for v in msg.q)
@@ -152,17 +152,16 @@ def measurement_from_odometry(msg: mavlink.MAVLink_odometry_message) -> np.ndarr
 def with_body_rates(measurement: np.ndarray, body_rate_frd_rad_s: np.ndarray) -> np.ndarray:
     """The measurement with its Euler rates from these body rates (the gyro's)."""
     out = measurement.copy()
-    phi, theta = out[MEASUREMENT.euler_rad][:2]
     out[MEASUREMENT.euler_rate_rad_s] = euler_rates_from_body_rates(
-        float(phi), float(theta), *(float(b) for b in body_rate_frd_rad_s))
+        *out[MEASUREMENT.euler_rad][:2].tolist(), *map(float, body_rate_frd_rad_s))
     return out
 
 
 def measurement_from_hil_state(msg: mavlink.MAVLink_hil_state_quaternion_message,
                                home: Home) -> np.ndarray:
     """Controller measurement from HIL_STATE_QUATERNION alone (1e-7 deg, mm, cm/s)."""
-    values = [*msg.attitude_quaternion, msg.rollspeed, msg.pitchspeed, msg.yawspeed]
-    _finite(values, "HIL_STATE_QUATERNION")
+    _finite((*msg.attitude_quaternion, msg.rollspeed, msg.pitchspeed, msg.yawspeed),
+            "HIL_STATE_QUATERNION")
     _on_earth(msg, "HIL_STATE_QUATERNION")
     position = home.ned_from_geodetic(msg.lat * 1e-7, msg.lon * 1e-7, msg.alt * 1e-3)
     velocity = (msg.vx * 0.01, msg.vy * 0.01, msg.vz * 0.01)
@@ -180,9 +179,9 @@ def imu_from_hil_sensor(msg: mavlink.MAVLink_hil_sensor_message
     if updated & HIL_SENSOR_IMU != HIL_SENSOR_IMU:
         raise LinkDataError(f"HIL_SENSOR without its IMU fields (fields_updated "
                             f"{updated:#x})")
-    gyro = np.array((msg.xgyro, msg.ygyro, msg.zgyro))
-    accel = np.array((msg.xacc, msg.yacc, msg.zacc))
-    _finite([*gyro, *accel], "HIL_SENSOR's IMU")
+    gyro = (msg.xgyro, msg.ygyro, msg.zgyro)
+    accel = (msg.xacc, msg.yacc, msg.zacc)
+    _finite((*gyro, *accel), "HIL_SENSOR's IMU")
     baro_alt = math.nan
     if updated & HIL_SENSOR_ABS_PRESSURE:
         if not (math.isfinite(msg.abs_pressure) and 100.0 < msg.abs_pressure < 1200.0):
@@ -191,9 +190,10 @@ def imu_from_hil_sensor(msg: mavlink.MAVLink_hil_sensor_message
         baro_alt = altitude_from_pressure_m(msg.abs_pressure)
     mag = None
     if updated & HIL_SENSOR_MAG:
-        mag = np.array((msg.xmag, msg.ymag, msg.zmag))
-        _finite(list(mag), "HIL_SENSOR's magnetometer")
-    return gyro, accel, baro_alt, mag
+        mag = (msg.xmag, msg.ymag, msg.zmag)
+        _finite(mag, "HIL_SENSOR's magnetometer")
+        mag = np.array(mag)
+    return np.array(gyro), np.array(accel), baro_alt, mag
 
 
 def _on_earth(msg, what: str) -> None:
@@ -223,14 +223,20 @@ def fix_from_hil_gps(msg: mavlink.MAVLink_hil_gps_message, home: Home
     return position, velocity, int(msg.fix_type), int(msg.satellites_visible)
 
 
+def actuator_fields(time_us: int, commands: np.ndarray, armed: bool,
+                    lockstep: bool) -> tuple:
+    """HIL_ACTUATOR_CONTROLS' fields: motor commands in [0, 1] on controls[0..3]; time_us
+    echoes the sample they answer."""
+    controls = [0.0] * 16
+    controls[:HIL_MOTORS] = map(float, commands)
+    return (time_us, controls, HIL_MODE_ARMED if armed else 0,
+            HIL_FLAG_LOCKSTEP if lockstep else 0)
+
+
 def actuator_message(time_us: int, commands: np.ndarray, armed: bool,
                      lockstep: bool) -> mavlink.MAVLink_hil_actuator_controls_message:
-    """Motor commands in [0, 1] on controls[0..3]; time_us echoes the sample they answer."""
-    controls = [0.0] * 16
-    controls[:HIL_MOTORS] = [float(c) for c in commands]
     return mavlink.MAVLink_hil_actuator_controls_message(
-        time_us, controls, HIL_MODE_ARMED if armed else 0,
-        HIL_FLAG_LOCKSTEP if lockstep else 0)
+        *actuator_fields(time_us, commands, armed, lockstep))
 
 
 def commands_from_actuator(msg: mavlink.MAVLink_hil_actuator_controls_message) -> np.ndarray:

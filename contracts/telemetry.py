@@ -190,17 +190,21 @@ class RecordBuffer:
                           offset=first)
 
     def run(self, names: tuple[str, ...]) -> np.ndarray:
-        """One writable flat view over the consecutive float fields ``names`` (in record
-        order, of any sizes), so one assignment or ``np.concatenate(..., out=)`` fills
-        them all."""
+        """One writable flat view over the consecutive fields ``names`` (in record order,
+        of any sizes), all floats or all integers, so one assignment (or
+        ``np.concatenate(..., out=)``) fills them all. Integers are viewed as int64: an
+        unsigned field takes any count below 2**63 the same."""
         fields = self._row.dtype.fields
+        kinds = {fields[name][0].base.kind for name in names}
         first = at = fields[names[0]][1]
         for name in names:
             sub, offset = fields[name][:2]
-            if offset != at or sub.base != np.float64:
-                raise ValueError(f"{', '.join(names)} are not consecutive float fields")
+            if offset != at or kinds not in ({"f"}, {"i"}, {"i", "u"}, {"u"}):
+                raise ValueError(f"{', '.join(names)} are not consecutive fields of one "
+                                 "kind (float or integer)")
             at += sub.itemsize
-        return np.ndarray(((at - first) // 8,), dtype="<f8", buffer=self._row, offset=first)
+        return np.ndarray(((at - first) // 8,), dtype="<f8" if kinds == {"f"} else "<i8",
+                          buffer=self._row, offset=first)
 
     def encode(self, sequences: tuple[np.ndarray, ...] = ()) -> bytes:
         """The CDR payload: the fixed fields as filled, then ``sequences`` in schema order."""

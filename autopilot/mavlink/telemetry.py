@@ -341,7 +341,7 @@ def telemetry_message(msg_id: int, v: Commander, flavour: str, boot_ms: int,
         return mavlink.MAVLink_global_position_int_message(
             boot_ms, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1000)),
             int(round(places.above_home_m(m[MEAS_Z]) * 1000)),
-            *(int(np.clip(round(c * 100), -32768, 32767))
+            *(int(min(max(round(c * 100), -32768), 32767))  # np.clip's, 10x cheaper
               for c in m[MEASUREMENT.velocity_ned_mps]), heading)
     if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
         return home_position(v.places)

@@ -84,7 +84,8 @@ class Navigation:
             if isinstance(reading, ImuReading):
                 gyro = self.vehicle.failures.sensor(GYRO, reading.gyro)
                 if gyro is not None:  # a failed gyro that gives nothing: the truth's rates
-                    self._gyro = reading._replace(gyro=gyro)
+                    self._gyro = reading if gyro is reading.gyro else \
+                        reading._replace(gyro=gyro)
             elif isinstance(reading, TruthReading):
                 gyro = self._gyro
                 if gyro is not None and abs(reading.time_us - gyro.time_us) <= GYRO_MATCH_US:

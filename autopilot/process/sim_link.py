@@ -90,6 +90,9 @@ class SimLink:
         self.source_types = STATE_SOURCES[source]
         self.source_ids = frozenset(getattr(mavlink, f"MAVLINK_MSG_ID_{t}")
                                     for t in self.source_types) | {-1}
+        # Once ODOMETRY flows (auto), HIL_STATE_QUATERNION is not even parsed.
+        self._ids_with_odometry = self.source_ids - {
+            mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION}
         self._pending = b""
         self.odometry_seen = False  # auto: once ODOMETRY arrives, HIL_STATE is not used
         self.next_heartbeat_s = math.inf
@@ -133,10 +136,12 @@ class SimLink:
             mavlink.MAV_STATE_ACTIVE, 3)
         return self.send(msg.pack(self.mav))
 
-    def decode(self, msg: mavlink.MAVLink_message) -> LinkReading | None:
+    def decode(self, msg: mavlink.MAVLink_message, kind: str | None = None
+               ) -> LinkReading | None:
         """The sample of a state message (raises LinkDataError on bad data); None for a
-        position before home is known (a HIL_GPS without a fix)."""
-        kind = msg.get_type()
+        position before home is known (a HIL_GPS without a fix). ``kind``: its type, when
+        the caller has it."""
+        kind = kind or msg.get_type()
         if kind == "ODOMETRY":
             return TruthReading(msg.time_usec, measurement_from_odometry(msg))
         if self.home is None and kind != "HIL_SENSOR":
@@ -189,19 +194,23 @@ class SimLink:
         if not data:
             return None
         frames, self._pending = split_frames(self._pending + data)
-        ids = self.source_ids if self.home is not None else self.source_ids | HOME_IDS
-        parsed = parse_frames((f for f in frames if f[0] in ids), self.mav)
+        if self.home is None:
+            ids = self.source_ids | HOME_IDS
+        else:  # HIL_STATE_QUATERNION once ODOMETRY flows: it would be skipped below
+            ids = self._ids_with_odometry if self.odometry_seen else self.source_ids
+        parsed = parse_frames([f for f in frames if f[0] in ids], self.mav)
         if self.home is None:
             self._take_home(parsed)
-        msgs = [m for m in parsed if m.get_type() in self.source_types]
-        if not self.odometry_seen and any(m.get_type() == "ODOMETRY" for m in msgs):
+        types = self.source_types
+        msgs = [(kind, m) for m in parsed if (kind := m.get_type()) in types]
+        if not self.odometry_seen and any(kind == "ODOMETRY" for kind, _ in msgs):
             self.odometry_seen = True
         samples = []
-        for msg in msgs:
-            if self.odometry_seen and msg.get_type() == "HIL_STATE_QUATERNION":
+        for kind, msg in msgs:
+            if self.odometry_seen and kind == "HIL_STATE_QUATERNION":
                 continue  # the same sample, from the message the controller prefers
             try:
-                sample = self.decode(msg)
+                sample = self.decode(msg, kind)
             except LinkDataError as exc:
                 self.bad_messages += 1
                 self.last_bad = str(exc)

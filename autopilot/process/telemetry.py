@@ -77,8 +77,15 @@ class TelemetryPublisher:
         self._timing_record = TIMING.buffer()
         self._channel_internals = self._control_record.block(
             tuple(f"ch_{name}" for name in CHANNEL_INTERNALS))
+        # Runs of consecutive fields, each filled in one assignment.
+        self._control_head = self._control_record.run(("seq", "sim_time_us", "mode", "flags"))
+        self._control_vectors = self._control_record.run((
+            "reference_time_s", "measurement", "reference", "kick_rad", "motor_commands"))
+        self._timing_head = self._timing_record.run(("seq", "sim_time_us", "deadline_misses"))
+        self._timing_times = self._timing_record.run(("compute_s", "period_s"))
         self._mirror_mav = new_mavlink(sysid, AUTOPILOT_COMPID)
         self._mirror_due_us = [0] * len(MIRROR_STREAMS_US)
+        self._mirror_next_us = 0  # the soonest of them
         self._previous_control_wall: float | None = None
         self.scene_pub = node.publisher("scene")
         self._airframe = ({"name": airframe_rotors[0],
@@ -103,24 +110,23 @@ class TelemetryPublisher:
         v = self.vehicle
         c = v.controller
         record = self._control_record
-        record["seq"], record["sim_time_us"] = self.control_pub.count, time_us
-        record["mode"] = MODE_INDEX[v.mode]
-        record["flags"] = (FLAG_ARMED if v.armed else 0) | (FLAG_FAILSAFE if v.failsafe else 0)
-        record["reference_time_s"] = time_us / 1e6 - v.reference_start_s
-        record["measurement"], record["reference"] = v.measurement, v.flight.last_ref
-        record["kick_rad"], record["motor_commands"] = v.flight.last_kick, v.last_commands
+        self._control_head[:] = (self.control_pub.count, time_us, MODE_INDEX[v.mode],
+                                 (FLAG_ARMED if v.armed else 0)
+                                 | (FLAG_FAILSAFE if v.failsafe else 0))
+        flight = v.flight
+        np.concatenate(((time_us / 1e6 - v.reference_start_s,), v.measurement,
+                        flight.last_ref, flight.last_kick, v.last_commands),
+                       out=self._control_vectors)
         self._channel_internals[...] = c.telemetry.T
         theta_g, theta_f = c.theta_g, c.theta_f  # None: no adaptive weights (PID)
         record["theta_g"] = np.nan if theta_g is None else theta_g
         self.control_pub.put(record.encode(
             tuple(theta_f[:3]) if theta_f is not None else ((), (), ())))
         previous, self._previous_control_wall = self._previous_control_wall, start_wall_s
-        record = self._timing_record
-        record["seq"], record["sim_time_us"] = self.timing_pub.count, time_us
-        record["deadline_misses"] = self.timing.misses
-        record["compute_s"] = compute_s
-        record["period_s"] = math.nan if previous is None else start_wall_s - previous
-        self.timing_pub.put(record.encode())
+        self._timing_head[:] = (self.timing_pub.count, time_us, self.timing.misses)
+        self._timing_times[:] = (compute_s,
+                                 math.nan if previous is None else start_wall_s - previous)
+        self.timing_pub.put(self._timing_record.encode())
         self.scene(time_us)
         if self.estimate_pub is not None and v.estimator_status is not None:
             self._publish_estimate(time_us, v.estimator_status)
@@ -129,12 +135,18 @@ class TelemetryPublisher:
                 self.event_pub.put(json_record(self.event_pub.count, time_us, event=event,
                                                **e.to_request()))
                 self.log(f"t={time_us / 1e6:.3f} s perturbation {e.id} ({e.kind}) {event}")
+        if time_us >= self._mirror_next_us:
+            self._mirror_streams(time_us)
+
+    def _mirror_streams(self, time_us: int) -> None:
+        """The mirror's sim-time streams that are due."""
         for i, (msg_id, every_us) in enumerate(MIRROR_STREAMS_US):
             if time_us >= self._mirror_due_us[i]:
                 self._mirror_due_us[i] = time_us - time_us % every_us + every_us
                 msg = self.ground.telemetry(msg_id, boot_ms=(time_us // 1000) & 0xFFFFFFFF)
                 self.node.mirror(self.sysid, AUTOPILOT_COMPID, msg.get_type(),
                                  msg.pack(self._mirror_mav), time_us)
+        self._mirror_next_us = min(self._mirror_due_us)
 
     def _publish_estimate(self, time_us: int, status: EstimatorStatus) -> None:
         x = self.estimator.x
@@ -175,8 +187,8 @@ class TelemetryPublisher:
         v = self.vehicle
         lists = v.mission.lists
         drawn = (lists[MISSION], lists[FENCE], lists[RALLY], v.places, v.mission.current)
-        if time_us < self._scene_due_us and self._scene_of is not None and all(
-                a is b or a == b for a, b in zip(drawn, self._scene_of, strict=True)):
+        # (a tuple compares its items by identity first, then by equality)
+        if time_us < self._scene_due_us and drawn == self._scene_of:
             return
         self._scene_of = drawn
         self._scene_due_us = time_us - time_us % 1_000_000 + 1_000_000

@@ -96,6 +96,16 @@ def paper_derivative(
     phi'' = f_phi + tau_x / Ixx etc., the diagonal of the inertia matrix (the paper's
     model has no products of inertia), J_r W_r generalised to the rotors' momentum h_r."""
     out = np.zeros(PAPER_STATE_SIZE)
+    _paper_derivative_into(state, command_rad_s, af, dist, out)
+    return out
+
+
+@njit(cache=True)
+def _paper_derivative_into(
+    state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """:func:`paper_derivative` into ``out`` (every element written)."""
     rotor = state[PAPER_ROTOR:PAPER_ROTOR + 4]
     u_z, tau_x, tau_y, tau_z, h_r = rotor_wrench(rotor, dist[DIST_EFFICIENCY:], af)
     phi, theta, psi = state[6], state[7], state[8]
@@ -128,7 +138,6 @@ def paper_derivative(
     out[10] = f_theta + (tau_y + dist[DIST_TORQUE + 1]) / iyy
     out[11] = f_psi + (tau_z + dist[DIST_TORQUE + 2]) / izz
     _rotor_derivative(rotor, command_rad_s, af, out[PAPER_ROTOR:])
-    return out
 
 
 @njit(cache=True)
@@ -138,6 +147,16 @@ def rigid_body_derivative(
     """Newton-Euler: I w' = -w x I w + tau + tau_gyro, v' = g e_z + R(-U_z e_z)/m + ...
     with the full inertia matrix; tau_gyro = -w x h_r e_z."""
     out = np.zeros(RIGID_STATE_SIZE)
+    _rigid_body_derivative_into(state, command_rad_s, af, dist, out)
+    return out
+
+
+@njit(cache=True)
+def _rigid_body_derivative_into(
+    state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """:func:`rigid_body_derivative` into ``out`` (every element written)."""
     rotor = state[RIGID_ROTOR:RIGID_ROTOR + 4]
     u_z, tau_x, tau_y, tau_z, h_r = rotor_wrench(rotor, dist[DIST_EFFICIENCY:], af)
     q = state[6:10]
@@ -169,7 +188,6 @@ def rigid_body_derivative(
     out[11] = inv[1, 0] * mx + inv[1, 1] * my + inv[1, 2] * mz
     out[12] = inv[2, 0] * mx + inv[2, 1] * my + inv[2, 2] * mz
     _rotor_derivative(rotor, command_rad_s, af, out[RIGID_ROTOR:])
-    return out
 
 
 @njit(cache=True)
@@ -180,6 +198,17 @@ def _derivative(
     if fidelity == FIDELITY_PAPER:
         return paper_derivative(state, command_rad_s, af, dist)
     return rigid_body_derivative(state, command_rad_s, af, dist)
+
+
+@njit(cache=True)
+def _derivative_into(
+    fidelity: int, state: np.ndarray, command_rad_s: np.ndarray, af: Airframe,
+    dist: np.ndarray, out: np.ndarray,
+) -> None:
+    if fidelity == FIDELITY_PAPER:
+        _paper_derivative_into(state, command_rad_s, af, dist, out)
+    else:
+        _rigid_body_derivative_into(state, command_rad_s, af, dist, out)
 
 
 @njit(cache=True)
@@ -196,18 +225,32 @@ def rk4_integrate(
     """Advance ``n_steps`` fixed RK4 steps with the rotor command held (zero-order hold).
 
     With ``ground_contact`` the plane z = 0 (NED) is the ground: see :func:`rest_on_ground`.
+
+    The stages go into arrays made once per call, element by element in the order of
+    ``x + 0.5 * step_s * k1`` ... ``x += (step_s / 6.0) * (k1 + 2 k2 + 2 k3 + k4)``
+    (the same numbers as those array expressions, without their temporary arrays).
     """
     x = state.copy()
+    n = x.size
+    k1, k2, k3, k4, stage = np.empty(n), np.empty(n), np.empty(n), np.empty(n), np.empty(n)
+    half, sixth = 0.5 * step_s, step_s / 6.0
     rotor_at = PAPER_ROTOR if fidelity == FIDELITY_PAPER else RIGID_ROTOR
     for _ in range(n_steps):
         for i in range(4):
             if af.time_constant_s[i] <= 0.0:
                 x[rotor_at + i] = command_rad_s[i]
-        k1 = _derivative(fidelity, x, command_rad_s, af, dist)
-        k2 = _derivative(fidelity, x + 0.5 * step_s * k1, command_rad_s, af, dist)
-        k3 = _derivative(fidelity, x + 0.5 * step_s * k2, command_rad_s, af, dist)
-        k4 = _derivative(fidelity, x + step_s * k3, command_rad_s, af, dist)
-        x += (step_s / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+        _derivative_into(fidelity, x, command_rad_s, af, dist, k1)
+        for i in range(n):
+            stage[i] = x[i] + half * k1[i]
+        _derivative_into(fidelity, stage, command_rad_s, af, dist, k2)
+        for i in range(n):
+            stage[i] = x[i] + half * k2[i]
+        _derivative_into(fidelity, stage, command_rad_s, af, dist, k3)
+        for i in range(n):
+            stage[i] = x[i] + step_s * k3[i]
+        _derivative_into(fidelity, stage, command_rad_s, af, dist, k4)
+        for i in range(n):
+            x[i] += sixth * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
         if fidelity == FIDELITY_RIGID_BODY:
             x[6:10] /= math.sqrt(x[6] ** 2 + x[7] ** 2 + x[8] ** 2 + x[9] ** 2)
         if ground_contact and x[2] > 0.0:

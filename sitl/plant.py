@@ -13,6 +13,7 @@ import numpy as np
 
 from contracts.airframe import Airframe, airframe_from_spec, rotor_speeds
 from contracts.airframe_file import AirframeSpec
+from contracts.compiled import Resolved
 from contracts.frames import (
     body_rates_from_euler_rates,
     euler_from_quat,
@@ -79,6 +80,9 @@ class Plant:
         self._state[0:3] = position_ned_m
         self._state[self._rotor_at:self._rotor_at + 4] = rotor_rad_s
         self._command_rad_s = np.broadcast_to(np.asarray(rotor_rad_s, dtype=float), 4).copy()
+        # Typed once, not each step (the airframe is a namedtuple: slow to type).
+        self._integrate = Resolved(dynamics.rk4_integrate)
+        self._rotor_speeds = Resolved(rotor_speeds)
 
     @property
     def model(self) -> Airframe:
@@ -104,7 +108,7 @@ class Plant:
         c = np.asarray(commands, dtype=float)
         if c.shape != (4,) or not all(map(math.isfinite, c.tolist())):
             raise ValueError(f"motor commands must be 4 finite numbers, got {commands!r}")
-        self._command_rad_s = rotor_speeds(c, self._model)
+        self._command_rad_s = self._rotor_speeds(c, self._model)
 
     def advance(self, duration_s: float) -> None:
         """Integrate for a whole number of plant steps with the commands held."""
@@ -113,7 +117,7 @@ class Plant:
             raise ValueError(
                 f"duration {duration_s} s is not a whole number of {self.step_s} s plant steps"
             )
-        self._state = dynamics.rk4_integrate(
+        self._state = self._integrate(
             self._fidelity_code,
             self._state,
             self._command_rad_s,

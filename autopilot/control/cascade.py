@@ -29,6 +29,7 @@ from contracts.airframe import (
     rotor_momentum,
     rotor_speeds,
 )
+from contracts.compiled import Resolved
 from contracts.vectors import (
     ATTITUDE_CHANNELS,
     CHANNEL_INTERNALS,
@@ -276,6 +277,7 @@ class SlidingModeCascade:
         self._filter_state[:, 0] = initial_euler_rad
         self.apply_parameters(self.parameters)
         self._last_commands = np.zeros(4)
+        self._cascade_step = Resolved(cascade_step)  # typed once, not each step
 
     def reset(self) -> None:
         """The adaptive weights, command filter and last command as made (a new flight)."""
@@ -316,7 +318,7 @@ class SlidingModeCascade:
              kick: np.ndarray | None = None, collective_thrust_n: float = math.nan,
              total_tilt: bool = False) -> np.ndarray:
         """Motor commands c_i in [0, 1] for this control period."""
-        commands = cascade_step(
+        commands = self._cascade_step(
             meas, ref, position_mode, np.zeros(2) if kick is None else kick,
             self.model.basis_kind, self.model.mf_lower, self.model.mf_upper, self._theta_f,
             self._theta_min, self._theta_max, self.model.eta_scale, self.theta_g, self._gains,

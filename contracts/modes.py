@@ -26,6 +26,11 @@ class FlightMode(enum.Enum):
     FOLLOW_TARGET = "follow_target"  # follow a target's FOLLOW_TARGET messages (Follow Me)
     BRAKE = "brake"  # stop where the vehicle can and hold (ArduPilot Copter's BRAKE only)
 
+    # Members are singletons, equal only to themselves: hashed by identity too, in C
+    # (Enum's hash of the name is a Python call, and a control step looks modes up in
+    # its tables about eight times).
+    __hash__ = object.__hash__
+
 
 MANUAL_MODES = (FlightMode.POSCTL, FlightMode.ALTCTL, FlightMode.STABILIZED)
 

@@ -67,9 +67,9 @@ class Publisher:
 
     def put(self, payload: bytes, attachment: bytes | None = None) -> None:
         if self._batch is not None:
-            self._batch.add(self.key, payload, attachment)
             self.count += 1
-            if len(self._batch) >= BATCH_MAX_RECORDS and self._flush is not None:
+            if self._batch.add(self.key, payload, attachment) >= BATCH_MAX_RECORDS and \
+                    self._flush is not None:
                 self._flush()
             return
         if self._pub is None:
@@ -100,7 +100,8 @@ class TelemetryBatch:
     def __len__(self) -> int:
         return len(self._payloads)
 
-    def add(self, key: str, payload: bytes, attachment: bytes | None) -> None:
+    def add(self, key: str, payload: bytes, attachment: bytes | None) -> int:
+        """A record into the batch; how many it holds now."""
         if not self._payloads:
             self.since_s = time.monotonic()
         index = self._keys.get(key)
@@ -109,6 +110,7 @@ class TelemetryBatch:
         self._index.append(index)
         self._payloads.append(payload)
         self._attachments.append(attachment or b"")
+        return len(self._payloads)
 
     def take(self) -> bytes:
         """The batch of the records waiting (there must be some); empties it."""

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 from pymavlink.dialects.v20 import ardupilotmega
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -23,7 +24,7 @@ from contracts.frames import (
     euler_from_quat,
     euler_rates_from_body_rates,
 )
-from contracts.vectors import MEASUREMENT
+from contracts.vectors import MEAS_EULER, MEAS_EULER_RATE, MEAS_POS, MEAS_VEL, MEASUREMENT
 
 __all__ = ["ardupilotmega", "mavlink"]
 
@@ -112,15 +113,31 @@ def _measurement(position, velocity, quaternion, body_rate) -> np.ndarray:
     norm = math.sqrt(float(q @ q))
     if not 0.9 < norm < 1.1:
         raise LinkDataError(f"attitude quaternion has norm {norm:.3f}, not 1")
-    euler = euler_from_quat(q / norm)
     out = np.empty(MEASUREMENT.size)
-    out[MEASUREMENT.position_ned_m] = position
-    out[MEASUREMENT.velocity_ned_mps] = velocity
-    out[MEASUREMENT.euler_rad] = euler
-    # Python floats: numba takes them faster than numpy's
-    out[MEASUREMENT.euler_rate_rad_s] = euler_rates_from_body_rates(
-        *euler[:2].tolist(), *map(float, body_rate))
+    _fill_measurement(out, *map(float, position), *map(float, velocity), q, norm,
+                      *map(float, body_rate))
     return out
+
+
+@njit(cache=True)
+def _fill_measurement(out: np.ndarray, x: float, y: float, z: float, vx: float, vy: float,
+                      vz: float, quaternion: np.ndarray, norm: float, p: float, q: float,
+                      r: float) -> None:
+    """The measurement of a position, a velocity, the attitude ``quaternion / norm`` and
+    body rates, written in one compiled call (numpy's and numba's per-call costs are
+    most of the work at this size)."""
+    out[MEAS_POS], out[MEAS_POS + 1], out[MEAS_POS + 2] = x, y, z
+    out[MEAS_VEL], out[MEAS_VEL + 1], out[MEAS_VEL + 2] = vx, vy, vz
+    euler = euler_from_quat(quaternion / norm)
+    out[MEAS_EULER:MEAS_EULER + 3] = euler
+    _fill_euler_rates(out, p, q, r)
+
+
+@njit(cache=True)
+def _fill_euler_rates(out: np.ndarray, p: float, q: float, r: float) -> None:
+    """The measurement's Euler rates from body rates (p, q, r), at its Euler angles."""
+    out[MEAS_EULER_RATE:MEAS_EULER_RATE + 3] = euler_rates_from_body_rates(
+        out[MEAS_EULER], out[MEAS_EULER + 1], p, q, r)
 
 
 # ODOMETRY velocity frames understood (child_frame_id): NED, or body FRD as PX4 sends it.
@@ -152,8 +169,7 @@ def measurement_from_odometry(msg: mavlink.MAVLink_odometry_message) -> np.ndarr
 def with_body_rates(measurement: np.ndarray, body_rate_frd_rad_s: np.ndarray) -> np.ndarray:
     """The measurement with its Euler rates from these body rates (the gyro's)."""
     out = measurement.copy()
-    out[MEASUREMENT.euler_rate_rad_s] = euler_rates_from_body_rates(
-        *out[MEASUREMENT.euler_rad][:2].tolist(), *map(float, body_rate_frd_rad_s))
+    _fill_euler_rates(out, *map(float, body_rate_frd_rad_s))
     return out
 
 

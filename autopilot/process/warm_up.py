@@ -47,6 +47,7 @@ def load_compiled_code(vehicle: Commander, period_s: float, link: SimLink) -> No
     # A first decoded sample costs milliseconds; the estimator's compiled steps load on a
     # scratch estimator.
     scratch_navigation = Navigation(vehicle, Estimator())
+    on_the_truth = Navigation(vehicle, None)  # the gyro's rates into the truth's measurement
     decoder = copy.copy(link)  # the link's own home is the simulator's to give
     decoder.home = DEFAULT_HOME
     for k in range(3):
@@ -58,4 +59,6 @@ def load_compiled_code(vehicle: Commander, period_s: float, link: SimLink) -> No
                         (0.0, 0.0, 0.0), 0.8, 1.2, 3, 12)
         for msg in sample_messages(truth, sensor, fix, DEFAULT_HOME):
             if msg.get_type() in link.source_types:
-                scratch_navigation.measurements([decoder.decode(msg)])
+                reading = decoder.decode(msg)
+                scratch_navigation.measurements([reading])
+                on_the_truth.measurements([reading])

@@ -170,7 +170,7 @@ class TelemetryNode:
         if self.session is not None:
             self.token = self.session.liveliness().declare_token(vehicle_key(vehicle, process))
         self.publishers: dict[str, Publisher] = {}
-        self._mirror: dict[str, Publisher] = {}
+        self._mirror: dict[tuple[int, int, str], Publisher] = {}  # by (sysid, compid, name)
         # Batches: CDR records and mirror frames, one put per span of sim time.
         self.batch_span_us = round(options.batch_s * 1e6)
         self.batch_span_s = options.batch_s
@@ -263,15 +263,15 @@ class TelemetryNode:
 
     def mirror_publisher(self, sysid: int, compid: int, message_name: str) -> Publisher:
         """The publisher of a mirror key (declared on first use, or ahead of a loop)."""
-        key = mavlink_key(sysid, compid, message_name)
-        pub = self._mirror.get(key)
+        pub = self._mirror.get((sysid, compid, message_name))
         if pub is None:
-            pub = self._mirror[key] = self._publisher(key, batched=True)
+            pub = self._mirror[sysid, compid, message_name] = self._publisher(
+                mavlink_key(sysid, compid, message_name), batched=True)
         return pub
 
     def counts(self) -> dict[str, int]:
         out = {pub.key: pub.count for pub in self.publishers.values() if pub is not self._status}
-        out.update({key: pub.count for key, pub in self._mirror.items()})
+        out.update({pub.key: pub.count for pub in self._mirror.values()})
         return out
 
     def status(self, sim_time_us: int, final: bool = False, force: bool = False,

@@ -40,8 +40,9 @@ class SimulatorTelemetry:
         self.node.serve("perturb", None if serve_perturbations else PERTURBATIONS_OFF)
         self.node.serve("start")
         self._state_record = STATE.buffer()  # one record, refilled each sample
-        # Its truth and motor commands in one view, filled by one concatenation; the plant
-        # effects refilled when they change (they are replaced whole: frozen).
+        # Its counters and its truth and motor commands each in one view, filled in one
+        # assignment; the plant effects refilled when they change (replaced whole: frozen).
+        self._head = self._state_record.run(("seq", "sim_time_us"))
         self._truth = self._state_record.run((*STATE_FROM_PLANT, "motor_commands"))
         self._of_state = operator.attrgetter(*STATE_FROM_PLANT)
         self._effects_of: Perturbations | None = None
@@ -64,7 +65,7 @@ class SimulatorTelemetry:
         if not self.node.enabled:
             return
         record = self._state_record
-        record["seq"], record["sim_time_us"] = self._state_pub.count, time_us
+        self._head[:] = (self._state_pub.count, time_us)
         np.concatenate((*self._of_state(state), motor_commands), out=self._truth)
         if active is not self._effects_of:
             self._effects_of = active

@@ -16,8 +16,8 @@ array lengths, CRC extra), so the bytes are pymavlink's byte for byte.
   header and payload, then the message's CRC extra) by ``fastcrc``, the compiled CRC that
   pymavlink itself uses (0.13-0.16 us for 30-300 bytes, against 0.3-0.9 us numba-compiled
   and 2-18 us in Python; ``binascii.crc_hqx`` on bit-reversed bytes: 0.25-1.1 us).
-  A link that signs (``mav.signing.sign_outgoing``) and any other message are packed by
-  pymavlink.
+  The autopilot's mirror streams (``PACKED_ONLY``) are packed the same way. A link that
+  signs (``mav.signing.sign_outgoing``) and any other message are packed by pymavlink.
 * Parsing (``parse_frames``): a whole MAVLink 2 frame of a known layout, unsigned, with
   no incompatibility flag, no longer than the layout and with a good checksum becomes a
   ``LinkMessage`` (a named tuple with the pymavlink message's field names, arrays as
@@ -158,7 +158,12 @@ LAYOUTS: dict[int, Layout] = {layout.msgid: layout for layout in map(Layout, (
     mavlink.MAVLink_odometry_message,
     mavlink.MAVLink_hil_actuator_controls_message,
 ))}
-_BY_CLASS = {layout.cls: layout for layout in LAYOUTS.values()}
+# Packed by a layout too, not parsed: the autopilot's log mirror of its sim-time telemetry
+# streams (autopilot/process/telemetry.py), a few messages each 100 ms of sim time.
+PACKED_ONLY = (mavlink.MAVLink_heartbeat_message, mavlink.MAVLink_attitude_message,
+               mavlink.MAVLink_local_position_ned_message,
+               mavlink.MAVLink_global_position_int_message)
+_BY_CLASS = {layout.cls: layout for layout in (*LAYOUTS.values(), *map(Layout, PACKED_ONLY))}
 
 
 def pack_message(msg: mavlink.MAVLink_message, mav: mavlink.MAVLink) -> bytes:

@@ -25,6 +25,7 @@ from autopilot.navigator.mission_store import FENCE, MISSION, RALLY, WITHOUT_POS
 from contracts.mavlink import AUTOPILOT_COMPID, mavlink, new_mavlink
 from contracts.modes import FlightMode
 from contracts.realtime import LoopTiming
+from contracts.sim_link_codec import pack_message
 from contracts.telemetry import (
     CONTROL,
     ESTIMATE,
@@ -77,10 +78,12 @@ class TelemetryPublisher:
         self._timing_record = TIMING.buffer()
         self._channel_internals = self._control_record.block(
             tuple(f"ch_{name}" for name in CHANNEL_INTERNALS))
-        # Runs of consecutive fields, each filled in one assignment.
+        # Runs of consecutive fields and the fields' own views, each filled in one
+        # assignment (no per-field lookup).
         self._control_head = self._control_record.run(("seq", "sim_time_us", "mode", "flags"))
-        self._control_vectors = self._control_record.run((
-            "reference_time_s", "measurement", "reference", "kick_rad", "motor_commands"))
+        self._control_views = tuple(self._control_record[name] for name in (
+            "reference_time_s", "measurement", "reference", "kick_rad", "motor_commands",
+            "theta_g"))
         self._timing_head = self._timing_record.run(("seq", "sim_time_us", "deadline_misses"))
         self._timing_times = self._timing_record.run(("compute_s", "period_s"))
         self._mirror_mav = new_mavlink(sysid, AUTOPILOT_COMPID)
@@ -109,18 +112,17 @@ class TelemetryPublisher:
         the mirror streams of the step at ``time_us``."""
         v = self.vehicle
         c = v.controller
-        record = self._control_record
         self._control_head[:] = (self.control_pub.count, time_us, MODE_INDEX[v.mode],
                                  (FLAG_ARMED if v.armed else 0)
                                  | (FLAG_FAILSAFE if v.failsafe else 0))
-        flight = v.flight
-        np.concatenate(((time_us / 1e6 - v.reference_start_s,), v.measurement,
-                        flight.last_ref, flight.last_kick, v.last_commands),
-                       out=self._control_vectors)
+        reference_time, measurement, reference, kick, motors, weights = self._control_views
+        reference_time[...] = time_us / 1e6 - v.reference_start_s
+        measurement[...], reference[...] = v.measurement, v.flight.last_ref
+        kick[...], motors[...] = v.flight.last_kick, v.last_commands
         self._channel_internals[...] = c.telemetry.T
         theta_g, theta_f = c.theta_g, c.theta_f  # None: no adaptive weights (PID)
-        record["theta_g"] = np.nan if theta_g is None else theta_g
-        self.control_pub.put(record.encode(
+        weights[...] = np.nan if theta_g is None else theta_g
+        self.control_pub.put(self._control_record.encode(
             tuple(theta_f[:3]) if theta_f is not None else ((), (), ())))
         previous, self._previous_control_wall = self._previous_control_wall, start_wall_s
         self._timing_head[:] = (self.timing_pub.count, time_us, self.timing.misses)
@@ -145,7 +147,7 @@ class TelemetryPublisher:
                 self._mirror_due_us[i] = time_us - time_us % every_us + every_us
                 msg = self.ground.telemetry(msg_id, boot_ms=(time_us // 1000) & 0xFFFFFFFF)
                 self.node.mirror(self.sysid, AUTOPILOT_COMPID, msg.get_type(),
-                                 msg.pack(self._mirror_mav), time_us)
+                                 pack_message(msg, self._mirror_mav), time_us)
         self._mirror_next_us = min(self._mirror_due_us)
 
     def _publish_estimate(self, time_us: int, status: EstimatorStatus) -> None:

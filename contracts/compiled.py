@@ -9,7 +9,8 @@ later calls the compiled code chosen then directly, as long as each argument is 
 what it was: the very same tuple (a tuple cannot change, and typing tuples is what
 costs), anything else of the same numba fingerprint (its type, as numba's dispatcher
 itself caches it: ~0.05 us). Any other call goes through the dispatcher, and its types
-become the ones looked for.
+become the ones looked for; if that happens often (kinds that keep changing), or the
+compiled code cannot be found, every call goes through the dispatcher from then on.
 """
 
 from __future__ import annotations
@@ -22,6 +23,10 @@ try:  # numba's own fingerprint of an argument's type (its dispatcher caches typ
     from numba._dispatcher import compute_fingerprint
 except ImportError:  # a numba without it: every call goes through the dispatcher
     compute_fingerprint = None
+
+# Typing the arguments again sooner than this many calls after the last time: the kinds
+# keep changing, and the dispatcher is the cheaper way.
+MIN_CALLS_BETWEEN_TYPINGS = 100
 
 
 def _items(indices: Sequence[int]) -> Callable[[tuple], tuple]:
@@ -41,6 +46,8 @@ class Resolved:
     def __init__(self, function: Any) -> None:
         self.function = function
         self._entry: Callable[..., Any] | None = None
+        self._dispatch_only = compute_fingerprint is None
+        self._calls = MIN_CALLS_BETWEEN_TYPINGS  # since the arguments were last typed
         self._count = -1
         self._tuples: Callable[[tuple], tuple] = _items(())
         self._same: tuple = ()
@@ -54,7 +61,10 @@ class Resolved:
         if self._entry is not None and len(args) == self._count and \
                 all(map(operator.is_, self._tuples(args), self._same)) and \
                 list(map(compute_fingerprint, self._others(args))) == self._fingerprints:
+            self._calls += 1
             return self._entry(*args)
+        if self._dispatch_only:
+            return self.function(*args)
         return self._dispatch(args)
 
     def _dispatch(self, args: tuple) -> Any:
@@ -62,8 +72,10 @@ class Resolved:
         calls after it."""
         result = self.function(*args)
         self._entry = None
-        if compute_fingerprint is None:
+        if self._calls < MIN_CALLS_BETWEEN_TYPINGS:
+            self._dispatch_only = True
             return result
+        self._calls = 0
         compiled = self.function.overloads.get(
             tuple(self.function.typeof_pyval(a) for a in args))
         tuples = [i for i, a in enumerate(args) if isinstance(a, tuple)]
@@ -71,10 +83,12 @@ class Resolved:
         try:
             fingerprints = [compute_fingerprint(args[i]) for i in others]
         except (NotImplementedError, TypeError, ValueError):  # a kind it does not know
+            compiled = None
+        if compiled is None or not callable(getattr(compiled, "entry_point", None)):
+            self._dispatch_only = True
             return result
-        if compiled is not None:
-            self._count = len(args)
-            self._tuples, self._same = _items(tuples), tuple(args[i] for i in tuples)
-            self._others, self._fingerprints = _items(others), fingerprints
-            self._entry = compiled.entry_point
+        self._count = len(args)
+        self._tuples, self._same = _items(tuples), tuple(args[i] for i in tuples)
+        self._others, self._fingerprints = _items(others), fingerprints
+        self._entry = compiled.entry_point
         return result

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from numba import njit
 
-from contracts.compiled import Resolved
+from contracts.compiled import MIN_CALLS_BETWEEN_TYPINGS, Resolved
 
 
 class Gains(NamedTuple):
@@ -56,7 +56,9 @@ def test_an_argument_of_another_kind_goes_through_the_dispatcher(changed):
     counting = _Counting(_weighted)
     f = Resolved(counting)
     x, gains, offset, flag = np.arange(6.0), Gains(2.0, np.array([1.0, 0.5])), 0.25, True
-    f(x, gains, offset, flag)
+    for _ in range(MIN_CALLS_BETWEEN_TYPINGS + 1):
+        f(x, gains, offset, flag)
+    assert counting.calls == 1
     if changed == "int array":
         x = np.arange(6)
     elif changed == "strided array":
@@ -74,6 +76,16 @@ def test_an_argument_of_another_kind_goes_through_the_dispatcher(changed):
     assert counting.calls == 2
     f(x, gains, offset, flag)  # its kinds are now the ones looked for
     assert counting.calls == 2
+
+
+def test_kinds_that_keep_changing_go_through_the_dispatcher_for_good():
+    counting = _Counting(_weighted)
+    f = Resolved(counting)
+    gains = Gains(2.0, np.array([1.0, 0.5]))
+    for k in range(10):
+        x = np.arange(4.0) if k % 2 else np.arange(4)
+        assert np.array_equal(f(x, gains, 0.25, True), _weighted(x, gains, 0.25, True))
+    assert counting.calls == 10
 
 
 def test_another_number_of_arguments_goes_through_the_dispatcher():

@@ -166,11 +166,9 @@ def measurement_from_odometry(msg: mavlink.MAVLink_odometry_message) -> np.ndarr
                         (msg.rollspeed, msg.pitchspeed, msg.yawspeed))
 
 
-def with_body_rates(measurement: np.ndarray, body_rate_frd_rad_s: np.ndarray) -> np.ndarray:
-    """The measurement with its Euler rates from these body rates (the gyro's)."""
-    out = measurement.copy()
-    _fill_euler_rates(out, *map(float, body_rate_frd_rad_s))
-    return out
+def set_body_rates(measurement: np.ndarray, body_rate_frd_rad_s: np.ndarray) -> None:
+    """The measurement's Euler rates from these body rates (the gyro's), in place."""
+    _fill_euler_rates(measurement, *map(float, body_rate_frd_rad_s))
 
 
 def measurement_from_hil_state(msg: mavlink.MAVLink_hil_state_quaternion_message,

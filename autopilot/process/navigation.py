@@ -17,7 +17,7 @@ from autopilot.commander.failures import ACCEL, BARO, GPS, GYRO, MAG
 from autopilot.estimation.estimator import Estimator
 from autopilot.process.sim_link import GpsReading, ImuReading, LinkReading, TruthReading
 from contracts.frames import Home
-from contracts.mavlink import GYRO_MATCH_US, with_body_rates
+from contracts.mavlink import GYRO_MATCH_US, set_body_rates
 
 
 class Navigation:
@@ -89,8 +89,8 @@ class Navigation:
             elif isinstance(reading, TruthReading):
                 gyro = self._gyro
                 if gyro is not None and abs(reading.time_us - gyro.time_us) <= GYRO_MATCH_US:
-                    reading = TruthReading(reading.time_us,
-                                           with_body_rates(reading.measurement, gyro.gyro))
+                    # (a measurement just decoded, the reading's own: changed in place)
+                    set_body_rates(reading.measurement, gyro.gyro)
                 samples.append(reading)
         return samples
 

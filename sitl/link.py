@@ -86,12 +86,13 @@ class AutopilotLink:
         if not data:
             return None
         frames, self._pending = split_frames(self._pending + data)
-        msgs = parse_frames(frames, self.mav)
-        bad = [m for m in msgs if m.get_type() == "BAD_DATA"]
+        msgs, bad = [], []
+        for msg in parse_frames(frames, self.mav):
+            (bad if msg.get_type() == "BAD_DATA" else msgs).append(msg)
         if bad:
             self.stats.bad_messages += len(bad)
             self.log(f"unreadable bytes from the autopilot: {bad[0].reason}")
-        return [m for m in msgs if m.get_type() != "BAD_DATA"]
+        return msgs
 
     def lost(self, conn: socket.socket, time_us: int) -> None:
         conn.close()

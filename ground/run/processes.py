@@ -12,13 +12,14 @@ everything else from the log.
 
 from __future__ import annotations
 
-import collections
+import fcntl
 import importlib
 import json
 import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from dataclasses import dataclass
@@ -70,27 +71,41 @@ class RunSettings:
 
 
 class HandoverCpus:
-    """The CPU each lockstep run's two loops share, over the runs in flight in this
-    process (``ivfm check -j N``): a run takes the CPU fewest runs use, the last one
-    first (CPU 0 serves most interrupts); none on a one-CPU machine."""
+    """The CPU each lockstep run's two loops share, over every run on this machine in
+    flight (``ivfm check -j N``, a campaign's workers, several ``ivfm run``): a run takes
+    a CPU by locking its file in ``lock_dir`` (the last CPU first: CPU 0 serves most
+    interrupts), and none when every CPU is taken (it runs unplaced, as before) or the
+    machine has one CPU. A lock goes with its process, however that ends."""
 
-    def __init__(self) -> None:
+    def __init__(self, lock_dir: Path | None = None) -> None:
+        self.lock_dir = Path(lock_dir or tempfile.gettempdir())
+        self._held: dict[int, int] = {}  # cpu -> the locked file's descriptor
         self._lock = threading.Lock()
-        self._runs: collections.Counter[int] = collections.Counter()
 
     def take(self) -> int | None:
         cpus = sorted(os.sched_getaffinity(0), reverse=True)
         if len(cpus) < 2:
             return None
         with self._lock:
-            cpu = min(cpus, key=lambda c: self._runs[c])
-            self._runs[cpu] += 1
-        return cpu
+            for cpu in cpus:
+                if cpu in self._held:
+                    continue
+                fd = os.open(self.lock_dir / f"ivfm-handover-cpu{cpu}.lock",
+                             os.O_CREAT | os.O_RDWR, 0o666)
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except OSError:  # another run's
+                    os.close(fd)
+                    continue
+                self._held[cpu] = fd
+                return cpu
+        return None
 
     def give(self, cpu: int | None) -> None:
-        if cpu is not None:
-            with self._lock:
-                self._runs[cpu] -= 1
+        with self._lock:
+            fd = self._held.pop(cpu, None) if cpu is not None else None
+        if fd is not None:
+            os.close(fd)  # and its lock
 
 
 HANDOVER_CPUS = HandoverCpus()

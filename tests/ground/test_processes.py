@@ -85,17 +85,38 @@ def test_real_time_run_reports_loop_timing(tmp_path):
     assert metrics["axes"]["phi"]["rmse"] < 0.01 and metrics["axes"]["theta"]["rmse"] < 0.01
 
 
-def test_lockstep_runs_in_flight_share_out_the_cpus_for_their_hand_overs(monkeypatch):
-    """Each lockstep run's two loops share one CPU; runs in flight together (ivfm check
-    -j 2) take different ones, the last CPU first; a one-CPU machine pins nothing."""
+def test_lockstep_runs_in_flight_share_out_the_cpus_for_their_hand_overs(monkeypatch,
+                                                                           tmp_path):
+    """Each lockstep run's two loops share one CPU; runs in flight together on the machine
+    (ivfm check -j 2, a campaign's worker processes) take different ones, the last CPU
+    first, through lock files; with every CPU taken, or one CPU only, a run is unplaced.
+    A lock held by another process counts: it goes only with that process."""
+    import subprocess
+    import sys
+
     from ground.run.processes import HandoverCpus
 
     monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1})
-    cpus = HandoverCpus()
-    first, second = cpus.take(), cpus.take()
+    here, other = HandoverCpus(tmp_path), HandoverCpus(tmp_path)
+    first, second = here.take(), other.take()
     assert (first, second) == (1, 0)
-    cpus.give(first)
-    assert cpus.take() == 1  # the one given back
-    assert cpus.take() in (0, 1)  # a third run shares
+    assert here.take() is None  # both taken: unplaced
+    here.give(first)
+    assert here.take() == 1  # the one given back
+    here.give(1)
+    other.give(0)
+    holder = subprocess.Popen(  # another process holds CPU 1's lock
+        [sys.executable, "-c", "import fcntl, os, sys, time; "
+         f"fd = os.open({str(tmp_path / 'ivfm-handover-cpu1.lock')!r}, "
+         "os.O_CREAT | os.O_RDWR); fcntl.flock(fd, fcntl.LOCK_EX); print(1, flush=True); "
+         "time.sleep(60)"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "1"
+        assert here.take() == 0
+        here.give(0)
+    finally:
+        holder.kill()
+        holder.wait()
+    assert here.take() == 1  # gone with its process
     monkeypatch.setattr("os.sched_getaffinity", lambda pid: {3})
-    assert HandoverCpus().take() is None
+    assert HandoverCpus(tmp_path).take() is None

@@ -191,20 +191,11 @@ def _rigid_body_derivative_into(
 
 
 @njit(cache=True)
-def _derivative(
-    fidelity: int, state: np.ndarray, command_rad_s: np.ndarray, af: Airframe,
-    dist: np.ndarray,
-) -> np.ndarray:
-    if fidelity == FIDELITY_PAPER:
-        return paper_derivative(state, command_rad_s, af, dist)
-    return rigid_body_derivative(state, command_rad_s, af, dist)
-
-
-@njit(cache=True)
-def _derivative_into(
+def derivative_into(
     fidelity: int, state: np.ndarray, command_rad_s: np.ndarray, af: Airframe,
     dist: np.ndarray, out: np.ndarray,
 ) -> None:
+    """The state derivative of either plant into ``out`` (what RK4 integrates)."""
     if fidelity == FIDELITY_PAPER:
         _paper_derivative_into(state, command_rad_s, af, dist, out)
     else:
@@ -239,16 +230,16 @@ def rk4_integrate(
         for i in range(4):
             if af.time_constant_s[i] <= 0.0:
                 x[rotor_at + i] = command_rad_s[i]
-        _derivative_into(fidelity, x, command_rad_s, af, dist, k1)
+        derivative_into(fidelity, x, command_rad_s, af, dist, k1)
         for i in range(n):
             stage[i] = x[i] + half * k1[i]
-        _derivative_into(fidelity, stage, command_rad_s, af, dist, k2)
+        derivative_into(fidelity, stage, command_rad_s, af, dist, k2)
         for i in range(n):
             stage[i] = x[i] + half * k2[i]
-        _derivative_into(fidelity, stage, command_rad_s, af, dist, k3)
+        derivative_into(fidelity, stage, command_rad_s, af, dist, k3)
         for i in range(n):
             stage[i] = x[i] + step_s * k3[i]
-        _derivative_into(fidelity, stage, command_rad_s, af, dist, k4)
+        derivative_into(fidelity, stage, command_rad_s, af, dist, k4)
         for i in range(n):
             x[i] += sixth * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i])
         if fidelity == FIDELITY_RIGID_BODY:

@@ -198,10 +198,14 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
     sim_cmd, ap_cmd = vehicle_commands(scenario, settings, sim_port, endpoint, gcs_port,
                                        handover_cpu, ground_endpoint)
     ground_station = None
-    logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm, env=env,
-                           extra=[*(["--view", f"{view[0]}:{view[1]}"] if view else []),
-                                  *(["--off-cpu", str(handover_cpu)]
-                                    if handover_cpu is not None else [])])
+    try:
+        logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm, env=env,
+                               extra=[*(["--view", f"{view[0]}:{view[1]}"] if view else []),
+                                      *(["--off-cpu", str(handover_cpu)]
+                                        if handover_cpu is not None else [])])
+    except BaseException:
+        HANDOVER_CPUS.give(handover_cpu)  # the run ends here: its CPU is free again
+        raise
     run_timeline.mark(out_dir, "logger started")
     procs: dict[str, subprocess.Popen | WarmProcess] = {}
     outs = []

@@ -226,7 +226,9 @@ def test_rk4_matches_scipy_reference_integration(fidelity: str) -> None:
     dist[dynamics.DIST_WIND : dynamics.DIST_WIND + 3] = (2.0, -1.0, 0.0)
 
     def rhs(_t, x):
-        return dynamics._derivative(code, x, command_rad_s, plant.model, dist)
+        out = np.empty_like(x)
+        dynamics.derivative_into(code, x, command_rad_s, plant.model, dist, out)
+        return out
 
     plant.set_motor_commands(cmd)
     plant.advance(0.5)

@@ -6,12 +6,14 @@ and the free loopback ports they meet on."""
 from __future__ import annotations
 
 import json
+import os
 import select
 import signal
 import socket
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +50,58 @@ def tail(path: Path, lines: int = 15) -> str:
         return "(no log)"
 
 
+def cpu_seconds(pid: int) -> float | None:
+    """A process's CPU time so far (user and system, all its threads), from /proc; None
+    once it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+class StartingDeadline:
+    """How long to wait for processes that are starting. A cold start (numba compiling the
+    numerical core on the first run after a change) took over a minute beside busy
+    neighbours, and a fixed minute failed such runs; a hung process uses no CPU. So the
+    wait ends ``idle_s`` after the last CPU any of them used, or at ``cap_s``; every
+    ``note_every_s`` it says what it waits for (through ``say``)."""
+
+    def __init__(self, pids: dict[str, int], idle_s: float, cap_s: float = 600.0,
+                 say: Callable[[str], None] | None = None, note_every_s: float = 15.0,
+                 clock: Callable[[], float] = time.monotonic,
+                 cpu: Callable[[int], float | None] = cpu_seconds) -> None:
+        self.pids, self.idle_s, self.cap_s = pids, idle_s, cap_s
+        self.say, self.note_every_s = say, note_every_s
+        self._clock, self._cpu = clock, cpu
+        self.started_s = self._last_progress_s = clock()
+        self._next_note_s = self.started_s + note_every_s
+        self._used = {name: cpu(pid) for name, pid in pids.items()}
+
+    def expired(self, waiting_for: str) -> str | None:
+        """None while the wait goes on; else why it ended."""
+        now = self._clock()
+        used = {name: self._cpu(pid) for name, pid in self.pids.items()}
+        if any(u is not None and (self._used[name] is None or u > self._used[name])
+               for name, u in used.items()):
+            self._last_progress_s = now
+        self._used = used
+        waited_s = now - self.started_s
+        if now - self._last_progress_s > self.idle_s:
+            return (f"after {waited_s:.0f} s: no process of the run used any CPU for "
+                    f"{self.idle_s:g} s")
+        if waited_s > self.cap_s:
+            return f"after {waited_s:.0f} s (the longest a start may take)"
+        if self.say is not None and now >= self._next_note_s:
+            self._next_note_s = now + self.note_every_s
+            cpu = ", ".join(f"the {name} {u:.1f} s" for name, u in used.items()
+                            if u is not None)
+            self.say(f"still waiting for {waiting_for} ({waited_s:.0f} s; CPU used so far: "
+                     f"{cpu}; a first run after a change compiles for a while)")
+        return None
+
+
 class WarmProcess:
     """A warm process (contracts/warm.py) that runs one command after another; its
     current run is used as a ``subprocess.Popen`` is (poll, wait, send_signal, kill)."""
@@ -62,6 +116,10 @@ class WarmProcess:
     @property
     def alive(self) -> bool:
         return self.proc.poll() is None
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
 
     def start(self, argv: list[str], log_path: Path,
               timeline_path: str | None = None) -> WarmProcess:
@@ -167,28 +225,40 @@ class LoggerProcess:
                 return json.loads(reply.ok.payload.to_bytes())
         return None
 
-    def wait_listening(self, session: zenoh.Session, timeout_s: float) -> None:
+    def wait_listening(self, session: zenoh.Session, timeout_s: float,
+                       say: Callable[[str], None] | None = None) -> None:
         """Until ``session`` (connecting to the logger's endpoint and nothing else) has
-        reached the logger."""
-        deadline = time.monotonic() + timeout_s
+        reached the logger; ``timeout_s`` without the logger using CPU ends the wait
+        (``StartingDeadline``)."""
+        deadline = StartingDeadline({"logger": self.proc.pid}, timeout_s, say=say)
         while not list(session.info.peers_zid()):
             if self.proc.poll() is not None:
                 raise ProcessRunError(f"the logger exited ({self.proc.returncode}):\n"
                                       f"{tail(self.log_path)}")
-            if time.monotonic() > deadline:
-                raise ProcessRunError(f"the logger did not listen within {timeout_s:g} s\n"
+            if (why := deadline.expired("the logger to listen")) is not None:
+                raise ProcessRunError(f"the logger did not listen {why}\n"
                                       f"{tail(self.log_path)}")
             time.sleep(0.002)
 
     def wait_until(self, session: zenoh.Session, heard: list[str], final: bool,
                    timeout_s: float,
-                   others: dict[str, tuple[subprocess.Popen | WarmProcess, Path]] | None = None
+                   others: dict[str, tuple[subprocess.Popen | WarmProcess, Path]] | None = None,
+                   starting: bool = False, say: Callable[[str], None] | None = None
                    ) -> dict[str, Any]:
         """Until the logger holds a status record (the final one, if asked) from each key;
-        ``others``: processes (name -> process, log) whose early exit ends the wait."""
-        deadline = time.monotonic() + timeout_s
+        ``others``: processes (name -> process, log) whose early exit ends the wait.
+        ``starting``: they are starting, and ``timeout_s`` counts from the last CPU any of
+        them used (``StartingDeadline``), not from now."""
+        deadline_s = time.monotonic() + timeout_s
+        pids = {"logger": self.proc.pid, **{name: proc.pid
+                                             for name, (proc, _) in (others or {}).items()}}
+        start = StartingDeadline(pids, timeout_s, say=say) if starting else None
         status: dict[str, Any] | None = None
-        while time.monotonic() < deadline:
+        why = f"within {timeout_s:g} s"
+        while start is not None or time.monotonic() < deadline_s:
+            if start is not None and (why := start.expired(
+                    "the logger to hear " + ", ".join(heard))) is not None:
+                break
             if self.proc.poll() is not None:
                 raise ProcessRunError(f"the logger exited ({self.proc.returncode}):\n"
                                       f"{tail(self.log_path)}")
@@ -202,8 +272,13 @@ class LoggerProcess:
                     for key in heard):
                 return status
             time.sleep(0.01)
-        raise ProcessRunError(f"the logger did not hear {', '.join(heard)} within "
-                              f"{timeout_s:g} s (last status: {status})\n{tail(self.log_path)}")
+        missing = [key for key in heard if status is None or key not in status["heard"]
+                   or (final and not status["heard"][key].get("final"))]
+        logs = "".join(f"\n{name} log:\n{tail(log, 5)}" for name, (_, log) in
+                       (others or {}).items())
+        raise ProcessRunError(f"the logger did not hear {'the final ' if final else ''}"
+                              f"{', '.join(missing)} {why} (last status: {status})\n"
+                              f"logger log:\n{tail(self.log_path)}{logs}")
 
     def stop(self) -> int:
         if self.proc.poll() is None:

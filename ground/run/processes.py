@@ -217,7 +217,7 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
         session = open_session(ZenohOptions(connect=[endpoint], listen=[ground_endpoint],
                                             wait_on_open=False))
         run_timeline.mark(out_dir, "zenoh session open")
-        logger.wait_listening(session, timeout_s=60.0)
+        logger.wait_listening(session, timeout_s=60.0, say=_say)
         run_timeline.mark(out_dir, "logger listening")
         for name, cmd in ((SITL, sim_cmd), (AUTOPILOT, ap_cmd)):
             if warm is not None:  # cmd: python -m MODULE ARGS...
@@ -230,7 +230,8 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
             run_timeline.mark(out_dir, f"{name} started")
         status_keys = [vehicle_key(v, p, "status") for p in (SITL, AUTOPILOT)]
         logger.wait_until(session, status_keys, final=False, timeout_s=60.0,
-                          others={name: (proc, logs[name]) for name, proc in procs.items()})
+                          others={name: (proc, logs[name]) for name, proc in procs.items()},
+                          starting=True, say=_say)
         run_timeline.mark(out_dir, "logger heard both")
         client = PerturbationClient(session=session, timeout_s=10.0)
         for entry in scenario.perturbations:
@@ -302,6 +303,10 @@ def telemetry_accounting(logger_status: dict[str, Any]) -> dict[str, Any]:
     return {"published": published, "logged": {k: logged.get(k, 0) for k in published},
             "lost": lost, "refused_by_logger": logger_status["rejected"], "timing": timing,
             "usage": usage}
+
+
+def _say(text: str) -> None:
+    print(f"ivfm: {text}", file=sys.stderr, flush=True)
 
 
 def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen | WarmProcess],

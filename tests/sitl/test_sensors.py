@@ -119,6 +119,38 @@ def test_gps_error_is_gauss_markov_with_the_profiles_sigma_and_time():
     assert lag == pytest.approx(math.exp(-1.0), abs=0.05)
 
 
+def _typical_gps_north_m(seed: int, rate_hz: float, n: int) -> np.ndarray:
+    suite = SensorSuite(read_profile("typical"), rate_hz, seed)
+    state = _at_rest(2.0)
+    out = np.empty((n, 2))
+    for k in range(n):
+        suite.sample(round(k * 1e6 / rate_hz), state, np.zeros(3))
+        out[k] = suite.gps_error[0:2]
+    return out
+
+
+def test_typical_gps_wanders_as_designed_and_seed_0_north_is_its_far_tail():
+    """``typical``'s GPS error over 25 s, seeds 0-59: it keeps its 0.3 m and changes by what
+    a Gauss-Markov of tau 60 s does (e(25) - e(0) exp(-25/60): sigma sqrt(1 - exp(-50/60))
+    = 0.226 m). Seed 0's north error, as gps-outage flies it (100 Hz samples), goes from
+    0.50 to 1.13 m: a 3.55-sigma change, no model error but that seed's luck (docs/sensors.md)."""
+    paths = np.array([_typical_gps_north_m(seed, 10.0, 251) for seed in range(60)])
+    decay = math.exp(-25.0 / 60.0)
+    change_sigma_m = 0.3 * math.sqrt(1.0 - decay * decay)
+    change = paths[:, 250] - decay * paths[:, 0]
+    assert paths[:, 0].std() == pytest.approx(0.3, rel=0.1)
+    assert paths[:, 250].std() == pytest.approx(0.3, rel=0.1)
+    assert change.std() == pytest.approx(change_sigma_m, rel=0.1)
+    assert np.abs(change / change_sigma_m).max() < 3.0
+    flown = _typical_gps_north_m(0, 100.0, 2500)
+    assert flown[0, 0] == pytest.approx(0.4986, abs=1e-4)
+    assert flown[999, 0] == pytest.approx(0.8378, abs=1e-4)  # t = 9.99 s
+    assert flown[2499, 0] == pytest.approx(1.1295, abs=1e-4)  # t = 24.99 s
+    tail = (flown[2499, 0] - math.exp(-24.9 / 60.0) * flown[0, 0]) / (
+        0.3 * math.sqrt(1.0 - math.exp(-2.0 * 24.9 / 60.0)))
+    assert tail == pytest.approx(3.55, abs=0.01)
+
+
 def test_sensor_perturbations_act_on_what_the_sensors_read():
     ideal = read_profile("ideal")
     effects = SensorEffects(gps_outage=1.0, mag_field_gauss=(0.1, 0.0, 0.0),

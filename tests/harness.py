@@ -122,6 +122,16 @@ class GroundTool:
                 self.completed_text = text
         return msg
 
+    def drain(self) -> int:
+        """Read what waits in the socket, as a tool that comes back to its link does: one
+        that has not read for seconds has a full receive buffer, and the kernel drops the
+        answer to its next request (a fence download after a MAVSDK example timed out so,
+        beside busy work). How many messages were read."""
+        count = 0
+        while self.conn.recv_match(blocking=False) is not None:
+            count += 1
+        return count
+
     def wait(self, predicate: Callable, timeout_s: float = 10.0, what: str = "",
              also: Callable[[], None] | None = None):
         """The first message for which predicate(msg) holds; fails after timeout_s."""

@@ -13,6 +13,7 @@ import asyncio
 import math
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -95,23 +96,21 @@ async def _fly(port: int, script) -> tuple[Track, dict[str, float]]:
     return track, limits
 
 
-def _fly_script(script) -> tuple[Track, dict[str, float]]:
-    import tempfile
-    from pathlib import Path
-
-    with tempfile.TemporaryDirectory() as folder:
-        procs = start_processes(Path(folder))
-        try:
-            return asyncio.run(_fly(procs.gcs_port, script))
-        finally:
-            procs.stop()
+def _fly_script(script, folder: Path) -> tuple[Track, dict[str, float]]:
+    """The flight with the processes' logs in ``folder`` (pytest's tmp_path: kept when the
+    test fails)."""
+    procs = start_processes(folder)
+    try:
+        return asyncio.run(_fly(procs.gcs_port, script))
+    finally:
+        procs.stop()
 
 
 def _travel_deg(yaw: np.ndarray) -> float:
     return math.degrees(float(np.sum(np.abs(np.diff(np.unwrap(yaw))))))
 
 
-def test_mavsdk_square_with_headings_through_0_and_180_deg_then_a_50_m_step():
+def test_mavsdk_square_with_headings_through_0_and_180_deg_then_a_50_m_step(tmp_path):
     """One flight (start-up and take-off are a third of each): the square and the turns,
     then the 50 m step with set_position_velocity_ned."""
     marks: dict[str, float] = {}
@@ -136,7 +135,7 @@ def test_mavsdk_square_with_headings_through_0_and_180_deg_then_a_50_m_step():
         await asyncio.sleep(20.0)
         marks["end"] = time.monotonic()
 
-    track, limits = _fly_script(script)
+    track, limits = _fly_script(script, tmp_path)
     p, a = track.between(marks["square"], marks["turn"])
     outside = np.maximum.reduce([-p[:, 1], p[:, 1] - 5.0, -p[:, 2], p[:, 2] - 5.0,
                                  np.zeros(len(p))])
@@ -162,7 +161,7 @@ def test_mavsdk_square_with_headings_through_0_and_180_deg_then_a_50_m_step():
     assert np.allclose(p[-1, 1:4], (50.0, 0.0, -10.0), atol=0.1)
 
 
-def test_mavsdk_velocity_box_with_yaw_changes_and_body_velocity():
+def test_mavsdk_velocity_box_with_yaw_changes_and_body_velocity(tmp_path):
     marks: dict[str, float] = {}
     legs = [((0.0, 0.0, -2.0), 0.0), ((2.0, 0.0, 0.0), 90.0), ((-2.0, 0.0, 0.0), 270.0),
             ((0.0, -2.0, 0.0), 180.0), ((0.0, 2.0, 0.0), 0.0), ((0.0, 0.0, 0.0), 180.0)]
@@ -183,7 +182,7 @@ def test_mavsdk_velocity_box_with_yaw_changes_and_body_velocity():
         await asyncio.sleep(7.0)
         marks["end"] = time.monotonic()
 
-    track, _ = _fly_script(box)
+    track, _ = _fly_script(box, tmp_path)
     p, a = track.between(marks["box"], marks["body"])
     start = p[0, 1:4]
     rel = p[:, 1:4] - start

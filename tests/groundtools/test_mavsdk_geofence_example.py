@@ -71,6 +71,7 @@ def run_example(log: Path, timeout_s: float = 60.0) -> tuple[int | None, str]:
 
 def download_fence(tool: GroundTool) -> list:
     """The vehicle's fence list, read with pymavlink as a ground station reads it."""
+    tool.drain()  # not read while the example ran
     tool.mav.mission_request_list_send(1, 1, M.MAV_MISSION_TYPE_FENCE)
     count = tool.wait_type("MISSION_COUNT", 5).count
     items = []

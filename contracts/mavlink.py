@@ -267,6 +267,10 @@ def commands_from_actuator(msg: mavlink.MAVLink_hil_actuator_controls_message) -
 
 
 STATUSTEXT_CHUNK_BYTES = 50
+# MAV_SEVERITY's names without the prefix (0 EMERGENCY ... 7 DEBUG), for logs people read.
+SEVERITY_NAMES = {value: entry.name.removeprefix("MAV_SEVERITY_")
+                  for value, entry in mavlink.enums["MAV_SEVERITY"].items()
+                  if entry.name.startswith("MAV_SEVERITY_") and not entry.name.endswith("_END")}
 
 
 def statustext_messages(severity: int, text: str, chunk_id: int

@@ -43,6 +43,7 @@ from contracts.arguments import CONTROL_RATE_RANGE_HZ
 from contracts.frames import Home
 from contracts.mavlink import (
     AUTOPILOT_SYSID,
+    SEVERITY_NAMES,
     SIM_TCP_PORT,
     STATE_SOURCES,
     actuator_fields,
@@ -179,6 +180,11 @@ class Autopilot(PacedProcess):
             return
         self._command_sent = time.perf_counter()
         if stepped and self.vehicle.messages:
+            # Into the process log too, as PX4's console shows them: what the vehicle did,
+            # at its sim time, for whoever reads a run's logs after the fact.
+            for severity, text in self.vehicle.messages:
+                self.log(f"t={time_us / 1e6:.3f} s {SEVERITY_NAMES.get(severity, 'INFO')}: "
+                         f"{text}")
             self.ground.announce()  # at the sim time of the step that said it
         if not self.telemetry.enabled:
             return

@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import math
 import random
+import re
 import socket
 import time
 
@@ -63,6 +64,14 @@ def test_take_off_hold_land_and_auto_disarm(vehicle):
     tool.wait_text("landed: disarmed", 30)
     assert not tool.armed()
     assert abs(tool.position().z) < 0.1
+    # What the vehicle said is in its process log too, at its sim time, as PX4's console.
+    said = re.findall(r"autopilot: t=(\d+\.\d{3}) s (\w+): (.*)", procs.autopilot_log())
+    texts = [text for _, _, text in said]
+    assert texts.index("take-off complete") < texts.index("landed: disarmed")
+    assert all(level in ("INFO", "NOTICE", "WARNING", "ERROR", "CRITICAL")
+               for _, level, _ in said)
+    times = [float(t) for t, _, _ in said]
+    assert times == sorted(times) and times[-1] > 3.0
 
 
 def test_offboard_needs_a_stream_and_follows_setpoints(vehicle):

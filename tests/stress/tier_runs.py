@@ -13,8 +13,9 @@ as any other work would). For each run the script keeps, under ``--out``:
 * ``run-N/<tier>.txt``: pytest's whole output (the failures' tracebacks and captured
   output, which name the processes' logs);
 * ``run-N/<tier>.xml``: JUnit, with every test's duration;
-* ``run-N/tmp-<tier>/``: the temporary folders of the tests that failed (their process
-  logs, MCAP files and run folders); the passing tests' are removed.
+* ``run-N/tmp-<tier>/``: every test's temporary folder (process logs, MCAP files, run
+  folders): pytest's "failed" retention drops the folder of a test whose fixture failed,
+  and those are flakes too. A whole run is some hundred megabytes.
 
 At the end it prints a table: per run, per tier, passed, failed, wall time and the
 failed tests by name, and the load average during the run. Exits 1 if any test failed.
@@ -75,7 +76,7 @@ def run_tier(run: int, tier: str, folder: Path, extra: list[str]) -> TierResult:
     xml = folder / f"{tier}.xml"
     cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *TIERS[tier],
            f"--junitxml={xml}", f"--basetemp={folder / f'tmp-{tier}'}",
-           "-o", "tmp_path_retention_policy=failed", "-o", "tmp_path_retention_count=1",
+           "-o", "tmp_path_retention_policy=all", "-o", "tmp_path_retention_count=1",
            *extra]
     load0 = os.getloadavg()[0]
     started = time.monotonic()

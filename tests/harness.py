@@ -54,6 +54,25 @@ class Processes:
              *self.autopilot_args],
             stdout=log, stderr=subprocess.STDOUT)
 
+    def wait_connected(self, idle_s: float = 30.0) -> None:
+        """Until the autopilot has connected to the simulator (or either has exited), for
+        as long as they start: a fixed wait failed beside busy work, where loading the
+        compiled code took the simulator over 30 s (ground/run/children.py,
+        ``StartingDeadline``)."""
+        from ground.run.children import StartingDeadline
+
+        assert self.sim is not None and self.autopilot is not None
+        deadline = StartingDeadline({"sitl": self.sim.pid, "autopilot": self.autopilot.pid},
+                                    idle_s)
+        while "connected to the simulator" not in self.autopilot_log():
+            if self.sim.poll() is not None or self.autopilot.poll() is not None:
+                return  # the test sees why
+            if (why := deadline.expired("the autopilot to connect")) is not None:
+                raise AssertionError(f"the autopilot did not connect to the simulator {why}"
+                                     f"\nsitl log:\n{self.sim_log()}\nautopilot log:\n"
+                                     f"{self.autopilot_log()}")
+            time.sleep(0.05)
+
     def sim_log(self) -> str:
         return (self.log_dir / "sitl.log").read_text()
 
@@ -85,6 +104,7 @@ def start_processes(log_dir: Path, sim_args: list[str] | None = None,
                       ["--realtime", *autopilot_args])
     procs.start_sim()
     procs.start_autopilot()
+    procs.wait_connected()
     return procs
 
 

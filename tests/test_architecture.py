@@ -51,7 +51,7 @@ RULES = (
 
 # ground/'s packages from the top down; siblings in one layer never import each other
 # (pyproject.toml's import-linter contract 6 says the same on grimp's graph).
-GROUND_LAYERS = (("cli",), ("rehearsal",), ("check", "campaign"), ("run",),
+GROUND_LAYERS = (("cli",), ("rehearsal",), ("check", "campaign"), ("run",), ("ulog",),
                  ("report", "identify", "telemetry", "uplink"), ("record",), ("scenario",))
 
 

@@ -7,7 +7,8 @@ from pathlib import Path
 
 from contracts.airframe_file import spec_argument
 from contracts.arguments import VEHICLE_ID
-from ground.ulog.export import ULOG_FILE, export_ulog
+from ground.ulog import ULOG_FILE
+from ground.ulog.export import export_ulog
 
 
 def add_arguments(ulog: argparse.ArgumentParser) -> None:

@@ -2,3 +2,5 @@
 parameter names the project uses (``px4_topics``), and a run's MCAP log written as a ULog
 that PX4's tools open (``export``). May import ``ground.identify``, ``ground.report``,
 ``ground.telemetry``, ``ground.record`` and ``ground.scenario``."""
+
+ULOG_FILE = "flight.ulg"  # a run's ULog, in its run folder

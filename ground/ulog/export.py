@@ -54,11 +54,10 @@ from contracts.telemetry import (
     parse_key,
     vehicle_key,
 )
-from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT, REFERENCE
+from contracts.vectors import CHANNELS, MEASUREMENT, REFERENCE
 from ground.record.run_files import RUN_FILE, LogRecords, control_records, iter_messages
 from ground.ulog import px4_topics as px4
 
-ULOG_FILE = "flight.ulg"  # in the run folder
 SYS_NAME = "IVFM-SITL"
 VER_HW = "IVFM_SITL"
 # vehicle_status and vehicle_land_detected: published on a change, else once a second
@@ -71,7 +70,6 @@ ATTITUDE_GROUPS = ("ATT", "ATT", "YAW")  # the parameter group of phi, theta, ps
 MODES = tuple(FlightMode)  # the control records' mode index
 LOG_LEVEL_ZERO = ord("0")  # ULog's log level: '0' (emergency) ... '7' (debug), MAVLink's
 _CH = {name: i for i, name in enumerate(CHANNELS)}
-_INTERNAL = {name: i for i, name in enumerate(CHANNEL_INTERNALS)}
 
 
 @dataclass(frozen=True)

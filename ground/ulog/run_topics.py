@@ -77,7 +77,13 @@ def normalized_thrust(commands: np.ndarray, airframe: AirframeSpec) -> np.ndarra
 
 def _rows(topic: px4.Topic, timestamp_us: np.ndarray, **values: Any) -> np.ndarray:
     """The topic's samples: every field filled from ``values`` (arrays of shape (n,) or
-    (n, count)); ``timestamp_sample`` defaults to the timestamp."""
+    (n, count)); ``timestamp_sample`` defaults to the timestamp. A value beyond float32's
+    range is written as float32 writes it, infinite."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _fill(topic, timestamp_us, values)
+
+
+def _fill(topic: px4.Topic, timestamp_us: np.ndarray, values: dict[str, Any]) -> np.ndarray:
     rows = np.zeros(len(timestamp_us), dtype=topic.dtype)
     values = {"timestamp": timestamp_us, **values}
     if any(f.name == "timestamp_sample" for f in topic.fields):
@@ -115,20 +121,23 @@ def _local_position(topic: px4.Topic, t_us: np.ndarray, position: np.ndarray,
 
 def _global_position(topic: px4.Topic, t_us: np.ndarray, position: np.ndarray,
                      home: Home) -> np.ndarray:
-    geodetic = np.array([home.geodetic_from_ned(*p) for p in position]).reshape(-1, 3)
+    geodetic = np.array([home.geodetic_from_ned(*p) if np.all(np.isfinite(p))
+                         else (math.nan,) * 3 for p in position]).reshape(-1, 3)
     return _rows(topic, t_us, lat=geodetic[:, 0], lon=geodetic[:, 1], alt=geodetic[:, 2],
                  lat_lon_valid=True, alt_valid=True)
 
 
 def _changes(t_us: np.ndarray, state: np.ndarray) -> np.ndarray:
     """Indices of the rows to publish: the first, each change of ``state`` (rows of
-    values), and otherwise one every STATUS_PERIOD_US."""
+    values), and otherwise one every STATUS_PERIOD_US (a time that went back, in a
+    damaged log, publishes too)."""
     keep, last_t = [], None
-    for k in range(len(t_us)):
+    times = t_us.tolist()  # Python integers: no unsigned wrap-around
+    for k, t in enumerate(times):
         if last_t is None or not np.array_equal(state[k], state[k - 1]) or \
-                t_us[k] - last_t >= STATUS_PERIOD_US:
+                not 0 <= t - last_t < STATUS_PERIOD_US:
             keep.append(k)
-            last_t = t_us[k]
+            last_t = t
     return np.array(keep, dtype=int)
 
 

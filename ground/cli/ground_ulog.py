@@ -7,7 +7,7 @@ from pathlib import Path
 
 from contracts.airframe_file import spec_argument
 from contracts.arguments import VEHICLE_ID
-from ground.ulog import ULOG_FILE
+from ground.record.run_files import ULOG_FILE
 from ground.ulog.export import export_ulog
 
 

@@ -13,12 +13,12 @@ from contracts.frames import home_argument
 from contracts.mavlink import STATE_SOURCES
 from contracts.timeline import process_start_s
 from ground.cli.common import UsageError, add_rt_cpus, add_vehicle_options, fresh_folder
+from ground.record.run_files import ULOG_FILE
 from ground.report.metrics import format_metrics
 from ground.run.children import WarmProcesses
 from ground.run.flights import Overrides, fly_inprocess, fly_processes, plan_flight
 from ground.scenario.scenario_file import scenario_by_name, shipped_names
 from ground.telemetry.live_view import LAYOUT_FILE, view_address
-from ground.ulog import ULOG_FILE
 from sitl.dynamics import FIDELITIES
 from sitl.sensors import profile_argument
 

@@ -31,8 +31,7 @@ from contracts.modes import FlightMode
 from contracts.telemetry import STATE
 from ground.cli.main import main
 from ground.record.events import statustext_events
-from ground.record.run_files import control_records, iter_messages
-from ground.ulog import ULOG_FILE
+from ground.record.run_files import ULOG_FILE, control_records, iter_messages
 from ground.ulog import px4_topics as px4
 from ground.ulog.export import _airframe, export_ulog
 from ground.ulog.run_topics import max_thrust_n

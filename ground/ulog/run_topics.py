@@ -194,7 +194,8 @@ def control_topics(c: dict[str, np.ndarray], context: RunContext) -> dict[str, n
         px4.VEHICLE_ATTITUDE_SETPOINT, t, q_d=_quaternions(desired_euler),
         thrust_body=thrust_body)
     parameters = context.parameters
-    if controller in SLIDING_MODE_CONTROLLERS and parameters is not None:
+    if controller in SLIDING_MODE_CONTROLLERS and parameters is not None and all(
+            f"{group}_LAM" in parameters for group in ATTITUDE_GROUPS):
         # s = e' + lambda e with e' = yd' - y': yd' = (s - lambda e) + y'.
         lam = np.array([parameters[f"{group}_LAM"] for group in ATTITUDE_GROUPS])
         channels = [_CH["phi"], _CH["theta"], _CH["psi"]]

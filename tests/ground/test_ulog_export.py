@@ -457,3 +457,17 @@ def test_a_flown_run_round_trips_with_its_home_kicks_and_rates(flown):
     # roll's and pitch's: the command filter's output, which its rate limit bounds
     # (CMDF_RATE_MAX, 2 rad/s) and the sine and the kicks reach
     assert float(np.max(np.abs(euler[:, :2]))) == pytest.approx(2.0, abs=1e-6)
+
+
+def test_a_run_record_without_the_gains_leaves_the_rates_setpoint_out(short_run, tmp_path):
+    """The desired rates need the run's ATT_LAM and YAW_LAM: without them (a run.json from
+    elsewhere, edited), no vehicle_rates_setpoint rather than a guess."""
+    folder = tmp_path / "run"
+    shutil.copytree(short_run, folder)
+    run = json.loads((folder / "run.json").read_text())
+    (folder / "run.json").write_text(json.dumps({**run, "parameters": {"COM_OBL_ACT": 0}}))
+    summary = export_ulog(folder, tmp_path / "x.ulg")
+    assert "vehicle_rates_setpoint" not in summary.samples and summary.samples[
+        "vehicle_attitude"] == 100
+    p = ULog(str(tmp_path / "x.ulg")).initial_parameters
+    assert p["COM_OBL_ACT"] == 0 and "ATT_LAM" not in p

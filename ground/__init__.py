@@ -7,7 +7,7 @@ import-linter contract 6 checks it):
     rehearsal                             go / no-go before a first flight
     check | campaign                      regression checks | campaigns and comparisons
     run                                   flying a scenario (processes, in process)
-    report | identify | telemetry | uplink
+    report | identify | telemetry | uplink | ulog
     record                                the run folder, its log, timeline and events
     scenario                              scenario files, expectations, ground station
 """

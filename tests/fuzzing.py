@@ -452,9 +452,10 @@ def corrupt(data: bytes) -> st.SearchStrategy[bytes]:
 
 
 def hostile_log(folder: Path, data: bytes, capsys) -> None:
-    """``ivfm report``, ``ivfm ground tlog`` and ``ivfm identify --log`` on a run folder
-    whose log is ``data``: each succeeds or exits 2 saying why (report: 1 for a run that
-    reads as diverged); never a traceback."""
+    """``ivfm report``, ``ivfm ground tlog``, ``ivfm ground ulog`` and ``ivfm identify
+    --log`` on a run folder whose log is ``data``: each succeeds or exits 2 saying why
+    (report: 1 for a run that reads as diverged); never a traceback, and a refused ULog
+    export leaves no file."""
     import shutil
 
     from ground.cli.main import main
@@ -466,6 +467,7 @@ def hostile_log(folder: Path, data: bytes, capsys) -> None:
     for argv in (["report", str(run), "--no-figures"],
                  ["ground", "tlog", str(run / "telemetry-000.mcap"), "--out",
                   str(run / "out.tlog")],
+                 ["ground", "ulog", str(run), "--out", str(run / "out.ulg")],
                  ["identify", "--log", str(run), "--out", str(run / "model.json")]):
         code = main(argv)
         err = capsys.readouterr().err
@@ -474,3 +476,5 @@ def hostile_log(folder: Path, data: bytes, capsys) -> None:
         assert "Traceback" not in err
         if code == 2:
             assert err.startswith("ivfm: error: "), err
+            if argv[:2] == ["ground", "ulog"]:
+                assert not (run / "out.ulg").exists()

@@ -360,9 +360,9 @@ def test_fuzz_files(file_folder, case):
 LOG = (fz.SHORT_RUN / "telemetry-000.mcap").read_bytes()
 
 
-@settings(FUZZ, max_examples=max(10, EXAMPLES // 10))  # each runs three commands
+@settings(FUZZ, max_examples=max(10, EXAMPLES // 10))  # each runs four commands
 @given(data=fz.corrupt(LOG))
-def test_fuzz_logs_into_report_tlog_and_identify(tmp_path_factory, capsys, data):
+def test_fuzz_logs_into_report_tlog_ulog_and_identify(tmp_path_factory, capsys, data):
     fz.hostile_log(tmp_path_factory.mktemp("fuzz-log"), data, capsys)
 
 

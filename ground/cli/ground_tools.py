@@ -12,4 +12,6 @@ SUBCOMMANDS = (
     Subcommand("certs", "ground.cli.ground_certs", "make test certificates for mutual TLS"),
     Subcommand("tlog", "ground.cli.ground_tlog",
                "export the MAVLink mirror of a log as a .tlog"),
+    Subcommand("ulog", "ground.cli.ground_ulog",
+               "write a run's log as a PX4 flight log (.ulg)"),
 )

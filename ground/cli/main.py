@@ -29,7 +29,7 @@ SUBCOMMANDS = (
     Subcommand("sitl", "ground.cli.sitl", "the simulator process (PX4 simulator protocol)"),
     Subcommand("autopilot", "ground.cli.autopilot", "the autopilot process (MAVLink vehicle)"),
     Subcommand("ground", "ground.cli.ground_tools",
-               "ground station: logger, perturbations, router, .tlog export"),
+               "ground station: logger, perturbations, router, .tlog and ULog export"),
     Subcommand("plan", "ground.cli.plan",
                "upload a QGroundControl .plan file to a vehicle (docs/missions.md)"),
     Subcommand("shield", "ground.cli.shield",

@@ -13,6 +13,7 @@ from contracts.frames import home_argument
 from contracts.mavlink import STATE_SOURCES
 from contracts.timeline import process_start_s
 from ground.cli.common import UsageError, add_rt_cpus, add_vehicle_options, fresh_folder
+from ground.record.run_files import ULOG_FILE
 from ground.report.metrics import format_metrics
 from ground.run.children import WarmProcesses
 from ground.run.flights import Overrides, fly_inprocess, fly_processes, plan_flight
@@ -55,6 +56,9 @@ def add_arguments(run: argparse.ArgumentParser) -> None:
                      help="the run folder (default: a new one under runs/ named after the "
                           "scenario)")
     run.add_argument("--no-figures", action="store_true")
+    run.add_argument("--ulog", action="store_true",
+                     help=f"also write the run as a PX4 flight log, {ULOG_FILE} in the run "
+                          "folder (docs/ulog.md)")
     add_vehicle_options(run)
     run.set_defaults(airframe=None)
 
@@ -78,6 +82,9 @@ def handle(args: argparse.Namespace) -> int:
           f"{how}); run folder {args.out}", file=sys.stderr)
     if args.inprocess and args.view is not None:
         raise UsageError("--view serves the telemetry of the processes: not with --inprocess")
+    if args.inprocess and args.ulog:
+        raise UsageError("--ulog writes the log of the processes: not with --inprocess "
+                         "(which keeps no log)")
     if args.inprocess:
         metrics = fly_inprocess(plan, args.out, figures=not args.no_figures)
     else:
@@ -100,4 +107,8 @@ def handle(args: argparse.Namespace) -> int:
               file=sys.stderr)
     print(format_metrics(metrics))
     print(f"wrote {args.out / 'metrics.json'}" + ("" if args.no_figures else " and figures"))
+    if args.ulog:
+        from ground.ulog.export import export_ulog  # pyulog: only when asked for
+
+        print(export_ulog(args.out, args.out / ULOG_FILE))
     return 1 if metrics["diverged"] else 0

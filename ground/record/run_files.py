@@ -25,6 +25,7 @@ if TYPE_CHECKING:  # the logger reads logs without the scenario (and vehicle) mo
 RUN_FILE = "run.json"  # how ``ivfm run`` flew the run
 SCENARIO_FILE = "scenario.toml"  # the scenario it flew
 METRICS_FILE = "metrics.json"
+ULOG_FILE = "flight.ulg"  # the run as a PX4 flight log (ivfm run --ulog, ivfm ground ulog)
 MAX_POSITION_M = 1e3  # a run that goes this far from home, or to NaN, has diverged
 
 

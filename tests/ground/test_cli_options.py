@@ -24,8 +24,8 @@ COMMANDS = (
     ["run", "attitude-sine", "--out", "x"], ["check"], ["rehearse", "--airframe", "paper"],
     ["report", "x"], ["compare", "--out", "x"], ["identify"], ["sitl"], ["autopilot"],
     ["ground", "log", "--out", "x"], ["ground", "perturb", "wind"], ["ground", "router"],
-    ["ground", "tlog", "x"], ["ground", "certs", "--out", "x"], ["plan", "x"],
-    ["scenarios"], ["params"], ["shield"],
+    ["ground", "tlog", "x"], ["ground", "ulog", "x"], ["ground", "certs", "--out", "x"],
+    ["plan", "x"], ["scenarios"], ["params"], ["shield"],
 )
 HOSTILE = ("-5", "nan", "NaN", "inf", "-inf", "1e309", "", " ", "abc", "1e400", "-0",
            "99999999999999999999", "0x10", "1_000", "½", "\x00", "--", "1,2,3", "4.5.6")

@@ -248,8 +248,13 @@ def test_ivfm_ground_view_serves_what_it_hears_over_zenoh(tmp_path):
         f"ws://127.0.0.1:{port}", 20.0, until=lambda r: len(r.messages["/tf"]) >= 40)))
     try:
         watcher.start()
-        time.sleep(1.0)  # the viewer connected, the view's session linked
-        session.put(SCENE_KEY, scene_payload(mission=[[0, 1.0, 0.0, 0.0]] * 600))  # refused
+        # Until the view's subscriber is there: a second's sleep, before, let the first
+        # (hostile) record go to nobody while the view still started beside busy work.
+        scene = session.declare_publisher(SCENE_KEY)
+        deadline = time.monotonic() + 60.0
+        while not scene.matching_status.matching and time.monotonic() < deadline:
+            time.sleep(0.01)
+        scene.put(scene_payload(mission=[[0, 1.0, 0.0, 0.0]] * 600))  # refused
         for t_us in range(0, 4_000_000, 10_000):  # 100 Hz for 4 s of sim time
             session.put(STATE_KEY, state_payload(t_us))
             if t_us % 500_000 == 0:

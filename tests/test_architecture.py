@@ -52,7 +52,7 @@ RULES = (
 # ground/'s packages from the top down; siblings in one layer never import each other
 # (pyproject.toml's import-linter contract 6 says the same on grimp's graph).
 GROUND_LAYERS = (("cli",), ("rehearsal",), ("check", "campaign"), ("run",),
-                 ("report", "identify", "telemetry", "uplink"), ("record",), ("scenario",))
+                 ("report", "identify", "telemetry", "uplink", "ulog"), ("record",), ("scenario",))
 
 
 @dataclass(frozen=True)

@@ -557,7 +557,7 @@ def motor_model(log: PX4Log, motors: Series, command_map_speed: bool,
     """The motor model of the log's outputs; ULogError names a missing PWM range."""
     factor, said = thrust_model_factor(log, command_map_speed)
     if motors.source.topic == "actuator_motors":
-        return MotorModel("thrust", factor, said="actuator_motors: thrust fractions")
+        return MotorModel("thrust", factor, said="thrust fractions")
     lows, highs, names = [], [], []
     for field_name in motors.fields:
         n = int(field_name[field_name.index("[") + 1:-1]) + 1
@@ -579,7 +579,7 @@ def motor_model(log: PX4Log, motors: Series, command_map_speed: bool,
         highs.append(high)
     ranges = sorted({f"{lo:g}-{hi:g} us" for lo, hi in zip(lows, highs, strict=True)})
     return MotorModel("pwm", factor, tuple(lows), tuple(highs),
-                      f"actuator_outputs: PWM {', '.join(ranges)} ({names[0]}), "
+                      f"PWM {', '.join(ranges)} ({names[0]}), "
                       f"thrust = f x^2 + (1 - f) x with {said}")
 
 
@@ -618,12 +618,13 @@ def identification_data(path: str | Path, airframe: Airframe | AirframeSpec,
     if isinstance(airframe, AirframeSpec):
         airframe = airframe_from_spec(airframe)
     log = read_log(path)
-    return _identification_data(log, airframe, period_s, cutoff_hz, trim_s, pwm_range_us)
+    return identification_data_of(log, airframe, period_s, cutoff_hz, trim_s, pwm_range_us)
 
 
-def _identification_data(log: PX4Log, airframe: Airframe, period_s: float | None,
-                         cutoff_hz: float, trim_s: tuple[float, float],
-                         pwm_range_us: tuple[float, float] | None) -> ULogData:
+def identification_data_of(log: PX4Log, airframe: Airframe, period_s: float | None,
+                           cutoff_hz: float, trim_s: tuple[float, float],
+                           pwm_range_us: tuple[float, float] | None) -> ULogData:
+    """:func:`identification_data` of a parsed log."""
     missing = [s for s in IDENTIFICATION_SIGNALS if log.source(s) is None]
     if missing:
         raise ULogError(f"{log.path}: cannot identify from this log: "

@@ -185,11 +185,17 @@ def _us(t_s: np.ndarray | float) -> np.ndarray:
 def flight_log(path: Path, flight: Flight, version: str = "1.15", *,
                parameters: dict[str, float | int] | None = None,
                drop_topics: tuple[str, ...] = (), attitude_every: int = 1,
-               motors_every: int = 1, acceleration: bool = True) -> Path:
+               motors_every: int = 1, acceleration: bool = True,
+               landed_between: tuple[tuple[float, float], ...] = (),
+               rates_gap: tuple[float, float] | None = None,
+               nan_at: tuple[str, float] | None = None) -> Path:
     """``flight`` as PX4 ``version`` ("1.15" or "1.12") logs it. ``attitude_every`` /
     ``motors_every`` log every n-th sample of those topics (PX4's logger rates);
     ``parameters`` replace or add to the airframe's; ``drop_topics`` are left out;
-    ``acceleration`` False leaves out 1.15's xyz_derivative."""
+    ``acceleration`` False leaves out 1.15's xyz_derivative; the land detector also says
+    landed in ``landed_between`` (log times [s]); ``rates_gap`` drops the body rates'
+    samples in (start, end) [s]; ``nan_at`` (field, time [s]) makes that motor field NaN
+    in the sample at that time ("control[2]" / "output[2]")."""
     spec = read_airframe(flight.airframe)
     line = timeline(flight)
     period = float(flight.time_s[1] - flight.time_s[0])
@@ -243,11 +249,14 @@ def flight_log(path: Path, flight: Flight, version: str = "1.15", *,
     # State topics at 2 Hz and on every change, as PX4 publishes them.
     changes = [0.0, line.armed_s, line.takeoff_s, line.landing_s, line.disarmed_s]
     status_t = np.union1d(np.arange(0.0, line.end_s, 0.5), changes)
+    status_t = np.union1d(status_t, [t for span in landed_between for t in span])
     arming = np.where((status_t >= line.armed_s) & (status_t < line.disarmed_s), 2, 1)
     topics["vehicle_status"] = (_us(status_t), {
         "arming_state": ("uint8_t", arming), "nav_state": ("uint8_t", np.full(len(status_t), 2)),
         "vehicle_type": ("uint8_t", np.ones(len(status_t)))})
     landed = ~((status_t >= line.takeoff_s) & (status_t < line.landing_s))
+    for a, b_s in landed_between:
+        landed |= (status_t >= a) & (status_t < b_s)
     topics["vehicle_land_detected"] = (_us(status_t), {
         "landed": ("bool", landed), "maybe_landed": ("bool", landed),
         "ground_contact": ("bool", landed)})
@@ -258,6 +267,17 @@ def flight_log(path: Path, flight: Flight, version: str = "1.15", *,
             "hover_thrust": ("float", np.full(len(air), hover_thrust_fraction(spec))),
             "hover_thrust_var": ("float", np.full(len(air), 1e-4)),
             "valid": ("bool", np.ones(len(air)))})
+    if rates_gap is not None:
+        stamps, fields = topics["vehicle_angular_velocity"]
+        keep = (stamps <= _us(rates_gap[0])) | (stamps >= _us(rates_gap[1]))
+        topics["vehicle_angular_velocity"] = (stamps[keep], {
+            k: (kind, v[keep]) for k, (kind, v) in fields.items()})
+    if nan_at is not None:
+        motor_topic = "actuator_motors" if version == "1.15" else "actuator_outputs"
+        stamps, fields = topics[motor_topic]
+        row = int(np.argmin(np.abs(stamps - _us(nan_at[1]))))
+        name, index = nan_at[0].rstrip("]").split("[")
+        fields[name][1][row, int(index)] = np.nan
     for name, (stamps, fields) in topics.items():
         if name not in drop_topics:
             b.topic(name, stamps, fields)

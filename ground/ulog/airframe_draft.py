@@ -103,6 +103,11 @@ def rotors_from_log(log: PX4Log) -> tuple[Rotor, ...] | None:
         km, ct = p.get(f"{name}_KM"), p.get(f"{name}_CT")
         rotors.append(Rotor(n, position, None if km is None else f32(km),
                             None if ct is None else f32(ct)))
+    spins = [r.spin for r in rotors]
+    if None not in spins and spins.count("cw") != 2:
+        raise ULogError(f"{log.path}: CA_ROTOR0-3_KM: rotors 1-4 spin {', '.join(spins)}: a "
+                        "quadrotor needs two of each (their drag torques cancel), each pair "
+                        "diagonally opposite")
     return tuple(rotors)
 
 

@@ -256,10 +256,10 @@ def px4_release(value: int) -> str:
 
 def missing_message(signal: str) -> str:
     """What the log lacks, naming every place the signal was looked for."""
-    what = {"attitude": "the attitude", "rates": "the body rates",
-            "acceleration": "the angular acceleration", "motors": "the motor outputs",
-            "armed": "the arming state", "landed": "the land detector's state",
-            "hover_thrust": "the hover thrust estimate", "nav_state": "the flight mode"}
+    what = {"attitude": "attitude", "rates": "body rates",
+            "acceleration": "angular acceleration", "motors": "motor outputs",
+            "armed": "arming state", "landed": "land detector state",
+            "hover_thrust": "hover thrust estimate", "nav_state": "flight mode"}
     places = "; ".join(f"{s.label} ({s.versions})" for s in SIGNALS[signal])
     return f"the log has no {what[signal]}: looked for {places}"
 
@@ -286,8 +286,8 @@ def read_log(path: str | Path) -> PX4Log:
     log = PX4Log(path, ulog)
     if ulog.file_corruption or "corrupt" in said.getvalue():
         log.warnings.append("pyulog found corrupt data in the log and skipped it")
-    if not ulog.data_list and ulog.last_timestamp == 0:
-        raise ULogError(f"{path}: the log holds no data (cut short after its header?)")
+    if not ulog.data_list:
+        raise ULogError(f"{path}: the log holds no data (cut short in its header?)")
     return log
 
 

@@ -31,6 +31,7 @@ from ground.ulog.read import (
     ULogError,
     airborne_spans,
     check_quad_log,
+    flight_reach,
     mav_type_name,
     read_log,
 )
@@ -289,6 +290,18 @@ def draft_airframe(path: str | Path, mass_kg: float, max_rad_s: float | None = N
             w.assumed.append("command_map")
     else:
         w.key("command_map", "speed", "ASSUMED: no THR_MDL_FAC in the log")
+    w.lines.append("")
+    w.comment("What the vehicle flies, which the data of `ivfm identify` must cover "
+              "(docs/airframes.md;")
+    w.comment("without the table: 1 rad, 1 rad/s, 0.5 rad/s).")
+    reached = flight_reach(log)
+    if reached is not None:
+        w.comment(f"This log's flight reached {reached[0]:.2f} rad, {reached[1]:.2f} rad/s "
+                  f"(roll, pitch), {reached[2]:.2f} rad/s (yaw).")
+    w.comment("[envelope]")
+    w.comment("attitude_rad = 0.7")
+    w.comment("rate_rad_s = 1.0")
+    w.comment("yaw_rate_rad_s = 0.5")
     w.lines.append("")
     w.lines.append("[draft]  # where the numbers came from (may stay once filled)")
     w.lines.append(f"log = {_toml(str(path))}")

@@ -45,6 +45,7 @@ from scipy.interpolate import make_interp_spline
 from scipy.spatial.transform import Rotation, Slerp
 
 from autopilot.identification.dataset import Dataset
+from autopilot.trajectories import abs_reach, tail_reach
 from contracts.airframe import Airframe, airframe_from_spec
 from contracts.airframe_file import AirframeSpec
 
@@ -515,6 +516,24 @@ def kinematics(log: PX4Log, spans: Sequence[tuple[float, float]], period_s: floa
         sources["acceleration"] = acceleration.label
     return Kinematics(grid, euler, euler_rate, body, acc if acceleration is not None else None,
                       sources), period_s
+
+
+def flight_reach(log: PX4Log, trim_s: tuple[float, float] = DEFAULT_TRIM_S
+                 ) -> tuple[float, float, float] | None:
+    """How far the airborne flight reached: roll/pitch attitude [rad], roll/pitch rate and
+    yaw rate [rad/s], each the smaller side at the coverage tails (as the coverage check
+    counts a rate); None when the log cannot say."""
+    try:
+        spans = airborne_spans(log, trim_s).spans
+        kin, _period = kinematics(log, spans, None)
+    except ULogError:
+        return None
+    if not kin.pieces:
+        return None
+    euler = np.concatenate(kin.euler_rad)
+    rates = np.concatenate(kin.euler_rate_rad_s)
+    return (min(abs_reach(euler[:, 0]), abs_reach(euler[:, 1])),
+            min(tail_reach(rates[:, 0]), tail_reach(rates[:, 1])), tail_reach(rates[:, 2]))
 
 
 # -- the motor model -------------------------------------------------------------------------

@@ -21,7 +21,8 @@ from ground.cli.common import UsageError
 from ground.identify.excitation import MIN_SAMPLES, dataset_from_log, excitation_dataset
 from ground.identify.paper_tables import TABLE_2_VALIDATION_RMSE
 from ground.run.progress import ProgressLine
-from ground.ulog.read import DEFAULT_CUTOFF_HZ, DEFAULT_TRIM_S, identification_data
+from ground.ulog.clock import DEFAULT_TRIM_S
+from ground.ulog.identification import DEFAULT_CUTOFF_HZ, identification_data
 
 
 def add_arguments(ident: argparse.ArgumentParser) -> None:

@@ -7,8 +7,8 @@ from pathlib import Path
 
 from contracts.airframe_file import Envelope, spec_argument
 from ground.cli.identify import envelope_argument, trim_argument
+from ground.ulog.clock import DEFAULT_TRIM_S
 from ground.ulog.info import format_info, log_info
-from ground.ulog.read import DEFAULT_TRIM_S
 
 DESCRIPTION = (
     "Print what a PX4 flight log (ULog) holds for identification: the firmware (PX4 "

@@ -25,13 +25,12 @@ import numpy as np
 
 from contracts.airframe_file import TO_FILL, AirframeError, check_controllable, parse_airframe
 from contracts.frames import GRAVITY_MPS2
+from ground.ulog.clock import airborne_spans, flight_reach
 from ground.ulog.read import (
     MOTOR1_FUNCTION,
     PX4Log,
     ULogError,
-    airborne_spans,
     check_quad_log,
-    flight_reach,
     mav_type_name,
     read_log,
 )

@@ -15,18 +15,15 @@ from autopilot.trajectories import COVERAGE_TAIL, abs_reach
 from contracts.airframe import airframe_from_spec
 from contracts.airframe_file import AirframeSpec, Envelope, envelope_of
 from ground.ulog.airframe_draft import hover_thrust, layout, rotors_from_log
+from ground.ulog.clock import DEFAULT_TRIM_S, airborne_spans, kinematics
+from ground.ulog.identification import DEFAULT_CUTOFF_HZ, identification_data_of
 from ground.ulog.read import (
     CA_AIRFRAMES,
-    DEFAULT_CUTOFF_HZ,
-    DEFAULT_TRIM_S,
     IDENTIFICATION_SIGNALS,
     SIGNALS,
     PX4Log,
     ULogError,
-    airborne_spans,
     check_quad_log,
-    identification_data_of,
-    kinematics,
     mav_type_name,
     missing_message,
     read_log,

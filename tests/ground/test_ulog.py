@@ -25,17 +25,15 @@ from contracts.frames import (
 )
 from ground.cli.main import main
 from ground.ulog.airframe_draft import draft_airframe
-from ground.ulog.info import format_info, log_info
-from ground.ulog.read import (
-    MotorModel,
+from ground.ulog.clock import (
     airborne_spans,
     euler_accelerations,
     euler_from_quaternions,
     euler_rates,
-    identification_data,
-    read_log,
-    rotor_speeds,
 )
+from ground.ulog.identification import MotorModel, identification_data, rotor_speeds
+from ground.ulog.info import format_info, log_info
+from ground.ulog.read import read_log
 from tests.ulog_logs import (
     LogBuilder,
     flight_log,

@@ -142,8 +142,10 @@ class PX4Log:
         return None
 
     def topic(self, name: str, multi_id: int = 0) -> ULog.Data | None:
+        """The topic's samples; None when not logged, or without a timestamp (a format
+        damaged in the file)."""
         for data in self.ulog.data_list:
-            if data.name == name and data.multi_id == multi_id:
+            if data.name == name and data.multi_id == multi_id and "timestamp" in data.data:
                 return data
         return None
 

@@ -67,14 +67,26 @@ class LogBuilder:
             else:
                 layout.append((kind, 0, field_name))
                 flat[field_name] = (kind, values)
+        self.format(name, layout)
+        self.data(name, flat, multi_id)
+
+    def format(self, name: str, layout: list[tuple[str, int, str]]) -> None:
+        """A message format: (type, array size or 0, field name) per field; a type may be
+        another format's name (PX4's nested messages)."""
         if name not in self.ulog._message_formats:
             fmt = object.__new__(ULog.MessageFormat)
             fmt.name, fmt.fields = name, layout
             self.ulog._message_formats[name] = fmt
+
+    def data(self, name: str, flat: dict[str, tuple[str, np.ndarray]], multi_id: int = 0
+             ) -> None:
+        """A topic's samples, field by flattened name ("esc[0].esc_rpm") in the order of
+        its format, ``timestamp`` among them."""
+        time_us = np.asarray(flat["timestamp"][1], dtype=np.uint64)
         data = object.__new__(ULog.Data)
         data.multi_id, data.msg_id, data.name = multi_id, len(self.ulog._data_list), name
         data.field_data = [ULog._FieldData(n, kind) for n, (kind, _v) in flat.items()]
-        data.timestamp_idx = 0
+        data.timestamp_idx = list(flat).index("timestamp")
         data.data = {n: v.astype(ULog._UNPACK_TYPES[kind][2]) for n, (kind, v) in flat.items()}
         self.ulog._data_list.append(data)
         if len(time_us):
@@ -188,14 +200,16 @@ def flight_log(path: Path, flight: Flight, version: str = "1.15", *,
                motors_every: int = 1, acceleration: bool = True,
                landed_between: tuple[tuple[float, float], ...] = (),
                rates_gap: tuple[float, float] | None = None,
-               nan_at: tuple[str, float] | None = None) -> Path:
+               nan_at: tuple[str, float] | None = None, esc: bool = False) -> Path:
     """``flight`` as PX4 ``version`` ("1.15" or "1.12") logs it. ``attitude_every`` /
     ``motors_every`` log every n-th sample of those topics (PX4's logger rates);
     ``parameters`` replace or add to the airframe's; ``drop_topics`` are left out;
     ``acceleration`` False leaves out 1.15's xyz_derivative; the land detector also says
     landed in ``landed_between`` (log times [s]); ``rates_gap`` drops the body rates'
     samples in (start, end) [s]; ``nan_at`` (field, time [s]) makes that motor field NaN
-    in the sample at that time ("control[2]" / "output[2]")."""
+    in the sample at that time ("control[2]" / "output[2]"); ``esc`` adds ESC telemetry
+    (esc_status at 10 Hz, each rotor's rpm, the ESCs in reverse order of the motors they
+    drive, as ``actuator_function`` says)."""
     spec = read_airframe(flight.airframe)
     line = timeline(flight)
     period = float(flight.time_s[1] - flight.time_s[0])
@@ -281,7 +295,30 @@ def flight_log(path: Path, flight: Flight, version: str = "1.15", *,
     for name, (stamps, fields) in topics.items():
         if name not in drop_topics:
             b.topic(name, stamps, fields)
+    if esc:
+        _esc_status(b, t, fraction, spec)
     return b.write(path)
+
+
+def _esc_status(b: LogBuilder, t: np.ndarray, fraction: np.ndarray, spec: AirframeSpec) -> None:
+    """PX4's esc_status (nested esc_report[8]): the rotors' rpm, ESC k driving motor 4 - k."""
+    b.format("esc_report", [("uint64_t", 0, "timestamp"), ("int32_t", 0, "esc_rpm"),
+                            ("uint8_t", 0, "actuator_function")])
+    b.format("esc_status", [("uint64_t", 0, "timestamp"), ("uint8_t", 0, "esc_count"),
+                            ("esc_report", 8, "esc")])
+    rows = np.arange(0, len(t), 10)
+    us = _us(t[rows])
+    w_max = np.array([r.max_rad_s for r in spec.rotors])
+    rpm = np.round(w_max * np.sqrt(fraction[rows]) * 60.0 / (2.0 * np.pi))
+    flat: dict[str, tuple[str, np.ndarray]] = {"timestamp": ("uint64_t", us),
+                                               "esc_count": ("uint8_t", np.full(len(us), 4))}
+    for k in range(8):
+        motor = 3 - k
+        flat[f"esc[{k}].timestamp"] = ("uint64_t", us)
+        flat[f"esc[{k}].esc_rpm"] = ("int32_t", rpm[:, motor] if k < 4 else np.zeros(len(us)))
+        flat[f"esc[{k}].actuator_function"] = ("uint8_t", np.full(len(us), 101 + motor)
+                                               if k < 4 else np.zeros(len(us)))
+    b.data("esc_status", flat)
 
 
 def small_log(path: Path, version: str = "1.15", seconds: float = 6.0) -> Path:

@@ -347,6 +347,18 @@ def test_the_draft_of_a_quad_x_log_reproduces_its_geometry(logs, tmp_path):
     assert filled.command_map == X500.command_map
 
 
+def test_esc_telemetry_gives_the_top_speed(tmp_path, flight):
+    """esc_status rpm (whole rpm, the ESCs in another order than the motors, mapped by
+    actuator_function) fitted to W = W_max sqrt(thrust fraction): 1000 rad/s to 1e-5."""
+    path = flight_log(tmp_path / "esc.ulg", flight, esc=True)
+    draft = draft_airframe(path, X500.mass_kg, None, "esc")
+    assert draft.to_fill == ["inertia_kgm2"]
+    rotors = tomllib.loads(draft.text)["rotor"]
+    assert [r["max_rad_s"] for r in rotors] == pytest.approx([1000.0] * 4, rel=1e-5)
+    assert "max_rad_s = 999.998  # esc_status rpm fitted to W = W_max sqrt(thrust), " \
+           "R^2 >= 1.00" in draft.text.splitlines()
+
+
 def test_rehearse_refuses_the_draft_naming_what_to_fill(logs, tmp_path, capsys):
     draft = tmp_path / "draft.toml"
     assert main(["airframe", "from-ulog", str(logs["1.12"]), "--mass-kg", "2.0",

@@ -183,15 +183,20 @@ class Timeline:
     end_s: float
 
 
-def timeline(flight: Flight) -> Timeline:
+def timeline(flight: Flight, simulator: bool = False) -> Timeline:
+    """Ground phases around the flight; ``simulator``: none (a simulator's log is in the
+    air, armed, from its first sample to its last)."""
+    if simulator:
+        end = float(flight.time_s[-1]) + 0.01
+        return Timeline(0.0, end, 0.0, end, end)
     takeoff = GROUND_S + SPOOL_S
     landing = takeoff + float(flight.time_s[-1]) + 0.01
     return Timeline(takeoff, landing, GROUND_S, landing + LANDED_S,
                     landing + LANDED_S + AFTER_S)
 
 
-def _us(t_s: np.ndarray | float) -> np.ndarray:
-    return START_US + np.round(np.asarray(t_s) * 1e6).astype(np.int64)
+def _us(t_s: np.ndarray | float, start_us: int = START_US) -> np.ndarray:
+    return start_us + np.round(np.asarray(t_s) * 1e6).astype(np.int64)
 
 
 def flight_log(path: Path, flight: Flight, version: str = "1.15", *,
@@ -200,7 +205,8 @@ def flight_log(path: Path, flight: Flight, version: str = "1.15", *,
                motors_every: int = 1, acceleration: bool = True,
                landed_between: tuple[tuple[float, float], ...] = (),
                rates_gap: tuple[float, float] | None = None,
-               nan_at: tuple[str, float] | None = None, esc: bool = False) -> Path:
+               nan_at: tuple[str, float] | None = None, esc: bool = False,
+               simulator: bool = False) -> Path:
     """``flight`` as PX4 ``version`` ("1.15" or "1.12") logs it. ``attitude_every`` /
     ``motors_every`` log every n-th sample of those topics (PX4's logger rates);
     ``parameters`` replace or add to the airframe's; ``drop_topics`` are left out;
@@ -209,9 +215,11 @@ def flight_log(path: Path, flight: Flight, version: str = "1.15", *,
     samples in (start, end) [s]; ``nan_at`` (field, time [s]) makes that motor field NaN
     in the sample at that time ("control[2]" / "output[2]"); ``esc`` adds ESC telemetry
     (esc_status at 10 Hz, each rotor's rpm, the ESCs in reverse order of the motors they
-    drive, as ``actuator_function`` says)."""
+    drive, as ``actuator_function`` says); ``simulator``: as a simulator logs a run, from
+    time 0 (the log's start at 0 us), armed and in the air throughout."""
     spec = read_airframe(flight.airframe)
-    line = timeline(flight)
+    line = timeline(flight, simulator)
+    start_us = 0 if simulator else START_US
     period = float(flight.time_s[1] - flight.time_s[0])
     before = np.arange(0.0, line.takeoff_s - 1e-9, period)
     after = np.arange(line.landing_s, line.end_s - 1e-9, period)
@@ -230,13 +238,13 @@ def flight_log(path: Path, flight: Flight, version: str = "1.15", *,
     fraction = np.concatenate([np.zeros((n0, 4)), thrust_fractions(flight.motor_commands, spec),
                                np.zeros((n1, 4))])
     armed = (t >= line.armed_s) & (t < line.disarmed_s)
-    b = LogBuilder()
+    b = LogBuilder(start_us)
     b.info("sys_name", "PX4")
     b.info("ver_hw", "PX4_SITL")
     b.info("ver_sw", "0123456789abcdef0123456789abcdef01234567")
     b.info("ver_sw_release", PX4_1_15 if version == "1.15" else PX4_1_12)
     b.parameters({**px4_parameters(spec, version), **(parameters or {})})
-    us = _us(t)
+    us = _us(t, start_us)
     topics = {}
     topics["vehicle_attitude"] = (us[::attitude_every], {
         "timestamp_sample": ("uint64_t", us[::attitude_every]),
@@ -262,52 +270,57 @@ def flight_log(path: Path, flight: Flight, version: str = "1.15", *,
             "output": ("float", pwm[::motors_every])})
     # State topics at 2 Hz and on every change, as PX4 publishes them.
     changes = [0.0, line.armed_s, line.takeoff_s, line.landing_s, line.disarmed_s]
+    if simulator:  # no landing in the log: armed and in the air to its last sample
+        changes = [0.0]
+        line = Timeline(0.0, float(t[-1]) + 1.0, 0.0, float(t[-1]) + 1.0, float(t[-1]))
     status_t = np.union1d(np.arange(0.0, line.end_s, 0.5), changes)
     status_t = np.union1d(status_t, [t for span in landed_between for t in span])
     arming = np.where((status_t >= line.armed_s) & (status_t < line.disarmed_s), 2, 1)
-    topics["vehicle_status"] = (_us(status_t), {
+    topics["vehicle_status"] = (_us(status_t, start_us), {
         "arming_state": ("uint8_t", arming), "nav_state": ("uint8_t", np.full(len(status_t), 2)),
         "vehicle_type": ("uint8_t", np.ones(len(status_t)))})
     landed = ~((status_t >= line.takeoff_s) & (status_t < line.landing_s))
     for a, b_s in landed_between:
         landed |= (status_t >= a) & (status_t < b_s)
-    topics["vehicle_land_detected"] = (_us(status_t), {
+    topics["vehicle_land_detected"] = (_us(status_t, start_us), {
         "landed": ("bool", landed), "maybe_landed": ("bool", landed),
         "ground_contact": ("bool", landed)})
     if version == "1.15":
         air = np.arange(line.takeoff_s, line.landing_s, 0.1)
-        topics["hover_thrust_estimate"] = (_us(air), {
-            "timestamp_sample": ("uint64_t", _us(air)),
+        topics["hover_thrust_estimate"] = (_us(air, start_us), {
+            "timestamp_sample": ("uint64_t", _us(air, start_us)),
             "hover_thrust": ("float", np.full(len(air), hover_thrust_fraction(spec))),
             "hover_thrust_var": ("float", np.full(len(air), 1e-4)),
             "valid": ("bool", np.ones(len(air)))})
     if rates_gap is not None:
         stamps, fields = topics["vehicle_angular_velocity"]
-        keep = (stamps <= _us(rates_gap[0])) | (stamps >= _us(rates_gap[1]))
+        gap = _us(np.array(rates_gap), start_us)
+        keep = (stamps <= gap[0]) | (stamps >= gap[1])
         topics["vehicle_angular_velocity"] = (stamps[keep], {
             k: (kind, v[keep]) for k, (kind, v) in fields.items()})
     if nan_at is not None:
         motor_topic = "actuator_motors" if version == "1.15" else "actuator_outputs"
         stamps, fields = topics[motor_topic]
-        row = int(np.argmin(np.abs(stamps - _us(nan_at[1]))))
+        row = int(np.argmin(np.abs(stamps - _us(nan_at[1], start_us))))
         name, index = nan_at[0].rstrip("]").split("[")
         fields[name][1][row, int(index)] = np.nan
     for name, (stamps, fields) in topics.items():
         if name not in drop_topics:
             b.topic(name, stamps, fields)
     if esc:
-        _esc_status(b, t, fraction, spec)
+        _esc_status(b, _us(t, start_us), fraction, spec)
     return b.write(path)
 
 
-def _esc_status(b: LogBuilder, t: np.ndarray, fraction: np.ndarray, spec: AirframeSpec) -> None:
+def _esc_status(b: LogBuilder, time_us: np.ndarray, fraction: np.ndarray, spec: AirframeSpec
+                ) -> None:
     """PX4's esc_status (nested esc_report[8]): the rotors' rpm, ESC k driving motor 4 - k."""
     b.format("esc_report", [("uint64_t", 0, "timestamp"), ("int32_t", 0, "esc_rpm"),
                             ("uint8_t", 0, "actuator_function")])
     b.format("esc_status", [("uint64_t", 0, "timestamp"), ("uint8_t", 0, "esc_count"),
                             ("esc_report", 8, "esc")])
-    rows = np.arange(0, len(t), 10)
-    us = _us(t[rows])
+    rows = np.arange(0, len(time_us), 10)
+    us = time_us[rows]
     w_max = np.array([r.max_rad_s for r in spec.rotors])
     rpm = np.round(w_max * np.sqrt(fraction[rows]) * 60.0 / (2.0 * np.pi))
     flat: dict[str, tuple[str, np.ndarray]] = {"timestamp": ("uint64_t", us),

@@ -25,6 +25,9 @@ from ground.ulog.read import ARMED_VALUE, PX4Log, Series, ULogError
 DEFAULT_TRIM_S = (2.0, 2.0)
 MAX_RATE_HZ = 100.0  # the default clock: the body rates' own, at most the control rate here
 MIN_SPAN_S = 1.0  # shorter airborne pieces are left out
+# Logged times are whole microseconds: an instant within half of one of a sample is at it
+# (the grid's sums of periods round).
+TIME_TOLERANCE_S = 0.5e-6
 
 # -- airborne spans ------------------------------------------------------------------------
 
@@ -59,7 +62,7 @@ def _intervals(t: np.ndarray, state: np.ndarray, end_s: float) -> list[tuple[flo
 
 def airborne_spans(log: PX4Log, trim_s: tuple[float, float] = DEFAULT_TRIM_S) -> Spans:
     """The spans where the vehicle was armed and the land detector said not landed,
-    each trimmed by ``trim_s`` (start, end)."""
+    each trimmed by ``trim_s`` (start, end; no end trim where the log ends in the air)."""
     armed = log.series("armed")
     landed = log.series("landed")
     armed_value = ARMED_VALUE[armed.source.topic]
@@ -69,8 +72,11 @@ def airborne_spans(log: PX4Log, trim_s: tuple[float, float] = DEFAULT_TRIM_S) ->
     in_air = is_armed & ~_state_at(landed, t, lambda v: v != 0)
     armed_spans = _intervals(t, is_armed, end_s)
     air = _intervals(t, in_air, end_s)
-    trimmed = tuple((a + trim_s[0], b - trim_s[1]) for a, b in air
-                    if b - a > trim_s[0] + trim_s[1])
+    # A span the log ends in has no landing to trim, and keeps its last sample (the grid
+    # is half-open [a, b)).
+    ends = [(b + TIME_TOLERANCE_S, 0.0) if b >= end_s else (b, trim_s[1]) for _a, b in air]
+    trimmed = tuple((a + trim_s[0], b - trim_end) for (a, _b), (b, trim_end) in
+                    zip(air, ends, strict=True) if b - a > trim_s[0] + trim_end)
     return Spans(trimmed, sum(b - a for a, b in air), sum(b - a for a, b in armed_spans),
                  bool(air) and air[-1][1] >= end_s)
 
@@ -88,7 +94,7 @@ def _cut_at_gaps(spans: Sequence[tuple[float, float]], series: Sequence[Series],
         holes = [(s.time_s[g], s.time_s[g + 1]) for g in gaps]
         cut = []
         for a, b in pieces:
-            a, b = max(a, float(s.time_s[0])), min(b, float(s.time_s[-1]))
+            a, b = max(a, float(s.time_s[0])), min(b, float(s.time_s[-1]) + TIME_TOLERANCE_S)
             for h0, h1 in holes:
                 if h1 <= a or h0 >= b:
                     continue
@@ -200,17 +206,13 @@ def _slerp(series: Series, t: np.ndarray, path: Path) -> np.ndarray:
     if len(q) == 1:
         return np.repeat(q / norms[:, None], len(t), axis=0)
     rotations = Rotation.from_quat(q[:, [1, 2, 3, 0]])  # scipy: scalar last
-    xyzw = Slerp(series.time_s[i0:i1], rotations)(t).as_quat()
+    times = series.time_s[i0:i1]
+    xyzw = Slerp(times, rotations)(np.clip(t, times[0], times[-1])).as_quat()
     return xyzw[:, [3, 0, 1, 2]]
 
 
 def _linear(series: Series, t: np.ndarray) -> np.ndarray:
     return make_interp_spline(series.time_s, series.values, k=1, axis=0)(t)
-
-
-# Logged times are whole microseconds: an instant within half of one of a sample is at it
-# (the grid's sums of periods round).
-TIME_TOLERANCE_S = 0.5e-6
 
 
 def held(series: Series, t: np.ndarray) -> np.ndarray:

@@ -166,13 +166,17 @@ class PX4Log:
         fields = source.fields
         if signal == "motors" and source.topic == "actuator_outputs":
             fields = self._motor_channels(data)
+        # PX4 leaves an unset stamp at 0: before a log that starts later, it is no time. A
+        # log that starts at 0 (a simulator's) has samples at 0.
+        starts_later = self.ulog.start_timestamp > 0
         stamps = data.data["timestamp"]
         if source.sample_time and "timestamp_sample" in data.data:
             sampled = data.data["timestamp_sample"]
-            if np.all(sampled > 0) and np.all(np.diff(sampled.astype(np.int64)) >= 0):
+            if (np.all(sampled > 0) or not starts_later) and \
+                    np.all(np.diff(sampled.astype(np.int64)) >= 0):
                 stamps = sampled
         values = np.column_stack([data.data[f].astype(float) for f in fields])
-        keep = stamps > 0  # PX4 leaves unset stamps at 0
+        keep = stamps > 0 if starts_later else np.ones(len(stamps), dtype=bool)
         t = (stamps[keep].astype(np.int64) - int(self.ulog.start_timestamp)) / 1e6
         values = values[keep]
         order = np.argsort(t, kind="stable")
@@ -206,7 +210,7 @@ class PX4Log:
         text = px4_release(release) if isinstance(release, int) and release else None
         if text and git:
             return f"{text} ({str(git)[:8]})"
-        return text or (f"unknown release (git {str(git)[:8]})" if git else "unknown")
+        return text or (f"of no release (ver_sw {str(git)[:8]})" if git else "of no version")
 
 
 def px4_release(value: int) -> str:

@@ -110,6 +110,23 @@ def test_a_1_15_log_gives_the_runs_own_data_to_float32(logs, flight):
     assert data.sources["acceleration"].endswith("not filtered")
 
 
+def test_a_simulators_log_gives_the_runs_rows_exactly(tmp_path, flight):
+    """A log as a simulator writes a run (stamps from 0 us, armed and in the air from its
+    first sample to its last, no derivative of the rates): the start trimmed 2 s as --log
+    skips, the end kept (no landing to trim, the last sample taken), and unfiltered, the
+    rows are --log's, one for one."""
+    path = flight_log(tmp_path / "sim.ulg", flight, simulator=True, acceleration=False)
+    log = read_log(path)
+    assert log.ulog.start_timestamp == 0 and log.series("armed").time_s[0] == 0.0
+    data = identification_data(path, X500, cutoff_hz=0.0)
+    mine, ref = data.dataset, log_dataset(flight)
+    assert mine.n_rows == ref.n_rows == 3999
+    assert np.max(np.abs(mine.column("time_s") - ref.column("time_s"))) < 1e-9
+    for name in ("phi_rad", "psi_rate_rad_s", "u_theta_n", "theta_acc_rad_s2"):
+        assert np.max(np.abs(mine.column(name) - ref.column(name))) < 5e-5, name
+    assert airborne_spans(log).ends_airborne
+
+
 def test_px4s_derivative_is_taken_when_logged(logs, flight):
     """1.15's vehicle_angular_velocity.xyz_derivative (here forward differences of the
     body rates) turned into Euler accelerations, E w' + E' w: within 0.11 rad/s^2 (0.01

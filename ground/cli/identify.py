@@ -64,8 +64,9 @@ def add_ulog_arguments(p: argparse._ActionsContainer) -> None:
                         "the log has PX4's own derivative)")
     p.add_argument("--trim-s", type=trim_argument, default=DEFAULT_TRIM_S,
                    metavar="START[,END]",
-                   help="seconds left out at the start and end of each airborne span "
-                        f"(default {DEFAULT_TRIM_S[0]:g},{DEFAULT_TRIM_S[1]:g})")
+                   help="seconds left out at the start and (before a landing) the end of "
+                        "each airborne span (default "
+                        f"{DEFAULT_TRIM_S[0]:g},{DEFAULT_TRIM_S[1]:g})")
     p.add_argument("--pwm-range", type=pwm_argument, default=None, metavar="MIN_US,MAX_US",
                    help="the PWM range of actuator_outputs, when the log's PWM_MAIN_MIN/MAX "
                         "are missing or wrong")

@@ -28,7 +28,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="judge the reach against this envelope instead")
     p.add_argument("--trim-s", type=trim_argument, default=DEFAULT_TRIM_S,
                    metavar="START[,END]",
-                   help="seconds left out at the start and end of each airborne span "
+                   help="seconds left out at the start and (before a landing) the end of "
+                        "each airborne span "
                         f"(default {DEFAULT_TRIM_S[0]:g},{DEFAULT_TRIM_S[1]:g})")
 
 

@@ -145,10 +145,11 @@ def hover_thrust(log: PX4Log) -> tuple[float, str] | None:
     return None
 
 
-def esc_top_speeds(log: PX4Log) -> tuple[tuple[float, ...], str] | None:
+def esc_top_speeds(log: PX4Log) -> tuple[tuple[float, ...] | None, str] | None:
     """Each rotor's top speed [rad/s] fitted to ESC telemetry: W = W_max sqrt(thrust
     fraction) over the airborne samples (actuator_motors and esc_status.esc[k].esc_rpm);
-    None without both, or when the fit explains less than 80 % of the variance."""
+    None without both; (None, why) when the fit explains less than 80 % of the
+    variance."""
     esc = log.topic("esc_status")
     motors = log.source("motors")
     if esc is None or motors is None or motors[0].topic != "actuator_motors":
@@ -181,7 +182,8 @@ def esc_top_speeds(log: PX4Log) -> tuple[tuple[float, ...], str] | None:
         worst = min(worst, r2)
         out.append(g6(w_max))
     if worst < ESC_MIN_R2:
-        return None
+        return None, (f"esc_status rpm does not follow W = W_max sqrt(thrust): R^2 "
+                      f"{worst:.2f} < {ESC_MIN_R2:g}")
     return tuple(out), f"esc_status rpm fitted to W = W_max sqrt(thrust), R^2 >= {worst:.2f}"
 
 
@@ -245,12 +247,14 @@ def draft_airframe(path: str | Path, mass_kg: float, max_rad_s: float | None = N
     log = read_log(path)
     rotors = rotors_from_log(log)
     hover = hover_thrust(log)
+    esc_note = ""
     if max_rad_s is not None:
         top: tuple[float, ...] | None = (float(max_rad_s),) * ROTORS
         top_said = "given: --max-rad-s"
     else:
         esc = esc_top_speeds(log)
         top, top_said = (esc if esc is not None else (None, ""))
+        esc_note = top_said if top is None and top_said else ""
     factor = log.parameter("thrust_model_factor")
     weight_n = mass_kg * GRAVITY_MPS2
     cts = [r.ct for r in rotors] if rotors else [None] * ROTORS
@@ -339,7 +343,8 @@ def draft_airframe(path: str | Path, mass_kg: float, max_rad_s: float | None = N
         w.key("moment_coeff_nms2", km, km_note, f"{at}.moment_coeff_nms2")
         w.key("max_rad_s", None if top is None else top[i], top_said if top is not None else
               "the rotor's top speed [rad/s] (motor KV x battery volts x 2 pi / 60, less "
-              "under load; or --max-rad-s, or log esc_status)", f"{at}.max_rad_s")
+              "under load; or --max-rad-s, or log esc_status)"
+              + (f"; {esc_note}" if esc_note else ""), f"{at}.max_rad_s")
         w.key("time_constant_s", 0.0, "ASSUMED: no motor lag (not in a PX4 log); a 10\" "
               "propeller's is 0.02-0.05 s", f"{at}.time_constant_s")
         w.key("inertia_kgm2", 0.0, "ASSUMED: no rotor inertia (not in a PX4 log)",

@@ -31,7 +31,11 @@ SHIPPED_DIR = "airframes"
 COMMAND_MAPS = ("speed", "thrust")  # c -> W = c W_max (jMAVSim, Gazebo) / T = c T_max (SIH)
 SPINS = {"cw": 1.0, "ccw": -1.0}
 _TOP_KEYS = {"name", "description", "mass_kg", "inertia_kgm2", "linear_drag_nspm",
-             "command_map", "rotor", "parameters", "envelope"}
+             "command_map", "rotor", "parameters", "envelope", "draft"}
+# A draft airframe (``ivfm airframe from-ulog``) marks each number it could not read so;
+# no command reads the file until none is left. Its [draft] table says where the others
+# came from, and may stay.
+TO_FILL = "TO_FILL"
 # An envelope's largest values: beyond 1.2 rad, roll and pitch together leave no thrust
 # to spare.
 ENVELOPE_LIMITS = {"attitude_rad": 1.2, "rate_rad_s": 5.0, "yaw_rate_rad_s": 5.0}
@@ -142,8 +146,33 @@ def spec_argument(text: str) -> AirframeSpec:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
+def to_fill(data: dict[str, Any]) -> list[str]:
+    """The fields of an airframe table still marked TO_FILL, named as errors name them."""
+    def marked(value: Any) -> bool:
+        return value == TO_FILL or (isinstance(value, list) and any(map(marked, value)))
+
+    out = []
+    for key, value in data.items():
+        if key == "draft":
+            continue
+        if key == "rotor" and isinstance(value, list):
+            out += [f"rotor[{i + 1}].{k}" for i, r in enumerate(value) if isinstance(r, dict)
+                    for k, v in r.items() if marked(v)]
+        elif isinstance(value, dict):
+            out += [f"{key}.{k}" for k, v in value.items() if marked(v)]
+        elif marked(value):
+            out.append(key)
+    return out
+
+
 def parse_airframe(data: dict[str, Any], where: str = "airframe",
                    default_name: str = "airframe", controllable: bool = True) -> AirframeSpec:
+    missing = to_fill(data)
+    if missing:
+        raise AirframeError(f"{where}: a draft airframe: fill in {', '.join(missing)} (each "
+                            f"marked \"{TO_FILL}\"; docs/px4-logs.md)")
+    if "draft" in data and not isinstance(data["draft"], dict):
+        raise AirframeError(f"{where}: draft must be a table")
     check_fields(data, _TOP_KEYS, where, AirframeError)
     for key in ("mass_kg", "inertia_kgm2", "rotor"):
         if key not in data:

@@ -20,6 +20,10 @@ Targets and what each must survive, with the answer it must give:
   refused; the file stays readable; the per-key structures stay bounded.
 * ``files``: hostile scenario, airframe, sensor-profile, plan and model files: read or
   ValueError naming the file.
+* ``ulog``: PX4 logs truncated, bit-flipped, spliced or empty, and logs whose fields hold
+  hostile values (NaN, infinities, 1e38, wrong-sign stamps), into ``ivfm ulog info``,
+  ``ivfm identify --ulog`` and ``ivfm airframe from-ulog``: each answers or exits 2 saying
+  why, never a traceback.
 """
 
 from __future__ import annotations
@@ -478,3 +482,73 @@ def hostile_log(folder: Path, data: bytes, capsys) -> None:
             assert err.startswith("ivfm: error: "), err
             if argv[:2] == ["ground", "ulog"]:
                 assert not (run / "out.ulg").exists()
+
+
+# -- PX4 logs (ULog) -------------------------------------------------------------------------
+
+def hostile_ulog(folder: Path, data: bytes, capsys) -> None:
+    """``ivfm ulog info``, ``ivfm identify --ulog`` and ``ivfm airframe from-ulog`` on a
+    PX4 log whose bytes are ``data``: each succeeds or exits 2 saying why, never a
+    traceback, and writes nothing when it refuses."""
+    from ground.cli.main import main
+
+    log = folder / "flight.ulg"
+    log.write_bytes(data)
+    for argv, out in ((["ulog", "info", str(log), "--airframe", "quad-x-500"], None),
+                      (["identify", "--ulog", str(log), "--airframe", "quad-x-500",
+                        "--allow-narrow", "--out", str(folder / "model.json")],
+                       folder / "model.json"),
+                      (["airframe", "from-ulog", str(log), "--mass-kg", "2", "--force",
+                        "--out", str(folder / "draft.toml")], folder / "draft.toml")):
+        if out is not None and out.exists():
+            out.unlink()
+        code = main(argv)
+        err = capsys.readouterr().err
+        assert code in (0, 2), (argv, code, err)
+        assert "Traceback" not in err
+        if code == 2:
+            assert "ivfm: error: " in err, err
+            assert out is None or not out.exists()
+
+
+def ulog_fields(path: Path) -> list[tuple[str, str, str, int]]:
+    """(topic, field, type, rows) of every field of a log but the timestamps."""
+    from pyulog import ULog
+
+    ulog = ULog(str(path))
+    return [(d.name, f.field_name, f.type_str, len(d.data["timestamp"]))
+            for d in ulog.data_list for f in d.field_data if f.field_name != "timestamp"]
+
+
+@st.composite
+def ulog_edits(draw, fields: list[tuple[str, str, str, int]]) -> list[tuple[str, str, int, Any]]:
+    """1-8 (topic, field, row, value) edits, each value hostile for the field's type."""
+    out = []
+    for _ in range(draw(st.integers(1, 8))):
+        topic, name, kind, rows = draw(st.sampled_from(fields))
+        row = draw(st.integers(0, rows - 1))
+        if kind in ("float", "double"):
+            value: Any = draw(hostile_float())
+        elif kind in INT_RANGES:
+            low, high = INT_RANGES[kind]
+            value = draw(st.one_of(st.sampled_from((low, high, 0, 1, 2)),
+                                   st.integers(low, high)))
+        else:  # bool, char
+            value = draw(st.integers(0, 1))
+        out.append((topic, name, row, value))
+    return out
+
+
+def edited_ulog(seed: Path, edits: list[tuple[str, str, int, Any]], out: Path) -> bytes:
+    """The seed log with each edit made, written by pyulog's writer; its bytes."""
+    from pyulog import ULog
+
+    ulog = ULog(str(seed))
+    for topic, name, row, value in edits:
+        data = next(d for d in ulog.data_list if d.name == topic)
+        column = data.data[name].copy()
+        with np.errstate(all="ignore"):
+            column[row] = value
+        data.data[name] = column
+    ulog.write_ulog(str(out))
+    return out.read_bytes()

@@ -366,6 +366,38 @@ def test_fuzz_logs_into_report_tlog_ulog_and_identify(tmp_path_factory, capsys, 
     fz.hostile_log(tmp_path_factory.mktemp("fuzz-log"), data, capsys)
 
 
+# -- PX4 logs (ULog) ---------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def px4_log(tmp_path_factory):
+    """A short PX4 1.15 log of the project's own writing (tests/ulog_logs.py)."""
+    from tests.ulog_logs import small_log
+
+    return small_log(tmp_path_factory.mktemp("seed-ulog") / "seed.ulg")
+
+
+@pytest.fixture(scope="module")
+def px4_log_fields(px4_log):
+    return fz.ulog_fields(px4_log)
+
+
+@settings(FUZZ, max_examples=max(10, EXAMPLES // 10))  # each runs three commands
+@given(data=st.data())
+def test_fuzz_damaged_ulogs_into_info_identify_and_draft(tmp_path_factory, capsys, px4_log,
+                                                         data):
+    bytes_ = data.draw(fz.corrupt(px4_log.read_bytes()))
+    fz.hostile_ulog(tmp_path_factory.mktemp("fuzz-ulog"), bytes_, capsys)
+
+
+@settings(FUZZ, max_examples=max(10, EXAMPLES // 10))
+@given(data=st.data())
+def test_fuzz_hostile_values_in_ulogs(tmp_path_factory, capsys, px4_log, px4_log_fields,
+                                      data):
+    folder = tmp_path_factory.mktemp("fuzz-ulog-values")
+    edits = data.draw(fz.ulog_edits(px4_log_fields))
+    fz.hostile_ulog(folder, fz.edited_ulog(px4_log, edits, folder / "edited.ulg"), capsys)
+
+
 def test_the_logger_bounds_its_keys(tmp_path):
     """Hostile keys cannot grow the logger's per-key structures past MAX_KEYS: the
     records are refused and counted, and the known keys still log."""

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from autopilot.__main__ import param_argument
+from contracts.airframe_file import read_airframe
 from contracts.arguments import RATE_HZ
 from contracts.atomic_file import write_atomic
 from ground.cli.common import add_rt_cpus, fresh_folder
@@ -45,6 +46,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def handle(args: argparse.Namespace) -> int:
+    # A file that cannot be read (a draft with numbers TO_FILL among them) is refused
+    # before anything is written.
+    read_airframe(args.airframe, controllable=False)
     profile = load_profile(args.profile)
     out = args.out or fresh_folder("rehearse")
     print(f"ivfm rehearse: {args.airframe}, profile {profile.name} ({len(profile.flights)} "

@@ -32,12 +32,20 @@ class FlightResult:
     def name(self) -> str:
         return self.result.scenario.name
 
+    def _timing(self, key: str) -> int | None:
+        value = ((self.result.metrics or {}).get("timing") or {}).get(key)
+        return None if value is None else int(value)
+
     @property
     def deadline_misses(self) -> int | None:
         """The autopilot's deadline misses (None: not measured, a lockstep flight)."""
-        timing = (self.result.metrics or {}).get("timing") or {}
-        misses = timing.get("deadline_misses")
-        return None if misses is None else int(misses)
+        return self._timing("deadline_misses")
+
+    @property
+    def steps_held(self) -> int | None:
+        """Control steps the autopilot held in simulator stalls: a stall of the machine
+        that holds the simulator too is counted so, not as deadline misses."""
+        return self._timing("sim_stall_steps")
 
     def machine_note(self) -> str:
         """What the reference says of this flight's timing, in one sentence ('' without

@@ -16,8 +16,8 @@ absolute sleeps on CLOCK_MONOTONIC from Python. Either is started as a process o
 own, so nothing in the caller (its threads, its GIL) delays its wake-ups.
 
 Pure, and tested on exact numbers: ``lost_periods``, ``ReferenceTally`` (fixed memory),
-``parse_cyclictest`` and ``sleep_loop`` (the built-in sleeper's loop on an injected
-clock). The shell: ``ReferenceSleeper``, which runs one and hands every wake-up to a
+``parse_cyclictest``, ``CyclictestClock`` and ``sleep_loop`` (the built-in sleeper's loop
+on an injected clock). The shell: ``ReferenceSleeper``, which runs one and hands every wake-up to a
 callback, and ``main``, the built-in sleeper's process.
 """
 
@@ -102,12 +102,41 @@ _CYCLICTEST_SUMMARY = re.compile(r"^T:\s*\d+\s+\(\s*\d+\)\s+P:\s*(\d+)\s+I:\s*(\
                                  r"Avg:\s*(-?\d+)\s+Max:\s*(-?\d+)")
 
 
-def parse_cyclictest(line: str) -> float | None:
-    """The latency [s] in one line of ``cyclictest -v`` ("thread:cycle:latency_us"), None
-    for any other line (its header, its summary, warnings). cyclictest truncates to whole
-    microseconds, so a wake-up under 1 us past a whole period counts as on time."""
+def parse_cyclictest(line: str) -> tuple[int, float] | None:
+    """(wake-up number, latency [s]) in one line of ``cyclictest -v``
+    ("thread:cycle:latency_us"), None for any other line (its header, its summary,
+    warnings). cyclictest truncates to whole microseconds, so a wake-up under 1 us past a
+    whole period counts as on time."""
     match = _CYCLICTEST_VALUE.match(line)
-    return None if match is None else int(match.group(3)) * 1e-6
+    return None if match is None else (int(match.group(2)), int(match.group(3)) * 1e-6)
+
+
+class CyclictestClock:
+    """When each of cyclictest's wake-ups was due, on time.monotonic. It prints them from a
+    thread of normal priority every 10 ms, so on a busy machine they arrive late, in
+    bursts; their own numbers place them on the grid instead. The n-th wake-up is due
+    on the grid's deadline n plus the deadlines skipped before it (each wake-up more than
+    a period late skips the ones it passed, as ``lost_periods`` counts); the grid's origin
+    is the earliest any wake-up could have been (its arrival less its place on the grid
+    and its latency), so one prompt arrival fixes it."""
+
+    def __init__(self, interval_s: float) -> None:
+        self.interval_s = interval_s
+        self.origin_s = float("inf")
+        self.skipped = 0
+        self.last_index = -1  # the grid deadline of the last wake-up read
+
+    def behind(self, now_s: float) -> float:
+        """How many deadlines have passed since the last wake-up read (inf before any)."""
+        return (now_s - self.origin_s) / self.interval_s - self.last_index
+
+    def deadline(self, cycle: int, latency_s: float, arrival_s: float) -> float:
+        """The deadline [s] of wake-up ``cycle`` (0 first), given in order."""
+        self.last_index = cycle + self.skipped
+        on_grid_s = self.last_index * self.interval_s
+        self.origin_s = min(self.origin_s, arrival_s - on_grid_s - max(0.0, latency_s))
+        self.skipped += lost_periods(latency_s, self.interval_s)
+        return self.origin_s + on_grid_s
 
 
 def parse_cyclictest_summary(line: str) -> dict[str, int] | None:
@@ -183,6 +212,7 @@ class ReferenceSleeper:
         self._reader: threading.Thread | None = None
         self._err: IO[bytes] | None = None
         self._woke = threading.Event()
+        self._clock = CyclictestClock(round(period_s * 1e6) * 1e-6)  # its whole microseconds
 
     @property
     def pid(self) -> int | None:
@@ -224,6 +254,7 @@ class ReferenceSleeper:
         (the process is gone then)."""
         self.source = source
         self._woke.clear()
+        self._clock = CyclictestClock(self._clock.interval_s)
         self._err = tempfile.TemporaryFile()  # noqa: SIM115 (closed in stop or here)
         cpus = self.cpus
         # The affinity of the whole process before it runs, so that every thread of it
@@ -248,11 +279,12 @@ class ReferenceSleeper:
     def _read(self, stream: IO[str], source: str) -> None:
         for line in stream:
             if source == CYCLICTEST:
-                latency_s = parse_cyclictest(line)
-                if latency_s is None:
+                sample = parse_cyclictest(line)
+                if sample is None:
                     self.summary_line = parse_cyclictest_summary(line) or self.summary_line
                     continue
-                t_s = time.monotonic()  # cyclictest prints every 10 ms: when it came
+                cycle, latency_s = sample
+                t_s = self._clock.deadline(cycle, latency_s, time.monotonic())
             else:
                 if line.startswith("#"):
                     self.scheduling = line[1:].strip()
@@ -271,7 +303,15 @@ class ReferenceSleeper:
         return lines[-1] if lines else ""
 
     def stop(self, timeout_s: float = 5.0) -> None:
-        """End it (SIGTERM: cyclictest prints its summary) and read what it printed."""
+        """End it and read what it printed. cyclictest prints its wake-ups late on a busy
+        machine and drops those not yet printed when it ends: first wait (up to
+        ``timeout_s``) for those due by now. SIGTERM then makes it print its summary."""
+        if self.source == CYCLICTEST and self.proc is not None:
+            end_s = time.monotonic() + timeout_s
+            now_s = time.monotonic()
+            while (self._clock.behind(now_s) > 2.0 and self.proc.poll() is None
+                   and time.monotonic() < end_s):
+                time.sleep(0.005)
         self._end(timeout_s)
 
     def _end(self, timeout_s: float = 5.0) -> None:

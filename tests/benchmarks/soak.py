@@ -100,7 +100,11 @@ def rss_mib(pid: int) -> float:
 
 
 class MinuteTiming:
-    """Jitter, compute and misses of the timing records received this minute."""
+    """Jitter, compute and misses of the timing records received this minute, and the
+    periods without a step: the records' times since the previous step, summed in whole
+    periods, less the steps (a deadline miss, or a step held in a simulator stall: when a
+    stall of the machine holds the simulator too, the autopilot counts the second, not the
+    first). Summed, a late step and the early one after it cancel."""
 
     def __init__(self, period_s: float) -> None:
         self.period_s = period_s
@@ -112,6 +116,7 @@ class MinuteTiming:
     def _fresh(self) -> None:
         self.jitter, self.compute = Histogram(), Histogram()
         self.misses_at_start = self.misses_seen
+        self.stepped_s, self.stepped = 0.0, 0
 
     def on_sample(self, sample) -> None:
         timing_key = vehicle_key(1, AUTOPILOT, "timing")
@@ -125,11 +130,15 @@ class MinuteTiming:
                 self.compute.add(float(r["compute_s"]))
                 if r["period_s"] == r["period_s"]:  # NaN after a restart of the loop
                     self.jitter.add(abs(float(r["period_s"]) - self.period_s))
+                    self.stepped_s += float(r["period_s"])
+                    self.stepped += 1
 
     def take(self) -> dict:
         with self.lock:
             j, c = self.jitter, self.compute
             out = {"steps": c.n, "misses": self.misses_seen - self.misses_at_start,
+                   "periods_without_step": round(self.stepped_s / self.period_s)
+                   - self.stepped,
                    "jitter_p50_ms": j.percentile(50) * 1e3,
                    "jitter_p99_ms": j.percentile(99) * 1e3, "jitter_max_ms": j.max_s * 1e3,
                    "compute_p99_ms": c.percentile(99) * 1e3}
@@ -278,7 +287,7 @@ def soak(args: argparse.Namespace) -> None:
                 ref = (f"reference lost {row['ref_lost_periods']:3d} worst "
                        f"{row['ref_worst_ms']:6.2f} ms  " if sleeper is not None else "")
                 print(f"min {minute:3d}  steps {row['steps']:6d}  misses {row['misses']:3d}  "
-                      + ref +
+                      f"without a step {row['periods_without_step']:3d}  " + ref +
                       f"jitter p50/p99/max {row['jitter_p50_ms']:.3f}/{row['jitter_p99_ms']:.3f}/"
                       f"{row['jitter_max_ms']:.3f} ms  compute p99 {row['compute_p99_ms']:.3f} ms"
                       f"  RSS MiB " + " ".join(f"{n} {row[f'rss_{n}_mib']:.1f}" for n in procs)
@@ -323,7 +332,8 @@ def soak(args: argparse.Namespace) -> None:
                 f"{n} {100 * (rows[-1][f'rss_{n}_mib'] / first[f'rss_{n}_mib'] - 1):+.1f} % "
                 f"(max {100 * (max(r[f'rss_{n}_mib'] for r in rows) / first[f'rss_{n}_mib'] - 1):+.1f} %)"  # noqa: E501
                 for n in procs))
-            print(f"total misses {sum(r['misses'] for r in rows)}, worst minute p99 "
+            print(f"total misses {sum(r['misses'] for r in rows)}, periods without a step "
+                  f"{sum(r['periods_without_step'] for r in rows)}, worst minute p99 "
                   f"{max(r['jitter_p99_ms'] for r in rows):.3f} ms")
         totals = None
         if sleeper is not None:
@@ -334,6 +344,7 @@ def soak(args: argparse.Namespace) -> None:
         if args.json:
             args.json.write_text(json.dumps({
                 "minutes": rows, "total_misses": sum(r["misses"] for r in rows),
+                "total_periods_without_step": sum(r["periods_without_step"] for r in rows),
                 "reference": totals}, indent=1))
 
 

@@ -244,7 +244,8 @@ def _timing_rehearsal(tmp_path: Path, reference: dict) -> Rehearsal:
                      "timing.deadline_misses = 5 > limit 3")
     result = ScenarioResult(load_scenario(timing.scenario), tmp_path / "timing",
                             outcomes=[failed], wall_time_s=11.0,
-                            metrics={"timing": {"deadline_misses": 5}})
+                            metrics={"timing": {"deadline_misses": 5,
+                                                "sim_stall_steps": 7}})
     r = Rehearsal("quad-x-500", "quad-x-500", profile, 250.0, None, "shipped", {})
     r.flights.append(FlightResult(timing, result, reference))
     return r
@@ -269,13 +270,15 @@ def test_a_timing_no_go_says_whether_the_machine_alone_missed_too(tmp_path):
                              "deadlines with none of our code. A faster or quieter machine")
     md = markdown(r)
     assert "## Deadlines beside the machine's own" in md
-    assert ("| timing | 5 | 4 | 9.12 ms | 0.081 ms | the autopilot's loop, 10.0 s, 2490 "
+    assert ("| timing | 5 | 7 | 4 | 9.12 ms | 0.081 ms | the autopilot's loop, 10.0 s, 2490 "
             "wake-ups |") in md
+    assert "| flight | autopilot deadline misses | autopilot steps held (simulator stalls) |" in md
     assert "The reference sleeper (cyclictest, SCHED_FIFO priority 50, CPU 0, every 4 ms)" in md
     page = html_page(r, tmp_path)
     assert "<table id='reference'>" in page and "<td>9.12 ms</td>" in page
     (flight,) = rehearsal_json(r)["flights"]
-    assert flight["deadline_misses"] == 5 and flight["reference"]["lost_periods"] == 4
+    assert flight["deadline_misses"] == 5 and flight["steps_held"] == 7
+    assert flight["reference"]["lost_periods"] == 4
     assert flight["machine"].startswith("in the same 10 s the reference sleeper")
     assert any("the machine misses deadlines with none of our code" in line
                for line in summary_lines(r))
@@ -287,7 +290,8 @@ def test_a_timing_no_go_with_a_quiet_machine_says_it_kept_time(tmp_path):
     assert advice.startswith("In the same 10 s the reference sleeper (cyclictest) lost none "
                              "(worst wake-up 0.41 ms late): the machine kept time. ")
     failed = _timing_rehearsal(tmp_path, {"error": "cyclictest did not run: refused"})
-    assert "| timing | 5 | not run |  |  | cyclictest did not run: refused |" in markdown(failed)
+    assert ("| timing | 5 | 7 | not run |  |  | cyclictest did not run: refused |"
+            in markdown(failed))
 
 
 def test_the_loop_window_comes_from_the_runs_timeline(tmp_path):

@@ -147,7 +147,9 @@ class MinuteTiming:
 
 
 class MinuteReference:
-    """The reference sleeper's wake-ups this minute (from its reader thread)."""
+    """The reference sleeper's wake-ups this minute (from its reader thread), by when they
+    are read; those due before ``restart`` (read late: cyclictest's backlog) are left
+    out."""
 
     def __init__(self, period_s: float) -> None:
         self.period_s = period_s
@@ -155,8 +157,11 @@ class MinuteReference:
         self.minute = ReferenceTally(period_s)
         self.total = ReferenceTally(period_s)
         self.total_summary = self.total.summary()
+        self.since_s = -float("inf")
 
-    def on_sample(self, _t_s: float, latency_s: float) -> None:
+    def on_sample(self, t_s: float, latency_s: float) -> None:
+        if t_s < self.since_s:
+            return
         with self.lock:
             self.minute.add(latency_s)
             self.total.add(latency_s)
@@ -172,6 +177,7 @@ class MinuteReference:
 
     def restart(self) -> None:
         with self.lock:
+            self.since_s = time.monotonic()
             self.minute, self.total = ReferenceTally(self.period_s), ReferenceTally(self.period_s)
 
 

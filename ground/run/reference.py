@@ -35,6 +35,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterable
+from pathlib import Path
 from typing import IO, Any
 
 from contracts.arguments import AUTOPILOT_RT_PRIORITY, cpu_list
@@ -245,11 +246,15 @@ class ReferenceSleeper:
                 self.note = f"cyclictest did not run ({why})"
         command = [sys.executable, "-m", "ground.run.reference", "--period-s",
                    repr(self.period_s), "--priority", str(self.priority)]
-        why = self._run(command, BUILT_IN, timeout_s)
+        # This very module, whether this process found it installed or on its sys.path.
+        root = str(Path(__file__).resolve().parents[2])
+        path = os.pathsep.join(filter(None, (root, os.environ.get("PYTHONPATH"))))
+        why = self._run(command, BUILT_IN, timeout_s, {**os.environ, "PYTHONPATH": path})
         if why is not None:
             raise RuntimeError(f"the built-in reference sleeper did not run: {why}")
 
-    def _run(self, argv: list[str], source: str, timeout_s: float) -> str | None:
+    def _run(self, argv: list[str], source: str, timeout_s: float,
+             env: dict[str, str] | None = None) -> str | None:
         """Start ``argv`` and wait for its first wake-up; None when it came, else why not
         (the process is gone then)."""
         self.source = source
@@ -261,7 +266,7 @@ class ReferenceSleeper:
         # (cyclictest's measuring thread) inherits it, as the autopilot's do (--rt-cpus).
         self.proc = subprocess.Popen(
             argv, stdout=subprocess.PIPE, stderr=self._err, stdin=subprocess.DEVNULL,
-            text=True, bufsize=1, start_new_session=True,
+            text=True, bufsize=1, start_new_session=True, env=env,
             preexec_fn=None if cpus is None else lambda: os.sched_setaffinity(0, cpus))
         self._reader = threading.Thread(target=self._read, args=(self.proc.stdout, source),
                                         name=f"reference-{source}", daemon=True)

@@ -10,6 +10,8 @@ import math
 import os
 import shutil
 import signal
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -222,3 +224,26 @@ def test_without_cyclictest_the_built_in_sleeper_runs_and_says_why(monkeypatch, 
     assert sleeper.source == BUILT_IN and sleeper.note == "cyclictest not installed"
     assert sleeper.describe().startswith("built-in, ")
     assert len(woke) >= 0.2 / PERIOD_S
+
+
+@pytest.mark.process
+@pytest.mark.skipif(shutil.which("setpriv") is None or os.geteuid() != 0,
+                    reason="needs root and setpriv (util-linux) to take CAP_SYS_NICE away")
+def test_without_the_right_to_sched_fifo_it_sleeps_at_normal_priority_and_says_so():
+    """As the autopilot does without CAP_SYS_NICE: cyclictest refuses to run, and the
+    built-in sleeper runs at normal priority, both said."""
+    script = ("import time\n"
+              "from ground.run.reference import ReferenceSleeper\n"
+              "woke = []\n"
+              "with ReferenceSleeper(0.004, lambda t, late: woke.append(late)) as s:\n"
+              "    time.sleep(0.3)\n"
+              "print(s.describe())\nprint(len(woke))\n")
+    done = subprocess.run(["setpriv", "--inh-caps=-sys_nice", "--bounding-set=-sys_nice",
+                           sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=60, cwd=Path(__file__).parents[2])
+    assert done.returncode == 0, done.stderr
+    described, woke = done.stdout.splitlines()
+    assert described.startswith("built-in, normal scheduling: SCHED_FIFO 50 refused")
+    if shutil.which("cyclictest"):
+        assert "; cyclictest did not run (" in described
+    assert int(woke) >= 0.2 / PERIOD_S

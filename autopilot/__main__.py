@@ -19,6 +19,7 @@ if __name__ == "__main__":
 
 from contracts.arguments import (  # noqa: E402
     ALTITUDE_M,
+    AUTOPILOT_RT_PRIORITY,
     DURATION_S,
     PORT,
     RATE_HZ,
@@ -122,7 +123,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--max-peers", type=number(0, 64, integer=True), default=4, metavar="N",
                    help="addresses per ground link that get telemetry (0-64; a newcomer "
                         "takes the place of one silent for 3 s)")
-    p.add_argument("--rt-priority", type=RT_PRIORITY, default=50, metavar="N",
+    p.add_argument("--rt-priority", type=RT_PRIORITY, default=AUTOPILOT_RT_PRIORITY, metavar="N",
                    help="real time: SCHED_FIFO priority of the control loop (1-99; 0: "
                         "normal scheduling; needs CAP_SYS_NICE, else normal with a note)")
     p.add_argument("--signing-state", type=Path, metavar="FILE",

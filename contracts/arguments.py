@@ -84,6 +84,10 @@ PORT = number(0, 65535, integer=True)
 SEED = number(0, 2**32 - 1, integer=True)
 VEHICLE_ID = number(1, 255, integer=True)  # a MAVLink system id
 RT_PRIORITY = number(0, 99, integer=True)
+# The SCHED_FIFO priorities the vehicle processes ask for by default (as PX4 on Linux
+# runs its tasks); the reference sleeper runs at the autopilot's (ground/run/reference.py).
+AUTOPILOT_RT_PRIORITY = 50
+SIMULATOR_RT_PRIORITY = 40
 DURATION_S = number(0.0, math.inf, "s", low_open=True, allow_inf=True)
 TIMEOUT_S = number(0.0, 3600.0, "s", low_open=True)
 ALTITUDE_M = number(0.0, 10_000.0, "m")

@@ -89,7 +89,7 @@ class Deadlines:
         late = self.clock() - self.next_s
         if late <= 0:
             return 0, 0.0
-        skipped = int(late // self.period_s) + 1
+        skipped = periods_lost(late, self.period_s)
         self.next_s += skipped * self.period_s
         return skipped, late
 
@@ -103,6 +103,17 @@ class Deadlines:
             self.next_s = now + self.period_s
             return now - passed_s
         return 0.0
+
+
+def periods_lost(late_s: float, period_s: float) -> int:
+    """The periods a loop loses when it is ``late_s`` past the deadline in force (the
+    next one) once a period's work is done: every deadline that has passed, the one in
+    force included; 0 when not late. The autopilot's deadline misses are counted so
+    (``Deadlines.skip_missed``), and so are the reference sleeper's lost periods
+    (ground/run/reference.py), so the two figures compare."""
+    if late_s <= 0:
+        return 0
+    return int(late_s // period_s) + 1
 
 
 class PacedProcess:

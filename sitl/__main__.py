@@ -20,6 +20,7 @@ from contracts.arguments import (  # noqa: E402
     RT_PRIORITY,
     SEED,
     SIM_RATE_HZ,
+    SIMULATOR_RT_PRIORITY,
     VEHICLE_ID,
     add_vehicle_process_arguments,
 )
@@ -70,7 +71,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--sensors", default="ideal", type=profile_argument,
                    help="sensor profile: ideal, typical, degraded or a .toml file "
                         "(docs/sensors.md)")
-    p.add_argument("--rt-priority", type=RT_PRIORITY, default=40, metavar="N",
+    p.add_argument("--rt-priority", type=RT_PRIORITY, default=SIMULATOR_RT_PRIORITY, metavar="N",
                    help="real time: SCHED_FIFO priority (1-99; 0: normal scheduling)")
     p.add_argument("--home", type=home_argument, default=DEFAULT_HOME,
                    metavar="NAME|LAT,LON,ALT",

@@ -173,10 +173,12 @@ class CheckOptions:
 
 def check_one(scenario: Scenario, options: CheckOptions,
               warm: WarmProcesses | None = None,
-              overrides: Overrides | None = None) -> ScenarioResult:
+              overrides: Overrides | None = None,
+              started_s: float | None = None) -> ScenarioResult:
     """Fly one scenario (as runs of ``warm`` processes, if given; with ``overrides`` of
     its choices, else only ``options.realtime``) and judge it; a failed flight is a
-    result, not an exception."""
+    result, not an exception. ``started_s`` (time.monotonic): the origin of the run's
+    timeline (default: when the processes start), so a caller can place its marks."""
 
     run_dir = options.out_dir / scenario.name
     result = ScenarioResult(scenario, run_dir)
@@ -185,7 +187,7 @@ def check_one(scenario: Scenario, options: CheckOptions,
         plan = plan_flight(scenario, overrides or Overrides(realtime=options.realtime,
                                                             rt_cpus=options.rt_cpus))
         result.metrics = fly_processes(plan, run_dir, figures=options.figures, quiet=True,
-                                       warm=warm)
+                                       warm=warm, started_s=started_s)
     except (ProcessRunError, ValueError, OSError) as exc:
         result.error = str(exc)
     result.wall_time_s = time.perf_counter() - start

@@ -11,9 +11,11 @@ from contracts.airframe_file import read_airframe
 from contracts.arguments import RATE_HZ
 from contracts.atomic_file import write_atomic
 from ground.cli.common import add_rt_cpus, fresh_folder
+from ground.rehearsal.outputs import summary_lines
 from ground.rehearsal.readiness import load_profile
-from ground.rehearsal.rehearse import rehearse, summary_lines
+from ground.rehearsal.rehearse import rehearse
 from ground.run.progress import LiveLine
+from ground.run.reference import CHOICES
 from sitl.sensors import profile_argument
 
 DESCRIPTION = (
@@ -43,6 +45,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--junit", type=Path, metavar="FILE",
                    help="also write the JUnit XML here (it is always in the folder)")
     add_rt_cpus(p)
+    p.add_argument("--reference", choices=(*CHOICES, "none"), default="auto",
+                   help="the sleeper beside each real-time flight, whose lost periods are "
+                        "the machine's own (auto: cyclictest when installed, else the "
+                        "built-in one; docs/realtime.md)")
 
 
 def handle(args: argparse.Namespace) -> int:
@@ -55,7 +61,7 @@ def handle(args: argparse.Namespace) -> int:
           f"flights), control at {args.rate_hz:g} Hz; folder {out}", file=sys.stderr)
     result = rehearse(args.airframe, profile, out, model=args.model, rate_hz=args.rate_hz,
                       sensors=args.sensors, parameters=dict(args.param), say=LiveLine().log,
-                      rt_cpus=args.rt_cpus)
+                      rt_cpus=args.rt_cpus, reference=args.reference)
     print("\n".join(summary_lines(result)))
     print(f"wrote {out / 'rehearsal.html'}, rehearsal.md, rehearsal.xml, parameters.params")
     if args.junit is not None:

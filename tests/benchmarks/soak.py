@@ -5,12 +5,16 @@ CPU-bound neighbours (``ivfm run attitude-sine --inprocess`` in a loop) may run 
 
 Each minute it prints the autopilot's deadline misses, jitter p50/p99/max and compute
 p99 over that minute (from the autopilot's timing records, read over Zenoh like any
-subscriber) and each process's resident memory, open files and threads; at the end, RSS
-against its value after the first minute and published against logged records.
+subscriber), beside them the periods a reference sleeper lost in the same minute and its
+worst wake-up (cyclictest when installed, else the built-in one, at the autopilot's period,
+priority and CPUs: ground/run/reference.py; the machine's own misses), and each process's
+resident memory, open files and threads; at the end, both totals, RSS against its value
+after the first minute and published against logged records.
 
     python tests/benchmarks/soak.py                      # 60 minutes at 250 Hz, alone
     python tests/benchmarks/soak.py --neighbours 2 --rt-cpus 0 --shield
     python tests/benchmarks/soak.py --minutes 10 --rate-hz 100 --json soak.json
+    python tests/benchmarks/soak.py --minutes 3 --reference built-in   # or none
 
 ``--shield`` runs ``ivfm shield`` on the --rt-cpus list for the soak (root) and lifts it
 afterwards. Loopback only; bounded by --minutes; asserts nothing.
@@ -32,7 +36,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from contracts.arguments import cpu_list  # noqa: E402
+from contracts.arguments import AUTOPILOT_RT_PRIORITY, cpu_list  # noqa: E402
 from contracts.mavlink import mavlink  # noqa: E402
 from contracts.realtime import Histogram, shield_cpus  # noqa: E402
 from contracts.telemetry import (  # noqa: E402
@@ -46,6 +50,7 @@ from contracts.telemetry import (  # noqa: E402
 from contracts.zenoh_link import ZenohOptions, open_session  # noqa: E402
 from ground.run.children import LoggerProcess, free_tcp_port, free_udp_port  # noqa: E402
 from ground.run.processes import telemetry_accounting  # noqa: E402
+from ground.run.reference import CHOICES, ReferenceSleeper, ReferenceTally, summary  # noqa: E402
 from ground.scenario.ground_station import GroundStation, GroundStationPlan  # noqa: E402
 from ground.uplink.perturb import PerturbationClient  # noqa: E402
 
@@ -95,7 +100,11 @@ def rss_mib(pid: int) -> float:
 
 
 class MinuteTiming:
-    """Jitter, compute and misses of the timing records received this minute."""
+    """Jitter, compute and misses of the timing records received this minute, and the
+    periods without a step: the records' times since the previous step, summed in whole
+    periods, less the steps (a deadline miss, or a step held in a simulator stall: when a
+    stall of the machine holds the simulator too, the autopilot counts the second, not the
+    first). Summed, a late step and the early one after it cancel."""
 
     def __init__(self, period_s: float) -> None:
         self.period_s = period_s
@@ -107,6 +116,7 @@ class MinuteTiming:
     def _fresh(self) -> None:
         self.jitter, self.compute = Histogram(), Histogram()
         self.misses_at_start = self.misses_seen
+        self.stepped_s, self.stepped = 0.0, 0
 
     def on_sample(self, sample) -> None:
         timing_key = vehicle_key(1, AUTOPILOT, "timing")
@@ -120,16 +130,55 @@ class MinuteTiming:
                 self.compute.add(float(r["compute_s"]))
                 if r["period_s"] == r["period_s"]:  # NaN after a restart of the loop
                     self.jitter.add(abs(float(r["period_s"]) - self.period_s))
+                    self.stepped_s += float(r["period_s"])
+                    self.stepped += 1
 
     def take(self) -> dict:
         with self.lock:
             j, c = self.jitter, self.compute
             out = {"steps": c.n, "misses": self.misses_seen - self.misses_at_start,
+                   "periods_without_step": round(self.stepped_s / self.period_s)
+                   - self.stepped,
                    "jitter_p50_ms": j.percentile(50) * 1e3,
                    "jitter_p99_ms": j.percentile(99) * 1e3, "jitter_max_ms": j.max_s * 1e3,
                    "compute_p99_ms": c.percentile(99) * 1e3}
             self._fresh()
         return out
+
+
+class MinuteReference:
+    """The reference sleeper's wake-ups this minute (from its reader thread), by when they
+    are read; those due before ``restart`` (read late: cyclictest's backlog) are left
+    out."""
+
+    def __init__(self, period_s: float) -> None:
+        self.period_s = period_s
+        self.lock = threading.Lock()
+        self.minute = ReferenceTally(period_s)
+        self.total = ReferenceTally(period_s)
+        self.total_summary = self.total.summary()
+        self.since_s = -float("inf")
+
+    def on_sample(self, t_s: float, latency_s: float) -> None:
+        if t_s < self.since_s:
+            return
+        with self.lock:
+            self.minute.add(latency_s)
+            self.total.add(latency_s)
+
+    def take(self) -> dict:
+        """This minute's figures; the total so far is kept as of now (``total_summary``),
+        so that it covers the same minutes as the rows."""
+        with self.lock:
+            got, self.minute = self.minute.summary(), ReferenceTally(self.period_s)
+            self.total_summary = self.total.summary()
+        return {"ref_wakeups": got["wakeups"], "ref_lost_periods": got["lost_periods"],
+                "ref_worst_ms": got["worst_ms"], "ref_p99_ms": got["p99_ms"]}
+
+    def restart(self) -> None:
+        with self.lock:
+            self.since_s = time.monotonic()
+            self.minute, self.total = ReferenceTally(self.period_s), ReferenceTally(self.period_s)
 
 
 def main() -> None:
@@ -145,6 +194,9 @@ def main() -> None:
     parser.add_argument("--rt-cpus", type=cpu_list, help="the vehicle processes' CPUs")
     parser.add_argument("--shield", action="store_true",
                         help="keep --rt-cpus for the vehicle processes (ivfm shield)")
+    parser.add_argument("--reference", choices=(*CHOICES, "none"), default="auto",
+                        help="the reference sleeper beside the soak (auto: cyclictest when "
+                             "installed, else the built-in one)")
     args = parser.parse_args()
     # Stopped by a signal (a background job ignores SIGINT): clean up as after the last
     # minute, so that the neighbours end and the shield is lifted.
@@ -191,6 +243,11 @@ def soak(args: argparse.Namespace) -> None:
             ["bash", "-c", NEIGHBOUR.format(nice=nice, out=out / f"neighbour-{i}")],
             start_new_session=True) for i in range(args.neighbours)]
         timing = MinuteTiming(1.0 / args.rate_hz)
+        reference = MinuteReference(1.0 / args.rate_hz)
+        sleeper = None
+        if args.reference != "none":
+            sleeper = ReferenceSleeper(1.0 / args.rate_hz, reference.on_sample,
+                                       AUTOPILOT_RT_PRIORITY, args.rt_cpus, args.reference)
         session = open_session(ZenohOptions(mode="peer", connect=[endpoint], listen=[]))
         sub = session.declare_subscriber(vehicle_key(1, AUTOPILOT, BATCH_TOPIC),
                                          timing.on_sample)
@@ -206,9 +263,13 @@ def soak(args: argparse.Namespace) -> None:
             start = time.monotonic()
             while timing.records == 0 and time.monotonic() - start < 120.0:
                 time.sleep(0.1)  # the loop is running
+            if sleeper is not None:
+                sleeper.start()
+                print(f"reference: {sleeper.describe()}", flush=True)
             station.start()
             start = time.monotonic()
             timing.take()
+            reference.restart()
             minute = 0
             while minute < args.minutes and procs["autopilot"].poll() is None:
                 time.sleep(max(0.0, start + 60.0 * minute + 20.0 - time.monotonic()))
@@ -222,13 +283,17 @@ def soak(args: argparse.Namespace) -> None:
                     wind_ok = False
                 time.sleep(max(0.0, start + 60.0 * (minute + 1) - time.monotonic()))
                 minute += 1
-                row = {"minute": minute, **timing.take(), "param_acked": param_ok,
+                row = {"minute": minute, **timing.take(), **reference.take(),
+                       "param_acked": param_ok,
                        "wind_acked": wind_ok,
                        **{f"rss_{n}_mib": round(rss_mib(p.pid), 1) for n, p in procs.items()},
                        **{f"fds_{n}": open_files(p.pid) for n, p in procs.items()},
                        **{f"threads_{n}": threads(p.pid) for n, p in procs.items()}}
                 rows.append(row)
+                ref = (f"reference lost {row['ref_lost_periods']:3d} worst "
+                       f"{row['ref_worst_ms']:6.2f} ms  " if sleeper is not None else "")
                 print(f"min {minute:3d}  steps {row['steps']:6d}  misses {row['misses']:3d}  "
+                      f"without a step {row['periods_without_step']:3d}  " + ref +
                       f"jitter p50/p99/max {row['jitter_p50_ms']:.3f}/{row['jitter_p99_ms']:.3f}/"
                       f"{row['jitter_max_ms']:.3f} ms  compute p99 {row['compute_p99_ms']:.3f} ms"
                       f"  RSS MiB " + " ".join(f"{n} {row[f'rss_{n}_mib']:.1f}" for n in procs)
@@ -239,6 +304,8 @@ def soak(args: argparse.Namespace) -> None:
         except SystemExit:  # SIGTERM: the summary of the minutes so far, then out
             print(f"stopped by a signal after {len(rows)} minutes", flush=True)
         finally:
+            if sleeper is not None:
+                sleeper.stop()
             station.stop()
             tool.close()
             for neighbour in neighbours:
@@ -271,10 +338,20 @@ def soak(args: argparse.Namespace) -> None:
                 f"{n} {100 * (rows[-1][f'rss_{n}_mib'] / first[f'rss_{n}_mib'] - 1):+.1f} % "
                 f"(max {100 * (max(r[f'rss_{n}_mib'] for r in rows) / first[f'rss_{n}_mib'] - 1):+.1f} %)"  # noqa: E501
                 for n in procs))
-            print(f"total misses {sum(r['misses'] for r in rows)}, worst minute p99 "
+            print(f"total misses {sum(r['misses'] for r in rows)}, periods without a step "
+                  f"{sum(r['periods_without_step'] for r in rows)}, worst minute p99 "
                   f"{max(r['jitter_p99_ms'] for r in rows):.3f} ms")
+        totals = None
+        if sleeper is not None:
+            totals = {**summary(sleeper, reference.total), **reference.total_summary}
+            print(f"reference ({sleeper.describe()}): {totals['lost_periods']} periods lost "
+                  f"in {totals['late_wakeups']} late wake-ups of {totals['wakeups']}, worst "
+                  f"{totals['worst_ms']:.2f} ms, p99 {totals['p99_ms']:.3f} ms")
         if args.json:
-            args.json.write_text(json.dumps(rows, indent=1))
+            args.json.write_text(json.dumps({
+                "minutes": rows, "total_misses": sum(r["misses"] for r in rows),
+                "total_periods_without_step": sum(r["periods_without_step"] for r in rows),
+                "reference": totals}, indent=1))
 
 
 if __name__ == "__main__":

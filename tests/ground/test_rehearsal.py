@@ -5,6 +5,7 @@ through the processes are in tests/ground/test_rehearsal_flights.py."""
 
 from __future__ import annotations
 
+import json
 import math
 import re
 import tomllib
@@ -16,13 +17,19 @@ import tomli_w
 
 from autopilot.parameters import default_parameters, validate_parameters
 from contracts.airframe_file import AirframeError, read_airframe
+from ground.check.checker import ScenarioResult
 from ground.cli.main import main
+from ground.rehearsal.outputs import html_page, markdown, rehearsal_json, summary_lines
 from ground.rehearsal.readiness import (
     airframe_checks,
     load_profile,
     parameter_checks,
     parse_profile,
 )
+from ground.rehearsal.rehearse import loop_window
+from ground.rehearsal.results import FlightResult, Rehearsal
+from ground.scenario.expectations import Outcome
+from ground.scenario.scenario_file import load_scenario
 
 X500 = Path(__file__).parents[2] / "contracts" / "airframes" / "quad-x-500.toml"
 
@@ -226,3 +233,76 @@ def test_the_tilt_rate_metric_catches_the_x500_limit_cycle(tmp_path):
             "tilt_rate_rms_rad_s"]
     assert rates[8.0] > 1.0  # measured 1.21 rad/s
     assert rates[20.0] < 0.01
+
+
+def _timing_rehearsal(tmp_path: Path, reference: dict) -> Rehearsal:
+    """A rehearsal whose timing flight missed 5 deadlines (limit 3), with the reference
+    sleeper's figures beside it; nothing flown."""
+    profile = load_profile()
+    timing = next(f for f in profile.flights if f.scenario.stem == "timing")
+    failed = Outcome("timing.deadline_misses <= 3", False, 5, 3.0,
+                     "timing.deadline_misses = 5 > limit 3")
+    result = ScenarioResult(load_scenario(timing.scenario), tmp_path / "timing",
+                            outcomes=[failed], wall_time_s=11.0,
+                            metrics={"timing": {"deadline_misses": 5,
+                                                "sim_stall_steps": 7}})
+    r = Rehearsal("quad-x-500", "quad-x-500", profile, 250.0, None, "shipped", {})
+    r.flights.append(FlightResult(timing, result, reference))
+    return r
+
+
+MACHINE_MISSED = {"source": "cyclictest", "scheduling": "SCHED_FIFO priority 50",
+                  "cpus": "CPU 0", "period_ms": 4.0, "note": "", "wakeups": 2490,
+                  "lost_periods": 4, "late_wakeups": 2, "worst_ms": 9.125, "p99_ms": 0.081,
+                  "p50_ms": 0.031, "window": "the autopilot's loop", "window_s": 10.0}
+
+
+def test_a_timing_no_go_says_whether_the_machine_alone_missed_too(tmp_path):
+    """The reference lost periods in the same seconds: the failed timing check says so
+    before its advice, and every output carries both figures. The verdict is unchanged
+    (information, not a rule)."""
+    r = _timing_rehearsal(tmp_path, MACHINE_MISSED)
+    assert r.verdict == "NO-GO"
+    ((group, outcome, advice),) = r.failed_checks()
+    assert group == "timing" and outcome.name.startswith("timing.deadline_misses")
+    assert advice.startswith("In the same 10 s the reference sleeper (cyclictest) lost 4 "
+                             "period(s), its worst wake-up 9.1 ms late: the machine misses "
+                             "deadlines with none of our code. A faster or quieter machine")
+    md = markdown(r)
+    assert "## Deadlines beside the machine's own" in md
+    assert ("| timing | 5 | 7 | 4 | 9.12 ms | 0.081 ms | the autopilot's loop, 10.0 s, 2490 "
+            "wake-ups |") in md
+    assert "| flight | autopilot deadline misses | autopilot steps held (simulator stalls) |" in md
+    assert "The reference sleeper (cyclictest, SCHED_FIFO priority 50, CPU 0, every 4 ms)" in md
+    page = html_page(r, tmp_path)
+    assert "<table id='reference'>" in page and "<td>9.12 ms</td>" in page
+    (flight,) = rehearsal_json(r)["flights"]
+    assert flight["deadline_misses"] == 5 and flight["steps_held"] == 7
+    assert flight["reference"]["lost_periods"] == 4
+    assert flight["machine"].startswith("in the same 10 s the reference sleeper")
+    assert any("the machine misses deadlines with none of our code" in line
+               for line in summary_lines(r))
+
+
+def test_a_timing_no_go_with_a_quiet_machine_says_it_kept_time(tmp_path):
+    kept = {**MACHINE_MISSED, "lost_periods": 0, "late_wakeups": 0, "worst_ms": 0.412}
+    ((_, _, advice),) = _timing_rehearsal(tmp_path, kept).failed_checks()
+    assert advice.startswith("In the same 10 s the reference sleeper (cyclictest) lost none "
+                             "(worst wake-up 0.41 ms late): the machine kept time. ")
+    failed = _timing_rehearsal(tmp_path, {"error": "cyclictest did not run: refused"})
+    assert ("| timing | 5 | 7 | not run |  |  | cyclictest did not run: refused |"
+            in markdown(failed))
+
+
+def test_the_loop_window_comes_from_the_runs_timeline(tmp_path):
+    """The run's timeline counts from the flight's start (time.monotonic 1000 s here):
+    the autopilot's first and last control steps bound the reference's count."""
+    (tmp_path / "timeline.json").write_text(json.dumps({"events": [
+        {"t_s": 0.0, "process": "ground", "event": "command start"},
+        {"t_s": 0.8, "process": "autopilot", "event": "first control step"},
+        {"t_s": 10.8, "process": "autopilot", "event": "last control step"}]}))
+    assert loop_window(tmp_path, 1000.0) == (1000.8, 1010.8)
+    (tmp_path / "timeline.json").write_text(json.dumps({"events": [
+        {"t_s": 0.8, "process": "autopilot", "event": "first control step"}]}))
+    assert loop_window(tmp_path, 1000.0) == (1000.8, math.inf)  # failed before the last
+    assert loop_window(tmp_path / "none", 1000.0) is None

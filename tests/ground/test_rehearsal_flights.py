@@ -65,6 +65,21 @@ def test_the_x500_rehearsal_is_a_go(x500_rehearsal):
         assert f"] {name} (" in done.stderr
     for f in flights.values():  # each run folder kept, to open with ivfm report
         assert (Path(f["run_dir"]) / "metrics.json").is_file()
+    # Beside the real-time flight, the reference sleeper over the autopilot's loop (12 s of
+    # flight, 100 Hz): its figures next to the autopilot's misses, in every output. What it
+    # counted depends on the machine's load, so only its shape is pinned.
+    assert all("reference" not in f for n, f in flights.items() if n != "setpoint-loss")
+    beside = flights["setpoint-loss"]
+    ref = beside["reference"]
+    assert ref["source"] in ("cyclictest", "built-in") and ref["period_ms"] == 10.0
+    assert ref["window"] == "the autopilot's loop" and 10.0 < ref["window_s"] < 13.0
+    assert 0.8 * ref["window_s"] / 0.01 < ref["wakeups"] <= ref["window_s"] / 0.01 + 2
+    assert isinstance(ref["lost_periods"], int) and isinstance(beside["deadline_misses"], int)
+    assert beside["machine"].startswith("in the same ")
+    md = (out / "rehearsal.md").read_text()
+    assert (f"| setpoint-loss | {beside['deadline_misses']} | {beside['steps_held']} | "
+            f"{ref['lost_periods']} | ") in md
+    assert "<table id='reference'>" in (out / "rehearsal.html").read_text()
     # The airframe's parameter is the one flown, and the one in QGroundControl's file.
     assert "1\t1\tCMDF_ACC_MAX\t20.0\t9" in (out / "parameters.params").read_text()
 

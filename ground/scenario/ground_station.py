@@ -129,6 +129,8 @@ class GroundStation:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="ground-station", daemon=True)
         self._t0 = 0.0
+        self._next_beat = self._next_setpoint = 0.0  # plan times [s] of the next sendings
+        self._next_mode = plan.offboard_at_s if plan.offboard_at_s is not None else math.inf
 
     def start(self) -> None:
         self._t0 = time.monotonic()
@@ -151,39 +153,42 @@ class GroundStation:
             self.error = f"{type(exc).__name__}: {exc}"
 
     def _loop(self) -> None:
-        plan = self.plan
-        next_beat = next_setpoint = 0.0
-        next_mode = plan.offboard_at_s if plan.offboard_at_s is not None else math.inf
         while not self._stop.is_set():
-            t = time.monotonic() - self._t0
-            if plan.heartbeat_hz > 0 and t >= next_beat:
-                next_beat += 1.0 / plan.heartbeat_hz
-                if not plan.silent("heartbeat", t):
-                    self._send(mavlink.MAVLink_heartbeat_message(
-                        mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
-                        mavlink.MAV_STATE_ACTIVE, 3))
-                    self.sent["heartbeat"] += 1
-                    self.sent_at.append(("heartbeat", t))
-            if plan.offboard_at_s is not None and t >= next_setpoint:
-                next_setpoint += 1.0 / plan.setpoint_hz
-                if not plan.silent("setpoints", t):
-                    self._send(mavlink.MAVLink_set_position_target_local_ned_message(
-                        int(t * 1000), self.target, 1, mavlink.MAV_FRAME_LOCAL_NED,
-                        _POSITION_ONLY, *self.hover_ned_m, 0, 0, 0, 0, 0, 0,
-                        self.yaw_rad, 0))
-                    self.sent["setpoints"] += 1
-                    self.sent_at.append(("setpoints", t))
-            if t >= next_mode and not self.mode_acked:
-                next_mode = t + 0.5  # again until acknowledged, as ground tools retry
-                if not plan.silent("all", t):
-                    self._send(mavlink.MAVLink_command_long_message(
-                        self.target, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,
-                        mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-                        *PX4_MODES[FlightMode.OFFBOARD], 0, 0, 0, 0))
-                    self.sent["set_mode"] += 1
-                    self.sent_at.append(("set_mode", t))
-            self._read()
+            self.step(time.monotonic() - self._t0)
             self._stop.wait(0.005)
+
+    def step(self, t: float) -> None:
+        """One pass at plan time ``t`` [s]: what is due goes out (one of each kind; what
+        fell due in a silence is skipped), then what the vehicle said is read. The thread
+        calls it every 5 ms; a test calls it on its own clock."""
+        plan = self.plan
+        if plan.heartbeat_hz > 0 and t >= self._next_beat:
+            self._next_beat += 1.0 / plan.heartbeat_hz
+            if not plan.silent("heartbeat", t):
+                self._send(mavlink.MAVLink_heartbeat_message(
+                    mavlink.MAV_TYPE_GCS, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                    mavlink.MAV_STATE_ACTIVE, 3))
+                self.sent["heartbeat"] += 1
+                self.sent_at.append(("heartbeat", t))
+        if plan.offboard_at_s is not None and t >= self._next_setpoint:
+            self._next_setpoint += 1.0 / plan.setpoint_hz
+            if not plan.silent("setpoints", t):
+                self._send(mavlink.MAVLink_set_position_target_local_ned_message(
+                    int(t * 1000), self.target, 1, mavlink.MAV_FRAME_LOCAL_NED,
+                    _POSITION_ONLY, *self.hover_ned_m, 0, 0, 0, 0, 0, 0,
+                    self.yaw_rad, 0))
+                self.sent["setpoints"] += 1
+                self.sent_at.append(("setpoints", t))
+        if t >= self._next_mode and not self.mode_acked:
+            self._next_mode = t + 0.5  # again until acknowledged, as ground tools retry
+            if not plan.silent("all", t):
+                self._send(mavlink.MAVLink_command_long_message(
+                    self.target, 1, mavlink.MAV_CMD_DO_SET_MODE, 0,
+                    mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                    *PX4_MODES[FlightMode.OFFBOARD], 0, 0, 0, 0))
+                self.sent["set_mode"] += 1
+                self.sent_at.append(("set_mode", t))
+        self._read()
 
     def _read(self) -> None:
         """Take what the vehicle sent (so the socket never fills); note the mode's ack;

@@ -129,6 +129,7 @@ class GroundStation:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="ground-station", daemon=True)
         self._t0 = 0.0
+        self._heard = False  # the vehicle's clock yet
         self._next_beat = self._next_setpoint = 0.0  # plan times [s] of the next sendings
         self._next_mode = plan.offboard_at_s if plan.offboard_at_s is not None else math.inf
 
@@ -190,16 +191,29 @@ class GroundStation:
                 self.sent_at.append(("set_mode", t))
         self._read()
 
+    def plan_time(self, now_s: float) -> float:
+        """The plan's time [s] at ``now_s`` on time.monotonic."""
+        return now_s - self._t0
+
+    def hear_vehicle_time(self, boot_ms: int, now_s: float) -> None:
+        """The plan runs on the vehicle's clock: set to it when the vehicle is first heard
+        (a station started late, beside busy work 2 s after the simulator was released,
+        had flown its whole plan 2 s behind the vehicle), then held back to it whenever
+        the vehicle falls behind (a simulator that stalled, or a message heard late)."""
+        vehicle_t0 = now_s - boot_ms / 1e3
+        self._t0 = vehicle_t0 if not self._heard else max(self._t0, vehicle_t0)
+        self._heard = True
+
     def _read(self) -> None:
         """Take what the vehicle sent (so the socket never fills); note the mode's ack;
-        hold the plan's clock back to the vehicle's."""
+        keep the plan on the vehicle's clock."""
         for _ in range(200):  # a budget: the vehicle streams telemetry at up to 50 Hz
             msg = self.conn.recv_match(blocking=False)
             if msg is None:
                 return
             boot_ms = getattr(msg, "time_boot_ms", None)
             if boot_ms is not None and msg.get_srcSystem() == self.target:
-                self._t0 = max(self._t0, time.monotonic() - boot_ms / 1e3)
+                self.hear_vehicle_time(boot_ms, time.monotonic())
             if msg.get_type() == "COMMAND_ACK" and \
                     msg.command == mavlink.MAV_CMD_DO_SET_MODE and \
                     msg.result == mavlink.MAV_RESULT_ACCEPTED:

@@ -170,6 +170,26 @@ def test_the_ground_station_keeps_its_plan_on_the_vehicles_clock():
     assert [t for kind, t in gcs.sent_at if kind == "set_mode"][0] >= 0.5
 
 
+def test_the_plan_runs_on_the_vehicles_clock_from_the_first_message():
+    """Started 1.9 s after the vehicle's clock (the station's start was late beside busy
+    work), the plan jumps to the vehicle's time when it first hears it; afterwards it is
+    never ahead of what the vehicle last said (a vehicle that falls behind, or a message
+    heard late, holds it back)."""
+    gcs = GroundStation(parse_ground_station({"offboard_at_s": 2.0}, 10.0), 9, 1,
+                        (0.0, 0.0, -2.0), 0.0)
+    gcs._t0 = 100.0  # started at 100 s on the monotonic clock
+    assert gcs.plan_time(100.1) == pytest.approx(0.1)
+    gcs.hear_vehicle_time(2000, 100.1)
+    assert gcs.plan_time(100.1) == pytest.approx(2.0)
+    gcs.hear_vehicle_time(2100, 100.2)  # on time: nothing moves
+    assert gcs.plan_time(100.2) == pytest.approx(2.1)
+    gcs.hear_vehicle_time(2500, 101.1)  # the vehicle stalled: 0.5 s behind
+    assert gcs.plan_time(101.1) == pytest.approx(2.5)
+    gcs.hear_vehicle_time(3200, 101.2)  # never set forward again: 2.6, not 3.2
+    assert gcs.plan_time(101.2) == pytest.approx(2.6)
+    gcs.conn.close()
+
+
 def test_a_ground_station_to_nobody_keeps_going():
     """No vehicle on the port (ICMP unreachable on loopback): the sends fail quietly and
     the thread runs on until stopped."""

@@ -44,6 +44,17 @@ class Track:
     positions: list[tuple[float, ...]] = field(default_factory=list)
     attitudes: list[tuple[float, ...]] = field(default_factory=list)
 
+    def coverage(self, marks: dict[str, float]) -> str:
+        """How many samples arrived between the script's marks, and the largest gap: when
+        a flight fails, whether the test's view of it stalled (two failures showed the
+        vehicle at an earlier corner at a mark, while its log had nothing amiss)."""
+        times = np.array([r[0] for r in self.positions])
+        names = sorted(marks, key=marks.get)
+        counts = ", ".join(f"{a}-{b}: {int(np.sum((times >= marks[a]) & (times < marks[b])))}"
+                           for a, b in zip(names, names[1:], strict=False))
+        gap = float(np.max(np.diff(times))) if len(times) > 1 else math.inf
+        return f"track: positions {counts}; largest gap {gap:.3f} s"
+
     def between(self, start: float, end: float = math.inf) -> tuple[np.ndarray, np.ndarray]:
         p = np.array([r for r in self.positions if start <= r[0] <= end])
         a = np.array([r for r in self.attitudes if start <= r[0] <= end])
@@ -136,6 +147,7 @@ def test_mavsdk_square_with_headings_through_0_and_180_deg_then_a_50_m_step(tmp_
         marks["end"] = time.monotonic()
 
     track, limits = _fly_script(script, tmp_path)
+    print(track.coverage(marks))
     p, a = track.between(marks["square"], marks["turn"])
     outside = np.maximum.reduce([-p[:, 1], p[:, 1] - 5.0, -p[:, 2], p[:, 2] - 5.0,
                                  np.zeros(len(p))])
@@ -183,6 +195,7 @@ def test_mavsdk_velocity_box_with_yaw_changes_and_body_velocity(tmp_path):
         marks["end"] = time.monotonic()
 
     track, _ = _fly_script(box, tmp_path)
+    print(track.coverage(marks))
     p, a = track.between(marks["box"], marks["body"])
     start = p[0, 1:4]
     rel = p[:, 1:4] - start

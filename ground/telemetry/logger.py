@@ -12,6 +12,10 @@
 * Past ``rotate_bytes``, or ``rotate_chunks`` chunks, the file is finished and the next
   one started: the writer keeps each chunk's index in memory until its file is finished,
   so the chunk cap is what keeps the logger's memory flat over a long run.
+* Records wait for the loop in an inbox bounded in puts and in bytes (past either, dropped
+  and counted); once a backlog is written, the memory it took goes back to the system
+  (``ground/telemetry/inbox.py``): otherwise a logger starved of CPU for a while kept
+  its backlog's peak as resident memory for good.
 * A record that does not fit its key's schema is refused (counted, reported on stderr and
   in the status reply), not written.
 * Beside the records, what Foxglove draws (``ground/telemetry/foxglove_view.py``: transforms, the

@@ -8,9 +8,10 @@ viewer) or by a Zenoh session of its own (``ivfm ground view``).
 
 Bounded by construction: the server keeps at most ``backlog`` messages per viewer and
 drops the oldest when a viewer is slow; ``ivfm ground view``'s inbox holds at most
-``MAX_INBOX`` records and drops new ones past it (counted). Nothing here waits for a
-viewer, so a slow or absent one costs the logger only the conversion, and the vehicles
-nothing.
+``MAX_INBOX`` puts and ``MAX_INBOX_BYTES`` of payload, drops new ones past either
+(counted), and gives a drained backlog's memory back (``ground/telemetry/inbox.py``).
+Nothing here waits for a viewer, so a slow or absent one costs the logger only the
+conversion, and the vehicles nothing.
 
 A channel is created with its topic's first message, often while a viewer is connected;
 the SDK (foxglove-sdk 0.30) then refuses, now and then, the viewer's subscription to it
@@ -42,12 +43,14 @@ from contracts.telemetry import unbatched
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.telemetry.foxglove_scene import encode, json_schema
 from ground.telemetry.foxglove_view import DEFAULT_RATE_HZ, FoxgloveView, Output
+from ground.telemetry.inbox import Inbox
 
 DEFAULT_VIEW_PORT = 8765
 # Foxglove's layout for these topics (3D, tracking, motors, adaptation, estimator, log):
 # in Foxglove, Layouts, Import from file.
 LAYOUT_FILE = Path(__file__).parent / "layouts" / "ivfm-sitl.foxglove-layout.json"
-MAX_INBOX = 50_000
+MAX_INBOX = 50_000  # puts (a batch is one)
+MAX_INBOX_BYTES = 32 * 1024 * 1024  # their payloads
 SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
 # Where foxglove-sdk logs a subscription it refused (its Rust target, through Python's
 # logging), and how: the only report of one the SDK gives its host.
@@ -198,17 +201,30 @@ def serve_view(options: ZenohOptions, host: str, port: int, rate_hz: float = DEF
         stop.on_signals()
     view = FoxgloveView(rate_hz)
     live = LiveView(host, port, log=log)
-    inbox: collections.deque[tuple[str, bytes, bytes | None]] = collections.deque()
+    inbox = Inbox(MAX_INBOX, MAX_INBOX_BYTES)  # (key, payload, attachment)
     dropped = refused = 0
 
     def on_sample(sample: zenoh.Sample) -> None:
         nonlocal dropped
-        if len(inbox) >= MAX_INBOX:
-            dropped += 1
-            return
         attachment = sample.attachment
-        inbox.append((str(sample.key_expr), sample.payload.to_bytes(),
-                      attachment.to_bytes() if attachment is not None else None))
+        size_bytes = len(sample.payload) + (len(attachment) if attachment is not None else 0)
+        if not inbox.put((str(sample.key_expr), sample.payload.to_bytes(),
+                          attachment.to_bytes() if attachment is not None else None),
+                         size_bytes):
+            dropped += 1
+
+    def draw(key: str, payload: bytes, attachment: bytes | None) -> None:
+        nonlocal refused
+        try:
+            outputs = [out for record in unbatched(key, payload, attachment)
+                       for out in view.feed(*record)]
+        except (ValueError, TypeError, KeyError) as exc:
+            refused += 1
+            if refused == 1 or refused % 1000 == 0:
+                log(f"cannot draw a record on {key}: {exc} ({refused} so far)")
+            return
+        for output in outputs:
+            live.publish(output)
 
     session = open_session(options)
     subscribers = [session.declare_subscriber(k, on_sample) for k in SUBSCRIBED]
@@ -223,18 +239,7 @@ def serve_view(options: ZenohOptions, host: str, port: int, rate_hz: float = DEF
             if not inbox:
                 stop.wait(0.005)
                 continue
-            while inbox:
-                key, payload, attachment = inbox.popleft()
-                try:
-                    outputs = [out for record in unbatched(key, payload, attachment)
-                               for out in view.feed(*record)]
-                except (ValueError, TypeError, KeyError) as exc:
-                    refused += 1
-                    if refused == 1 or refused % 1000 == 0:
-                        log(f"cannot draw a record on {key}: {exc} ({refused} so far)")
-                    continue
-                for output in outputs:
-                    live.publish(output)
+            inbox.drain(draw)
     finally:
         for sub in subscribers:
             sub.undeclare()

@@ -26,7 +26,7 @@ class Counters:
         default_factory=lambda: collections.defaultdict(int))
     last_error: str = ""
     keys_over_limit: int = 0  # records refused on a new key past MAX_KEYS (or too long)
-    inbox_dropped: int = 0  # records dropped with MAX_INBOX waiting (the writer behind)
+    inbox_dropped: int = 0  # puts dropped with the inbox full (the writer behind)
     view_messages: int = 0  # Foxglove messages written beside the records
     view_refused: int = 0  # records whose content the view could not draw (said, skipped)
     write_error: str = ""  # the disk refused a write (full): logging stopped

@@ -12,6 +12,10 @@
 * Past ``rotate_bytes``, or ``rotate_chunks`` chunks, the file is finished and the next
   one started: the writer keeps each chunk's index in memory until its file is finished,
   so the chunk cap is what keeps the logger's memory flat over a long run.
+* Records wait for the loop in an inbox bounded in puts and in bytes (past either, dropped
+  and counted); once a backlog is written, the memory it took goes back to the system
+  (``ground/telemetry/inbox.py``): otherwise a logger starved of CPU for a while kept
+  its backlog's peak as resident memory for good.
 * A record that does not fit its key's schema is refused (counted, reported on stderr and
   in the status reply), not written.
 * Beside the records, what Foxglove draws (``ground/telemetry/foxglove_view.py``: transforms, the
@@ -21,7 +25,6 @@
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import json
 import queue
@@ -53,6 +56,7 @@ from contracts.telemetry import (
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.telemetry.drawing import Drawing
 from ground.telemetry.foxglove_view import Output, warm_up
+from ground.telemetry.inbox import Inbox
 from ground.telemetry.log_files import PROCESS, Counters, LogFiles
 
 SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
@@ -60,7 +64,8 @@ SUBSCRIBED = ("ivfm/vehicle/**", "mavlink/**")
 # own channel and counters, the longest key, and records waiting for the writer.
 MAX_KEYS = 1024
 MAX_KEY_CHARS = 256
-MAX_INBOX = 200_000
+MAX_INBOX = 200_000  # puts (a batch is one)
+MAX_INBOX_BYTES = 128 * 1024 * 1024  # their payloads: ~4 min of one vehicle at 250 Hz
 MAX_QUERIES = 64  # status queries waiting for the loop
 SILENCE_S = 1.0  # records had been coming (250 Hz and more) and none for this long: say so
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
@@ -131,8 +136,8 @@ class Logger:
         self.config = config
         self.log = log or (lambda text: print(f"logger: {text}", file=sys.stderr, flush=True))
         self.counters = Counters()
-        self._inbox: collections.deque[tuple[str, bytes, bytes | None, int]] = \
-            collections.deque()
+        # (key, payload, attachment, log_time_ns) from Zenoh's threads to the loop
+        self._inbox = Inbox(MAX_INBOX, MAX_INBOX_BYTES)
         self._queries: queue.SimpleQueue[zenoh.Query] = queue.SimpleQueue()
         self._stop = StopRequest()
         self.files = LogFiles(config.out_dir, config.prefix, config.chunk_bytes,
@@ -151,13 +156,12 @@ class Logger:
 
     # -- records -------------------------------------------------------------------------
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        if len(self._inbox) >= MAX_INBOX:
-            self.counters.inbox_dropped += 1
-            return
         attachment = sample.attachment
-        self._inbox.append((str(sample.key_expr), sample.payload.to_bytes(),
-                            attachment.to_bytes() if attachment is not None else None,
-                            time.time_ns()))
+        size_bytes = len(sample.payload) + (len(attachment) if attachment is not None else 0)
+        if not self._inbox.put((str(sample.key_expr), sample.payload.to_bytes(),
+                                attachment.to_bytes() if attachment is not None else None,
+                                time.time_ns()), size_bytes):
+            self.counters.inbox_dropped += 1
 
     def _write(self, key: str, payload: bytes, attachment: bytes | None,
                log_time_ns: int) -> None:
@@ -306,12 +310,7 @@ class Logger:
         self._queries.put(query)
 
     def _drain(self) -> int:
-        n = 0
-        inbox = self._inbox
-        while inbox:
-            self._write(*inbox.popleft())
-            n += 1
-        return n
+        return self._inbox.drain(self._write)
 
     def _answer_queries(self) -> None:
         while True:

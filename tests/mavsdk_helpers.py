@@ -49,3 +49,25 @@ def mission_item(north_m: float, east_m: float, alt_m: float, speed_mps: float =
     return MissionItem(lat, lon, alt_m, speed_mps, math.isnan(loiter_s), math.nan, math.nan,
                        MissionItem.CameraAction.NONE, loiter_s, math.nan, 1.0, yaw_deg,
                        math.nan, MissionItem.VehicleAction.NONE)
+
+
+async def inject_enabled(failure, param, unit, kind, instance: int):
+    """``failure.inject`` once SYS_FAILURE_EN is 1 on the vehicle. MAVSDK's failure plugin
+    keeps its own copy of the parameter (a read when it starts, then a subscription) and
+    refuses locally, DISABLED, with nothing sent, while that copy says 0: in a clean-clone
+    CI run the injection right after ``set_param_int`` returned met the old copy (the
+    subscription's callback had not run yet), and beside busy work a read sent again
+    answered last with the old value. Each try reads the parameter, which the plugin
+    hears too, then injects; only DISABLED is tried again, for at most 5 s."""
+    from mavsdk.asyncio.plugins.failure import FailureError, FailureResult
+
+    deadline = time.monotonic() + 5.0
+    while True:
+        assert await param.get_param_int("SYS_FAILURE_EN") == 1
+        try:
+            return await failure.inject(unit, kind, instance)
+        except FailureError as exc:
+            if exc.result != FailureResult.DISABLED \
+                    or time.monotonic() > deadline:
+                raise
+        await asyncio.sleep(0.1)

@@ -20,7 +20,7 @@ from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 from tests.ground.test_ground_station import free_tcp_port
 from tests.groundtools.test_mavsdk import _near, _until
 from tests.harness import start_processes
-from tests.mavsdk_helpers import autopilot_on
+from tests.mavsdk_helpers import autopilot_on, inject_enabled
 
 pytestmark = [pytest.mark.process, pytest.mark.groundtool]
 
@@ -51,7 +51,7 @@ async def _fly(port: int) -> dict:
         await _until(lambda: _near(down_m, -2.0, 0.2), 20, "take-off altitude")
         await asyncio.sleep(2.0)  # the take-off settles into the hold
         seen["injected_s"] = time.monotonic()
-        await failure.inject(FailureUnit.SENSOR_GPS, FailureType.OFF, 0)
+        await inject_enabled(failure, param, FailureUnit.SENSOR_GPS, FailureType.OFF, 0)
 
         async def disarmed():
             return not await telem.armed()

@@ -47,7 +47,14 @@ class Prompt:
     def wait_for_gps_lock(self, timeout_s: float = 30.0) -> None:
         """Telemetry flowing: a Copter streams nothing until asked (SRn_* 0), and MAVProxy
         asks (REQUEST_DATA_STREAM) every 15 s for the vehicles it has seen, so up to 15 s
-        after it first hears one; it says "GPS lock" at the first GPS_RAW_INT with a fix."""
+        after it first hears one; it says "GPS lock" at the first GPS_RAW_INT with a fix.
+        That may come while an earlier expect searches past it (pexpect drops what
+        precedes a match: a clean-clone CI run timed out so, the lock printed before
+        "Loaded 5 waypoints"), so what MAVProxy printed so far is looked at first."""
+        log = self.child.logfile_read
+        log.flush()
+        if "GPS lock at" in Path(log.name).read_text(errors="replace"):
+            return
         self.child.expect(r"GPS lock at", timeout=timeout_s)
 
     def relative_altitude_m(self) -> float:

@@ -8,6 +8,7 @@ MAVLink mirror gives the STATUSTEXT frames with the sim time of the step that sa
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -63,14 +64,13 @@ def step_events(sim_time_s: np.ndarray, mode_index: np.ndarray, flags: np.ndarra
     return events
 
 
-def statustext_events(log: Path | LogRecords, sysid: int) -> list[Event]:
-    """The vehicle's STATUSTEXT announcements, at the sim time each was sent."""
-
+def statustexts(log: Path | LogRecords, sysid: int) -> Iterator[tuple[int, int, str]]:
+    """The vehicle's STATUSTEXT announcements as logged (a long text's chunks joined, one
+    text when whole): (publish time [ns of sim time], MAV_SEVERITY, text)."""
     key = mavlink_key(sysid, AUTOPILOT_COMPID, "STATUSTEXT")
     parser = mavlink.MAVLink(None)
     parser.robust_parsing = True
-    texts = StatustextAssembler()  # a long text came in chunks: one event, when whole
-    events = []
+    texts = StatustextAssembler()
     for topic, message, data in iter_messages(log, key):
         if topic != key:
             continue
@@ -80,8 +80,13 @@ def statustext_events(log: Path | LogRecords, sysid: int) -> list[Event]:
             continue
         for msg in msgs:
             if msg.get_type() == "STATUSTEXT" and (text := texts.add(msg)) is not None:
-                events.append(Event("statustext", message.publish_time / 1e9, text=text))
-    return events
+                yield message.publish_time, int(msg.severity), text
+
+
+def statustext_events(log: Path | LogRecords, sysid: int) -> list[Event]:
+    """The vehicle's STATUSTEXT announcements, at the sim time each was sent."""
+    return [Event("statustext", t_ns / 1e9, text=text)
+            for t_ns, _, text in statustexts(log, sysid)]
 
 
 def run_events(log: Path | LogRecords, sysid: int, sim_time_us: np.ndarray, mode_index: np.ndarray,

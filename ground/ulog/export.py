@@ -35,14 +35,13 @@ from contracts.frames import (
     GRAVITY_MPS2,
     Home,
 )
-from contracts.mavlink import AUTOPILOT_COMPID, StatustextAssembler, mavlink
 from contracts.telemetry import (
     AUTOPILOT,
     decode_json_record,
-    mavlink_key,
     parse_key,
     vehicle_key,
 )
+from ground.record.events import statustexts
 from ground.record.run_files import RUN_FILE, LogRecords, control_records, iter_messages
 from ground.ulog import px4_topics as px4
 from ground.ulog.run_topics import (
@@ -181,23 +180,8 @@ def _home(run: dict[str, Any], scene: dict[str, Any] | None) -> Home | None:
 def logged_texts(records: LogRecords, vehicle: int) -> list[LoggedText]:
     """The vehicle's STATUSTEXT announcements (chunks joined), at the sim time each was
     said, with their severity."""
-    key = mavlink_key(vehicle, AUTOPILOT_COMPID, "STATUSTEXT")
-    parser = mavlink.MAVLink(None)
-    parser.robust_parsing = True
-    texts = StatustextAssembler()
-    out = []
-    for topic, message, data in iter_messages(records, key):
-        if topic != key:
-            continue
-        try:
-            msgs = parser.parse_buffer(data) or []
-        except mavlink.MAVError:
-            continue
-        for msg in msgs:
-            if msg.get_type() == "STATUSTEXT" and (text := texts.add(msg)) is not None:
-                out.append(LoggedText(max(message.publish_time // 1000, 0),
-                                      min(max(int(msg.severity), 0), 7), text))
-    return out
+    return [LoggedText(max(t_ns // 1000, 0), min(max(severity, 0), 7), text)
+            for t_ns, severity, text in statustexts(records, vehicle)]
 
 
 # -- parameters and info -----------------------------------------------------------------

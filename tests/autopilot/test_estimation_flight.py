@@ -182,8 +182,7 @@ def test_arming_waits_for_the_estimator_to_converge(tmp_path):
                             autopilot_args=["--state-source", "estimator"])
     tool = GroundTool(procs.gcs_port)
     try:
-        tool.connect()
-        tool.wait_text("simulator link up", 20)
+        tool.connect()  # the simulator link is up: SYS_STATUS says so
         ack = tool.command(M.MAV_CMD_COMPONENT_ARM_DISARM, 1)
         assert ack.result == M.MAV_RESULT_TEMPORARILY_REJECTED
         tool.wait_text("arming denied: estimator", 5)

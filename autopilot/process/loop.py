@@ -367,11 +367,13 @@ class Autopilot(PacedProcess):
         if self._stalled(time.monotonic(), period_s):
             return False  # the last command holds; counted, not flown on old data
         time_us, measurement = self.latest
-        if time_us == self._stepped_us:
-            # No sample since the last step (a late step took the one this instant would
-            # have had, or it is a little late): the last command holds, counted. Flown
-            # again, it moved the setpoints a period on, ahead of the vehicle for good: a
-            # 30 ms stop of this process then sped an orbit up by 15 mm/s.
+        if time_us == self._stepped_us and self._sample_period_us <= self.period_us:
+            # No sample since the last step though one was due (a late step took the one
+            # this instant would have had, or it is a little late): the last command
+            # holds, counted. Flown again, it moved the setpoints a period on, ahead of the
+            # vehicle for good: a 30 ms stop of this process then sped an orbit up by
+            # 15 mm/s. (A simulator slower than the control rate is flown at every
+            # instant, its samples again: the next one makes the setpoints' lead up.)
             self.timing.record_same_sample()
             return False
         self._stepped_us = time_us

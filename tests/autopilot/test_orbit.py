@@ -56,7 +56,9 @@ def test_a_negative_radius_orbits_counter_clockwise_and_speed_is_capped_by_acc_h
 
 
 @pytest.mark.parametrize("samples_arrive", [False, True])
-def test_lost_periods_do_not_put_the_orbit_behind_the_vehicle(samples_arrive):
+@pytest.mark.parametrize(("lost", "golden_mm_s"), [(3, 0.70), (19, 1.11)])
+def test_lost_periods_do_not_put_the_orbit_behind_the_vehicle(lost, golden_mm_s,
+                                                               samples_arrive):
     """A late real-time step loses whole periods while the simulator flies on (its plant
     holding the last command). The circle moves on by sim time and the lost periods are
     shaped one by one, so the vehicle flies on as if none were lost. ``samples_arrive``:
@@ -67,18 +69,19 @@ def test_lost_periods_do_not_put_the_orbit_behind_the_vehicle(samples_arrive):
     f.run(0.1, samples_arrive=samples_arrive)
     orbit = f.vehicle.tasks[FlightMode.ORBIT]
     lost_at, angle = f.t_s, orbit._angle_rad
-    f.lose(3, samples_arrive=samples_arrive)
+    f.lose(lost, samples_arrive=samples_arrive)
     f.run(0.01, samples_arrive=samples_arrive)
-    # The point on the circle moved on by the 4 periods of sim time, not by one step.
-    assert orbit._angle_rad - angle == pytest.approx(1.5 / 4.0 * 0.04, rel=1e-9)
-    assert f.vehicle.state.step_periods == 4
+    # The point on the circle moved on by all the periods of sim time, not by one step.
+    assert orbit._angle_rad - angle == pytest.approx(1.5 / 4.0 * 0.01 * (lost + 1), rel=1e-9)
+    assert f.vehicle.state.step_periods == lost + 1
     f.run(3.0, samples_arrive=samples_arrive)
     speed = np.hypot(*f.since(lost_at)[:, 4:6].T)
-    # Golden (in process): 0.70 mm/s at most, as losing none (0.71 mm/s). The 30 ms of
-    # held command cost nothing measurable (the controller run on every sample, the
-    # command held: 0.71); shaped in one 40 ms step the reference jumped and the vehicle
-    # slowed 4.6 mm/s; with the circle moved on by one period, 39.6 mm/s.
-    assert np.abs(speed - 1.5).max() == pytest.approx(0.000702, abs=0.0001)
+    # Golden (in process): 3 lost, 0.70 mm/s at most, as losing none (0.71 mm/s); 19 lost
+    # (200 ms between steps), 1.11 mm/s. The held command costs nothing measurable (the
+    # controller run on every sample, the command held: 0.71); 3 lost shaped in one 40 ms
+    # step, 4.6 mm/s; the circle moved on by one period, 39.6 mm/s; 19 lost with the step
+    # capped at 50 ms (before 0.5 s), 350 mm/s.
+    assert np.abs(speed - 1.5).max() == pytest.approx(golden_mm_s / 1e3, abs=0.0001)
 
 
 def test_orbit_is_refused_on_the_ground_and_for_bad_circles_and_the_mode_is_unchanged():
@@ -117,7 +120,7 @@ def test_the_setpoints_advance_by_the_sim_time_between_samples():
         state.begin_step()
         steps.append((state.step_s, state.step_periods))
     assert steps == [(0.01, 1), (0.01, 1), (0.01, 1), (0.03, 3), (0.01, 1), (0.01, 1),
-                     (0.01, 1), (MAX_SETPOINT_STEP_S, 5), (0.01, 1)]
+                     (0.01, 1), (MAX_SETPOINT_STEP_S, 50), (0.01, 1)]
     # Samples taken between steps (real time takes each as it arrives, and the step the
     # newest again) do not count: the step moves on by the sim time since the last step.
     for t_s in (1.02, 1.03, 1.04, 1.04):

@@ -420,6 +420,11 @@ def test_a_real_time_instant_flies_only_a_sample_not_flown_yet():
     assert autopilot.vehicle.state.step_s == pytest.approx(0.01)
     assert autopilot.steps == 3
     assert autopilot.timing.summary()["same_sample_held"] == 3
+    # A simulator slower than the control rate (20 Hz): every instant flies, its samples
+    # again, as its samples are not due at every instant.
+    _send_samples(theirs, [100_000])
+    assert instant() and instant() and _answers(theirs) == [100_000, 100_000]
+    assert autopilot.timing.summary()["same_sample_held"] == 3
 
 
 def test_the_autopilot_tries_the_simulator_every_20_ms_at_first_then_backs_off():

@@ -139,7 +139,7 @@ class TaskState:
             ahead_us = period_us
         else:
             ahead_us = now_us - self._setpoints_us
-            if ahead_us <= 0:  # the same sample again: a period ahead, made up next time
+            if ahead_us <= 0:  # the same sample again: a period ahead
                 ahead_us = period_us
                 now_us = self._setpoints_us + period_us
             else:  # a stall: at most the cap, and the setpoints start again from now

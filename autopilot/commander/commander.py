@@ -349,10 +349,7 @@ class Commander:
 
     def control(self) -> np.ndarray:
         """Motor commands for this control period (zeros when disarmed or without state)."""
-        if self.measurement is None:
-            return self.flight.idle()
-        self.state.begin_step()
-        if not self.armed or not self.sim_link_ok:
+        if not self.armed or self.measurement is None or not self.sim_link_ok:
             return self.flight.idle()
         return self.flight.step(lambda: self.mode, self.row.tilt_limited)
 

@@ -133,7 +133,10 @@ class TaskState:
         they stand at to the sample's, in whole microseconds (so that a lockstep step is
         period_s exactly), at most MAX_SETPOINT_STEP_S. The same sample at two steps
         moves them on by a period, made up only by a sample over a period later (the
-        real-time loop does not step twice on a sample: it holds the last command)."""
+        real-time loop does not step twice on a sample: it holds the last command). No
+        sample yet: nothing moves."""
+        if self.measurement is None:
+            return
         now_us, period_us = round(self.sim_t_s * 1e6), round(self.period_s * 1e6)
         if self._setpoints_us is None or now_us < self._stepped_us:  # a new simulator
             ahead_us = period_us

@@ -148,7 +148,6 @@ class Autopilot(PacedProcess):
         self._last_sample_wall = 0.0  # when the simulator last sent (time.monotonic)
         self._sample_period_us = 0  # between the simulator's last two samples
         self.stall = StallWatch(self.timing, lambda text: self.log(text))
-        self._stepped_us: int | None = None  # real time: the sample the last step flew
 
     def _control(self, time_us: int, measurement: np.ndarray,
                  step_start: float | None = None) -> np.ndarray:
@@ -208,7 +207,7 @@ class Autopilot(PacedProcess):
     # -- the simulator link ----------------------------------------------------------------
     def _sim_lost(self) -> None:
         self.sim.close()
-        self._stepped_us = None
+        self.stall.stepped_us = None
         if self.vehicle.sim_link_ok:
             self.log("simulator link lost")
         self.vehicle.sim_link_lost()
@@ -367,16 +366,9 @@ class Autopilot(PacedProcess):
         if self._stalled(time.monotonic(), period_s):
             return False  # the last command holds; counted, not flown on old data
         time_us, measurement = self.latest
-        if time_us == self._stepped_us and self._sample_period_us <= self.period_us:
-            # No sample since the last step though one was due (a late step took the one
-            # this instant would have had, or it is a little late): the last command
-            # holds, counted. Flown again, it moved the setpoints a period on, ahead of the
-            # vehicle for good: a 30 ms stop of this process then sped an orbit up by
-            # 15 mm/s. (A simulator slower than the control rate is flown at every
-            # instant, its samples again: the next one makes the setpoints' lead up.)
-            self.timing.record_same_sample()
-            return False
-        self._stepped_us = time_us
+        if self.stall.flown_already(time_us, self._sample_period_us, self.period_us):
+            return False  # the last command holds; counted
+        self.stall.stepped_us = time_us
         commands = self._control(time_us, measurement, start)
         self._answer(time_us, commands, stepped=True)
         self.timing.record_compute(max(0.0, self._command_sent - start))

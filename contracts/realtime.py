@@ -86,6 +86,13 @@ class LoopTiming:
         self.stalls = 0
         self.stall_steps = 0
         self.longest_stall_s = 0.0
+        # Control instants whose newest sample the last step had flown (the last command
+        # held): after a late step, or a sample a little late.
+        self.same_sample = 0
+
+    def record_same_sample(self) -> None:
+        """One control instant with no sample since the last step."""
+        self.same_sample += 1
 
     def record_stall(self, new_episode: bool, gap_s: float) -> None:
         """One control instant without a fresh sample; ``gap_s`` since the last one."""
@@ -108,7 +115,8 @@ class LoopTiming:
         """Statistics so far, in milliseconds (computed now: call it when asked, not per
         period)."""
         stalls = {"sim_stalls": self.stalls, "sim_stall_steps": self.stall_steps,
-                  "sim_stall_longest_ms": self.longest_stall_s * 1e3}
+                  "sim_stall_longest_ms": self.longest_stall_s * 1e3,
+                  "same_sample_held": self.same_sample}
         if self.jitter.n < 1:
             return {"steps": self.compute.n, "deadline_misses": self.misses, **stalls}
         j, c = self.jitter, self.compute

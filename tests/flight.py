@@ -50,26 +50,33 @@ class Flight:
     def t_s(self) -> float:
         return self.steps * self.period_s
 
-    def run(self, duration_s: float, each_period: Callable[[float], None] | None = None
-            ) -> None:
+    def run(self, duration_s: float, each_period: Callable[[float], None] | None = None,
+            samples_arrive: bool = False) -> None:
         """Fly ``duration_s``; ``each_period(t)`` runs before each control step (a tool
-        streaming setpoints)."""
+        streaming setpoints). ``samples_arrive``: as the real-time loop does, each sample
+        is taken as it arrives, then again by the control step."""
         for _ in range(round(duration_s / self.period_s)):
             t = self.t_s
             if each_period is not None:
                 each_period(t)
             self.vehicle.check_links(t)
             measurement = self.plant.true_measurement()
+            if samples_arrive:
+                self.vehicle.sample(t, measurement)
             commands = self.vehicle.step(t, measurement)
             self.rows.append(np.concatenate(([t], measurement, self.vehicle.flight.last_ref)))
             self.plant.set_motor_commands(commands)
             self.plant.advance(self.period_s)
             self.steps += 1
 
-    def lose(self, periods: int) -> None:
+    def lose(self, periods: int, samples_arrive: bool = False) -> None:
         """``periods`` control periods with no control step, the last commands holding:
-        a real-time step that came too late (the sim time runs on)."""
+        a real-time step that came too late (the sim time runs on). ``samples_arrive``:
+        the samples of those periods are taken all the same, as the real-time loop takes
+        each sample as it arrives (autopilot/process/loop.py) and steps on the newest."""
         for _ in range(periods):
+            if samples_arrive:
+                self.vehicle.sample(self.t_s, self.plant.true_measurement())
             self.plant.advance(self.period_s)
             self.steps += 1
 

@@ -29,7 +29,9 @@ class FlightControl:
         self.last_commands = np.zeros(4)
 
     def idle(self) -> np.ndarray:
-        """Disarmed or without state: no shaping, motors off."""
+        """Disarmed or without state: no shaping, motors off (the setpoints' sim time goes
+        on with the samples all the same)."""
+        self.state.begin_step()
         self.state.shaped = Shaped.NONE
         self.last_commands = np.zeros(4)
         return self.last_commands
@@ -38,6 +40,7 @@ class FlightControl:
         """Motor commands for this period in the mode ``mode()`` says (a task may hand
         over to another mode within the step); ``tilt_limited``: PX4's MPC_TILTMAX_AIR
         limits the total tilt (the paper's reference keeps its per-axis clip)."""
+        self.state.begin_step()
         out = self._reference(mode)
         entries = self.perturbations.entries
         kick = np.array(kick_at(entries, self.state.sim_t_s)) if entries else np.zeros(2)

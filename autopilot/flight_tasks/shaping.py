@@ -97,6 +97,17 @@ class Setpoint:
         self.velocity_ned_mps = np.asarray(self.velocity_ned_mps, dtype=float)
         self.accel_ned_mps2 = np.asarray(self.accel_ned_mps2, dtype=float)
 
+    def earlier(self, back_s: float) -> Setpoint:
+        """Where this setpoint's own motion (its feed-forward) had it ``back_s`` ago: a
+        position moves back along its velocity and acceleration, a velocity along its
+        acceleration; what is left out stays left out, yaw as it is."""
+        acc = np.nan_to_num(self.accel_ned_mps2, nan=0.0)
+        vel = np.where(np.isnan(self.velocity_ned_mps), 0.0, self.velocity_ned_mps)
+        position = self.position_ned_m - vel * back_s + acc * (0.5 * back_s * back_s)
+        velocity = self.velocity_ned_mps - acc * back_s
+        return Setpoint(position, velocity, self.accel_ned_mps2, self.yaw_rad,
+                        self.yaw_rate_rad_s)
+
     @classmethod
     def hold(cls, position_ned_m, yaw_rad: float) -> Setpoint:
         return cls(position_ned_m=np.array(position_ned_m, dtype=float),

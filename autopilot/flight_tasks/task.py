@@ -36,12 +36,15 @@ if TYPE_CHECKING:
     from autopilot.navigator.navigator import Navigator
     from autopilot.trajectories import Reference
 
+# The most sim time one control step advances the setpoints by: COM_SIM_LOSS_T's default.
+# Sim time jumps between two steps when this process stood still while the simulator flew
+# on (a stalled simulator resumes from where it stopped); longer, the link-loss failsafe
+# flies. At 50 ms a 70 ms stop of this process slowed an orbit by 25 mm/s, 200 ms by
+# 350 mm/s (its point fell behind by the rest); at 0.5 s, by 0.7 and 1.1 mm/s.
+MAX_SETPOINT_STEP_S = 0.5
 # A position setpoint's velocity / acceleration feed-forward is the setpoint's own motion:
 # it applies while the streamed position moves, and lapses this long after it stops, so
 # a setpoint that stands still is a place to stop at, not to fly past.
-# The most sim time one control step advances the setpoints by: a longer gap is a stalled
-# simulator or a lost link, which the failsafes handle.
-MAX_SETPOINT_STEP_S = 0.05
 FEED_FORWARD_HOLD_S = 0.5
 
 
@@ -91,12 +94,14 @@ class TaskState:
     def __init__(self, period_s: float, parameters: dict[str, float], max_thrust_n: float,
                  hover_fraction: float, land_detector: LandDetector) -> None:
         self.period_s = period_s
-        # Sim time since the previous sample: what the setpoints advance by this step. In
-        # real time a late step loses whole periods, and setpoints advanced by period_s
-        # would fall behind the vehicle by them (in process, 3 lost periods slowed an
-        # orbit by 40 mm/s for a second).
+        # Sim time since the previous control step's sample: what the setpoints advance by
+        # this step. In real time a late step loses whole periods, and setpoints advanced
+        # by period_s would fall behind the vehicle by them (3 lost periods slowed an
+        # orbit by 30-40 mm/s for a second).
         self.step_s = period_s
-        self._setpoints_us = 0  # the sim time the setpoints stand at [us]
+        self.step_periods = 1  # how many control periods step_s spans (more: periods lost)
+        self._setpoints_us: int | None = None  # the sim time they stand at [us] (None: no step)
+        self._stepped_us = 0  # the sample time of the last control step [us]
         self.parameters = parameters
         self.limits: ShapingLimits = limits_from_parameters(parameters)
         self.max_thrust_n = max_thrust_n
@@ -116,23 +121,36 @@ class TaskState:
         self._tool_position_moved_s = -math.inf
 
     def new_sample(self, sim_t_s: float, measurement: np.ndarray) -> None:
-        """The simulator's newest state, and the sim time it moves the setpoints on by:
-        from the sim time they stand at to the sample's, in whole microseconds (so that
-        a lockstep step is period_s exactly), at most MAX_SETPOINT_STEP_S. The same
-        sample again moves them on by a period, and the next sample by that much less."""
-        now_us, period_us = round(sim_t_s * 1e6), round(self.period_s * 1e6)
-        ahead_us = now_us - self._setpoints_us
-        if self.measurement is None or now_us < round(self.sim_t_s * 1e6):  # a new simulator
-            ahead_us = period_us
-        elif ahead_us <= 0:  # the same sample again: a period ahead, made up next time
-            ahead_us = period_us
-            now_us = self._setpoints_us + period_us
-        else:  # a stall: at most the cap, and the setpoints start again from now
-            ahead_us = min(ahead_us, round(MAX_SETPOINT_STEP_S * 1e6))
-        self._setpoints_us = now_us
-        self.step_s = ahead_us / 1e6
+        """The simulator's newest state. Only a control step moves the setpoints on
+        (``begin_step``): in real time every sample is taken as it arrives and the step
+        takes the newest again, and a sample counted twice would leave the setpoints
+        going on a period per step whatever the sim time lost."""
         self.sim_t_s = sim_t_s
         self.measurement = measurement
+
+    def begin_step(self) -> None:
+        """A control step on the newest sample: the setpoints move on from the sim time
+        they stand at to the sample's, in whole microseconds (so that a lockstep step is
+        period_s exactly), at most MAX_SETPOINT_STEP_S. The same sample at two steps
+        moves them on by a period, made up only by a sample over a period later (the
+        real-time loop does not step twice on a sample: it holds the last command). No
+        sample yet: nothing moves."""
+        if self.measurement is None:
+            return
+        now_us, period_us = round(self.sim_t_s * 1e6), round(self.period_s * 1e6)
+        if self._setpoints_us is None or now_us < self._stepped_us:  # a new simulator
+            ahead_us = period_us
+        else:
+            ahead_us = now_us - self._setpoints_us
+            if ahead_us <= 0:  # the same sample again: a period ahead
+                ahead_us = period_us
+                now_us = self._setpoints_us + period_us
+            else:  # a stall: at most the cap, and the setpoints start again from now
+                ahead_us = min(ahead_us, round(MAX_SETPOINT_STEP_S * 1e6))
+        self._stepped_us = round(self.sim_t_s * 1e6)
+        self._setpoints_us = now_us
+        self.step_s = ahead_us / 1e6
+        self.step_periods = -(-ahead_us // period_us)  # control periods it spans (ceil)
 
     def set_parameters(self, parameters: dict[str, float]) -> None:
         self.parameters = parameters
@@ -233,7 +251,17 @@ class TaskState:
         """The setpoint through the shaper within ``limits`` (the shaper starts from the
         vehicle's own position and velocity when it takes over)."""
         self.start_translation()
-        return self.shaper.step(self.setpoint, limits, self.step_s)
+        substeps = self.step_periods
+        if substeps <= 1:
+            return self.shaper.step(self.setpoint, limits, self.step_s)
+        # Periods lost (real time): the shaper's loops are discrete, and one long step
+        # is not the periods it stands for (its target, already moved on, is far ahead
+        # of the reference at the start of it). The lost periods are shaped one by one,
+        # towards the setpoint where its own motion had it then.
+        dt = self.step_s / substeps
+        for k in range(substeps - 1, 0, -1):
+            self.shaper.step(self.setpoint.earlier(k * dt), limits, dt)
+        return self.shaper.step(self.setpoint, limits, dt)
 
     def start_translation(self) -> None:
         """Start translation shaping from the vehicle's state, unless it is on already."""
@@ -251,10 +279,11 @@ class TaskState:
             self.shaper.reset_attitude(m[MEASUREMENT.euler_rad],
                                        m[MEASUREMENT.euler_rate_rad_s])
             self.shaped = Shaped.ATTITUDE
-        ref = self.shaper.step_attitude(
-            target.euler_rad, self.limits,
-            (p["CMDF_OMEGA"], p["CMDF_ZETA"], p["CMDF_RATE_MAX"], p["CMDF_ACC_MAX"]),
-            self.step_s, target.yaw_rate_rad_s)
+        tilt_filter = (p["CMDF_OMEGA"], p["CMDF_ZETA"], p["CMDF_RATE_MAX"], p["CMDF_ACC_MAX"])
+        dt = self.step_s / self.step_periods  # periods lost: filtered one by one
+        for _ in range(self.step_periods):
+            ref = self.shaper.step_attitude(target.euler_rad, self.limits, tilt_filter, dt,
+                                            target.yaw_rate_rad_s)
         ref[REF_POS:REF_POS + 3] = m[MEASUREMENT.position_ned_m]
         if math.isfinite(target.thrust_fraction):
             return TaskOutput(ref, False, target.thrust_fraction * self.max_thrust_n)

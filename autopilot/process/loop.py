@@ -213,6 +213,7 @@ class Autopilot(PacedProcess):
     # -- the simulator link ----------------------------------------------------------------
     def _sim_lost(self) -> None:
         self.sim.close()
+        self.stall.stepped_us = None
         if self.vehicle.sim_link_ok:
             self.log("simulator link lost")
         self.vehicle.sim_link_lost()
@@ -360,6 +361,25 @@ class Autopilot(PacedProcess):
             if time.monotonic() >= self._next_service:
                 self._ground_work(LOCKSTEP_GROUND_BUDGET_S)
 
+    def _realtime_instant(self, start: float, period_s: float) -> bool:
+        """A real-time control instant, on its deadline ``start`` (perf_counter): the step
+        reads its input first (the newest sample's decoding counts as compute, and cannot
+        make the start late), then flies it, unless there is nothing new to fly: returns
+        whether it stepped."""
+        self._poll(0.0)
+        if self.latest is None or not self.vehicle.sim_link_ok:
+            return False
+        if self._stalled(time.monotonic(), period_s):
+            return False  # the last command holds; counted, not flown on old data
+        time_us, measurement = self.latest
+        if self.stall.flown_already(time_us, self._sample_period_us, self.period_us):
+            return False  # the last command holds; counted
+        self.stall.stepped_us = time_us
+        commands = self._control(time_us, measurement, start)
+        self._answer(time_us, commands, stepped=True)
+        self.timing.record_compute(max(0.0, self._command_sent - start))
+        return True
+
     def run_realtime(self) -> None:
         period_s = self.period_us / 1e6
         ground_share_s = GROUND_SHARE * period_s
@@ -371,18 +391,9 @@ class Autopilot(PacedProcess):
             self._sim_watchdog(now)
             if not pace.wait(self._poll):
                 continue  # polled the simulator link: connect and watch again
-            # The step starts on the deadline by reading its input: the newest sample's
-            # decoding counts as compute, and cannot make the start late.
             start = time.perf_counter()
-            self._poll(0.0)
-            stepped = self.latest is not None and self.vehicle.sim_link_ok
-            if stepped and self._stalled(time.monotonic(), period_s):
-                stepped = False  # the last command holds; counted, not flown on old data
+            stepped = self._realtime_instant(start, period_s)
             if stepped:
-                time_us, measurement = self.latest
-                commands = self._control(time_us, measurement, start)
-                self._answer(time_us, commands, stepped=True)
-                self.timing.record_compute(max(0.0, self._command_sent - start))
                 if previous_start is not None:
                     self.timing.record_period(start - previous_start)
                 previous_start = start

@@ -3,7 +3,7 @@ instants, counted in the loop timing and logged once it is over.
 
 A control instant whose newest sample is older than the stall limit is not flown (the last
 command holds); the episode's held steps and longest gap are logged when a sample comes
-again.
+again. Nor is an instant whose newest sample the last step flew, when the next one was due.
 """
 
 from __future__ import annotations
@@ -24,6 +24,20 @@ class StallWatch:
         self.started: float | None = None  # a stall going on: since (monotonic)
         self.held = 0  # control steps it has held the last command
         self.gap_s = 0.0  # its sample gap so far
+        self.stepped_us: int | None = None  # the sample the last control step flew
+
+    def flown_already(self, sample_us: int, sample_period_us: int, period_us: int) -> bool:
+        """Whether the newest sample (``sample_us``) is the one the last step flew though
+        the next was due (the simulator at the control rate or faster): a late step took
+        the one this instant would have had, or it is a little late. The instant holds
+        the last command, counted. Flown again, the sample moved the setpoints a period
+        on, ahead of the vehicle for good (a 30 ms stop of the autopilot then sped an
+        orbit up by 15 mm/s). A simulator slower than the control rate is flown at every
+        instant, its samples again: the next one makes the setpoints' lead up."""
+        if sample_us != self.stepped_us or sample_period_us > period_us:
+            return False
+        self.timing.record_same_sample()
+        return True
 
     def stalled(self, now: float, last_sample_s: float, period_s: float,
                 sample_period_s: float) -> bool:

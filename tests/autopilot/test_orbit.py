@@ -55,22 +55,33 @@ def test_a_negative_radius_orbits_counter_clockwise_and_speed_is_capped_by_acc_h
     assert speed.max() - speed.min() < 0.02  # steady within 0.6 %
 
 
-def test_lost_periods_do_not_put_the_orbit_behind_the_vehicle():
-    """A late real-time step loses whole periods while the simulator flies on. The circle
-    moves on by sim time, so the vehicle flies on at its speed; moved on by steps, it
-    fell 3 periods behind and slowed the vehicle by 40 mm/s for a second."""
+@pytest.mark.parametrize("samples_arrive", [False, True])
+@pytest.mark.parametrize(("lost", "golden_mm_s"), [(3, 0.70), (19, 1.11)])
+def test_lost_periods_do_not_put_the_orbit_behind_the_vehicle(lost, golden_mm_s,
+                                                               samples_arrive):
+    """A late real-time step loses whole periods while the simulator flies on (its plant
+    holding the last command). The circle moves on by sim time and the lost periods are
+    shaped one by one, so the vehicle flies on as if none were lost. ``samples_arrive``:
+    as the real-time loop does, every sample is taken as it arrives and the step takes
+    the newest again (counted twice, the setpoints moved on a period per step whatever
+    was lost: the real-time orbit slowed 29 mm/s while this test, without it, passed)."""
     f, _ = _orbit(4.0, 1.5, 0, seconds=20.0)
+    f.run(0.1, samples_arrive=samples_arrive)
     orbit = f.vehicle.tasks[FlightMode.ORBIT]
     lost_at, angle = f.t_s, orbit._angle_rad
-    f.lose(3)
-    f.run(0.01)
-    # The point on the circle moved on by the 4 periods of sim time, not by one step.
-    assert orbit._angle_rad - angle == pytest.approx(1.5 / 4.0 * 0.04, rel=1e-9)
-    f.run(3.0)
+    f.lose(lost, samples_arrive=samples_arrive)
+    f.run(0.01, samples_arrive=samples_arrive)
+    # The point on the circle moved on by all the periods of sim time, not by one step.
+    assert orbit._angle_rad - angle == pytest.approx(1.5 / 4.0 * 0.01 * (lost + 1), rel=1e-9)
+    assert f.vehicle.state.step_periods == lost + 1
+    f.run(3.0, samples_arrive=samples_arrive)
     speed = np.hypot(*f.since(lost_at)[:, 4:6].T)
-    # Golden (in process): 4.6 mm/s at most, from the commands held over the lost
-    # periods (0.7 mm/s losing none); 39.6 mm/s with the circle moved on by steps.
-    assert np.abs(speed - 1.5).max() == pytest.approx(0.00458, abs=0.0005)
+    # Golden (in process): 3 lost, 0.70 mm/s at most, as losing none (0.71 mm/s); 19 lost
+    # (200 ms between steps), 1.11 mm/s. The held command costs nothing measurable (the
+    # controller run on every sample, the command held: 0.71); 3 lost shaped in one 40 ms
+    # step, 4.6 mm/s; the circle moved on by one period, 39.6 mm/s; 19 lost with the step
+    # capped at 50 ms (before 0.5 s), 350 mm/s.
+    assert np.abs(speed - 1.5).max() == pytest.approx(golden_mm_s / 1e3, abs=0.0001)
 
 
 def test_orbit_is_refused_on_the_ground_and_for_bad_circles_and_the_mode_is_unchanged():
@@ -106,10 +117,20 @@ def test_the_setpoints_advance_by_the_sim_time_between_samples():
     # a new simulator (the clock goes back); a stall.
     for t_s in (0.0, 0.01, 0.02, 0.05, 0.05, 0.07, 0.03, 1.0, 1.01):
         state.new_sample(t_s, m)
-        steps.append(state.step_s)
-    assert steps == [0.01, 0.01, 0.01, 0.03, 0.01, 0.01, 0.01, MAX_SETPOINT_STEP_S, 0.01]
+        state.begin_step()
+        steps.append((state.step_s, state.step_periods))
+    assert steps == [(0.01, 1), (0.01, 1), (0.01, 1), (0.03, 3), (0.01, 1), (0.01, 1),
+                     (0.01, 1), (MAX_SETPOINT_STEP_S, 50), (0.01, 1)]
+    # Samples taken between steps (real time takes each as it arrives, and the step the
+    # newest again) do not count: the step moves on by the sim time since the last step.
+    for t_s in (1.02, 1.03, 1.04, 1.04):
+        state.new_sample(t_s, m)
+    state.begin_step()
+    assert (state.step_s, state.step_periods) == (0.03, 3)
     # Lockstep: exactly one period per sample, bit for bit, however long the flight.
     for k in range(2, 100_000, 997):
         state.new_sample((k - 1) * 0.01, m)
+        state.begin_step()
         state.new_sample(k * 0.01, m)
-        assert state.step_s == 0.01
+        state.begin_step()
+        assert (state.step_s, state.step_periods) == (0.01, 1)

@@ -47,7 +47,8 @@ def test_loop_summary_in_milliseconds() -> None:
     assert 0.1 - 1e-9 <= s["jitter_p50_ms"] <= 0.1 + BIN_S * 1e3 + 1e-9
     assert 0.3 - 1e-9 <= s["compute_p99_ms"] <= 0.3 + BIN_S * 1e3 + 1e-9
     assert LoopTiming(0.01).summary() == {"steps": 0, "deadline_misses": 0, "sim_stalls": 0,
-                                          "sim_stall_steps": 0, "sim_stall_longest_ms": 0.0}
+                                          "sim_stall_steps": 0, "sim_stall_longest_ms": 0.0,
+                                          "same_sample_held": 0}
     assert (s["sim_stalls"], s["sim_stall_steps"]) == (0, 0)
 
 

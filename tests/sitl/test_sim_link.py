@@ -230,7 +230,7 @@ def test_odometry_velocity_in_body_frd_is_turned_into_ned():
 
 
 def _autopilot_on_a_socket(rate_hz: float = 100.0, source: str = "auto",
-                           home: Home | None = DEFAULT_HOME):
+                           home: Home | None = DEFAULT_HOME, lockstep: bool = True):
     """The autopilot process's simulator side on one end of a socket pair (its home given,
     as scenario runs give it, unless ``home`` is None)."""
     from autopilot.commander.commander import Commander
@@ -240,7 +240,8 @@ def _autopilot_on_a_socket(rate_hz: float = 100.0, source: str = "auto",
 
     vehicle = Commander(lambda p: make_controller("smc", PAPER, 1 / rate_hz, None, p),
                       1 / rate_hz)
-    autopilot = Autopilot(AutopilotConfig(rate_hz=rate_hz, state_source=source, home=home),
+    autopilot = Autopilot(AutopilotConfig(rate_hz=rate_hz, state_source=source, home=home,
+                                          lockstep=lockstep),
                           vehicle,
                           MavlinkServer(vehicle, []), log=lambda text: None)
     ours, theirs = socket.socketpair()
@@ -389,6 +390,41 @@ def test_a_stall_is_a_gap_over_two_periods_counted_once_per_episode():
     autopilot._sample_period_us = 50_000  # a 20 Hz simulator: its period rules
     assert not autopilot._stalled(100.130, 0.01)
     assert autopilot._stalled(100.140, 0.01)
+
+
+def test_a_real_time_instant_flies_only_a_sample_not_flown_yet():
+    """After a late step the next instant on the grid often finds no sample since: it
+    holds the last command and counts it (flown again, the setpoints moved a period on,
+    ahead of the vehicle for good). A step after lost periods moves the setpoints on by
+    all of them."""
+    import selectors
+
+    autopilot, theirs = _autopilot_on_a_socket(lockstep=False)
+    autopilot.sel.register(autopilot.sim.sock, selectors.EVENT_READ, "sim")
+    # A control period long enough that no pause of this test's process is a stall.
+    period_s = 100.0
+
+    def instant() -> bool:
+        return autopilot._realtime_instant(time.perf_counter(), period_s)
+
+    assert not instant()  # no sample yet
+    _send_samples(theirs, [0])
+    assert instant() and _answers(theirs) == [0]
+    assert not instant() and _answers(theirs) == []
+    _send_samples(theirs, [10_000, 20_000, 30_000, 40_000])  # the late step's samples
+    assert instant() and _answers(theirs) == [40_000]
+    assert autopilot.vehicle.state.step_s == pytest.approx(0.04)
+    assert not instant() and not instant()
+    _send_samples(theirs, [50_000])
+    assert instant() and _answers(theirs) == [50_000]
+    assert autopilot.vehicle.state.step_s == pytest.approx(0.01)
+    assert autopilot.steps == 3
+    assert autopilot.timing.summary()["same_sample_held"] == 3
+    # A simulator slower than the control rate (20 Hz): every instant flies, its samples
+    # again, as its samples are not due at every instant.
+    _send_samples(theirs, [100_000])
+    assert instant() and instant() and _answers(theirs) == [100_000, 100_000]
+    assert autopilot.timing.summary()["same_sample_held"] == 3
 
 
 def test_the_autopilot_tries_the_simulator_every_20_ms_at_first_then_backs_off():

@@ -274,13 +274,6 @@ class Autopilot(PacedProcess):
                 self._stop = True
                 return
 
-    def _stalled(self, now: float, period_s: float) -> bool:
-        """Real time: a control instant whose newest sample is over STALL_PERIODS periods
-        old (of the control or of the simulator, whichever is longer) is a simulator
-        stall: counted, and the last command holds (nothing is flown on old data)."""
-        return self.stall.stalled(now, self._last_sample_wall, period_s,
-                                  self._sample_period_us / 1e6)
-
     def _sim_watchdog(self, now: float) -> None:
         """Real time: no sample for COM_SIM_LOSS_T means the simulator is gone."""
         if self.config.lockstep or self.sim.sock is None:
@@ -369,8 +362,9 @@ class Autopilot(PacedProcess):
         self._poll(0.0)
         if self.latest is None or not self.vehicle.sim_link_ok:
             return False
-        if self._stalled(time.monotonic(), period_s):
-            return False  # the last command holds; counted, not flown on old data
+        if self.stall.stalled(time.monotonic(), self._last_sample_wall, period_s,
+                              self._sample_period_us / 1e6):
+            return False  # a simulator stall: the last command holds, not flown on old data
         time_us, measurement = self.latest
         if self.stall.flown_already(time_us, self._sample_period_us, self.period_us):
             return False  # the last command holds; counted

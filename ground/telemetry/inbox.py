@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import collections
 import ctypes
-import ctypes.util
 import threading
 from collections.abc import Callable
 from typing import Any
@@ -30,13 +29,13 @@ RELEASE_AFTER_BYTES = 2 * 1024 * 1024  # a drain of this much (~3.5 s of one veh
 
 
 def _malloc_trim() -> Callable[[], Any] | None:
-    name = ctypes.util.find_library("c")
+    """glibc's malloc_trim, from the symbols already loaded into this process (not
+    ``ctypes.util.find_library``, which runs ldconfig at import)."""
     try:
-        trim = ctypes.CDLL(name).malloc_trim if name else None
+        trim = ctypes.CDLL(None).malloc_trim
     except (OSError, AttributeError):  # not glibc (musl, macOS): nothing to call
         return None
-    if trim is not None:
-        trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
+    trim.argtypes, trim.restype = [ctypes.c_size_t], ctypes.c_int
     return trim
 
 

@@ -378,18 +378,23 @@ def test_a_stall_is_a_gap_over_two_periods_counted_once_per_episode():
     autopilot.log = logged.append
     autopilot._last_sample_wall = 100.0
     autopilot._sample_period_us = 4_000  # a 250 Hz simulator: the control period rules
-    assert not autopilot._stalled(100.020, 0.01)
-    assert autopilot._stalled(100.021, 0.01) and autopilot._stalled(100.031, 0.01)
+
+    def stalled(now: float) -> bool:  # as the real-time instant asks, at a 10 ms period
+        return autopilot.stall.stalled(now, autopilot._last_sample_wall, 0.01,
+                                       autopilot._sample_period_us / 1e6)
+
+    assert not stalled(100.020)
+    assert stalled(100.021) and stalled(100.031)
     autopilot._last_sample_wall = 100.035  # a sample again
-    assert not autopilot._stalled(100.040, 0.01)
+    assert not stalled(100.040)
     summary = autopilot.timing.summary()
     assert (summary["sim_stalls"], summary["sim_stall_steps"]) == (1, 2)
     assert summary["sim_stall_longest_ms"] == pytest.approx(31.0)
     assert logged == ["simulator late: no sample for at least 31 ms; 2 control step(s) "
                       "held the last command"]
     autopilot._sample_period_us = 50_000  # a 20 Hz simulator: its period rules
-    assert not autopilot._stalled(100.130, 0.01)
-    assert autopilot._stalled(100.140, 0.01)
+    assert not stalled(100.130)
+    assert stalled(100.140)
 
 
 def test_a_real_time_instant_flies_only_a_sample_not_flown_yet():

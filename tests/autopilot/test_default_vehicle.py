@@ -15,7 +15,7 @@ import pytest
 from tests.groundtools.test_vehicle_mavlink import ACCEPTED, OFFBOARD, M, _streamer, _take_off
 from tests.harness import GroundTool, Processes, free_port
 
-pytestmark = pytest.mark.process
+pytestmark = [pytest.mark.process, pytest.mark.groundtool]  # real time, no timing asserted
 
 
 class DefaultProcesses(Processes):

@@ -174,6 +174,7 @@ def test_a_gps_outage_in_hover_through_the_processes(shipped_models, tmp_path):
 
 
 @pytest.mark.process
+@pytest.mark.groundtool  # real time, no timing asserted: four at a time in CI
 def test_arming_waits_for_the_estimator_to_converge(tmp_path):
     """A ground tool arms as soon as the simulator's samples flow: denied, temporarily,
     saying the estimator is not ready; accepted once it has converged; then ESTIMATOR_STATUS

@@ -12,6 +12,7 @@ building the message objects: the simulator does that every sample. Reading them
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 from contracts.frames import Home
@@ -134,13 +135,20 @@ def sample_messages(truth: TruthSample, sensor: SensorSample, gps: GpsSample | N
 
 
 def sample_frames(truth: TruthSample, sensor: SensorSample, gps: GpsSample | None,
-                  home: Home, mav: mavlink.MAVLink) -> bytes:
+                  home: Home, mav: mavlink.MAVLink,
+                  readings: Callable[[bytes, bytes | None], None] | None = None) -> bytes:
     """``sample_messages``' frames packed on ``mav``, byte for byte, without the message
-    objects."""
+    objects. ``readings``, when given, gets the HIL_SENSOR frame and the HIL_GPS frame
+    (None without a fix) as sent: a log of what the autopilot read."""
     hil_state, odometry = truth_fields(truth, home)
-    frames = [pack_fields(mavlink.MAVLink_hil_sensor_message, sensor_fields(sensor), mav),
+    sensor_frame = pack_fields(mavlink.MAVLink_hil_sensor_message, sensor_fields(sensor), mav)
+    frames = [sensor_frame,
               pack_fields(mavlink.MAVLink_hil_state_quaternion_message, hil_state, mav),
               pack_fields(mavlink.MAVLink_odometry_message, odometry, mav)]
+    gps_frame = None
     if gps is not None:
-        frames.insert(0, pack_fields(mavlink.MAVLink_hil_gps_message, gps_fields(gps), mav))
+        gps_frame = pack_fields(mavlink.MAVLink_hil_gps_message, gps_fields(gps), mav)
+        frames.insert(0, gps_frame)
+    if readings is not None:
+        readings(sensor_frame, gps_frame)
     return b"".join(frames)

@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from contracts import AUTOPILOT, SITL
+from contracts.mavlink import SIMULATOR_COMPID
 from contracts.perturbation_effects import PLANT_EFFECTS
 from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT, REFERENCE
 
@@ -345,13 +346,15 @@ def pack_batch(keys: list[str], key_index: list[int], payloads: list[bytes],
 def unpack_batch(batch_key: str, payload: bytes) -> list[Entry]:
     """The records of a batch put on ``batch_key``; ValueError if it does not parse, or
     holds a key beyond what its sender publishes (its own ``ivfm/vehicle/V/PROC/...``
-    keys, and ``mavlink/V/...`` for the autopilot's mirror)."""
+    keys; the autopilot's MAVLink mirror, ``mavlink/V/...``, and the simulator's,
+    ``mavlink/V/51/...``)."""
     parsed = parse_key(batch_key)
     if parsed is None or parsed[2] != BATCH_TOPIC:
         raise ValueError(f"{batch_key} is not a batch key")
     vehicle, process, _ = parsed
     own = f"{ROOT}/vehicle/{vehicle}/{process}/"
-    mirror = f"mavlink/{vehicle}/" if process == AUTOPILOT else None
+    mirror = (f"mavlink/{vehicle}/" if process == AUTOPILOT else
+              f"mavlink/{vehicle}/{SIMULATOR_COMPID}/" if process == SITL else None)
     size = len(payload)
     try:
         if payload[:4] != BATCH_MAGIC:

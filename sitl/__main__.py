@@ -79,6 +79,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                         "...: docs/mavlink.md) or degrees, degrees, metres AMSL (default: "
                         "PX4's SITL home, 47.397742,8.545594,488); south or west: "
                         "--home=-33.86,151.21,40")
+    p.add_argument("--log-sensors", action="store_true",
+                   help="send the HIL_SENSOR and HIL_GPS frames of every sample to the log "
+                        "too (a ULog's sensor_combined and sensor_gps; docs/ulog.md)")
     add_vehicle_process_arguments(p)
     add_zenoh_arguments(p, VEHICLE_LISTEN, VEHICLE_CONNECT, identity="vehicle", vehicle=True)
     return p
@@ -100,7 +103,8 @@ def run(args: argparse.Namespace) -> int:
         exit_on_disconnect=args.exit_on_disconnect, duration_s=args.duration,
         vehicle_id=args.vehicle, zenoh=zenoh_options_from_args(args), hold=args.hold,
         seed=args.seed, rt_priority=args.rt_priority, sensors=read_profile(args.sensors),
-        home=args.home, perturbations=args.perturbations, handover_cpu=args.handover_cpu)
+        home=args.home, perturbations=args.perturbations, handover_cpu=args.handover_cpu,
+        log_sensors=args.log_sensors)
     return Simulator(config).run()
 
 

@@ -9,6 +9,7 @@ over the last period, the acceleration over it, and (for a link delay) the recen
 from __future__ import annotations
 
 import collections
+from collections.abc import Callable
 
 import numpy as np
 
@@ -53,9 +54,12 @@ class SampleSource:
         self._previous_velocity = velocity
 
     def frames(self, time_us: int, state: VehicleState, effects: SensorEffects,
-               mav: mavlink.MAVLink) -> bytes | None:
+               mav: mavlink.MAVLink,
+               on_readings: Callable[[bytes, bytes | None], None] | None = None
+               ) -> bytes | None:
         """The sample at ``time_us`` (``state``: the plant's then) under ``effects``,
-        packed on ``mav``; None when the link loses it."""
+        packed on ``mav``; None when the link loses it. ``on_readings`` gets the HIL_SENSOR
+        and HIL_GPS frames of a sample sent (``sample_frames``)."""
         readings, fix = self.sensors.sample(time_us, self._imu_state, self._acceleration,
                                             effects)
         if effects is NO_SENSOR_EFFECTS:
@@ -67,4 +71,4 @@ class SampleSource:
                 state, self._history, effects, self.rng)
             truth = truth_sample(time_us, state, self._acceleration, position, velocity,
                                  quaternion, body_rate)
-        return sample_frames(truth, readings, fix, self.home, mav)
+        return sample_frames(truth, readings, fix, self.home, mav, on_readings)

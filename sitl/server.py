@@ -67,6 +67,10 @@ class SimulatorConfig:
     rt_priority: int = 40  # real time: SCHED_FIFO priority (0: normal), below the autopilot's
     home: Home = DEFAULT_HOME  # where on Earth the local frame's origin is
     handover_cpu: int | None = None  # lockstep: the loop's CPU (None: any)
+    # Log the HIL_SENSOR and HIL_GPS frames sent, on the MAVLink mirror: a PX4 log's
+    # sensor_combined and sensor_gps (ivfm run --ulog). Off by default: a sample's two
+    # frames more for the logger.
+    log_sensors: bool = False
 
     def __post_init__(self) -> None:
         if not 0 <= self.rt_priority <= 99:
@@ -130,6 +134,9 @@ class Simulator(PacedProcess):
                                             config.perturbations, self.log)
         self.perturbations = PerturbationService(config.schedule, self.plant,
                                                  self.telemetry.publish_event, self.log)
+        self._log_readings = (
+            (lambda sensor, gps: self.telemetry.mirror_readings(self.time_us, sensor, gps))
+            if config.log_sensors else None)
 
     @property
     def time_us(self) -> int:
@@ -146,7 +153,7 @@ class Simulator(PacedProcess):
                                      self._commands)
         self.telemetry.status(time_us, self.stats, self.started)
         return self.samples.frames(time_us, self._state, self.perturbations.sensor_effects,
-                                   self.link.mav)
+                                   self.link.mav, self._log_readings)
 
     def advance(self) -> None:
         """One sample period of plant time with the commands in force."""

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from contracts import SITL
+from contracts.mavlink import SIMULATOR_COMPID
 from contracts.perturbation_effects import PLANT_EFFECTS
 from contracts.perturbations import Perturbation, Perturbations
 from contracts.telemetry import STATE, json_record
@@ -73,6 +74,16 @@ class SimulatorTelemetry:
                 record[name] = getattr(active, name)
         self._state_pub.put(record.encode())
         self.node.end_step(time_us)
+
+    def mirror_readings(self, time_us: int, sensor_frame: bytes,
+                        gps_frame: bytes | None) -> None:
+        """The HIL_SENSOR and HIL_GPS frames of the sample at ``time_us`` as sent, into
+        the MAVLink mirror (``mavlink/V/51/HIL_SENSOR``): what a PX4 log keeps as
+        sensor_combined and sensor_gps."""
+        node = self.node
+        node.mirror(node.vehicle, SIMULATOR_COMPID, "HIL_SENSOR", sensor_frame, time_us)
+        if gps_frame is not None:
+            node.mirror(node.vehicle, SIMULATOR_COMPID, "HIL_GPS", gps_frame, time_us)
 
     def publish_event(self, time_us: int, event: str, entry: Perturbation) -> None:
         """A perturbation that started or ended at ``time_us``."""

@@ -58,7 +58,7 @@ def add_arguments(run: argparse.ArgumentParser) -> None:
     run.add_argument("--no-figures", action="store_true")
     run.add_argument("--ulog", action="store_true",
                      help=f"also write the run as a PX4 flight log, {ULOG_FILE} in the run "
-                          "folder (docs/ulog.md)")
+                          "folder, its sensor readings logged for it (docs/ulog.md)")
     add_vehicle_options(run)
     run.set_defaults(airframe=None)
 
@@ -97,7 +97,8 @@ def handle(args: argparse.Namespace) -> int:
                       f"open connection, Foxglove WebSocket; layout {LAYOUT_FILE})",
                       file=sys.stderr)
             metrics = fly_processes(plan, args.out, figures=not args.no_figures, warm=warm,
-                                    started_s=started_s, view=args.view)
+                                    started_s=started_s, view=args.view,
+                                    log_sensors=args.ulog)
         finally:
             warm.close()
         telemetry = metrics["telemetry"]

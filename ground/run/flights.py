@@ -103,19 +103,21 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
 def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
                   quiet: bool = False, warm: WarmProcesses | None = None,
                   started_s: float | None = None,
-                  view: tuple[str, int] | None = None) -> dict[str, Any]:
+                  view: tuple[str, int] | None = None,
+                  log_sensors: bool = False) -> dict[str, Any]:
     """Fly through the processes into ``out_dir`` (run.json, scenario copy, log, process
     logs); returns metrics.json's content. ``quiet``: no progress on stderr; ``warm``:
     runs of these warm processes (ground/run/processes.py) instead of new processes;
     ``started_s``: when the command started (time.monotonic), for the run's timeline;
-    ``view``: (host, port) of a live view the logger serves."""
+    ``view``: (host, port) of a live view the logger serves; ``log_sensors``: the log
+    keeps the simulator's sensor readings too (a ULog's sensor topics)."""
     scenario = plan.scenario
     settings = RunSettings(plan.controller, plan.plant, plan.airframe.argument, plan.model_path,
                            {k: v for k, v in plan.parameters.items() if k in plan.given},
                            realtime=plan.realtime, rate_hz=plan.rate_hz,
                            state_source=plan.state_source, sensors=plan.sensors,
                            seed=plan.seed, any_airframe_model=plan.any_airframe_model,
-                           home=plan.home, rt_cpus=plan.rt_cpus)
+                           home=plan.home, rt_cpus=plan.rt_cpus, log_sensors=log_sensors)
     accounting = run_processes(scenario, settings, out_dir, quiet=quiet, warm=warm,
                                started_s=started_s, view=view)
     timing = accounting.pop("timing")

@@ -68,6 +68,7 @@ class RunSettings:
     any_airframe_model: bool = False  # fly a model identified on another airframe
     home: Home = DEFAULT_HOME  # given to both: the run's frames agree from the first sample
     rt_cpus: frozenset[int] | None = None  # both vehicle processes' CPUs (None: any)
+    log_sensors: bool = False  # the simulator logs its HIL_SENSOR and HIL_GPS frames too
 
 
 class HandoverCpus:
@@ -136,7 +137,8 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
            "--rate-hz", str(settings.rate_hz), "--plant", settings.plant,
            "--airframe", settings.airframe, "--start-altitude", str(ref.altitude_m),
            "--exit-on-disconnect", "--vehicle", str(settings.vehicle), "--hold",
-           "--sensors", settings.sensors, "--seed", str(settings.seed), *zenoh_args]
+           "--sensors", settings.sensors, "--seed", str(settings.seed), *zenoh_args,
+           *(["--log-sensors"] if settings.log_sensors else [])]
     if scenario.plan is not None:  # armed in AUTO.MISSION on the ground
         flies = ["--mission", str(scenario.plan), "--start-mission"]
     else:  # armed in the reference from the first sample

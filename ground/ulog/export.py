@@ -48,6 +48,7 @@ from ground.ulog.run_topics import (
     RunContext,
     control_topics,
     max_thrust_n,
+    sensor_topics,
     thrust_model_factor,
     truth_topics,
 )
@@ -319,6 +320,7 @@ def export_ulog(log: Path, out: Path, vehicle: int | None = None,
         raise ValueError(f"{log}: a control record at negative sim time")
     tables = control_topics(c, context)
     tables.update(truth_topics(records, context))
+    tables.update(sensor_topics(records, context))
     texts = logged_texts(records, context.vehicle)
     parameters = ulog_parameters(context)
     ulog = build_ulog({name: tables[name] for name in px4.TOPICS if name in tables},

@@ -222,12 +222,44 @@ bool maybe_landed
 bool landed
 """)
 
+# The simulator's readings as the autopilot got them (HIL_SENSOR, HIL_GPS), where the run
+# logged them (ivfm run --ulog): what PX4's simulator_mavlink publishes of the same.
+SENSOR_COMBINED = Topic("sensor_combined", "SensorCombined", """
+uint64 timestamp
+float32[3] gyro_rad                   # body FRD [rad/s]
+uint32 gyro_integral_dt               # sample period [us]
+int32 accelerometer_timestamp_relative
+float32[3] accelerometer_m_s2         # specific force, body FRD [m/s^2]
+uint32 accelerometer_integral_dt      # [us]
+""")
+SENSOR_GPS = Topic("sensor_gps", "SensorGps", """
+uint64 timestamp
+uint64 timestamp_sample
+uint32 device_id
+float64 latitude_deg
+float64 longitude_deg
+float64 altitude_msl_m
+uint8 fix_type                        # 0-1 none, 2 2D, 3 3D
+float32 eph                           # [m], as PX4's simulator reads HIL_GPS (cm)
+float32 epv
+float32 hdop
+float32 vdop
+float32 vel_m_s                       # ground speed [m/s]
+float32 vel_n_m_s
+float32 vel_e_m_s
+float32 vel_d_m_s
+float32 cog_rad                       # course over ground [rad]
+bool vel_ned_valid
+uint8 satellites_used
+""")
+
 TOPICS: dict[str, Topic] = {t.name: t for t in (
     VEHICLE_ATTITUDE, VEHICLE_ANGULAR_VELOCITY, VEHICLE_LOCAL_POSITION,
     VEHICLE_GLOBAL_POSITION, VEHICLE_LOCAL_POSITION_SETPOINT, VEHICLE_ATTITUDE_SETPOINT,
     VEHICLE_RATES_SETPOINT, ACTUATOR_MOTORS, VEHICLE_STATUS, VEHICLE_LAND_DETECTED,
     VEHICLE_ATTITUDE_GROUNDTRUTH, VEHICLE_ANGULAR_VELOCITY_GROUNDTRUTH,
-    VEHICLE_LOCAL_POSITION_GROUNDTRUTH, VEHICLE_GLOBAL_POSITION_GROUNDTRUTH)}
+    VEHICLE_LOCAL_POSITION_GROUNDTRUTH, VEHICLE_GLOBAL_POSITION_GROUNDTRUTH,
+    SENSOR_COMBINED, SENSOR_GPS)}
 ACTUATOR_MOTORS_COUNT = 12  # ActuatorMotors.NUM_CONTROLS
 
 # -- numbers (VehicleStatus.msg, MAVLink) ----------------------------------------------

@@ -7,7 +7,9 @@ From the autopilot's control records, at every control step: what it flew on
 (vehicle_attitude, vehicle_angular_velocity, vehicle_local_position and
 vehicle_global_position), its setpoints, its motor commands (actuator_motors), its status
 and landed state. From the simulator's state records, at every sample: the truth, under
-PX4 SITL's ``*_groundtruth`` names. Timestamps are the vehicle's sim time [us].
+PX4 SITL's ``*_groundtruth`` names. From the simulator's HIL_SENSOR and HIL_GPS frames,
+where the run logged them (``--log-sensors``): sensor_combined and sensor_gps. Timestamps
+are the vehicle's sim time [us].
 """
 
 from __future__ import annotations
@@ -21,8 +23,9 @@ import numpy as np
 from autopilot.commander.land_detector import LANDED_ALTITUDE_M, LANDED_SPEED_MPS
 from contracts.airframe_file import AirframeSpec
 from contracts.frames import Home, body_rates_from_euler_rates, quat_from_euler, wrap_pi_array
+from contracts.mavlink import SIMULATOR_COMPID, mavlink
 from contracts.modes import FlightMode
-from contracts.telemetry import FLAG_ARMED, FLAG_FAILSAFE, SITL, STATE, vehicle_key
+from contracts.telemetry import FLAG_ARMED, FLAG_FAILSAFE, SITL, STATE, mavlink_key, vehicle_key
 from contracts.vectors import CHANNELS, MEASUREMENT, REFERENCE
 from ground.record.run_files import LogRecords, iter_messages
 from ground.ulog import px4_topics as px4
@@ -279,4 +282,62 @@ def truth_topics(records: LogRecords, context: RunContext) -> dict[str, np.ndarr
     if context.home is not None:
         out["vehicle_global_position_groundtruth"] = _global_position(
             px4.VEHICLE_GLOBAL_POSITION_GROUNDTRUTH, t, position, context.home)
+    return out
+
+
+def sensor_topics(records: LogRecords, context: RunContext) -> dict[str, np.ndarray]:
+    """The simulator's readings as the autopilot got them, where the run logged them
+    (the simulator's ``--log-sensors``): sensor_combined and sensor_gps. None logged:
+    neither topic."""
+    prefix = mavlink_key(context.vehicle, SIMULATOR_COMPID, "")
+    parser = mavlink.MAVLink(None)
+    parser.robust_parsing = True  # a damaged frame is BAD_DATA, skipped
+    sensors, fixes = [], []
+    for topic, _message, data in iter_messages(records, prefix):
+        if not topic.startswith(prefix):
+            continue
+        for msg in parser.parse_buffer(data) or []:
+            kind = msg.get_type()
+            if kind == "HIL_SENSOR":
+                sensors.append(msg)
+            elif kind == "HIL_GPS":
+                fixes.append(msg)
+    return readings_topics(sensors, fixes)
+
+
+def readings_topics(sensors: list, fixes: list) -> dict[str, np.ndarray]:
+    """sensor_combined of HIL_SENSOR messages and sensor_gps of HIL_GPS messages, in
+    time order, in PX4's units: HIL_GPS's integers scaled back (degE7, mm, cm/s,
+    centidegrees), its eph/epv read as centimetres as PX4's simulator_mavlink reads them
+    (this simulator fills them with the dilution of precision x 100, also written as
+    hdop/vdop)."""
+    out = {}
+    if sensors:
+        sensors = sorted(sensors, key=lambda m: m.time_usec)
+        t = np.array([m.time_usec for m in sensors], dtype=np.uint64)
+        dt = np.diff(t.astype(np.int64), prepend=0)
+        dt[0] = dt[1] if len(dt) > 1 else 0  # the first sample's period: the next one's
+        out["sensor_combined"] = _rows(
+            px4.SENSOR_COMBINED, t,
+            gyro_rad=np.array([(m.xgyro, m.ygyro, m.zgyro) for m in sensors]),
+            gyro_integral_dt=dt, accelerometer_timestamp_relative=0,
+            accelerometer_m_s2=np.array([(m.xacc, m.yacc, m.zacc) for m in sensors]),
+            accelerometer_integral_dt=dt)
+    if fixes:
+        fixes = sorted(fixes, key=lambda m: m.time_usec)
+        t = np.array([m.time_usec for m in fixes], dtype=np.uint64)
+
+        def scaled(name: str, scale: float) -> np.ndarray:
+            return np.array([getattr(m, name) for m in fixes], dtype=float) * scale
+
+        out["sensor_gps"] = _rows(
+            px4.SENSOR_GPS, t, device_id=0,
+            latitude_deg=scaled("lat", 1e-7), longitude_deg=scaled("lon", 1e-7),
+            altitude_msl_m=scaled("alt", 1e-3), fix_type=scaled("fix_type", 1),
+            eph=scaled("eph", 1e-2), epv=scaled("epv", 1e-2),
+            hdop=scaled("eph", 1e-2), vdop=scaled("epv", 1e-2),
+            vel_m_s=scaled("vel", 1e-2), vel_n_m_s=scaled("vn", 1e-2),
+            vel_e_m_s=scaled("ve", 1e-2), vel_d_m_s=scaled("vd", 1e-2),
+            cog_rad=wrap_pi_array(np.radians(scaled("cog", 1e-2))), vel_ned_valid=True,
+            satellites_used=scaled("satellites_visible", 1))
     return out

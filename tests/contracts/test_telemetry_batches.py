@@ -77,9 +77,15 @@ def test_a_batch_that_does_not_parse_is_refused_saying_why(mangle, reason):
 def test_a_batch_holding_keys_its_sender_does_not_publish_is_refused(key):
     with pytest.raises(ValueError, match="refused"):
         unpack_batch(AP_BATCH, _pack([(key, b"x", None)]))
-    # The simulator's batches carry no mirror frames.
+    # The simulator's batches carry only its own mirror frames (component 51: the
+    # readings it sent, --log-sensors), never the autopilot's.
     with pytest.raises(ValueError, match="not one its sender publishes"):
         unpack_batch("ivfm/vehicle/1/sitl/batch", _pack([(MIRROR_KEY, b"\xfd", None)]))
+    with pytest.raises(ValueError, match="not one its sender publishes"):
+        unpack_batch("ivfm/vehicle/1/sitl/batch",
+                     _pack([("mavlink/2/51/HIL_SENSOR", b"\xfd", None)]))
+    own = [("mavlink/1/51/HIL_SENSOR", b"\xfd", b"attached")]
+    assert unpack_batch("ivfm/vehicle/1/sitl/batch", _pack(own)) == own
 
 
 def test_a_key_index_past_the_table_and_an_empty_batch_are_refused():

@@ -22,24 +22,28 @@ from autopilot.parameters import PARAMETER_SPECS
 from contracts.airframe import airframe_by_name, rotor_speeds
 from contracts.airframe_file import read_airframe
 from contracts.frames import (
+    DEFAULT_HOME,
     Home,
     body_rates_from_euler_rates,
     euler_rates_from_body_rates,
     quat_from_euler,
 )
+from contracts.mavlink import mavlink, new_mavlink
 from contracts.modes import FlightMode
+from contracts.sim_samples import GpsSample, SensorSample, TruthSample, sample_frames
 from contracts.telemetry import STATE
 from ground.cli.main import main
 from ground.record.events import statustext_events
 from ground.record.run_files import ULOG_FILE, control_records, iter_messages
 from ground.ulog import px4_topics as px4
 from ground.ulog.export import _airframe, export_ulog
-from ground.ulog.run_topics import max_thrust_n
+from ground.ulog.run_topics import max_thrust_n, readings_topics
 
 DATA = Path(__file__).parents[1] / "data"
 SHORT_RUN = DATA / "short-run"  # a 1 s lockstep hover: paper airframe, ivfc, rigid-body plant
 PX4_MSG = DATA / "px4_msg"
 F32 = np.float32
+READINGS = {"sensor_combined", "sensor_gps"}  # written where the run logged its readings
 
 
 def f32(values) -> np.ndarray:
@@ -101,10 +105,13 @@ def records(short_run) -> dict[str, np.ndarray]:
 
 def test_pyulog_reads_every_topic_back_whole(short_run, ulog, records):
     assert not ulog.file_corruption and not ulog.dropouts
-    assert sorted(d.name for d in ulog.data_list) == sorted(px4.TOPICS)
+    # The short run was flown without --log-sensors: no readings in its log.
+    assert sorted(d.name for d in ulog.data_list) == sorted(set(px4.TOPICS) - READINGS)
     n = len(records["seq"])
     assert n == 100
     for name, topic in px4.TOPICS.items():
+        if name in READINGS:
+            continue  # a flown run's (test_a_flown_runs_readings_are_its_sensor_topics)
         data = ulog.get_dataset(name)
         assert [f.field_name for f in data.field_data] == topic.columns()
         assert ulog.message_formats[name].fields == [
@@ -131,6 +138,59 @@ def test_topics_and_fields_are_px4s_own(ulog):
             assert (px4.ULOG_TYPES[msg_type][0], msg_count) == (ulog_type, count), \
                 f"{data.name}.{name}"
         assert "timestamp" in written
+
+
+def test_every_topic_declared_is_px4s_own():
+    """Each topic the export may write, whether a given log has it or not (the sensor
+    topics need a run that logged its readings): PX4's topic name, field names and
+    types."""
+    for topic in px4.TOPICS.values():
+        fields, _constants, topics = px4_message(topic.message)
+        assert topic.name in topics, (topic.name, topics)
+        for field in topic.fields:
+            assert fields.get(field.name) == (field.msg_type, field.count), \
+                f"{topic.name}.{field.name}"
+
+
+def test_the_readings_sent_become_sensor_combined_and_sensor_gps():
+    """The HIL_SENSOR and HIL_GPS frames the simulator packs (as its --log-sensors hands
+    them to the log) read back in PX4's units, to float32: degrees from degE7, metres
+    from millimetres, m/s from cm/s, course from centidegrees, eph from centimetres as
+    PX4's simulator reads it; the sample period from consecutive readings."""
+    mav, frames = new_mavlink(1, 51), []
+    truth = TruthSample(0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0),
+                        (0.0, 0.0, 0.0), (0.0, 0.0, -9.81))
+    for k, t_us in enumerate((4_000, 8_000, 12_000)):
+        sensor = SensorSample(t_us, (0.1 * k, -0.2, -9.79), (0.01, 0.02 * k, -0.03),
+                              (0.2, 0.0, 0.4), 1013.25, 12.5, 20.0, 0x1FFF)
+        fix = (GpsSample(t_us, 47.3977421, 8.5455941, 488.123, (1.0, -1.0, 0.25), 0.8,
+                         1.2, 3, 10) if k == 1 else None)
+        sample_frames(truth._replace(time_us=t_us), sensor, fix, DEFAULT_HOME, mav,
+                      lambda s, g: frames.extend(f for f in (s, g) if f is not None))
+    parser = mavlink.MAVLink(None)
+    msgs = [m for f in frames for m in parser.parse_buffer(f)]
+    topics = readings_topics([m for m in msgs if m.get_type() == "HIL_SENSOR"],
+                             [m for m in msgs if m.get_type() == "HIL_GPS"])
+    imu = topics["sensor_combined"]
+    assert list(imu["timestamp"]) == [4_000, 8_000, 12_000]
+    assert list(imu["gyro_integral_dt"]) == [4_000] * 3
+    assert list(imu["accelerometer_integral_dt"]) == [4_000] * 3
+    assert np.array_equal(_columns(imu, "accelerometer_m_s2", 3),
+                          f32([(0.0, -0.2, -9.79), (0.1, -0.2, -9.79), (0.2, -0.2, -9.79)]))
+    assert np.array_equal(_columns(imu, "gyro_rad", 3),
+                          f32([(0.01, 0.0, -0.03), (0.01, 0.02, -0.03), (0.01, 0.04, -0.03)]))
+    (gps,) = topics["sensor_gps"]
+    assert gps["timestamp"] == gps["timestamp_sample"] == 8_000
+    assert gps["latitude_deg"] == pytest.approx(47.3977421, abs=1e-9)  # degE7
+    assert gps["longitude_deg"] == pytest.approx(8.5455941, abs=1e-9)
+    assert gps["altitude_msl_m"] == pytest.approx(488.123, abs=1e-9)  # mm
+    assert (gps["fix_type"], gps["satellites_used"], gps["vel_ned_valid"]) == (3, 10, 1)
+    assert (gps["eph"], gps["epv"]) == (F32(0.8), F32(1.2))
+    assert (gps["hdop"], gps["vdop"]) == (F32(0.8), F32(1.2))
+    assert (gps["vel_n_m_s"], gps["vel_e_m_s"], gps["vel_d_m_s"]) == (
+        F32(1.0), F32(-1.0), F32(0.25))
+    assert gps["vel_m_s"] == F32(1.41)  # HIL_GPS's ground speed: whole cm/s
+    assert gps["cog_rad"] == F32(np.radians(-45.0))  # 315 deg, as PX4 gives it: -pi..pi
 
 
 def test_the_numbers_are_px4s_own():
@@ -401,7 +461,7 @@ def flown(tmp_path_factory) -> Path:
                            str(out), "--no-figures", "--ulog"], capture_output=True, text=True,
                           timeout=900)
     assert done.returncode == 0, done.stderr[-3000:]
-    assert f"wrote {out / ULOG_FILE}: 14 topics" in done.stdout
+    assert f"wrote {out / ULOG_FILE}: 16 topics" in done.stdout  # readings logged (--ulog)
     return out
 
 
@@ -457,6 +517,34 @@ def test_a_flown_run_round_trips_with_its_home_kicks_and_rates(flown):
     # roll's and pitch's: the command filter's output, which its rate limit bounds
     # (CMDF_RATE_MAX, 2 rad/s) and the sine and the kicks reach
     assert float(np.max(np.abs(euler[:, :2]))) == pytest.approx(2.0, abs=1e-6)
+
+
+@pytest.mark.process
+def test_a_flown_runs_readings_are_its_sensor_topics(flown):
+    """``ivfm run --ulog`` logs what the simulator sent (ideal sensors here): an IMU
+    reading at every sample, PX4's layout; a fix every 100 ms where the truth was, to
+    HIL_GPS's 1e-7 degrees and millimetres; the IMU's specific force about -g while the
+    vehicle hovers and is kicked."""
+    u = ULog(str(flown / ULOG_FILE))
+    for name in READINGS:
+        data = u.get_dataset(name)
+        assert [f.field_name for f in data.field_data] == px4.TOPICS[name].columns()
+    key = "ivfm/vehicle/1/sitl/state"
+    truth = {int(r["sim_time_us"]): r for r in
+             (STATE.decode(d) for topic, _m, d in iter_messages(flown, key) if topic == key)}
+    imu = u.get_dataset("sensor_combined").data
+    assert list(imu["timestamp"]) == sorted(truth)  # every sample sent
+    assert set(imu["gyro_integral_dt"]) == {10_000}  # 100 Hz
+    assert float(np.mean(imu["accelerometer_m_s2[2]"])) == pytest.approx(-9.81, abs=0.05)
+    gps = u.get_dataset("sensor_gps").data
+    assert list(gps["timestamp"]) == list(range(0, 3_000_001, 100_000))
+    home = Home(*json.loads((flown / "run.json").read_text())["home"])
+    where = np.array([home.geodetic_from_ned(*truth[int(t)]["position_ned_m"])
+                      for t in gps["timestamp"]])
+    assert np.max(np.abs(gps["latitude_deg"] - where[:, 0])) <= 0.5e-7
+    assert np.max(np.abs(gps["longitude_deg"] - where[:, 1])) <= 0.5e-7
+    assert np.max(np.abs(gps["altitude_msl_m"] - where[:, 2])) <= 0.5e-3
+    assert set(gps["fix_type"]) == {3}
 
 
 def test_a_run_record_without_the_gains_leaves_the_rates_setpoint_out(short_run, tmp_path):

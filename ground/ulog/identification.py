@@ -40,6 +40,7 @@ from scipy import signal as scipy_signal
 from autopilot.identification.dataset import Dataset
 from contracts.airframe import Airframe, airframe_from_spec
 from contracts.airframe_file import AirframeSpec
+from ground.ulog import px4_topics as px4
 from ground.ulog.clock import DEFAULT_TRIM_S, airborne_spans, held, kinematics
 from ground.ulog.read import (
     IDENTIFICATION_SIGNALS,
@@ -72,9 +73,7 @@ class MotorModel:
         if self.kind == "thrust":
             return np.clip(outputs, 0.0, 1.0)
         low, high = np.array(self.pwm_min_us), np.array(self.pwm_max_us)
-        x = np.clip((outputs - low) / (high - low), 0.0, 1.0)
-        f = self.thrust_model_factor
-        return f * x * x + (1.0 - f) * x
+        return px4.thrust_fraction((outputs - low) / (high - low), self.thrust_model_factor)
 
 
 def thrust_model_factor(log: PX4Log, spec_command_map_speed: bool) -> tuple[float, str]:
@@ -85,7 +84,7 @@ def thrust_model_factor(log: PX4Log, spec_command_map_speed: bool) -> tuple[floa
         if not 0.0 <= value <= 1.0:
             raise ULogError(f"{log.path}: {name} = {value:g} is outside [0, 1]")
         return value, f"{name} = {value:g}"
-    value = 1.0 if spec_command_map_speed else 0.0
+    value = px4.thrust_model_factor_of(spec_command_map_speed)
     return value, (f"no THR_MDL_FAC in the log: the airframe's command map "
                    f"({'speed' if spec_command_map_speed else 'thrust'}, {value:g})")
 

@@ -305,6 +305,21 @@ MPC_THR_HOVER = "MPC_THR_HOVER"  # normalized collective thrust that hovers
 MAV_TYPE = "MAV_TYPE"  # INT32
 MAV_SYS_ID = "MAV_SYS_ID"  # INT32
 INT32_PARAMETERS = frozenset((CA_AIRFRAME, CA_ROTOR_COUNT, MAV_TYPE, MAV_SYS_ID))
+
+
+# -- PX4's motor model: both ways (a run's ULog out, a PX4 log's identification in) ------
+
+def thrust_model_factor_of(speed_command_map: bool) -> float:
+    """THR_MDL_FAC of a motor command map: 1 when the command sets the rotor speed
+    (T = k (c W_max)^2), 0 when it sets the thrust."""
+    return 1.0 if speed_command_map else 0.0
+
+
+def thrust_fraction(signal: np.ndarray, thr_mdl_fac: float) -> np.ndarray:
+    """Each rotor's thrust over its maximum of motor signals x (clipped to [0, 1]):
+    f x^2 + (1 - f) x with f = THR_MDL_FAC."""
+    x = np.clip(signal, 0.0, 1.0)
+    return thr_mdl_fac * x * x + (1.0 - thr_mdl_fac) * x
 ROTOR_FIELDS = ("PX", "PY", "PZ", "AX", "AY", "AZ", "CT", "KM")
 
 

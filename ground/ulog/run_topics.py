@@ -64,16 +64,14 @@ def max_thrust_n(airframe: AirframeSpec) -> np.ndarray:
 
 
 def thrust_model_factor(airframe: AirframeSpec) -> float:
-    """PX4's THR_MDL_FAC f, normalized thrust = f c^2 + (1 - f) c of the motor command c:
-    1 when c sets the rotor speed (T = k (c W_max)^2), 0 when it sets the thrust."""
-    return 1.0 if airframe.command_map == "speed" else 0.0
+    """PX4's THR_MDL_FAC of the airframe's motor command map."""
+    return px4.thrust_model_factor_of(airframe.command_map == "speed")
 
 
 def normalized_thrust(commands: np.ndarray, airframe: AirframeSpec) -> np.ndarray:
     """T_i / T_max,i of motor commands c_i (clipped to [0, 1], as the plant takes them):
     what PX4's actuator_motors carries."""
-    c = np.clip(commands, 0.0, 1.0)
-    return c * c if airframe.command_map == "speed" else c
+    return px4.thrust_fraction(commands, thrust_model_factor(airframe))
 
 
 # -- the topics --------------------------------------------------------------------------

@@ -34,7 +34,7 @@ from autopilot.mavlink.server import MavlinkServer
 from autopilot.process.navigation import Navigation
 from autopilot.process.scenario_start import ScenarioStart
 from autopilot.process.sim_link import SimLink
-from autopilot.process.stall_watch import StallWatch
+from autopilot.process.stall_watch import SAME_SAMPLE_WAIT, StallWatch
 from autopilot.process.telemetry import TelemetryPublisher
 from autopilot.process.warm_up import load_compiled_code
 from contracts import timeline
@@ -301,9 +301,8 @@ class Autopilot(PacedProcess):
         self.node.close()
 
     def report(self) -> None:
-        summary = self.timing.summary() if not self.config.lockstep else {}
-        if summary:
-            self.log("timing " + json.dumps(summary))
+        if not self.config.lockstep:
+            self.log("timing " + json.dumps(self.timing.summary()))
         self.log("ground links " + json.dumps(self.ground.link_status()))
         self.log(f"stopped after {self.steps} control steps")
 
@@ -365,6 +364,8 @@ class Autopilot(PacedProcess):
         if self.stall.stalled(time.monotonic(), self._last_sample_wall, period_s,
                               self._sample_period_us / 1e6):
             return False  # a simulator stall: the last command holds, not flown on old data
+        if self.stall.flown(self.latest[0], self._sample_period_us, self.period_us):
+            self._poll(SAME_SAMPLE_WAIT * self._sample_period_us / 1e6)  # the one due
         time_us, measurement = self.latest
         if self.stall.flown_already(time_us, self._sample_period_us, self.period_us):
             return False  # the last command holds; counted

@@ -432,6 +432,35 @@ def test_a_real_time_instant_flies_only_a_sample_not_flown_yet():
     assert autopilot.timing.summary()["same_sample_held"] == 3
 
 
+def test_an_instant_waits_a_little_for_the_sample_due_rather_than_hold():
+    """The simulator's grid in phase with the control instants: the sample due arrives
+    just after the instant. The instant waits for it (a quarter of the simulator's
+    period at most) and flies it; one later than that is held, counted."""
+    import selectors
+    import threading
+
+    # Both at 1 Hz, so that the wait (0.25 s) is long beside this process's pauses.
+    autopilot, theirs = _autopilot_on_a_socket(rate_hz=1.0, lockstep=False)
+    autopilot.sel.register(autopilot.sim.sock, selectors.EVENT_READ, "sim")
+    period_s = 100.0  # no pause of this test's process is a stall
+
+    def instant() -> bool:
+        return autopilot._realtime_instant(time.perf_counter(), period_s)
+
+    _send_samples(theirs, [0, 1_000_000])
+    assert instant() and _answers(theirs) == [1_000_000]
+    late = threading.Timer(0.02, _send_samples, (theirs, [2_000_000]))
+    late.start()
+    started = time.perf_counter()
+    assert instant() and _answers(theirs) == [2_000_000]  # 20 ms late: waited for
+    late.join()
+    assert time.perf_counter() - started < 0.25
+    started = time.perf_counter()
+    assert not instant()  # nothing comes: held after the wait, counted
+    assert 0.25 <= time.perf_counter() - started < 1.0
+    assert autopilot.timing.summary()["same_sample_held"] == 1
+
+
 def test_the_autopilot_tries_the_simulator_every_20_ms_at_first_then_backs_off():
     """A scenario run starts both processes at once; the simulator listens a few hundred
     milliseconds later: the autopilot's attempts come every 20 ms at first (growing by

@@ -54,30 +54,45 @@ class Processes:
              *self.autopilot_args],
             stdout=log, stderr=subprocess.STDOUT)
 
-    def wait_connected(self, idle_s: float = 30.0) -> None:
-        """Until the autopilot has connected to the simulator (or either has exited), for
-        as long as they start: a fixed wait failed beside busy work, where loading the
-        compiled code took the simulator over 30 s (ground/run/children.py,
-        ``StartingDeadline``)."""
+    def wait_for(self, what: str, said: Callable[[], bool], idle_s: float = 30.0) -> None:
+        """Until ``said()``, for as long as the processes start: a fixed wait failed beside
+        busy work, where loading the compiled code took the simulator over 30 s
+        (ground/run/children.py, ``StartingDeadline``). A process that exits meanwhile
+        fails the test with both logs."""
         from ground.run.children import StartingDeadline
 
-        assert self.sim is not None and self.autopilot is not None
-        deadline = StartingDeadline({"sitl": self.sim.pid, "autopilot": self.autopilot.pid},
-                                    idle_s)
-        while "connected to the simulator" not in self.autopilot_log():
-            if self.sim.poll() is not None or self.autopilot.poll() is not None:
-                return  # the test sees why
-            if (why := deadline.expired("the autopilot to connect")) is not None:
-                raise AssertionError(f"the autopilot did not connect to the simulator {why}"
-                                     f"\nsitl log:\n{self.sim_log()}\nautopilot log:\n"
-                                     f"{self.autopilot_log()}")
+        started = {name: proc for name, proc in (("sitl", self.sim),
+                                                 ("autopilot", self.autopilot)) if proc}
+        deadline = StartingDeadline({name: p.pid for name, p in started.items()}, idle_s)
+        while not said():
+            exited = [name for name, proc in started.items() if proc.poll() is not None]
+            why = (f"({', '.join(exited)} exited)" if exited else
+                   deadline.expired(f"the {what}"))
+            if why is not None:
+                raise AssertionError(f"no {what} {why}\nsitl log:\n{self.sim_log()}\n"
+                                     f"autopilot log:\n{self.autopilot_log()}")
             time.sleep(0.05)
 
+    def wait_listening(self) -> None:
+        """Until the simulator listens, then its port: it binds port 0 and says which one.
+        A port picked here and bound there could be taken in between (a parallel test's
+        outgoing connection took one: "Address already in use")."""
+        self.wait_for("listening simulator", lambda: "listening on tcp" in self.sim_log())
+        line = next(ln for ln in self.sim_log().splitlines() if "listening on tcp" in ln)
+        self.sim_port = int(line.split("listening on tcp 127.0.0.1:", 1)[1].split()[0])
+
+    def wait_connected(self) -> None:
+        """Until the autopilot has connected to the simulator."""
+        self.wait_for("connection to the simulator",
+                      lambda: "connected to the simulator" in self.autopilot_log())
+
     def sim_log(self) -> str:
-        return (self.log_dir / "sitl.log").read_text()
+        path = self.log_dir / "sitl.log"
+        return path.read_text() if path.exists() else ""
 
     def autopilot_log(self) -> str:
-        return (self.log_dir / "autopilot.log").read_text()
+        path = self.log_dir / "autopilot.log"
+        return path.read_text() if path.exists() else ""
 
     def stop(self) -> None:
         for proc in (self.autopilot, self.sim):
@@ -99,10 +114,11 @@ def start_processes(log_dir: Path, sim_args: list[str] | None = None,
     for args in (sim_args, autopilot_args):
         if "--airframe" not in args:
             args += ["--airframe", "paper"]
-    procs = Processes(free_port(socket.SOCK_STREAM), free_port(), free_port(), log_dir,
+    procs = Processes(0, free_port(), free_port(), log_dir,
                       ["--realtime", "--plant", "rigid-body", *sim_args],
                       ["--realtime", *autopilot_args])
-    procs.start_sim()
+    procs.start_sim()  # on a port of its own choosing (a restart takes the same one)
+    procs.wait_listening()
     procs.start_autopilot()
     procs.wait_connected()
     return procs

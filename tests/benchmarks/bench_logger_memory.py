@@ -36,7 +36,12 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_logger_replay import Record, flight_records, free_port  # noqa: E402
+from bench_logger_replay import (  # noqa: E402
+    Record,
+    flight_records,
+    free_port,
+    start_logger,
+)
 
 from contracts.telemetry import (  # noqa: E402
     MIRROR_ATTACHMENT,
@@ -89,10 +94,7 @@ def play(records: list[Record], root: Path, args: argparse.Namespace) -> list[fl
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     starve_at, starve_s = args.starve or (2.0, 0.0)
     with tempfile.TemporaryDirectory() as tmp:
-        logger = subprocess.Popen(
-            [sys.executable, "-m", "ground.cli", "ground", "log", "--out", tmp, "--name", "mem",
-             "--zenoh-listen", endpoint], cwd=root, env={**os.environ, "PYTHONPATH": str(root)},
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        logger = start_logger(root, tmp, "mem", endpoint)
         session = open_session(ZenohOptions(connect=[endpoint]))
         publishers: dict[str, object] = {}
         hogs: list[subprocess.Popen] = []

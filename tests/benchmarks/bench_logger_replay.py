@@ -73,14 +73,19 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def start_logger(root: Path, out: str, name: str, endpoint: str) -> subprocess.Popen:
+    """``ivfm ground log`` of the checkout at ``root``, listening on ``endpoint``."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "ground.cli", "ground", "log", "--out", out, "--name", name,
+         "--zenoh-listen", endpoint], cwd=root, env={**os.environ, "PYTHONPATH": str(root)},
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
 def play(records: list[Record], root: Path, batched: bool, speed: float) -> float:
     """The logger's CPU seconds for ``records`` played at ``speed`` x real time."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     with tempfile.TemporaryDirectory() as tmp:
-        logger = subprocess.Popen(
-            [sys.executable, "-m", "ground.cli", "ground", "log", "--out", tmp, "--name", "b",
-             "--zenoh-listen", endpoint], cwd=root, env={**os.environ, "PYTHONPATH": str(root)},
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        logger = start_logger(root, tmp, "b", endpoint)
         session = open_session(ZenohOptions(connect=[endpoint]))
         try:
             probe = session.declare_publisher(vehicle_key(1, "sitl", "status"))

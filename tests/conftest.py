@@ -42,3 +42,21 @@ def pytest_configure(config: pytest.Config) -> None:
 
     if not config.pluginmanager.is_registered(tiers):
         config.pluginmanager.register(tiers, "tiers")
+
+
+LOG_TAIL_LINES = 30
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item: pytest.Item, call: pytest.CallInfo):
+    """A failed test that ran processes shows the end of their logs (the ``*.log`` files
+    under its tmp_path): CI keeps no files, and a flake seen once must be explainable
+    from its report alone."""
+    report = yield
+    tmp_path = getattr(item, "funcargs", {}).get("tmp_path")
+    if report.failed and tmp_path is not None:
+        for log in sorted(tmp_path.rglob("*.log"), reverse=True)[:6]:
+            lines = log.read_text(errors="replace").splitlines()
+            report.sections.append((f"{log.relative_to(tmp_path)} (last {LOG_TAIL_LINES} "
+                                    f"lines)", "\n".join(lines[-LOG_TAIL_LINES:])))
+    return report

@@ -17,6 +17,7 @@ os.environ["MAVLINK20"] = "1"  # before pymavlink picks its dialect: MAVLink 2, 
 from pymavlink import mavutil  # noqa: E402
 
 mavutil.set_dialect("common")
+from autopilot.mavlink.link import kernel_drops  # noqa: E402
 from contracts.mavlink import StatustextAssembler  # noqa: E402
 
 GCS_SYSID = 255
@@ -179,7 +180,8 @@ class GroundTool:
             if msg is not None and predicate(msg):
                 return msg
         raise AssertionError(f"timed out after {timeout_s} s waiting for {what or predicate}; "
-                             f"status texts: {self.texts[-8:]}")
+                             f"status texts: {self.texts[-8:]}; datagrams the kernel dropped "
+                             f"for want of buffer at the tool: {kernel_drops(self.conn.port)}")
 
     def wait_type(self, kind: str, timeout_s: float = 10.0, cond: Callable | None = None,
                   also: Callable[[], None] | None = None):

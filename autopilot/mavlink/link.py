@@ -77,18 +77,26 @@ class GroundLink:
 
     def read_kernel_drops(self) -> None:
         """Datagrams the kernel dropped for want of buffer (Linux; elsewhere 0)."""
-        try:
-            info = self.sock.getsockopt(socket.SOL_SOCKET, SO_MEMINFO, 4 * (SK_MEMINFO_DROPS + 1))
-        except OSError:
-            return
-        if len(info) >= 4 * (SK_MEMINFO_DROPS + 1):
-            self.counters.kernel_drops = struct.unpack_from("I", info, 4 * SK_MEMINFO_DROPS)[0]
+        drops = kernel_drops(self.sock)
+        if drops is not None:
+            self.counters.kernel_drops = drops
 
     def lost(self) -> tuple[int, int]:
         """(arrived, lost): datagrams that reached the socket, and those the kernel dropped
         or the link refused (as of the last read_kernel_drops)."""
         c = self.counters
         return c.datagrams + c.kernel_drops, c.kernel_drops + c.rejected
+
+
+def kernel_drops(sock: socket.socket) -> int | None:
+    """Datagrams the kernel dropped at ``sock`` for want of buffer (None: not Linux)."""
+    try:
+        info = sock.getsockopt(socket.SOL_SOCKET, SO_MEMINFO, 4 * (SK_MEMINFO_DROPS + 1))
+    except OSError:
+        return None
+    if len(info) < 4 * (SK_MEMINFO_DROPS + 1):
+        return None
+    return struct.unpack_from("I", info, 4 * SK_MEMINFO_DROPS)[0]
 
 
 def open_link(name: str, bind: tuple[str, int], remote: tuple[str, int] | None,

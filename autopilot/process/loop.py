@@ -105,6 +105,14 @@ def airframe_rotors(spec: AirframeSpec | None
     return spec.name, tuple((*r.position_m, r.spin) for r in spec.rotors)
 
 
+def announce(vehicle: Commander, ground: MavlinkServer, log: Callable[[str], None]) -> None:
+    """What the vehicle said, to the ground tools and into the process log too, as PX4's
+    console shows it: at its sim time, for whoever reads a run's logs after the fact."""
+    for severity, text in vehicle.messages:
+        log(f"t={vehicle.sim_t_s:.3f} s {SEVERITY_NAMES.get(severity, 'INFO')}: {text}")
+    ground.announce()
+
+
 class Autopilot(PacedProcess):
     """The control loop: samples from the simulator link become control steps at the
     control rate, each answered with a motor command; between steps, the ground links
@@ -179,13 +187,8 @@ class Autopilot(PacedProcess):
             self._sim_lost()
             return
         self._command_sent = time.perf_counter()
-        if stepped and self.vehicle.messages:
-            # Into the process log too, as PX4's console shows them: what the vehicle did,
-            # at its sim time, for whoever reads a run's logs after the fact.
-            for severity, text in self.vehicle.messages:
-                self.log(f"t={time_us / 1e6:.3f} s {SEVERITY_NAMES.get(severity, 'INFO')}: "
-                         f"{text}")
-            self.ground.announce()  # at the sim time of the step that said it
+        if stepped:
+            announce(self.vehicle, self.ground, self.log)  # at the step that said it
         if not self.telemetry.enabled:
             return
         if stepped:
@@ -332,6 +335,7 @@ class Autopilot(PacedProcess):
         if now >= self._next_service:
             self._next_service = now + SERVICE_PERIOD_S
             self.sim.heartbeat_due(now)  # on connecting and at 1 Hz: after a step, not before
+            announce(self.vehicle, self.ground, self.log)
             self.ground.service()
             self._service_requests()
             self.telemetry.status(self.steps)

@@ -215,6 +215,8 @@ class Autopilot(PacedProcess):
 
     # -- the simulator link ----------------------------------------------------------------
     def _sim_lost(self) -> None:
+        if self.sim.sock is not None and self.sim.sock.fileno() in self.sel.get_map():
+            self.sel.unregister(self.sim.sock)  # first: a new socket may reuse its number
         self.sim.close()
         self.stall.stepped_us = None
         if self.vehicle.sim_link_ok:
@@ -238,7 +240,6 @@ class Autopilot(PacedProcess):
     def _on_sim_readable(self) -> None:
         readings = self.sim.read()
         if readings is None:
-            self.sel.unregister(self.sim.sock)
             self._sim_lost()
             return
         if self.sim.last_bad:
@@ -371,8 +372,9 @@ class Autopilot(PacedProcess):
         if self.stall.flown(self.latest[0], self._sample_period_us, self.period_us):
             self._poll(SAME_SAMPLE_WAIT * self._sample_period_us / 1e6)  # the one due
         time_us, measurement = self.latest
-        if self.stall.flown_already(time_us, self._sample_period_us, self.period_us):
-            return False  # the last command holds; counted
+        if self.sim.sock is None or self.stall.flown_already(
+                time_us, self._sample_period_us, self.period_us):
+            return False  # the link lost while waiting; or the last command holds, counted
         self.stall.stepped_us = time_us
         commands = self._control(time_us, measurement, start)
         self._answer(time_us, commands, stepped=True)

@@ -220,6 +220,9 @@ class SimLink:
         return samples
 
     def send(self, data: bytes) -> bool:
+        """Whether ``data`` went out (False: the link is lost, or was already)."""
+        if self.sock is None:
+            return False
         try:
             self.sock.sendall(data)
             return True

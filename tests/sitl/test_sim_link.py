@@ -461,6 +461,47 @@ def test_an_instant_waits_a_little_for_the_sample_due_rather_than_hold():
     assert autopilot.timing.summary()["same_sample_held"] == 1
 
 
+def test_a_simulator_lost_during_that_wait_is_not_flown_on():
+    """The simulator goes while an instant waits for the sample due: the instant holds,
+    the link is lost and the vehicle says so (the autopilot once flew on and sent the
+    command to the closed link: a crash, seen as a missing "simulator link lost" in CI)."""
+    import selectors
+    import threading
+
+    autopilot, theirs = _autopilot_on_a_socket(rate_hz=1.0, lockstep=False)
+    autopilot.sel.register(autopilot.sim.sock, selectors.EVENT_READ, "sim")
+    period_s = 100.0
+
+    def instant() -> bool:
+        return autopilot._realtime_instant(time.perf_counter(), period_s)
+
+    _send_samples(theirs, [0, 1_000_000])
+    assert instant() and _answers(theirs) == [1_000_000]
+    autopilot.vehicle.messages.clear()
+    gone = threading.Timer(0.02, theirs.close)  # gone before the next sample: the
+    gone.start()                                # wait reads the end of the link
+    assert not instant()
+    gone.join()
+    assert autopilot.sim.sock is None and not autopilot.vehicle.sim_link_ok
+    assert any("simulator link lost" in text for _, text in autopilot.vehicle.messages)
+
+
+def test_a_refused_command_loses_the_link_and_a_new_one_registers_on_its_number():
+    """A send refused (the simulator gone) loses the link: out of the selector before the
+    socket closes, so that the next connection, which the kernel may give the same file
+    number, registers; later answers into the lost link are no-ops, not a crash."""
+    import selectors
+
+    autopilot, theirs = _autopilot_on_a_socket()
+    autopilot.sel.register(autopilot.sim.sock, selectors.EVENT_READ, "sim")
+    theirs.close()
+    autopilot._answer(10_000, np.zeros(4), stepped=True)  # EPIPE: lost
+    autopilot._answer(20_000, np.zeros(4), stepped=True)  # the rest of a batch
+    # Nothing left registered: a new socket on the old number registers (a stale key
+    # would make that a KeyError in _connect).
+    assert autopilot.sim.sock is None and len(autopilot.sel.get_map()) == 0
+
+
 def test_the_autopilot_tries_the_simulator_every_20_ms_at_first_then_backs_off():
     """A scenario run starts both processes at once; the simulator listens a few hundred
     milliseconds later: the autopilot's attempts come every 20 ms at first (growing by

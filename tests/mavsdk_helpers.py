@@ -51,23 +51,20 @@ def mission_item(north_m: float, east_m: float, alt_m: float, speed_mps: float =
                        math.nan, MissionItem.VehicleAction.NONE)
 
 
-async def inject_enabled(failure, param, unit, kind, instance: int):
-    """``failure.inject`` once SYS_FAILURE_EN is 1 on the vehicle. MAVSDK's failure plugin
-    keeps its own copy of the parameter (a read when it starts, then a subscription) and
-    refuses locally, DISABLED, with nothing sent, while that copy says 0: in a clean-clone
-    CI run the injection right after ``set_param_int`` returned met the old copy (the
-    subscription's callback had not run yet), and beside busy work a read sent again
-    answered last with the old value. Each try reads the parameter, which the plugin
-    hears too, then injects; only DISABLED is tried again, for at most 5 s."""
-    from mavsdk.asyncio.plugins.failure import FailureError, FailureResult
+async def inject_enabled(system, param, unit, kind, instance: int):
+    """``inject`` with SYS_FAILURE_EN 1 on the vehicle, through a failure plugin made once
+    the parameter reads 1. MAVSDK's failure plugin keeps its own copy of the parameter:
+    one read when it starts, then a subscription that hears only a PARAM_VALUE arriving
+    while no parameter request is waiting (the answer to a set or a get goes to that
+    request alone; MAVSDK 4.1's parameter client). After a set, an older plugin hears the
+    new value only from the vehicle's second, broadcast copy, and loses that copy for good
+    if another request is queued first (DISABLED with nothing sent, for all 5 s of
+    retries, beside a busy neighbour). A new plugin reads the value itself."""
+    from mavsdk.asyncio.plugins.failure import FailureAsync
 
-    deadline = time.monotonic() + 5.0
-    while True:
-        assert await param.get_param_int("SYS_FAILURE_EN") == 1
-        try:
-            return await failure.inject(unit, kind, instance)
-        except FailureError as exc:
-            if exc.result != FailureResult.DISABLED \
-                    or time.monotonic() > deadline:
-                raise
-        await asyncio.sleep(0.1)
+    assert await param.get_param_int("SYS_FAILURE_EN") == 1
+    failure = FailureAsync(system)
+    try:
+        return await failure.inject(unit, kind, instance)
+    finally:
+        failure.destroy()

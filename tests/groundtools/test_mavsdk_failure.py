@@ -53,7 +53,7 @@ async def _fly(port: int) -> dict:
             seen["disabled"] = exc.result
         await param.set_param_int("SYS_FAILURE_EN", 1)
         try:
-            await inject_enabled(failure, param, FailureUnit.SENSOR_BARO,
+            await inject_enabled(system, param, FailureUnit.SENSOR_BARO,
                                  FailureType.DELAYED, 0)
         except FailureError as exc:
             seen["unsupported"] = exc.result
@@ -65,7 +65,7 @@ async def _fly(port: int) -> dict:
         await action.arm()
         await action.takeoff()
         await _until(lambda: _near(down_m, -2.0, 0.15), 20, "take-off altitude")
-        await inject_enabled(failure, param, FailureUnit.SYSTEM_MOTOR, FailureType.OFF, 1)
+        await inject_enabled(system, param, FailureUnit.SYSTEM_MOTOR, FailureType.OFF, 1)
 
         async def fallen():
             return await down_m() > -0.2

@@ -13,7 +13,7 @@ import time
 
 import pytest
 from mavsdk.asyncio.plugins.action import ActionAsync
-from mavsdk.asyncio.plugins.failure import FailureAsync, FailureType, FailureUnit
+from mavsdk.asyncio.plugins.failure import FailureType, FailureUnit
 from mavsdk.asyncio.plugins.param import ParamAsync
 from mavsdk.asyncio.plugins.telemetry import TelemetryAsync
 
@@ -29,7 +29,7 @@ async def _fly(port: int) -> dict:
     seen: dict = {"texts": []}
     async with autopilot_on(port) as system:
         action, telem = ActionAsync(system), TelemetryAsync(system)
-        failure, param = FailureAsync(system), ParamAsync(system)
+        param = ParamAsync(system)
 
         async def collect():
             async for status in telem.subscribe_status_text():
@@ -50,7 +50,7 @@ async def _fly(port: int) -> dict:
         await _until(lambda: _near(down_m, -2.0, 0.2), 20, "take-off altitude")
         await asyncio.sleep(2.0)  # the take-off settles into the hold
         seen["injected_s"] = time.monotonic()
-        await inject_enabled(failure, param, FailureUnit.SENSOR_GPS, FailureType.OFF, 0)
+        await inject_enabled(system, param, FailureUnit.SENSOR_GPS, FailureType.OFF, 0)
 
         async def disarmed():
             return not await telem.armed()

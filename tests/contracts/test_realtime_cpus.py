@@ -14,7 +14,7 @@ import pytest
 from contracts.realtime import shield_cpus
 from ground.run.children import free_tcp_port
 
-pytestmark = [pytest.mark.process,
+pytestmark = [pytest.mark.process, pytest.mark.alone,  # the shield moves every thread
               pytest.mark.skipif((os.cpu_count() or 1) < 2, reason="needs two CPUs")]
 EVERY = set(range(os.cpu_count() or 1))
 

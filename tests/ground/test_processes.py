@@ -66,6 +66,7 @@ def test_hil_state_source_flies_the_scenario(tmp_path):
     assert metrics["axes"]["x"]["rmse"] < 0.05 and metrics["axes"]["y"]["rmse"] < 0.05
 
 
+@pytest.mark.alone  # the loop's period, and nothing lost
 def test_real_time_run_reports_loop_timing(tmp_path):
     scenario = dataclasses.replace(scenario_by_name("attitude-sine"), duration_s=4.0)
     record, accounting = fly(scenario, dataclasses.replace(IVFC, realtime=True), tmp_path)

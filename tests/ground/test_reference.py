@@ -193,6 +193,7 @@ def _run_with_a_stall(prefer: str, stall_s: float = 0.05):
 
 
 @pytest.mark.process
+@pytest.mark.alone  # a stall counted: the machine's own would add to it
 @pytest.mark.parametrize("prefer", [BUILT_IN, pytest.param(CYCLICTEST, marks=pytest.mark.skipif(
     shutil.which("cyclictest") is None, reason="cyclictest is not installed (Debian: "
     "apt-get install rt-tests; .ci/run installs it where it may)"))])

@@ -31,7 +31,7 @@ from ground.record.run_files import control_records, iter_messages
 from ground.run.children import free_tcp_port
 from tests.harness import GroundTool, mavutil, start_processes
 
-pytestmark = pytest.mark.process
+pytestmark = [pytest.mark.process, pytest.mark.alone]  # measures the speed a stall costs
 
 M = mavutil.mavlink
 CENTRE_NORTH_M, RADIUS_M, SPEED_MPS = 6.0, 4.0, 1.5

@@ -18,9 +18,9 @@ from contracts.airframe import PAPER, max_thrust_n
 from tests.harness import GroundTool, mavutil, px4_mode, start_processes
 
 pytestmark = pytest.mark.process
-# The flights that only wait on the clock run four at a time with the other ground tools
-# (``groundtool``); the stall and flood tests count what the machine's own hiccups would
-# add to (stalls, drops), and run one at a time.
+# The flights that only wait on the clock are ``groundtool`` flights; the stall and flood
+# tests count what the machine's own hiccups would add to (stalls, drops), and run
+# ``alone``.
 REAL_TIME_FLIGHT = pytest.mark.groundtool
 
 M = mavutil.mavlink
@@ -241,6 +241,7 @@ def test_attitude_setpoints_tilt_the_vehicle_and_bad_ones_are_refused(vehicle):
     tool.wait_text("offboard setpoints lost: hold", 5, also=bad)
 
 
+@pytest.mark.alone
 def test_stalled_simulator_triggers_the_link_loss_failsafe_after_its_timeout(vehicle):
     """SIGSTOP keeps the socket open: only the COM_SIM_LOSS_T watchdog can notice."""
     import signal
@@ -262,6 +263,7 @@ def test_stalled_simulator_triggers_the_link_loss_failsafe_after_its_timeout(veh
     assert _custom_mode(tool.heartbeat()) == (4, 6)  # landing once state is back
 
 
+@pytest.mark.alone
 def test_a_late_simulator_is_a_counted_stall_that_holds_the_command(vehicle):
     """A simulator that goes quiet for 0.2 s (SIGSTOP, shorter than COM_SIM_LOSS_T): the
     control instants without a fresh sample hold the last command and are counted, one
@@ -296,6 +298,7 @@ def test_a_late_simulator_is_a_counted_stall_that_holds_the_command(vehicle):
     assert "motors stopped" not in sim_log
 
 
+@pytest.mark.alone
 def test_a_flooded_vehicle_answers_and_shows_its_drops(vehicle):
     """Garbage and valid heartbeats from 50 ports on the vehicle's port: the tool is
     still answered, the loss shows in SYS_STATUS and one

@@ -5,8 +5,8 @@ alone or beside CPU-bound neighbours, keeping everything a failure leaves behind
     python tests/stress/tier_runs.py --runs 4 --neighbours 1     # beside a CPU-bound loop
     python tests/stress/tier_runs.py --runs 2 --out runs/flakes -k mavsdk
 
-Each run is the two commands of ``.ci/run``'s process tier (the ground tools' real-time
-flights four at a time, then the rest one at a time). A neighbour is
+Each run is the two commands of ``.ci/run``'s process tier (four at a time, then the
+tests marked ``alone`` one at a time). A neighbour is
 ``ivfm run attitude-sine --inprocess`` in a loop, at ``--nice`` (default 0: it competes
 as any other work would). For each run the script keeps, under ``--out``:
 
@@ -37,8 +37,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 TIERS = {  # name -> pytest arguments, as .ci/run runs them
-    "groundtool": ["-m", "process and groundtool", "-n", "4"],
-    "process": ["-m", "process and not groundtool"],
+    "parallel": ["-m", "process and not alone", "-n", "4", "--dist", "worksteal"],
+    "alone": ["-m", "process and alone"],
 }
 NEIGHBOUR = ("while true; do {nice}{python} -m ground.cli run attitude-sine --inprocess "
              "--out {out} >/dev/null 2>&1; done")
@@ -118,8 +118,8 @@ def main() -> int:
     p.add_argument("--runs", type=int, default=6)
     p.add_argument("--neighbours", type=int, default=0, help="CPU-bound loops beside it")
     p.add_argument("--nice", type=int, default=0, help="the neighbours' niceness")
-    p.add_argument("--tiers", default="groundtool,process",
-                   help="which of: groundtool, process (comma-separated)")
+    p.add_argument("--tiers", default="parallel,alone",
+                   help="which of: parallel, alone (comma-separated)")
     p.add_argument("--out", type=Path, default=Path("runs/tier-runs"))
     p.add_argument("-k", default=None, help="only the tests matching (pytest -k)")
     args = p.parse_args()

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -67,11 +68,6 @@ def finite_list(values: Any, size: int) -> list[float]:
     if not all(math.isfinite(v) for v in out):
         raise ValueError(f"expected finite numbers, got {values!r:.60}")
     return out
-
-
-def finite_numbers(values: np.ndarray) -> list:
-    """Python numbers of an array (nested lists for 2-D), NaN and infinities as None."""
-    return np.where(np.isfinite(values), values, None).tolist()
 
 
 def finite_or_none(x: Any) -> float | None:
@@ -176,8 +172,27 @@ def json_schema(message: dict[str, Any]) -> dict[str, Any]:
     return schema_of(message)
 
 
+@dataclass(frozen=True)
+class JsonText:
+    """A JSON channel's message already encoded (the bytes ``encode`` gives its record as
+    a dict), and the JSON schema of its channel: the controller's record is written from
+    a template 50 times a sim second rather than built as a dict and dumped."""
+
+    data: bytes
+    schema: dict[str, Any]
+
+
+def channel_json_schema(message: Any) -> dict[str, Any] | None:
+    """The JSON schema of a JSON channel's message; None for a Foxglove schema's."""
+    if isinstance(message, JsonText):
+        return message.schema
+    return json_schema(message) if isinstance(message, dict) else None
+
+
 def encode(message: Any) -> bytes:
     """The message as its channel carries it: protobuf for Foxglove schemas, JSON else."""
     if isinstance(message, dict):
         return json.dumps(message, allow_nan=False, separators=(",", ":")).encode()
+    if isinstance(message, JsonText):
+        return message.data
     return message.encode()

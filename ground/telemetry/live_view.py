@@ -41,7 +41,7 @@ from contracts.arguments import number
 from contracts.stop_request import StopRequest
 from contracts.telemetry import unbatched
 from contracts.zenoh_link import ZenohOptions, open_session
-from ground.telemetry.foxglove_scene import encode, json_schema
+from ground.telemetry.foxglove_scene import JsonText, channel_json_schema, encode
 from ground.telemetry.foxglove_view import DEFAULT_RATE_HZ, FoxgloveView, Output
 from ground.telemetry.inbox import Inbox
 
@@ -144,7 +144,7 @@ class LiveView:
             channel = self._add(output.topic, self._maker(output))
         # Logged whether or not a viewer is subscribed (the SDK sends nothing then).
         message = output.message
-        channel.log(encode(message) if isinstance(message, dict) else message,
+        channel.log(encode(message) if isinstance(message, dict | JsonText) else message,
                     log_time=output.sim_time_ns)
         self.published += 1
 
@@ -152,10 +152,10 @@ class LiveView:
         """What makes the channel of ``output``'s topic (its schema from this first
         message), kept to make it again."""
         message, topic, context = output.message, output.topic, self.context
-        if isinstance(message, dict):
+        fields = channel_json_schema(message)
+        if fields is not None:
             schema = foxglove.Schema(name=f"ivfm.view{topic.replace('/', '.')}",
-                                     encoding="jsonschema",
-                                     data=json.dumps(json_schema(message)).encode())
+                                     encoding="jsonschema", data=json.dumps(fields).encode())
             return lambda: foxglove.Channel(topic, message_encoding="json", schema=schema,
                                             context=context)
         typed = getattr(fg_channels, f"{type(message).__name__}Channel")

@@ -15,7 +15,7 @@ from mcap.stream_reader import StreamReader
 from mcap.writer import CompressionType, Writer
 
 from contracts.telemetry import JSON_RECORD_SCHEMA, RecordSchema
-from ground.telemetry.foxglove_scene import json_schema
+from ground.telemetry.foxglove_scene import channel_json_schema
 from ground.telemetry.foxglove_view import Output
 
 ACTIVE_SUFFIX = ".mcap.active"
@@ -62,9 +62,10 @@ class McapFile:
         if channel_id is not None:
             return channel_id
         message = output.message
-        if isinstance(message, dict):
+        fields = channel_json_schema(message)
+        if fields is not None:
             schema_id = self._schema(f"ivfm.view{output.topic.replace('/', '.')}",
-                                     "jsonschema", json.dumps(json_schema(message)).encode())
+                                     "jsonschema", json.dumps(fields).encode())
             encoding = "json"
         else:
             schema = type(message).get_schema()

@@ -12,9 +12,11 @@ from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
 
 from contracts.frames import quat_from_euler, rotation_from_quat
+from contracts.modes import FlightMode
 from contracts.telemetry import CONTROL, STATE
+from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT
 from ground.telemetry.foxglove_scene import encode, json_schema
-from ground.telemetry.foxglove_view import FoxgloveView
+from ground.telemetry.foxglove_view import INTERNAL_NAMES, FoxgloveView
 
 STATE_KEY = "ivfm/vehicle/1/sitl/state"
 CONTROL_KEY = "ivfm/vehicle/1/autopilot/control"
@@ -146,15 +148,63 @@ def test_plot_ready_channels_name_every_internal_and_encode_as_json():
     record["theta_g"] = np.nan  # PID: no weights; plotted as gaps
     payload = record.encode(((0.1, 0.2), (), ()))
     outputs = {o.topic: o.message for o in FoxgloveView().feed(CONTROL_KEY, payload)}
-    controller = outputs["/vehicle1/controller"]
+    text = outputs["/vehicle1/controller"]
+    controller = json.loads(encode(text))
     assert controller["armed"] and controller["theta_g"]["phi"] is None
     assert controller["phi"]["theta_f_norm"] == pytest.approx(math.hypot(0.1, 0.2))
     assert controller["theta"]["theta_f_norm"] is None
-    assert json.loads(encode(controller)) == controller
-    schema = json_schema(controller)
-    assert schema["properties"]["phi"]["properties"]["sliding_surface"]["type"] == \
+    assert text.schema == json_schema(controller)
+    assert text.schema["properties"]["phi"]["properties"]["sliding_surface"]["type"] == \
         ["number", "null"]
     assert decoded(outputs["/vehicle1/reference"]).frame_id == "ned"
+
+
+def _controller_as_a_dict(payload: bytes) -> dict:
+    """The controller's record built the plain way (a dict for json.dumps), to hold the
+    view's template to."""
+    c = CONTROL.decode(payload)
+
+    def number(x):
+        return float(x) if math.isfinite(x) else None
+
+    flags, mode = int(c["flags"]), int(c["mode"])
+    v = c["measurement"][MEASUREMENT.velocity_ned_mps]
+    record = {"t_s": int(c["sim_time_us"]) / 1e6,
+              "mode": list(FlightMode)[mode].name if 0 <= mode < len(FlightMode) else "",
+              "armed": bool(flags & 1), "failsafe": bool(flags & 4),
+              "motors": [number(x) for x in c["motor_commands"]],
+              "speed_mps": number(np.sqrt(v @ v))}
+    for i, channel in enumerate(CHANNELS):
+        record[channel] = {INTERNAL_NAMES[name]: number(c[f"ch_{name}"][i])
+                           for name in CHANNEL_INTERNALS}
+        if i < 3:
+            w = c[("theta_f_phi", "theta_f_theta", "theta_f_psi")[i]]
+            record[channel]["theta_f_norm"] = number(np.sqrt(w @ w)) if len(w) else None
+    record["theta_g"] = {channel: number(c["theta_g"][i]) for i, channel in enumerate(CHANNELS)}
+    return record
+
+
+def test_the_controllers_json_is_json_dumps_of_its_record_byte_for_byte():
+    """The template gives json.dumps's own bytes for any record: NaN and infinities as
+    null, -0.0, the shortest float text with and without exponents, every mode."""
+    rng = np.random.default_rng(7)
+    special = np.array([np.nan, np.inf, -np.inf, -0.0, 0.0, 5e-324, 1e-5, 1e16, 1e300,
+                        123456789.125, 0.1])
+    record = CONTROL.buffer()
+    view = FoxgloveView()
+    for k in range(400):
+        for name, kind, count in CONTROL.fields:
+            if kind == "f8":
+                values = rng.normal(size=count or None) * 10.0 ** rng.integers(-9, 10)
+                pick = rng.random(count or ()) < 0.25
+                record[name] = np.where(pick, rng.choice(special, size=count or None), values)
+        record["seq"], record["sim_time_us"] = k, 20_000 * (k + 1)
+        record["mode"], record["flags"] = int(rng.integers(-2, 20)), int(rng.integers(0, 8))
+        payload = record.encode(tuple(tuple(rng.choice(special, size=rng.integers(0, 4)))
+                                      for _ in range(3)))
+        text = {o.topic: o.message for o in view.feed(CONTROL_KEY, payload)}[
+            "/vehicle1/controller"]
+        assert encode(text) == encode(_controller_as_a_dict(payload))
 
 
 def test_records_too_short_to_hold_their_time_are_refused():
@@ -178,19 +228,20 @@ def test_every_plot_of_the_shipped_layout_names_a_field_the_view_writes():
     outputs = view.feed(STATE_KEY, state_payload(0))
     outputs += view.feed(CONTROL_KEY, control.encode(((), (), ())))
     outputs += view.feed("ivfm/vehicle/1/autopilot/estimate", estimate.encode())
-    records = {o.topic: o.message for o in outputs}
+    plots = {o.topic: json.loads(encode(o.message)) for o in outputs
+             if o.topic.endswith(("/controller", "/estimator"))}  # the JSON channels
     paths = [p["value"] for panel in layout["configById"].values() for p in panel.get("paths", [])]
     assert len(paths) == 28
     for path in paths:
         topic, _, fields = path.partition(".")
-        value = records[topic]
+        value = plots[topic]
         for name, index in re.findall(r"([A-Za-z_]+)(?:\[(\d+)\])?", fields):
             value = value[name]
             if index:
                 value = value[int(index)]
         assert value is None or isinstance(value, float), path
     topics = set(layout["configById"]["3D!scene"]["topics"]) | {"/log"}
-    assert topics <= set(records) | {"/vehicle1/scene", "/log"}
+    assert topics <= {o.topic for o in outputs} | {"/vehicle1/scene", "/log"}
 
 
 def _estimate_payload(t_us: int, north_m: float) -> bytes:

@@ -114,6 +114,8 @@ class MavlinkServer:
         self.sysid = sysid
         # Called once per message sent to tools (the Zenoh MAVLink mirror listens here).
         self.on_sent: Callable[[GroundLink, object, bytes], None] | None = None
+        # Called once per text the vehicle said, as it goes out (the process log listens).
+        self.on_said: Callable[[int, str], None] | None = None
         self.links = links
         self.signing_state = signing_state  # signing clock and streams across restarts
         self.flavour = flavour
@@ -318,10 +320,13 @@ class MavlinkServer:
 
     # -- telemetry -----------------------------------------------------------------------
     def announce(self) -> None:
-        """Send what the vehicle said (STATUSTEXT). The loop calls it after each control
-        step, so a text goes out, and into the log, at the sim time it was said."""
+        """Send what the vehicle said (STATUSTEXT), and hand it to ``on_said``. The loop
+        calls it after each control step, so a text goes out, and into the log, at the
+        sim time it was said; ``service`` calls it for what was said between steps."""
         while self.vehicle.messages:
             severity, text = self.vehicle.messages.pop(0)
+            if self.on_said is not None:
+                self.on_said(severity, text)
             self.send_text(None, severity, text)
 
     def service(self) -> None:

@@ -105,14 +105,6 @@ def airframe_rotors(spec: AirframeSpec | None
     return spec.name, tuple((*r.position_m, r.spin) for r in spec.rotors)
 
 
-def announce(vehicle: Commander, ground: MavlinkServer, log: Callable[[str], None]) -> None:
-    """What the vehicle said, to the ground tools and into the process log too, as PX4's
-    console shows it: at its sim time, for whoever reads a run's logs after the fact."""
-    for severity, text in vehicle.messages:
-        log(f"t={vehicle.sim_t_s:.3f} s {SEVERITY_NAMES.get(severity, 'INFO')}: {text}")
-    ground.announce()
-
-
 class Autopilot(PacedProcess):
     """The control loop: samples from the simulator link become control steps at the
     control rate, each answered with a motor command; between steps, the ground links
@@ -129,6 +121,7 @@ class Autopilot(PacedProcess):
         self.config = config
         self.vehicle = vehicle
         self.ground = ground
+        ground.on_said = self._said
         self.scenario = ScenarioStart(vehicle, arm_in_reference, start_mission,
                                       lambda text: self.log(text))
         self.period_us = round(1e6 / config.rate_hz)
@@ -188,7 +181,7 @@ class Autopilot(PacedProcess):
             return
         self._command_sent = time.perf_counter()
         if stepped:
-            announce(self.vehicle, self.ground, self.log)  # at the step that said it
+            self.ground.announce()  # at the step that said it
         if not self.telemetry.enabled:
             return
         if stepped:
@@ -328,6 +321,12 @@ class Autopilot(PacedProcess):
                 self._on_sim_readable()
                 self._last_sample_wall = time.monotonic()
 
+    def _said(self, severity: int, text: str) -> None:
+        """What the vehicle said, into the process log too, as PX4's console shows it: at
+        its sim time, for whoever reads a run's logs after the fact."""
+        self.log(f"t={self.vehicle.sim_t_s:.3f} s {SEVERITY_NAMES.get(severity, 'INFO')}: "
+                 f"{text}")
+
     def _ground_work(self, budget_s: float) -> None:
         """Every SERVICE_PERIOD_S the telemetry out, Zenoh requests and status; then the
         ground links with what is left of ``budget_s`` (shared by the links in turn)."""
@@ -336,7 +335,7 @@ class Autopilot(PacedProcess):
         if now >= self._next_service:
             self._next_service = now + SERVICE_PERIOD_S
             self.sim.heartbeat_due(now)  # on connecting and at 1 Hz: after a step, not before
-            announce(self.vehicle, self.ground, self.log)
+            self.ground.announce()  # what was said since the last step
             self.ground.service()
             self._service_requests()
             self.telemetry.status(self.steps)

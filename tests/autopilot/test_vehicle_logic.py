@@ -472,10 +472,12 @@ def test_a_restarted_simulator_disarms_a_vehicle_on_the_ground():
 def _watchdog(vehicle: Commander, lockstep: bool):
     """The autopilot process's simulator-link watchdog, without sockets: the simulator
     socket is a stand-in and the wall time of the last sample is set by hand."""
+    from autopilot.mavlink.server import MavlinkServer
     from autopilot.process.loop import Autopilot, AutopilotConfig
 
-    autopilot = Autopilot(AutopilotConfig(lockstep=lockstep), vehicle, None,
-                          log=lambda text: None)  # the watchdog does not use ground links
+    autopilot = Autopilot(AutopilotConfig(lockstep=lockstep), vehicle,
+                          MavlinkServer(vehicle, []),  # the watchdog uses no ground link
+                          log=lambda text: None)
     autopilot.sim.sock = object()
     autopilot._last_sample_wall = LINK0
     return autopilot

@@ -230,7 +230,8 @@ def test_odometry_velocity_in_body_frd_is_turned_into_ned():
 
 
 def _autopilot_on_a_socket(rate_hz: float = 100.0, source: str = "auto",
-                           home: Home | None = DEFAULT_HOME, lockstep: bool = True):
+                           home: Home | None = DEFAULT_HOME, lockstep: bool = True,
+                           log=lambda text: None):
     """The autopilot process's simulator side on one end of a socket pair (its home given,
     as scenario runs give it, unless ``home`` is None)."""
     from autopilot.commander.commander import Commander
@@ -243,7 +244,7 @@ def _autopilot_on_a_socket(rate_hz: float = 100.0, source: str = "auto",
     autopilot = Autopilot(AutopilotConfig(rate_hz=rate_hz, state_source=source, home=home,
                                           lockstep=lockstep),
                           vehicle,
-                          MavlinkServer(vehicle, []), log=lambda text: None)
+                          MavlinkServer(vehicle, []), log=log)
     ours, theirs = socket.socketpair()
     ours.setblocking(False)
     autopilot.sim.sock = ours
@@ -484,6 +485,20 @@ def test_a_simulator_lost_during_that_wait_is_not_flown_on():
     gone.join()
     assert autopilot.sim.sock is None and not autopilot.vehicle.sim_link_ok
     assert any("simulator link lost" in text for _, text in autopilot.vehicle.messages)
+
+
+def test_what_the_vehicle_says_inside_the_ground_service_goes_into_the_log_too():
+    """Texts go into the process log where they go out, in the ground server: those
+    said between steps and those said inside its own service (an acknowledged reboot,
+    a ground link's failsafe), each once, at the vehicle's sim time."""
+    logged: list[str] = []
+    autopilot, _theirs = _autopilot_on_a_socket(log=logged.append)
+    autopilot.vehicle.say("said between steps")
+    autopilot.ground.reboot_pending = True  # carried out inside the server's service
+    autopilot._ground_work(0.0)
+    said = [line for line in logged if line.startswith("t=0.000 s ")]
+    assert said == ["t=0.000 s INFO: said between steps", "t=0.000 s INFO: rebooted"]
+    assert not autopilot.vehicle.messages  # and all of it went out
 
 
 def test_a_refused_command_loses_the_link_and_a_new_one_registers_on_its_number():

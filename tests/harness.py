@@ -24,9 +24,10 @@ GCS_SYSID = 255
 
 
 def free_port(kind: int = socket.SOCK_DGRAM) -> int:
-    with socket.socket(socket.AF_INET, kind) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    """A port claimed for this test's processes and tools (ground/run/children.py)."""
+    from ground.run.children import free_port as claimed_port
+
+    return claimed_port(kind)
 
 
 @dataclass

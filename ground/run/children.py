@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -31,16 +32,69 @@ class ProcessRunError(RuntimeError):
     """A process of the run failed; the message carries the tail of its log."""
 
 
+PORT_SPAN = 8000  # ports claimed from, just below the kernel's ephemeral range
+PORT_LEASE_S = 600.0  # a claim stands this long: a run's children bind well within it
+PORTS_FOLDER = "ivfm-ports"  # in the temporary folder: one empty file per claimed port
+
+
+def free_port(kind: int = socket.SOCK_STREAM) -> int:
+    """A loopback port of ``kind`` for a child process to bind soon: a run's simulator,
+    its Zenoh endpoints, a test's ground tool. Not bind(0)'s: the kernel hands a probed
+    port out again the moment the probe closes, so runs starting together (``ivfm check
+    -j 2``, a campaign's workers, tests in parallel) could each be given it, and two UDP
+    sockets with SO_REUSEADDR then share it (seen: two MAVSDK tests each flew the other's
+    vehicle). Ports come from just below the ephemeral range instead, each claimed by a
+    file in the temporary folder that every run on the machine skips for
+    ``PORT_LEASE_S``, and probed free."""
+    try:
+        low = int(Path("/proc/sys/net/ipv4/ip_local_port_range").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        low = 32768  # Linux's default
+    first = max(1024, low - PORT_SPAN)
+    span = low - first
+    folder = Path(tempfile.gettempdir()) / PORTS_FOLDER
+    folder.mkdir(exist_ok=True)
+    start = (os.getpid() * 7919 + time.monotonic_ns() // 1000) % span
+    for i in range(span):
+        port = first + (start + i) % span
+        if _claim(folder / str(port)) and _bindable(port, kind):
+            return port
+    raise OSError(f"no free port in [{first}, {low}) (claims in {folder})")
+
+
 def free_tcp_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port(socket.SOCK_STREAM)
 
 
 def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+    return free_port(socket.SOCK_DGRAM)
+
+
+def _claim(path: Path) -> bool:
+    """Whether this process now holds the port's claim (a new file, or one run out)."""
+    for _attempt in range(2):
+        try:
+            os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
+            return True
+        except FileExistsError:
+            try:
+                if time.time() - path.stat().st_mtime < PORT_LEASE_S:
+                    return False
+                path.unlink()  # a claim run out: taken again
+            except OSError:  # gone meanwhile (try again), or another user's: skip it
+                continue
+        except OSError:
+            return False
+    return False
+
+
+def _bindable(port: int, kind: int) -> bool:
+    with socket.socket(socket.AF_INET, kind) as probe:
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError:
+            return False
+    return True
 
 
 def tail(path: Path, lines: int = 15) -> str:

@@ -112,9 +112,8 @@ class MavlinkServer:
         self.vehicle = vehicle
         self.max_peers = max_peers
         self.sysid = sysid
-        # Called once per message sent to tools (the Zenoh MAVLink mirror listens here).
+        # Per message sent to tools (the Zenoh MAVLink mirror), per text said (the log).
         self.on_sent: Callable[[GroundLink, object, bytes], None] | None = None
-        # Called once per text the vehicle said, as it goes out (the process log listens).
         self.on_said: Callable[[int, str], None] | None = None
         self.links = links
         self.signing_state = signing_state  # signing clock and streams across restarts

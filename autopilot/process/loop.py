@@ -105,6 +105,13 @@ def airframe_rotors(spec: AirframeSpec | None
     return spec.name, tuple((*r.position_m, r.spin) for r in spec.rotors)
 
 
+def said_into(log: Callable[[str], None], vehicle: Commander) -> Callable[[int, str], None]:
+    """What the vehicle says, into the process log too, as PX4's console shows it: at its
+    sim time, for whoever reads a run's logs after the fact."""
+    return lambda severity, text: log(
+        f"t={vehicle.sim_t_s:.3f} s {SEVERITY_NAMES.get(severity, 'INFO')}: {text}")
+
+
 class Autopilot(PacedProcess):
     """The control loop: samples from the simulator link become control steps at the
     control rate, each answered with a motor command; between steps, the ground links
@@ -121,7 +128,7 @@ class Autopilot(PacedProcess):
         self.config = config
         self.vehicle = vehicle
         self.ground = ground
-        ground.on_said = self._said
+        ground.on_said = said_into(self.log, vehicle)
         self.scenario = ScenarioStart(vehicle, arm_in_reference, start_mission,
                                       lambda text: self.log(text))
         self.period_us = round(1e6 / config.rate_hz)
@@ -320,12 +327,6 @@ class Autopilot(PacedProcess):
             if self.sim.sock is not None:
                 self._on_sim_readable()
                 self._last_sample_wall = time.monotonic()
-
-    def _said(self, severity: int, text: str) -> None:
-        """What the vehicle said, into the process log too, as PX4's console shows it: at
-        its sim time, for whoever reads a run's logs after the fact."""
-        self.log(f"t={self.vehicle.sim_t_s:.3f} s {SEVERITY_NAMES.get(severity, 'INFO')}: "
-                 f"{text}")
 
     def _ground_work(self, budget_s: float) -> None:
         """Every SERVICE_PERIOD_S the telemetry out, Zenoh requests and status; then the

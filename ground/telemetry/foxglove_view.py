@@ -37,9 +37,7 @@ sim time.
 
 from __future__ import annotations
 
-import json
 import math
-import operator
 import struct
 from collections import deque
 from dataclasses import dataclass, field
@@ -51,24 +49,21 @@ from foxglove import messages as fg
 from contracts import AUTOPILOT, SITL
 from contracts.frames import euler_from_quat, quat_from_euler, wrap_pi_array
 from contracts.mavlink import StatustextAssembler, mavlink
-from contracts.modes import FlightMode
 from contracts.telemetry import (
     CONTROL,
     ESTIMATE,
-    FLAG_ARMED,
-    FLAG_FAILSAFE,
     MIRROR_ATTACHMENT,
     STATE,
     decode_json_record,
     json_record,
     parse_key,
 )
-from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT, REFERENCE
+from contracts.vectors import MEASUREMENT, REFERENCE
+from ground.telemetry.controller_text import CONTROLLER_TEXT
 from ground.telemetry.foxglove_scene import (
     FRAME_NED,
     FRAME_WORLD,
     IDENTITY,
-    JsonText,
     body_frame,
     fence_entity,
     fg_color,
@@ -78,7 +73,6 @@ from ground.telemetry.foxglove_scene import (
     finite_list,
     finite_or_none,
     item_rows,
-    json_schema,
     mission_entity,
     rotor_frame,
     text_pose,
@@ -97,84 +91,12 @@ TF_TOPIC = "/tf"
 LOG_TOPIC = "/log"
 # world (ENU) -> ned: x_ned = north = y_enu, y_ned = east = x_enu, z_ned = -z_enu.
 NED_IN_WORLD = fg.Quaternion(x=math.sqrt(0.5), y=math.sqrt(0.5), z=0.0, w=0.0)
-# Names for the channel internals in plot-ready records.
-INTERNAL_NAMES = {"ref": "reference", "y": "measured", "e": "error",
-                  "e_s": "sliding_surface", "e_eps": "boundary_layer_distance",
-                  "f_hat": "f_hat", "u_eq": "u_eq", "u_s": "u_s", "v": "control",
-                  "theta_g_channel": "theta_g"}
-INTERNAL_FIELDS = tuple(INTERNAL_NAMES[name] for name in CHANNEL_INTERNALS)
 SEVERITY_LEVEL = {0: fg.LogLevel.Fatal, 1: fg.LogLevel.Fatal, 2: fg.LogLevel.Fatal,
                   3: fg.LogLevel.Error, 4: fg.LogLevel.Warning, 5: fg.LogLevel.Info,
                   6: fg.LogLevel.Info, 7: fg.LogLevel.Debug}
 _SIM_TIME = struct.Struct("<q")  # after the CDR header (4) and seq (8)
-_MODES = tuple(FlightMode)
 
 
-class ControllerText:
-    """The controller's plot-ready record (per channel its internals by name, the motors,
-    mode and flags) as JSON, filled into a template: the exact bytes ``encode`` gives the
-    same record built as a dict, at a fraction of the cost (tests/ground/
-    test_foxglove_view.py builds the dict and compares). Numbers are Python's float
-    text, as ``json.dumps`` writes them; NaN and infinities are null (a gap in a plot)."""
-
-    def __init__(self) -> None:
-        offsets = {name: CONTROL.dtype.fields[name][1] for name, _t, _c in CONTROL.fields}
-        first = offsets["reference_time_s"]  # float64 fields from here to the fixed end
-        self._floats = struct.Struct(f"<{(CONTROL.dtype.itemsize - first) // 8}d")
-        self._at = 4 + first  # after the CDR header
-
-        def at(name: str, count: int) -> list[int]:
-            start = (offsets[name] - first) // 8
-            return list(range(start, start + count))
-
-        channels = len(CHANNELS)
-        # The record's numbers in the template's order: the motors, each channel's
-        # internals, theta_g (between them go t_s, the speed and the theta_f norms).
-        self._pick = operator.itemgetter(
-            *at("motor_commands", 4),
-            *(at(f"ch_{name}", channels)[i] for i in range(channels)
-              for name in CHANNEL_INTERNALS),
-            *at("theta_g", channels))
-        hole, typed = "\x01", self._record(lambda kind: kind)  # a slot, and its JSON type
-        skeleton = json.dumps(self._record(lambda _kind: hole), separators=(",", ":"))
-        self._template = skeleton.replace("%", "%%").replace(json.dumps(hole), "%s")
-        self.schema = json_schema(typed)
-        self._modes = [json.dumps(m.name) for m in _MODES]
-
-    @staticmethod
-    def _record(value: Any) -> dict[str, Any]:
-        """The record's layout, each slot ``value(an example of its type)``."""
-        number = 0.0
-        record: dict[str, Any] = {"t_s": value(number), "mode": value(""),
-                                  "armed": value(False), "failsafe": value(False),
-                                  "motors": [value(number) for _ in range(4)],
-                                  "speed_mps": value(number)}
-        for i, channel in enumerate(CHANNELS):
-            record[channel] = {name: value(number) for name in INTERNAL_FIELDS}
-            if i < 3:
-                record[channel]["theta_f_norm"] = value(number)
-        record["theta_g"] = {channel: value(number) for channel in CHANNELS}
-        return record
-
-    def encode(self, payload: bytes, t_us: int, mode_index: int, flags: int,
-               speed_mps: float, theta_f_norms: list[float]) -> JsonText:
-        r = self._pick(self._floats.unpack_from(payload, self._at))
-        n = len(CHANNEL_INTERNALS)
-        numbers = (t_us / 1e6, *r[:4], speed_mps, *r[4:4 + n], theta_f_norms[0],
-                   *r[4 + n:4 + 2 * n], theta_f_norms[1], *r[4 + 2 * n:4 + 3 * n],
-                   theta_f_norms[2], *r[4 + 3 * n:])
-        texts = list(map(float.__repr__, numbers))
-        if not math.isfinite(sum(numbers)):  # some NaN or infinity (or a sum that overflows)
-            texts = [_NOT_FINITE.get(t, t) for t in texts]
-        mode = self._modes[mode_index] if 0 <= mode_index < len(self._modes) else '""'
-        armed = "true" if flags & FLAG_ARMED else "false"
-        failsafe = "true" if flags & FLAG_FAILSAFE else "false"
-        text = self._template % (texts[0], mode, armed, failsafe, *texts[1:])
-        return JsonText(text.encode(), self.schema)
-
-
-_NOT_FINITE = {"nan": "null", "inf": "null", "-inf": "null"}  # json's null for these
-_CONTROLLER_TEXT = ControllerText()
 
 
 @dataclass
@@ -312,7 +234,7 @@ class FoxgloveView:
         theta_f = [c[name] for name in ("theta_f_phi", "theta_f_theta", "theta_f_psi")]
         norms = [np.sqrt(w @ w) if len(w) else np.nan for w in theta_f]
         speed = np.sqrt(meas[MEASUREMENT.velocity_ned_mps] @ meas[MEASUREMENT.velocity_ned_mps])
-        text = _CONTROLLER_TEXT.encode(payload, t_us, int(c["mode"]), int(c["flags"]), speed,
+        text = CONTROLLER_TEXT.encode(payload, t_us, int(c["mode"]), int(c["flags"]), speed,
                                        norms)
         out.append(Output(vehicle_topic(vehicle, "controller"), t_us * 1000, text))
         return out

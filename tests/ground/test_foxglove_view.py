@@ -15,8 +15,9 @@ from contracts.frames import quat_from_euler, rotation_from_quat
 from contracts.modes import FlightMode
 from contracts.telemetry import CONTROL, STATE
 from contracts.vectors import CHANNEL_INTERNALS, CHANNELS, MEASUREMENT
+from ground.telemetry.controller_text import INTERNAL_NAMES
 from ground.telemetry.foxglove_scene import encode, json_schema
-from ground.telemetry.foxglove_view import INTERNAL_NAMES, FoxgloveView
+from ground.telemetry.foxglove_view import FoxgloveView
 
 STATE_KEY = "ivfm/vehicle/1/sitl/state"
 CONTROL_KEY = "ivfm/vehicle/1/autopilot/control"

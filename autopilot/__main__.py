@@ -38,6 +38,7 @@ from contracts.mavlink import (  # noqa: E402
     SIM_TCP_PORT,
 )
 from contracts.modes import FLAVOURS  # noqa: E402
+from contracts.paced_loop import MAX_SPIN_S, SPIN_S  # noqa: E402
 from contracts.process_main import pin_cpus, place_for_handover, run_main, start_process  # noqa: E402
 from contracts.zenoh_link import (  # noqa: E402
     VEHICLE_CONNECT,
@@ -126,6 +127,13 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     p.add_argument("--rt-priority", type=RT_PRIORITY, default=AUTOPILOT_RT_PRIORITY, metavar="N",
                    help="real time: SCHED_FIFO priority of the control loop (1-99; 0: "
                         "normal scheduling; needs CAP_SYS_NICE, else normal with a note)")
+    p.add_argument("--spin-us", type=number(0, MAX_SPIN_S * 1e6, "us"), default=SPIN_S * 1e6,
+                   metavar="US",
+                   help=f"real time: the last stretch before each control step busy-waited, "
+                        f"so that a step starts on its deadline to the microsecond (0-"
+                        f"{MAX_SPIN_S * 1e6:g}; default {SPIN_S * 1e6:g}); 0 sleeps to it "
+                        "instead: the kernel's wake-up latency late, for a twentieth of a "
+                        "CPU less at 100 Hz (several vehicles on one machine)")
     p.add_argument("--signing-state", type=Path, metavar="FILE",
                    help="where the MAVLink signing clock and stream timestamps are kept "
                         "across restarts, so a replay of frames from before one is refused "
@@ -197,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
                              rt_priority=args.rt_priority,
                              zenoh=zenoh_options_from_args(args), home=args.home,
                              perturbations=args.perturbations, airframe=args.airframe,
-                             handover_cpu=args.handover_cpu)
+                             handover_cpu=args.handover_cpu, spin_s=args.spin_us / 1e6)
     spec = args.airframe  # the airframe file, read once by the command line (spec_argument)
     airframe = airframe_from_spec(spec)
     # The airframe file's own defaults, then the command line's.

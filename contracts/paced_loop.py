@@ -28,29 +28,33 @@ from collections.abc import Callable
 from contracts import timeline
 from contracts.realtime import any_cpu, pin_this_thread, set_realtime_priority
 
-SPIN_S = 0.0005  # the last stretch before a precise deadline is busy-waited
+SPIN_S = 0.0005  # the last stretch before a precise deadline is busy-waited (default)
+MAX_SPIN_S = 0.005
 POLL_MIN_S = 0.0015  # below this, sleep (ns resolution) instead of epoll (ms resolution)
 
 
 class Deadlines:
     """Deadlines every ``period_s`` on ``clock`` (``time.perf_counter``), from ``first_s``
     on; ``pause`` (``time.sleep``) sleeps. Both are injected by tests, so the logic is
-    checked on a clock that nothing else on the machine can make late."""
+    checked on a clock that nothing else on the machine can make late. ``spin_s``: the
+    last stretch ``wait`` busy-waits (0: it sleeps to the deadline, as late as the
+    kernel wakes it)."""
 
     def __init__(self, period_s: float, first_s: float,
                  clock: Callable[[], float] = time.perf_counter,
-                 pause: Callable[[float], None] = time.sleep) -> None:
+                 pause: Callable[[float], None] = time.sleep, spin_s: float = SPIN_S) -> None:
         self.period_s = period_s
         self.next_s = first_s
         self.clock = clock
         self.pause = pause
+        self.spin_s = spin_s
 
     def remaining_s(self) -> float:
         return self.next_s - self.clock()
 
     def until_spin_s(self) -> float:
         """Time left for other work before ``wait`` must start spinning."""
-        return self.next_s - SPIN_S - self.clock()
+        return self.next_s - self.spin_s - self.clock()
 
     def wait(self, poll: Callable[[float], None]) -> bool:
         """One turn of a precise wait. Far from the deadline: ``poll(timeout_s)`` once for
@@ -59,10 +63,10 @@ class Deadlines:
         remaining = self.next_s - self.clock()
         if remaining > POLL_MIN_S:
             # epoll counts whole milliseconds and rounds up: ask for whole ones, early.
-            poll(math.floor((remaining - SPIN_S) * 1000.0) / 1000.0)
+            poll(math.floor((remaining - self.spin_s) * 1000.0) / 1000.0)
             return False
-        if remaining > SPIN_S:
-            self.pause(remaining - SPIN_S)  # nanosecond sleep; I/O waits in the buffers
+        if remaining > self.spin_s:
+            self.pause(remaining - self.spin_s)  # nanosecond sleep; I/O waits in the buffers
         while self.clock() < self.next_s:
             pass
         return True

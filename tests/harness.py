@@ -116,6 +116,11 @@ def start_processes(log_dir: Path, sim_args: list[str] | None = None,
     for args in (sim_args, autopilot_args):
         if "--airframe" not in args:
             args += ["--airframe", "paper"]
+    # Sleep to each control step, not spin the last 0.5 ms: no test of these processes
+    # asserts jitter, and spinning took a twentieth of a CPU per flight from the tests
+    # beside it (CI flies four at a time). Jitter is measured by tests/benchmarks/soak.py.
+    if "--spin-us" not in autopilot_args:
+        autopilot_args += ["--spin-us", "0"]
     procs = Processes(0, free_port(), free_port(), log_dir,
                       ["--realtime", "--plant", "rigid-body", *sim_args],
                       ["--realtime", *autopilot_args])

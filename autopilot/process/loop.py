@@ -49,7 +49,7 @@ from contracts.mavlink import (
     actuator_fields,
     mavlink,
 )
-from contracts.paced_loop import Deadlines, PacedProcess
+from contracts.paced_loop import MAX_SPIN_S, SPIN_S, Deadlines, PacedProcess
 from contracts.realtime import LoopTiming
 from contracts.sim_link_codec import pack_fields
 from contracts.telemetry import AUTOPILOT
@@ -82,6 +82,7 @@ class AutopilotConfig:
     home: Home | None = None  # None: the simulator's first position, as PX4 takes it
     airframe: AirframeSpec | None = None  # drawn by viewers (the scene record)
     handover_cpu: int | None = None  # lockstep: the loop's CPU (None: any)
+    spin_s: float = SPIN_S  # real time: the last stretch before each step, busy-waited
 
     def __post_init__(self) -> None:
         low, high = CONTROL_RATE_RANGE_HZ
@@ -92,6 +93,9 @@ class AutopilotConfig:
             raise ValueError(f"rate {self.rate_hz} Hz does not give a whole microsecond period")
         if not 0 <= self.rt_priority <= 99:
             raise ValueError(f"real-time priority must be in [0, 99], got {self.rt_priority}")
+        if not 0.0 <= self.spin_s <= MAX_SPIN_S:  # (NaN fails it too)
+            raise ValueError(f"spin must be in [0, {MAX_SPIN_S * 1e6:g}] us, got "
+                             f"{self.spin_s * 1e6!r} us")
         if self.state_source not in STATE_SOURCES:
             raise ValueError(f"unknown state source {self.state_source!r}; known: "
                              f"{', '.join(STATE_SOURCES)}")
@@ -384,7 +388,7 @@ class Autopilot(PacedProcess):
     def run_realtime(self) -> None:
         period_s = self.period_us / 1e6
         ground_share_s = GROUND_SHARE * period_s
-        pace = Deadlines(period_s, time.perf_counter())
+        pace = Deadlines(period_s, time.perf_counter(), spin_s=self.config.spin_s)
         previous_start: float | None = None
         while not self._stop:
             now = time.monotonic()

@@ -52,6 +52,20 @@ def test_precise_wait_polls_in_whole_milliseconds_sleeps_then_spins_to_the_deadl
     assert pace.next_s <= clock.now_s < pace.next_s + 1e-5  # spun to the deadline, not past
 
 
+def test_without_a_spin_the_wait_polls_then_sleeps_to_the_deadline_itself():
+    """--spin-us 0: the poll leaves no stretch to spin, and the sleep ends on the deadline
+    (here, a kernel that wakes on time); nothing is busy-waited but the clock's tick."""
+    clock = Clock()
+    pace = Deadlines(0.01, clock.now_s + 0.0057, clock, clock.sleep, spin_s=0.0)
+    polls: list[float] = []
+    while not pace.wait(lambda timeout_s: (polls.append(timeout_s), clock.poll(timeout_s))):
+        pass
+    assert polls == [pytest.approx(0.005)]
+    assert clock.sleeps == [pytest.approx(0.0007, abs=1e-5)]
+    assert pace.next_s <= clock.now_s < pace.next_s + 1e-5
+    assert pace.until_spin_s() == pytest.approx(pace.remaining_s(), abs=1e-5)
+
+
 def test_a_wait_woken_past_the_deadline_returns_at_once():
     clock = Clock()
     pace = deadlines(clock, -0.003)

@@ -5,6 +5,7 @@ and the free loopback ports they meet on."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import select
@@ -53,7 +54,10 @@ def free_port(kind: int = socket.SOCK_STREAM) -> int:
     first = max(1024, low - PORT_SPAN)
     span = low - first
     folder = Path(tempfile.gettempdir()) / PORTS_FOLDER
-    folder.mkdir(exist_ok=True)
+    if not folder.is_dir():
+        folder.mkdir(exist_ok=True)
+        with contextlib.suppress(OSError):
+            folder.chmod(0o1777)  # every user's runs claim here (sticky, as the folder above)
     start = (os.getpid() * 7919 + time.monotonic_ns() // 1000) % span
     for i in range(span):
         port = first + (start + i) % span

@@ -32,6 +32,7 @@ def test_ports_are_claimed_below_the_ephemeral_range_and_never_handed_out_twice(
     low = _ephemeral_low()
     assert all(low - children.PORT_SPAN <= p < low for p in ports)
     assert sorted(int(f.name) for f in claims.iterdir()) == sorted(ports)
+    assert claims.stat().st_mode & 0o1777 == 0o1777  # any user's runs claim there too
 
 
 def test_pickers_at_the_same_time_get_other_ports(claims):

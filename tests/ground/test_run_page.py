@@ -71,3 +71,19 @@ def test_the_page_renders_in_headless_chromium(tmp_path):
     banner = np.all(np.abs(image - NO_EXPECTATIONS_GREY) < 0.02, axis=2)
     assert banner[:250, :500].sum() > 8000  # the verdict banner, top left
     assert (image[800:].std(axis=(0, 1)) > 0.05).all()  # figures below, not a blank page
+
+
+def test_the_reports_warm_up_loads_the_compiled_code_its_metrics_call():
+    """``ivfm run`` warms the report while the vehicle flies: the angle errors' wrap is
+    then loaded for the very array type the metrics give it, so the report after the
+    flight does not load it (nor numba's registries with it)."""
+    from contracts.frames import wrap_pi_array
+    from ground.report.metrics import axis_error
+    from ground.report.run_report import warm_up
+
+    warm_up()
+    loaded = set(wrap_pi_array.signatures)
+    record = type("Record", (), {"reference": np.zeros((5, 20)), "kick": np.zeros((5, 2)),
+                                 "true_state": np.zeros((5, 20))})()
+    axis_error(record, "phi")
+    assert loaded and set(wrap_pi_array.signatures) == loaded

@@ -147,6 +147,25 @@ class RecordSchema:
             raise ValueError(f"{self.name}: {len(payload) - at} bytes left over")
         return out
 
+    def decode_many(self, payloads: list[bytes]) -> tuple[np.ndarray, list[list[np.ndarray]]]:
+        """Many records at once (a log read back): their fixed fields as one structured
+        array, a row per record, and each record's sequences; the same numbers as
+        ``decode`` record by record, and the same ValueError for a payload that does not
+        fit."""
+        fixed = len(CDR_HEADER) + self.dtype.itemsize
+        sequences = []
+        for payload in payloads:
+            self.check(payload)
+            at, seqs = fixed, []
+            for _name in self.sequences:
+                (count,) = struct.unpack_from("<I", payload, at)
+                seqs.append(np.frombuffer(payload, dtype="<f8", count=count, offset=at + 8))
+                at += 8 + 8 * count
+            sequences.append(seqs)
+        rows = np.frombuffer(b"".join(p[len(CDR_HEADER):fixed] for p in payloads),
+                             dtype=self.dtype)
+        return rows, sequences
+
     def check(self, payload: bytes) -> None:
         """Cheap structural check (the logger's): header, sizes and sequence lengths."""
         size = len(payload)

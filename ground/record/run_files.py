@@ -131,23 +131,21 @@ def control_records(log: Path | LogRecords, vehicle: int) -> dict[str, np.ndarra
     """The autopilot's control records of one vehicle as arrays (one row per step), plus
     ``log_time_ns``; checks that no sequence number is missing."""
     key = vehicle_key(vehicle, AUTOPILOT, "control")
-    rows: list[dict[str, Any]] = []
-    log_times = []
+    payloads, log_times = [], []
     for topic, message, data in iter_messages(log, key):
         if topic != key:
             continue
-        rows.append(CONTROL.decode(data))
+        payloads.append(data)
         log_times.append(message.log_time)
-    if not rows:
+    if not payloads:
         raise ValueError(f"no control records of vehicle {vehicle} ({key}) in {log}")
-    rows.sort(key=lambda r: int(r["seq"]))
-    seq = np.array([int(r["seq"]) for r in rows])
-    out = {name: np.array([r[name] for r in rows]) for name in rows[0]
-           if not name.startswith("theta_f_")}
-    for name in ("theta_f_phi", "theta_f_theta", "theta_f_psi"):
-        out[name] = np.array([r[name] for r in rows])
+    rows, sequences = CONTROL.decode_many(payloads)
+    order = np.argsort(rows["seq"], kind="stable")  # by sequence number, as sent
+    out: dict[str, Any] = {name: rows[name][order] for name, _kind, _count in CONTROL.fields}
+    for i, name in enumerate(CONTROL.sequences):  # theta_f_phi, theta_f_theta, theta_f_psi
+        out[name] = np.array([sequences[j][i] for j in order])
     out["log_time_ns"] = np.array(sorted(log_times))
-    out["missing_count"] = missing_count(seq)
+    out["missing_count"] = missing_count(out["seq"])
     return out
 
 

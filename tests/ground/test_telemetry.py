@@ -425,3 +425,32 @@ def test_records_are_filled_by_name_and_decode_to_the_same_values():
         record.encode(())
     with pytest.raises(KeyError):
         STATE.buffer()["no_such_field"] = 1.0
+
+
+def test_records_decoded_many_at_once_are_those_decoded_one_by_one():
+    """A log read back decodes its control records at once (``decode_many``): the same
+    numbers, bit for bit, as ``decode`` gives each; a payload that does not fit is refused
+    as ``decode`` refuses it."""
+    rng = np.random.default_rng(3)
+    record = CONTROL.buffer()
+    payloads = []
+    for k in range(50):
+        for name, kind, count in CONTROL.fields:
+            if kind == "f8":
+                record[name] = np.where(rng.random(count or ()) < 0.1, np.nan,
+                                        rng.normal(size=count or None))
+        record["seq"], record["sim_time_us"], record["mode"] = k, 10_000 * k, k % 7
+        payloads.append(record.encode(tuple(rng.normal(size=rng.integers(0, 5))
+                                            for _ in CONTROL.sequences)))
+    rows, sequences = CONTROL.decode_many(payloads)
+    for row, seqs, payload in zip(rows, sequences, payloads, strict=True):
+        one = CONTROL.decode(payload)
+        for name, _kind, _count in CONTROL.fields:
+            assert np.asarray(row[name]).tobytes() == np.asarray(one[name]).tobytes(), name
+        for name, values in zip(CONTROL.sequences, seqs, strict=True):
+            assert values.tobytes() == one[name].tobytes(), name
+    for bad in (payloads[0][:-8], payloads[0] + b"\0" * 8, b"\xff" * 4 + payloads[0][4:]):
+        with pytest.raises(ValueError):
+            CONTROL.decode(bad)
+        with pytest.raises(ValueError):
+            CONTROL.decode_many([payloads[1], bad])

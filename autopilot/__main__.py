@@ -132,8 +132,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
                    help=f"real time: the last stretch before each control step busy-waited, "
                         f"so that a step starts on its deadline to the microsecond (0-"
                         f"{MAX_SPIN_S * 1e6:g}; default {SPIN_S * 1e6:g}); 0 sleeps to it "
-                        "instead: the kernel's wake-up latency late, for a twentieth of a "
-                        "CPU less at 100 Hz (several vehicles on one machine)")
+                        "instead: the kernel's wake-up latency late, for 2-3 %% of a CPU "
+                        "less at 100 Hz (several vehicles on one machine)")
     p.add_argument("--signing-state", type=Path, metavar="FILE",
                    help="where the MAVLink signing clock and stream timestamps are kept "
                         "across restarts, so a replay of frames from before one is refused "

@@ -117,7 +117,7 @@ def start_processes(log_dir: Path, sim_args: list[str] | None = None,
         if "--airframe" not in args:
             args += ["--airframe", "paper"]
     # Sleep to each control step, not spin the last 0.5 ms: no test of these processes
-    # asserts jitter, and spinning took a twentieth of a CPU per flight from the tests
+    # asserts jitter, and spinning took 2-3 % of a CPU per flight from the tests
     # beside it (CI flies four at a time). Jitter is measured by tests/benchmarks/soak.py.
     if "--spin-us" not in autopilot_args:
         autopilot_args += ["--spin-us", "0"]

@@ -1,0 +1,45 @@
+"""Where the process tier's CPU goes: each test's wall time and the CPU of the test
+process and of the processes it started and waited for (getrusage: the simulator, the
+autopilot, the logger, ``ivfm`` commands, MAVProxy; MAVSDK runs inside the test
+process). A pytest plugin, loaded only when asked:
+
+    IVFM_CPU_REPORT=cpu.jsonl python -m pytest -m process -n 4 -p tests.cpu_accounting
+
+appends one JSON line per test (``test``, ``wall_s``, ``self_cpu_s``,
+``children_cpu_s``) to the file; each xdist worker accounts for its own tests. A child
+still running when its test ends (a warm process) is counted by the test that waits for
+it. The tier is bound by CPU on 2 CPUs: docs/developing.md says what it showed.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import time
+
+import pytest
+
+ENV = "IVFM_CPU_REPORT"
+
+
+def _cpu_s() -> tuple[float, float]:
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime, children.ru_utime + children.ru_stime
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item: pytest.Item, nextitem: pytest.Item | None):
+    out = os.environ.get(ENV)
+    if not out:
+        yield
+        return
+    own, children = _cpu_s()
+    started = time.monotonic()
+    yield
+    own_after, children_after = _cpu_s()
+    with open(out, "a") as f:
+        f.write(json.dumps({"test": item.nodeid, "wall_s": round(time.monotonic() - started, 3),
+                            "self_cpu_s": round(own_after - own, 3),
+                            "children_cpu_s": round(children_after - children, 3)}) + "\n")

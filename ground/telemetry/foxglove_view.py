@@ -97,8 +97,6 @@ SEVERITY_LEVEL = {0: fg.LogLevel.Fatal, 1: fg.LogLevel.Fatal, 2: fg.LogLevel.Fat
 _SIM_TIME = struct.Struct("<q")  # after the CDR header (4) and seq (8)
 
 
-
-
 @dataclass
 class Output:
     """One Foxglove message: its topic, sim time [ns] and the message (a Foxglove schema

@@ -174,7 +174,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 
 def preload() -> None:
-    """What a run imports, loaded by a warm process before its first run."""
+    """What a run imports, loaded once by the process loader (contracts/zygote.py)."""
     import autopilot.commander.commander  # noqa: F401
     import autopilot.control.factory  # noqa: F401
     import autopilot.mavlink.server  # noqa: F401
@@ -260,4 +260,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    start_process(AUTOPILOT, main, preload)
+    start_process(AUTOPILOT, main)

@@ -1,17 +1,17 @@
 """The entry-point shell of the vehicle processes (``python -m sitl``, ``python -m
 autopilot``), written once.
 
-A process module supplies its parser, its ``run(args)`` and what a warm process loads
-ahead (``preload``); this shell parses the command line, turns a bad value or a failed
-start (ValueError, OSError) into ``<process>: error: ...`` and exit code 2, and, run as a
-script, either runs once or serves run requests as a warm process (contracts/warm.py,
-``--warm``), then marks the exit on the timeline and ends without the interpreter's
-teardown.
+A process module supplies its parser, its ``run(args)`` and what the process loader
+loads ahead (``preload``, contracts/zygote.py); this shell parses the command line,
+turns a bad value or a failed start (ValueError, OSError) into ``<process>: error: ...``
+and exit code 2, and, run as a script, marks the exit on the timeline and ends without
+the interpreter's teardown.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -19,9 +19,18 @@ from pathlib import Path
 from typing import NoReturn
 
 from contracts import timeline
-from contracts.warm import WARM_FLAG, exit_process, serve
 
-PROFILE_ENV = "IVFM_PROFILE"  # a folder: a fresh (not warm) process runs under cProfile
+PROFILE_ENV = "IVFM_PROFILE"  # a folder: the process runs under cProfile
+
+
+def exit_process(code: int) -> NoReturn:
+    """End the process now that its work is done, its files closed and its Zenoh session
+    closed: flush the standard streams and exit without the interpreter's teardown
+    (numba's and Zenoh's finalizers take 0.1-0.2 s that a run's teardown would wait for)."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):
+            stream.flush()
+    os._exit(code)
 
 
 def run_main(process: str, build_parser: Callable[[], argparse.ArgumentParser],
@@ -37,16 +46,11 @@ def run_main(process: str, build_parser: Callable[[], argparse.ArgumentParser],
         return 2
 
 
-def start_process(process: str, main: Callable[..., int],
-                  preload: Callable[[], None] | None = None) -> NoReturn:
-    """``python -m <process>``: one run of ``main``, or with ``--warm`` as the only
-    argument, a warm process serving runs of it; then the exit is marked and the process
-    ends (``exit_process``)."""
+def start_process(process: str, main: Callable[..., int]) -> NoReturn:
+    """``python -m <process>``: one run of ``main`` (under cProfile if asked); then the
+    exit is marked and the process ends (``exit_process``)."""
     profile_dir = os.environ.get(PROFILE_ENV)
-    if profile_dir and sys.argv[1:] != [WARM_FLAG]:
-        code = profiled(process, main, Path(profile_dir))
-    else:
-        code = serve(main, preload) if sys.argv[1:] == [WARM_FLAG] else main()
+    code = profiled(process, main, Path(profile_dir)) if profile_dir else main()
     timeline.mark(process, "exit")
     exit_process(code)
 

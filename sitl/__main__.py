@@ -109,8 +109,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def preload() -> None:
-    """What a run imports and the plant's compiled code, loaded by a warm process before
-    its first run."""
+    """What a run imports and the plant's compiled code, loaded once by the process
+    loader (contracts/zygote.py)."""
     from sitl.server import preload_compiled_code
 
     preload_compiled_code()
@@ -122,4 +122,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    start_process(SITL, main, preload)
+    start_process(SITL, main)

@@ -6,7 +6,6 @@ import math
 import os
 import socket
 import subprocess
-import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -19,6 +18,7 @@ from pymavlink import mavutil  # noqa: E402
 mavutil.set_dialect("common")
 from autopilot.mavlink.link import kernel_drops  # noqa: E402
 from contracts.mavlink import StatustextAssembler  # noqa: E402
+from ground.run.loader import ForkedProcess, ProcessLoader  # noqa: E402
 
 GCS_SYSID = 255
 
@@ -30,6 +30,18 @@ def free_port(kind: int = socket.SOCK_DGRAM) -> int:
     return claimed_port(kind)
 
 
+_LOADER: list[ProcessLoader] = []
+
+
+def process_loader() -> ProcessLoader:
+    """The loader the vehicles of this test process are forked from (contracts/zygote.py):
+    a flight's processes start without loading their imports and compiled code again. It
+    ends with the test process (end of its input)."""
+    if not _LOADER or not _LOADER[0].alive:
+        _LOADER[:] = [ProcessLoader(("sitl", "autopilot"))]
+    return _LOADER[0]
+
+
 @dataclass
 class Processes:
     sim_port: int
@@ -38,30 +50,29 @@ class Processes:
     log_dir: Path
     sim_args: list[str] = field(default_factory=list)
     autopilot_args: list[str] = field(default_factory=list)
-    sim: subprocess.Popen | None = None
-    autopilot: subprocess.Popen | None = None
+    sim: ForkedProcess | None = None
+    autopilot: ForkedProcess | None = None
 
     def start_sim(self) -> None:
-        log = open(self.log_dir / "sitl.log", "a")  # noqa: SIM115 (lives with the process)
-        self.sim = subprocess.Popen(
-            [sys.executable, "-m", "sitl", "--port", str(self.sim_port), *self.sim_args],
-            stdout=log, stderr=subprocess.STDOUT)
+        """``python -m sitl``, forked by this test process's loader (``process_loader``);
+        a restart appends to the same log."""
+        self.sim = process_loader().start(
+            "sitl", ["--port", str(self.sim_port), *self.sim_args], self.log_dir / "sitl.log")
 
     def start_autopilot(self) -> None:
-        log = open(self.log_dir / "autopilot.log", "a")  # noqa: SIM115
-        self.autopilot = subprocess.Popen(
-            [sys.executable, "-m", "autopilot", "--sim", f"127.0.0.1:{self.sim_port}",
-             "--gcs", f"127.0.0.1:{self.gcs_port}", "--gcs-bind", str(self.vehicle_port),
-             "--api", "none", "--api-bind", "0",
-             *self.autopilot_args],
-            stdout=log, stderr=subprocess.STDOUT)
+        self.autopilot = process_loader().start(
+            "autopilot", ["--sim", f"127.0.0.1:{self.sim_port}",
+                          "--gcs", f"127.0.0.1:{self.gcs_port}",
+                          "--gcs-bind", str(self.vehicle_port), "--api", "none",
+                          "--api-bind", "0", *self.autopilot_args],
+            self.log_dir / "autopilot.log")
 
     def wait_for(self, what: str, said: Callable[[], bool], idle_s: float = 30.0) -> None:
         """Until ``said()``, for as long as the processes start: a fixed wait failed beside
         busy work, where loading the compiled code took the simulator over 30 s
         (ground/run/children.py, ``StartingDeadline``). A process that exits meanwhile
         fails the test with both logs."""
-        from ground.run.children import StartingDeadline
+        from ground.run.loader import StartingDeadline
 
         started = {name: proc for name, proc in (("sitl", self.sim),
                                                  ("autopilot", self.autopilot)) if proc}

@@ -22,8 +22,8 @@ from pathlib import Path
 from typing import Any
 
 from ground.record.run_files import write_json
-from ground.run.children import ProcessRunError, WarmProcesses
 from ground.run.flights import Overrides, fly_processes, plan_flight
+from ground.run.loader import ProcessLoader, ProcessRunError, take_loader
 from ground.run.progress import LiveLine
 from ground.scenario.expectations import Outcome, evaluate
 from ground.scenario.scenario_file import Scenario, load_scenario, scenario_by_name, shipped_names
@@ -166,16 +166,16 @@ class CheckOptions:
     baseline: dict[str, dict[str, Any]] | None = None
     tolerance: float = DEFAULT_TOLERANCE
     keep_passed: bool = False
-    warm: bool = True  # each job's processes kept warm between its scenarios
+    forked: bool = True  # every run's processes forked by one process loader
     figures: bool = False  # each run folder's figures (ivfm report's)
     rt_cpus: frozenset[int] | None = None  # the vehicle processes' CPUs (None: any)
 
 
 def check_one(scenario: Scenario, options: CheckOptions,
-              warm: WarmProcesses | None = None,
+              loader: ProcessLoader | None = None,
               overrides: Overrides | None = None,
               started_s: float | None = None) -> ScenarioResult:
-    """Fly one scenario (as runs of ``warm`` processes, if given; with ``overrides`` of
+    """Fly one scenario (its processes forked by ``loader``, if given; with ``overrides`` of
     its choices, else only ``options.realtime``) and judge it; a failed flight is a
     result, not an exception. ``started_s`` (time.monotonic): the origin of the run's
     timeline (default: when the processes start), so a caller can place its marks."""
@@ -187,7 +187,7 @@ def check_one(scenario: Scenario, options: CheckOptions,
         plan = plan_flight(scenario, overrides or Overrides(realtime=options.realtime,
                                                             rt_cpus=options.rt_cpus))
         result.metrics = fly_processes(plan, run_dir, figures=options.figures, quiet=True,
-                                       warm=warm, started_s=started_s)
+                                       loader=loader, started_s=started_s)
     except (ProcessRunError, ValueError, OSError) as exc:
         result.error = str(exc)
     result.wall_time_s = time.perf_counter() - start
@@ -211,21 +211,13 @@ def run_check(scenarios: list[Scenario], options: CheckOptions,
     flying: list[str] = []
     lock = threading.Lock()
     done: dict[str, ScenarioResult] = {}
-    per_thread = threading.local()
-    pools: list[WarmProcesses] = []
+    loader = take_loader() if options.forked else None
 
     def job(scenario: Scenario) -> ScenarioResult:
-        warm = None
-        if options.warm:
-            warm = getattr(per_thread, "warm", None)
-            if warm is None:
-                warm = per_thread.warm = WarmProcesses(start=True)
-                with lock:
-                    pools.append(warm)
         with lock:
             flying.append(scenario.name)
         try:
-            return check_one(scenario, options, warm)
+            return check_one(scenario, options, loader)
         finally:
             with lock:
                 flying.remove(scenario.name)
@@ -240,8 +232,8 @@ def run_check(scenarios: list[Scenario], options: CheckOptions,
                     with lock:
                         progress(result, len(done), list(flying))
     finally:
-        for warm in pools:
-            warm.close()
+        if loader is not None:
+            loader.close()
     results = [done[s.name] for s in scenarios]
     write_results(results, options.out_dir / RESULTS_FILE)
     return results

@@ -7,7 +7,7 @@
 
 docs/checks.md has a worked example. Options: ``--ivfm-out DIR`` keeps the run folders
 there (default: pytest's temporary folder), ``--ivfm-realtime`` paces to the wall clock.
-Flights of a session share one set of warm processes (docs/checks.md). Nothing heavy is
+Flights of a session share one process loader (docs/checks.md). Nothing heavy is
 imported until a scenario flies: every pytest session of the environment loads this
 module.
 """
@@ -72,33 +72,34 @@ def _runs_root(config: pytest.Config) -> Path:
     return factory.mktemp("ivfm-runs")
 
 
-_WARM = pytest.StashKey[Any]()
+_LOADER = pytest.StashKey[Any]()
 
 
-def _warm_processes(config: pytest.Config) -> Any:
-    """One set of warm processes for the session's flights (ground/run/processes.py)."""
-    if _WARM not in config.stash:
-        from ground.run.children import WarmProcesses
+def _process_loader(config: pytest.Config) -> Any:
+    """One process loader for the session's flights (contracts/zygote.py)."""
+    if _LOADER not in config.stash:
+        from ground.run.loader import ProcessLoader
 
-        config.stash[_WARM] = WarmProcesses()
-    return config.stash[_WARM]
+        config.stash[_LOADER] = ProcessLoader()
+    return config.stash[_LOADER]
 
 
 def pytest_unconfigure(config: pytest.Config) -> None:
-    if _WARM in config.stash:
-        config.stash[_WARM].close()
+    if _LOADER in config.stash:
+        config.stash[_LOADER].close()
 
 
 def fly(scenario: Scenario, run_dir: Path, config: pytest.Config,
         **overrides: Any) -> Flight:
-    """Fly ``scenario`` through the session's warm processes into ``run_dir``; judge it."""
+    """Fly ``scenario`` through processes forked by the session's loader into ``run_dir``;
+    judge it."""
     from ground.run.flights import Overrides, fly_processes, plan_flight
     from ground.scenario.expectations import evaluate
 
     plan = plan_flight(scenario, Overrides(realtime=config.getoption("ivfm_realtime"),
                                            **overrides))
     metrics = fly_processes(plan, run_dir, figures=False, quiet=True,
-                            warm=_warm_processes(config))
+                            loader=_process_loader(config))
     return Flight(scenario, run_dir, metrics, evaluate(scenario.expect, metrics))
 
 

@@ -40,7 +40,8 @@ def add_arguments(check: argparse.ArgumentParser) -> None:
                        help="pace to the wall clock (default: lockstep)")
     add_rt_cpus(check)
     check.add_argument("--cold", action="store_true",
-                       help="new processes for every scenario (default: kept warm)")
+                       help="start every run's processes anew (default: forked by one process "
+                            "loader, which loads their imports and compiled code once)")
     check.add_argument("--keep", action="store_true",
                        help="keep the run folders of passed scenarios too")
 
@@ -57,7 +58,7 @@ def handle(args: argparse.Namespace) -> int:
     start = time.perf_counter()
     results = run_check(scenarios, CheckOptions(out, realtime=args.realtime, jobs=args.jobs,
                                                 baseline=baseline, tolerance=args.tolerance,
-                                                keep_passed=args.keep, warm=not args.cold,
+                                                keep_passed=args.keep, forked=not args.cold,
                                                 rt_cpus=args.rt_cpus),
                         Progress(len(scenarios)))
     wall_s = time.perf_counter() - start

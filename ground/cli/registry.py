@@ -15,6 +15,7 @@ class Subcommand(NamedTuple):
     name: str
     module: str  # defines add_arguments(parser) and handle(args), or SUBCOMMANDS (a group)
     help: str
+    flies: bool = False  # flies runs through the processes (forked by a process loader)
 
 
 def add_subcommands(parser: argparse.ArgumentParser, subcommands: Sequence[Subcommand],

@@ -15,8 +15,8 @@ from contracts.timeline import process_start_s
 from ground.cli.common import UsageError, add_rt_cpus, add_vehicle_options, fresh_folder
 from ground.record.run_files import ULOG_FILE
 from ground.report.metrics import format_metrics
-from ground.run.children import WarmProcesses
 from ground.run.flights import Overrides, fly_inprocess, fly_processes, plan_flight
+from ground.run.loader import take_loader
 from ground.scenario.scenario_file import scenario_by_name, shipped_names
 from ground.telemetry.live_view import LAYOUT_FILE, view_address
 from sitl.dynamics import FIDELITIES
@@ -88,19 +88,20 @@ def handle(args: argparse.Namespace) -> int:
     if args.inprocess:
         metrics = fly_inprocess(plan, args.out, figures=not args.no_figures)
     else:
-        # Started as soon as the input is checked: each loads its imports and compiled
-        # code while the others load theirs and the run folder is prepared.
-        warm = WarmProcesses(start=True)
+        # Started as soon as the input is checked: it loads the processes' imports and
+        # compiled code, once for all three, while the run folder is prepared.
+        loader = take_loader()
         try:
             if args.view is not None:
                 print(f"ivfm: live view on ws://{args.view[0]}:{args.view[1]} (Foxglove: "
                       f"open connection, Foxglove WebSocket; layout {LAYOUT_FILE})",
                       file=sys.stderr)
-            metrics = fly_processes(plan, args.out, figures=not args.no_figures, warm=warm,
+            metrics = fly_processes(plan, args.out, figures=not args.no_figures,
+                                    loader=loader,
                                     started_s=started_s, view=args.view,
                                     log_sensors=args.ulog)
         finally:
-            warm.close()
+            loader.close()
         telemetry = metrics["telemetry"]
         lost = sum(telemetry["lost"].values())
         print(f"telemetry: {sum(telemetry['published'].values())} records published, "

@@ -36,8 +36,8 @@ from ground.record.timeline import TIMELINE_FILE
 from ground.rehearsal.outputs import PARAMS_FILE, write_outputs
 from ground.rehearsal.readiness import Flight, Profile, airframe_checks, parameter_checks
 from ground.rehearsal.results import FlightResult, Rehearsal
-from ground.run.children import WarmProcesses
 from ground.run.flights import Overrides
+from ground.run.loader import ProcessLoader, take_loader
 from ground.run.reference import CHOICES, CYCLICTEST, ReferenceSleeper, tally
 from ground.run.reference import summary as reference_summary
 from ground.scenario.scenario_file import Scenario, load_scenario
@@ -97,7 +97,7 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
         model_path, rehearsal.model = resolve_model(spec, model, out_dir, say)
         options = CheckOptions(out_dir / "flights", keep_passed=True, figures=True)
         options.out_dir.mkdir(parents=True, exist_ok=True)
-        warm = WarmProcesses(start=True)
+        loader = take_loader()
         try:
             for i, flight in enumerate(profile.flights):
                 scenario = load_scenario(flight.scenario)
@@ -109,10 +109,10 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
                                       rate_hz=rate_hz, realtime=flight.realtime,
                                       rt_cpus=rt_cpus)
                 if flight.realtime and reference != "none":
-                    flown = fly_beside_reference(flight, scenario, options, warm, overrides,
+                    flown = fly_beside_reference(flight, scenario, options, loader, overrides,
                                                  reference)
                 else:
-                    flown = FlightResult(flight, check_one(scenario, options, warm,
+                    flown = FlightResult(flight, check_one(scenario, options, loader,
                                                            overrides))
                 rehearsal.flights.append(flown)
                 result = flown.result
@@ -121,14 +121,14 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
                     f"{result.wall_time_s:.1f} s"
                     + (f" ({result.error.splitlines()[0]})" if result.error else ""))
         finally:
-            warm.close()
+            loader.close()
     rehearsal.wall_time_s = time.perf_counter() - start
     write_outputs(rehearsal, out_dir)
     return rehearsal
 
 
 def fly_beside_reference(flight: Flight, scenario: Scenario, options: CheckOptions,
-                         warm: WarmProcesses, overrides: Overrides,
+                         loader: ProcessLoader, overrides: Overrides,
                          prefer: str) -> FlightResult:
     """A real-time flight with the reference sleeper beside it, on the autopilot's period,
     priority and CPUs; its figures over the autopilot's loop (first to last control
@@ -144,7 +144,7 @@ def fly_beside_reference(flight: Flight, scenario: Scenario, options: CheckOptio
         error = str(exc)
     started_s = time.monotonic()
     try:
-        result = check_one(scenario, options, warm, overrides, started_s=started_s)
+        result = check_one(scenario, options, loader, overrides, started_s=started_s)
     finally:
         sleeper.stop()
     flown = FlightResult(flight, result)

@@ -1,5 +1,5 @@
-"""The child processes of a run: the simulator, the autopilot and the logger, started
-fresh or kept warm between runs (``WarmProcess``, contracts/warm.py), the logger as a
+"""The child processes of a run: the simulator, the autopilot and the logger (started
+fresh, or forked by the process loader: ground/run/loader.py), the logger as a
 process the run asks over Zenoh whether it has heard everything (``LoggerProcess``),
 and the free loopback ports they meet on."""
 
@@ -8,7 +8,6 @@ from __future__ import annotations
 import contextlib
 import json
 import os
-import select
 import signal
 import socket
 import subprocess
@@ -21,16 +20,11 @@ from typing import Any
 
 import zenoh
 
-from contracts import timeline
-from contracts.telemetry import AUTOPILOT, SITL, logger_key
-from contracts.warm import WARM_FLAG
+from contracts.telemetry import logger_key
+from ground.run.loader import ForkedProcess, ProcessLoader, ProcessRunError, StartingDeadline
 
 LOG_PREFIX = "telemetry"
 LOGGER_NAME = "run"
-
-
-class ProcessRunError(RuntimeError):
-    """A process of the run failed; the message carries the tail of its log."""
 
 
 PORT_SPAN = 8000  # ports claimed from, just below the kernel's ephemeral range
@@ -108,170 +102,22 @@ def tail(path: Path, lines: int = 15) -> str:
         return "(no log)"
 
 
-def cpu_seconds(pid: int) -> float | None:
-    """A process's CPU time so far (user and system, all its threads), from /proc; None
-    once it is gone."""
-    try:
-        with open(f"/proc/{pid}/stat") as f:
-            fields = f.read().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError):
-        return None
-
-
-class StartingDeadline:
-    """How long to wait for processes that are starting. A cold start (numba compiling the
-    numerical core on the first run after a change) took over a minute beside busy
-    neighbours, and a fixed minute failed such runs; a hung process uses no CPU. So the
-    wait ends ``idle_s`` after the last CPU any of them used, or at ``cap_s``; every
-    ``note_every_s`` it says what it waits for (through ``say``)."""
-
-    def __init__(self, pids: dict[str, int], idle_s: float, cap_s: float = 600.0,
-                 say: Callable[[str], None] | None = None, note_every_s: float = 15.0,
-                 clock: Callable[[], float] = time.monotonic,
-                 cpu: Callable[[int], float | None] = cpu_seconds) -> None:
-        self.pids, self.idle_s, self.cap_s = pids, idle_s, cap_s
-        self.say, self.note_every_s = say, note_every_s
-        self._clock, self._cpu = clock, cpu
-        self.started_s = self._last_progress_s = clock()
-        self._next_note_s = self.started_s + note_every_s
-        self._used = {name: cpu(pid) for name, pid in pids.items()}
-
-    def expired(self, waiting_for: str) -> str | None:
-        """None while the wait goes on; else why it ended."""
-        now = self._clock()
-        used = {name: self._cpu(pid) for name, pid in self.pids.items()}
-        if any(u is not None and (self._used[name] is None or u > self._used[name])
-               for name, u in used.items()):
-            self._last_progress_s = now
-        self._used = used
-        waited_s = now - self.started_s
-        if now - self._last_progress_s > self.idle_s:
-            return (f"after {waited_s:.0f} s: no process of the run used any CPU for "
-                    f"{self.idle_s:g} s")
-        if waited_s > self.cap_s:
-            return f"after {waited_s:.0f} s (the longest a start may take)"
-        if self.say is not None and now >= self._next_note_s:
-            self._next_note_s = now + self.note_every_s
-            cpu = ", ".join(f"the {name} {u:.1f} s" for name, u in used.items()
-                            if u is not None)
-            self.say(f"still waiting for {waiting_for} ({waited_s:.0f} s; CPU used so far: "
-                     f"{cpu}; a first run after a change compiles for a while)")
-        return None
-
-
-class WarmProcess:
-    """A warm process (contracts/warm.py) that runs one command after another; its
-    current run is used as a ``subprocess.Popen`` is (poll, wait, send_signal, kill)."""
-
-    def __init__(self, module: str) -> None:
-        self.module = module
-        self.proc = subprocess.Popen([sys.executable, "-m", module, WARM_FLAG],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                     stderr=subprocess.DEVNULL, text=True, bufsize=1)
-        self.returncode: int | None = None
-
-    @property
-    def alive(self) -> bool:
-        return self.proc.poll() is None
-
-    @property
-    def pid(self) -> int:
-        return self.proc.pid
-
-    def start(self, argv: list[str], log_path: Path,
-              timeline_path: str | None = None) -> WarmProcess:
-        """Begin a run of ``argv`` with its output in ``log_path`` (and its timeline marks
-        in ``timeline_path``)."""
-        self.returncode = None
-        assert self.proc.stdin is not None
-        request = {"argv": argv, "log": str(log_path)}
-        if timeline_path:
-            request["timeline"] = timeline_path
-        self.proc.stdin.write(json.dumps(request) + "\n")
-        self.proc.stdin.flush()
-        return self
-
-    def poll(self, timeout_s: float = 0.0) -> int | None:
-        """The run's exit status once it has ended (waiting up to ``timeout_s``)."""
-        if self.returncode is None:
-            assert self.proc.stdout is not None
-            if select.select([self.proc.stdout], [], [], timeout_s)[0]:
-                line = self.proc.stdout.readline()
-                self.returncode = int(json.loads(line)["rc"]) if line else \
-                    (self.proc.wait() or -1)
-            elif not self.alive:
-                self.returncode = self.proc.returncode
-        return self.returncode
-
-    def wait(self, timeout: float | None = None) -> int:
-        deadline = None if timeout is None else time.monotonic() + timeout
-        while self.poll(0.5 if deadline is None else max(0.0, deadline - time.monotonic())) \
-                is None:
-            if deadline is not None and time.monotonic() >= deadline:
-                raise subprocess.TimeoutExpired(self.module, timeout or 0.0)
-        return self.returncode  # type: ignore[return-value]
-
-    def send_signal(self, sig: int) -> None:
-        self.proc.send_signal(sig)
-
-    def kill(self) -> None:
-        """Ends the warm process itself (a run that would not stop): it is started anew."""
-        self.proc.kill()
-        self.proc.wait()
-        if self.returncode is None:
-            self.returncode = self.proc.returncode
-
-    def close(self) -> None:
-        if self.alive:
-            assert self.proc.stdin is not None
-            self.proc.stdin.close()
-            try:
-                self.proc.wait(timeout=10.0)
-            except subprocess.TimeoutExpired:
-                self.kill()
-
-
-class WarmProcesses:
-    """The three processes of a run (logger, simulator, autopilot), kept warm between
-    runs; one that died is started again for the next run."""
-
-    MODULES = {"logger": "ground.cli", SITL: "sitl", AUTOPILOT: "autopilot"}
-
-    def __init__(self, start: bool = False) -> None:
-        """``start``: start all three now, so they load while the caller prepares a run."""
-        self._procs: dict[str, WarmProcess] = {}
-        if start:
-            for name in self.MODULES:
-                self.get(name)
-
-    def get(self, name: str) -> WarmProcess:
-        proc = self._procs.get(name)
-        if proc is None or not proc.alive:
-            proc = self._procs[name] = WarmProcess(self.MODULES[name])
-        return proc
-
-    def close(self) -> None:
-        for proc in self._procs.values():
-            proc.close()
-        self._procs.clear()
-
-
 class LoggerProcess:
-    """``ivfm ground log`` as a child process (or a run of a warm one), and questions to it
-    over Zenoh."""
+    """``ivfm ground log`` as a child process (forked by ``loader`` if given), and
+    questions to it over Zenoh."""
 
     def __init__(self, out_dir: Path, endpoint: str, log_path: Path,
                  name: str = LOGGER_NAME, extra: list[str] | None = None,
-                 warm: WarmProcesses | None = None, env: dict[str, str] | None = None) -> None:
+                 loader: ProcessLoader | None = None, env: dict[str, str] | None = None
+                 ) -> None:
         self.name = name
         self.log_path = log_path
         argv = ["ground", "log", "--out", str(out_dir), "--name", name, "--prefix", LOG_PREFIX,
                 "--zenoh-listen", endpoint, *(extra or [])]
         self._out = None
-        self.proc: subprocess.Popen | WarmProcess
-        if warm is not None:
-            self.proc = warm.get("logger").start(argv, log_path, (env or {}).get(timeline.ENV))
+        self.proc: subprocess.Popen | ForkedProcess
+        if loader is not None:
+            self.proc = loader.start("ground.cli", argv, log_path, env)
         else:
             self._out = open(log_path, "w")  # noqa: SIM115 (closed in stop)
             self.proc = subprocess.Popen([sys.executable, "-m", "ground.cli", *argv],
@@ -300,7 +146,7 @@ class LoggerProcess:
 
     def wait_until(self, session: zenoh.Session, heard: list[str], final: bool,
                    timeout_s: float,
-                   others: dict[str, tuple[subprocess.Popen | WarmProcess, Path]] | None = None,
+                   others: dict[str, tuple[subprocess.Popen | ForkedProcess, Path]] | None = None,
                    starting: bool = False, say: Callable[[str], None] | None = None
                    ) -> dict[str, Any]:
         """Until the logger holds a status record (the final one, if asked) from each key;

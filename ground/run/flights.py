@@ -19,8 +19,8 @@ from contracts.frames import Home
 from ground.record import timeline as run_timeline
 from ground.record.run_files import RUN_FILE, SCENARIO_FILE, write_json
 from ground.report.metrics import compute_metrics
-from ground.run.children import WarmProcesses
 from ground.run.inprocess import run_inprocess
+from ground.run.loader import ProcessLoader
 from ground.run.processes import RunSettings, run_processes
 from ground.run.progress import ProgressLine
 from ground.scenario.scenario_file import Scenario
@@ -101,7 +101,7 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
 
 
 def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
-                  quiet: bool = False, warm: WarmProcesses | None = None,
+                  quiet: bool = False, loader: ProcessLoader | None = None,
                   started_s: float | None = None,
                   view: tuple[str, int] | None = None,
                   log_sensors: bool = False) -> dict[str, Any]:
@@ -118,7 +118,7 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
                            state_source=plan.state_source, sensors=plan.sensors,
                            seed=plan.seed, any_airframe_model=plan.any_airframe_model,
                            home=plan.home, rt_cpus=plan.rt_cpus, log_sensors=log_sensors)
-    accounting = run_processes(scenario, settings, out_dir, quiet=quiet, warm=warm,
+    accounting = run_processes(scenario, settings, out_dir, quiet=quiet, loader=loader,
                                started_s=started_s, view=view)
     timing = accounting.pop("timing")
     shutil.copyfile(scenario.source, out_dir / SCENARIO_FILE)

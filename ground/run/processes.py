@@ -34,16 +34,8 @@ from contracts.frames import DEFAULT_HOME, Home
 from contracts.telemetry import AUTOPILOT, SITL, vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.record import timeline as run_timeline
-from ground.run.children import (
-    LOG_PREFIX,
-    LoggerProcess,
-    ProcessRunError,
-    WarmProcess,
-    WarmProcesses,
-    free_tcp_port,
-    free_udp_port,
-    tail,
-)
+from ground.run.children import LOG_PREFIX, LoggerProcess, free_tcp_port, free_udp_port, tail
+from ground.run.loader import ForkedProcess, ProcessLoader, ProcessRunError
 from ground.run.progress import ProgressLine
 from ground.scenario.ground_station import GroundStation
 from ground.scenario.scenario_file import Scenario
@@ -173,12 +165,12 @@ def clear_run_folder(out_dir: Path) -> None:
 
 
 def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
-                  quiet: bool = False, warm: WarmProcesses | None = None,
+                  quiet: bool = False, loader: ProcessLoader | None = None,
                   started_s: float | None = None,
                   view: tuple[str, int] | None = None) -> dict[str, Any]:
     """Fly ``scenario`` through the processes; returns the telemetry accounting (records
     published and logged per key) and the autopilot's timing summary. ``quiet``: no
-    progress on stderr; ``warm``: runs of warm processes instead of new ones; ``view``:
+    progress on stderr; ``loader``: the processes forked by it, not started anew; ``view``:
     (host, port) where the logger serves the flight live to Foxglove. Every
     process marks its phases into the run folder's ``timeline.json``, from ``started_s``
     (when the command started, on time.monotonic; default: now)."""
@@ -201,7 +193,7 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
                                        handover_cpu, ground_endpoint)
     ground_station = None
     try:
-        logger = LoggerProcess(out_dir, endpoint, logs["logger"], warm=warm, env=env,
+        logger = LoggerProcess(out_dir, endpoint, logs["logger"], loader=loader, env=env,
                                extra=[*(["--view", f"{view[0]}:{view[1]}"] if view else []),
                                       *(["--off-cpu", str(handover_cpu)]
                                         if handover_cpu is not None else [])])
@@ -209,21 +201,21 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
         HANDOVER_CPUS.give(handover_cpu)  # the run ends here: its CPU is free again
         raise
     run_timeline.mark(out_dir, "logger started")
-    procs: dict[str, subprocess.Popen | WarmProcess] = {}
+    procs: dict[str, subprocess.Popen | ForkedProcess] = {}
     outs = []
     session = None
     timeout_s = 120.0 + scenario.duration_s * (1.5 if settings.realtime else 1.0)
     try:
         # The vehicles start once the logger listens: a vehicle's session opened before
-        # would wait half a second for it (warm processes: a few milliseconds).
+        # would wait half a second for it (forked processes: a few milliseconds).
         session = open_session(ZenohOptions(connect=[endpoint], listen=[ground_endpoint],
                                             wait_on_open=False))
         run_timeline.mark(out_dir, "zenoh session open")
         logger.wait_listening(session, timeout_s=60.0, say=_say)
         run_timeline.mark(out_dir, "logger listening")
         for name, cmd in ((SITL, sim_cmd), (AUTOPILOT, ap_cmd)):
-            if warm is not None:  # cmd: python -m MODULE ARGS...
-                procs[name] = warm.get(name).start(cmd[3:], logs[name], env[timeline.ENV])
+            if loader is not None:  # cmd: python -m MODULE ARGS...
+                procs[name] = loader.start(cmd[2], cmd[3:], logs[name], env, say=_say)
                 run_timeline.mark(out_dir, f"{name} started")
                 continue
             out = open(logs[name], "w")  # noqa: SIM115 (closed below)
@@ -312,7 +304,7 @@ def _say(text: str) -> None:
     print(f"ivfm: {text}", file=sys.stderr, flush=True)
 
 
-def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen | WarmProcess],
+def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen | ForkedProcess],
             vehicle: int,
             duration_s: float, timeout_s: float, logs: dict[str, Path],
             quiet: bool = False) -> None:

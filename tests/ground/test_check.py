@@ -136,52 +136,29 @@ def test_pytest_collects_scenario_files_and_the_fixture_flies(pytester):
     assert "axes.x.rmse <= 0.0001" in names and "test_a_dict_flies" in names
 
 
-def test_warm_runs_are_bit_identical_to_a_fresh_process_run(tmp_path):
-    """A warm simulator, autopilot and logger fly position-kick after another scenario:
-    the log's records are the same bytes as a run of fresh processes."""
-    from ground.run.children import WarmProcesses
+def test_forked_runs_are_bit_identical_to_a_fresh_process_run(tmp_path):
+    """A simulator, autopilot and logger forked by one process loader fly position-kick
+    after another scenario: the log's records are the same bytes as a run of fresh
+    processes, and every run had processes of its own."""
     from ground.run.flights import fly_processes, plan_flight
+    from ground.run.loader import ProcessLoader
     from ground.scenario.scenario_file import scenario_by_name
     from tests.lockstep_fingerprint import log_digests
 
     kick = plan_flight(scenario_by_name("position-kick"))
-    warm = WarmProcesses()
+    loader = ProcessLoader()
     try:
         fly_processes(plan_flight(scenario_by_name("attitude-jr-20")), tmp_path / "first",
-                      figures=False, quiet=True, warm=warm)
-        pids = {name: warm.get(name).proc.pid for name in ("logger", "sitl", "autopilot")}
-        warm_metrics = fly_processes(kick, tmp_path / "warm", figures=False, quiet=True,
-                                     warm=warm)
-        assert {name: warm.get(name).proc.pid for name in pids} == pids  # the same processes
+                      figures=False, quiet=True, loader=loader)
+        forked_metrics = fly_processes(kick, tmp_path / "forked", figures=False, quiet=True,
+                                       loader=loader)
     finally:
-        warm.close()
+        loader.close()
+    assert loader.alive is False
     cold_metrics = fly_processes(kick, tmp_path / "cold", figures=False, quiet=True)
-    assert log_digests(tmp_path / "warm") == log_digests(tmp_path / "cold")
-    assert warm_metrics["axes"] == cold_metrics["axes"]
-    assert warm_metrics["events"] == cold_metrics["events"]
-
-
-def test_a_warm_process_refuses_bad_requests_and_keeps_serving(tmp_path):
-    from ground.run.children import WarmProcess
-
-    proc = WarmProcess("sitl")
-    try:
-        assert proc.proc.stdin is not None and proc.proc.stdout is not None
-        for bad in ("not json\n", '{"argv": "x", "log": "y"}\n', '{"argv": []}\n',
-                    '{"argv": [], "log": "/nonexistent/dir/log"}\n'):
-            proc.proc.stdin.write(bad)
-            proc.proc.stdin.flush()
-            answer = json.loads(proc.proc.stdout.readline())
-            assert answer["rc"] == 2 and answer["error"], bad
-        # A run whose arguments are refused ends as a fresh process's would, in its log.
-        proc.start(["--rate-hz", "banana"], tmp_path / "bad.log")
-        assert proc.wait(timeout=30) == 2
-        assert "argument --rate-hz: must be a number in [1, 2000] Hz, got 'banana'" in \
-            (tmp_path / "bad.log").read_text()
-        proc.start(["--help"], tmp_path / "help.log")
-        assert proc.wait(timeout=30) == 0
-        assert "--lockstep" in (tmp_path / "help.log").read_text()
-        assert proc.alive
-    finally:
-        proc.close()
-    assert proc.proc.returncode == 0  # end of input ends it
+    assert log_digests(tmp_path / "forked") == log_digests(tmp_path / "cold")
+    assert forked_metrics["axes"] == cold_metrics["axes"]
+    assert forked_metrics["events"] == cold_metrics["events"]
+    modules = [module for module, _ in loader.started]
+    assert modules == ["ground.cli", "sitl", "autopilot"] * 2
+    assert len({pid for _, pid in loader.started}) == 6  # new processes for each run

@@ -341,21 +341,3 @@ def test_a_scenario_from_a_dict_reads_back_with_its_files(tmp_path):
     assert load_scenario(tmp_path / "m.toml").expect == scenario.expect
     with pytest.raises(ValueError, match="unknown field"):
         scenario_from_dict({"nam": "x"}, tmp_path / "x.toml", tmp_path)
-
-
-@pytest.mark.parametrize(("line", "message"), [
-    ("{", "one JSON object per line"),
-    ("[]", "the fields argv and log"),
-    ('{"argv": [], "log": "x", "more": 1}', "the fields argv and log"),
-    ('{"argv": [], "log": "x", "timeline": 3}', "timeline must be a file path"),
-    ('{"argv": [1], "log": "x"}', "argv must be a list of strings"),
-    ('{"argv": [], "log": ""}', "log must be a file path"),
-])
-def test_warm_run_requests_are_checked(line, message):
-    from contracts.warm import parse_request
-
-    with pytest.raises(ValueError, match=None) as err:
-        parse_request(line)
-    assert message in str(err.value)
-    assert parse_request('{"argv": ["--port", "1"], "log": "/tmp/l"}') == \
-        (["--port", "1"], "/tmp/l", None)

@@ -14,19 +14,19 @@ HOMES = {"zurich": Home(47.397742, 8.545594, 488.0), "equator": Home(0.0, 0.0, 0
 
 
 def _fly_everywhere(tmp_path, state_source: str) -> dict[str, dict]:
-    from ground.run.children import WarmProcesses
     from ground.run.flights import Overrides, fly_processes, plan_flight
+    from ground.run.loader import ProcessLoader
     from ground.scenario.scenario_file import scenario_by_name
 
     scenario = scenario_by_name("position-kick")
-    warm = WarmProcesses(start=True)
+    loader = ProcessLoader()
     try:
         return {place: fly_processes(
             plan_flight(scenario, Overrides(home=home, state_source=state_source)),
-            tmp_path / f"{state_source}-{place}", figures=False, quiet=True, warm=warm)
+            tmp_path / f"{state_source}-{place}", figures=False, quiet=True, loader=loader)
             for place, home in HOMES.items()}
     finally:
-        warm.close()
+        loader.close()
 
 
 def test_the_same_flight_anywhere_on_earth(tmp_path):

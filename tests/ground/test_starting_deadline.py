@@ -8,7 +8,7 @@ import os
 
 import pytest
 
-from ground.run.children import StartingDeadline, cpu_seconds
+from ground.run.loader import StartingDeadline, cpu_seconds
 
 
 class Clock:

@@ -22,7 +22,8 @@ from mcap_ros2.decoder import DecoderFactory
 from contracts.telemetry import CONTROL, STATE, TIMING, pack_batch, vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.record.run_files import control_records, iter_messages
-from ground.run.children import LoggerProcess, ProcessRunError, free_tcp_port
+from ground.run.children import LoggerProcess, free_tcp_port
+from ground.run.loader import ProcessRunError
 from ground.run.processes import RunSettings, vehicle_commands
 from ground.scenario.scenario_file import scenario_by_name
 from ground.uplink.perturb import PerturbationClient, PerturbationError

@@ -1,0 +1,105 @@
+"""The process loader (contracts/zygote.py, ground/run/loader.py): its requests checked,
+and the processes it forks behaving as fresh ones."""
+
+from __future__ import annotations
+
+import os
+import signal
+
+import pytest
+
+from ground.run.loader import ProcessLoader, ProcessRunError
+
+
+@pytest.mark.process
+def test_the_process_loader_refuses_bad_requests_and_keeps_serving(tmp_path):
+    """A bad request is answered and changes nothing; a run whose arguments are refused,
+    or that asks for help, ends as a fresh process would, its words in its log; signals
+    reach the forked process; end of input ends the loader."""
+    loader = ProcessLoader(("sitl",))
+    try:
+        with pytest.raises(ProcessRunError, match="module must be one of sitl"):
+            loader.start("autopilot", [], tmp_path / "x.log")
+        with pytest.raises(ProcessRunError, match="Is a directory"):
+            loader.start("sitl", [], tmp_path)
+        with pytest.raises(ProcessRunError, match="No such file or directory"):
+            loader.start("sitl", [], tmp_path / "no" / "such" / "folder.log")
+        bad = loader.start("sitl", ["--rate-hz", "banana"], tmp_path / "bad.log")
+        assert bad.wait(timeout=30) == 2
+        assert "argument --rate-hz: must be a number in [1, 2000] Hz, got 'banana'" in \
+            (tmp_path / "bad.log").read_text()
+        helped = loader.start("sitl", ["--help"], tmp_path / "help.log")
+        assert helped.wait(timeout=30) == 0
+        assert "--lockstep" in (tmp_path / "help.log").read_text()
+        held = loader.start("sitl", ["--hold", "--port", "0", "--zenoh-listen",
+                                     "tcp/127.0.0.1:0"], tmp_path / "held.log",
+                            env={"IVFM_PROBE": "1"})
+        assert held.poll(timeout_s=0.5) is None  # waits to be released
+        held.send_signal(signal.SIGKILL)
+        assert held.wait(timeout=30) == -signal.SIGKILL
+        assert loader.alive
+    finally:
+        loader.close()
+    assert loader.alive is False  # end of input ended it
+
+
+@pytest.mark.parametrize(("line", "message"), [
+    ("{", "one JSON object per line"),
+    ("[]", "the fields id, module, argv and log"),
+    ('{"id": 1, "module": "sitl", "argv": [], "log": "x", "more": 1}', "the fields"),
+    ('{"id": true, "module": "sitl", "argv": [], "log": "x"}', "id must be an integer"),
+    ('{"id": 1, "module": "os", "argv": [], "log": "x"}', "module must be one of sitl"),
+    ('{"id": 1, "module": "sitl", "argv": [1], "log": "x"}', "argv must be a list of strings"),
+    ('{"id": 1, "module": "sitl", "argv": [], "log": ""}', "log must be a file path"),
+    ('{"id": 1, "module": "sitl", "argv": [], "log": "x", "env": {"A=B": "1"}}',
+     "env must map variable names"),
+    ('{"id": 1, "module": "sitl", "argv": [], "log": "x", "env": {"A": 1}}',
+     "env must map variable names"),
+    ('{"id": 1, "module": "sitl", "argv": [], "log": "x", "cwd": ""}', "cwd must be a folder"),
+])
+def test_process_loader_requests_are_checked(line, message):
+    from contracts.zygote import parse_request
+
+    with pytest.raises(ValueError) as err:
+        parse_request(line, frozenset({"sitl"}))
+    assert message in str(err.value)
+    assert parse_request('{"id": 3, "module": "sitl", "argv": ["--port", "1"], "log": "/l"}',
+                         frozenset({"sitl"}))["argv"] == ["--port", "1"]
+
+
+@pytest.mark.process
+def test_a_forked_process_has_its_environment_and_the_terminals_ctrl_c(tmp_path):
+    """The variables a start names reach the process (its timeline marks go where
+    IVFM_TIMELINE says); SIGINT, as a Ctrl-C in the terminal sends it to every process of
+    the command, ends a held simulator and leaves the loader serving."""
+    import json
+
+    loader = ProcessLoader(("sitl",))
+    try:
+        marks = tmp_path / "timeline.raw"
+        helped = loader.start("sitl", ["--help"], tmp_path / "help.log",
+                              env={"IVFM_TIMELINE": str(marks)})
+        assert helped.wait(timeout=30) == 0
+        events = [json.loads(line)["event"] for line in marks.read_text().splitlines()]
+        assert events == ["main"]  # --help exits in argparse, before the exit mark
+        held = loader.start("sitl", ["--hold", "--port", "0", "--zenoh-listen",
+                                     "tcp/127.0.0.1:0"], tmp_path / "held.log")
+        while "listening on tcp" not in (tmp_path / "held.log").read_text():
+            assert held.poll(timeout_s=0.05) is None, (tmp_path / "held.log").read_text()
+        os.kill(loader.pid, signal.SIGINT)
+        held.send_signal(signal.SIGINT)
+        assert held.wait(timeout=30) in (0, 130)
+        assert loader.alive
+    finally:
+        loader.close()
+
+
+@pytest.mark.process
+def test_a_module_the_loader_cannot_import_runs_fresh_and_fails_in_its_log(tmp_path):
+    loader = ProcessLoader(("no_such_module_here",))
+    try:
+        proc = loader.start("no_such_module_here", ["--x"], tmp_path / "log")
+        assert proc.wait(timeout=30) == 1
+        assert "No module named no_such_module_here" in (tmp_path / "log").read_text()
+    finally:
+        loader.close()

@@ -22,7 +22,8 @@ Requests come on standard input, one JSON line each::
 loader answers on standard output, one JSON line each::
 
     {"id": 1, "pid": 4321}                  the child started
-    {"id": 1, "rc": 0}                      it ended (negative: the signal that ended it)
+    {"id": 1, "rc": 0, "cpu_s": 1.25}       it ended (rc negative: the signal that ended
+                                            it; cpu_s: its CPU time, user and system)
     {"id": 1, "rc": 2, "error": "..."}      a bad request: no child, nothing changed
 
 End of input: no more children; the loader exits once its children have. It ignores
@@ -170,14 +171,15 @@ def _id_of(line: str) -> Any:
 def _reap(children: dict[int, int], answers: Any) -> None:
     while children:
         try:
-            pid, status = os.waitpid(-1, os.WNOHANG)
+            pid, status, usage = os.wait4(-1, os.WNOHANG)
         except ChildProcessError:
             return
         if pid == 0:
             return
         rid = children.pop(pid, None)
         if rid is not None:
-            answers.write(json.dumps({"id": rid, "rc": os.waitstatus_to_exitcode(status)})
+            answers.write(json.dumps({"id": rid, "rc": os.waitstatus_to_exitcode(status),
+                                      "cpu_s": round(usage.ru_utime + usage.ru_stime, 4)})
                           + "\n")
 
 

@@ -7,8 +7,11 @@ process). A pytest plugin, loaded only when asked:
 
 appends one JSON line per test (``test``, ``wall_s``, ``self_cpu_s``,
 ``children_cpu_s``) to the file; each xdist worker accounts for its own tests. A child
-still running when its test ends (a warm process) is counted by the test that waits for
-it. The tier is bound by CPU on 2 CPUs: docs/developing.md says what it showed.
+still running when its test ends is counted by the test that waits for it; a process
+forked by a process loader of the test process (tests/harness.py) is counted when the
+loader says it ended (ground/run/loader.py ``FORKED_CPU_S``), and the loader's own
+loading when the loader ends. The tier is bound by CPU on 2 CPUs: docs/developing.md
+says what it showed.
 """
 
 from __future__ import annotations
@@ -24,9 +27,11 @@ ENV = "IVFM_CPU_REPORT"
 
 
 def _cpu_s() -> tuple[float, float]:
+    from ground.run.loader import FORKED_CPU_S
+
     own = resource.getrusage(resource.RUSAGE_SELF)
     children = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime, children.ru_utime + children.ru_stime
+    return own.ru_utime + own.ru_stime, children.ru_utime + children.ru_stime + FORKED_CPU_S[0]
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -20,6 +20,11 @@ from typing import Any
 
 from contracts.zygote import RUN_MODULES
 
+# The CPU time of every forked process of this process's loaders that has ended [s]:
+# not in this process's getrusage children (they are the loader's), so accounted here
+# (tests/cpu_accounting.py).
+FORKED_CPU_S = [0.0]
+
 
 class ProcessRunError(RuntimeError):
     """A process of the run failed; the message carries the tail of its log."""
@@ -205,6 +210,7 @@ class ProcessLoader:
                     self._answers[answer["id"]] = answer
                 else:  # an end
                     self._ended[answer["id"]] = int(answer["rc"])
+                    FORKED_CPU_S[0] += float(answer.get("cpu_s", 0.0))
         return True
 
     def discard(self) -> None:

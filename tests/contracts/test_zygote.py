@@ -8,7 +8,7 @@ import signal
 
 import pytest
 
-from ground.run.loader import ProcessLoader, ProcessRunError
+from ground.run.loader import FORKED_CPU_S, ProcessLoader, ProcessRunError
 
 
 @pytest.mark.process
@@ -28,8 +28,10 @@ def test_the_process_loader_refuses_bad_requests_and_keeps_serving(tmp_path):
         assert bad.wait(timeout=30) == 2
         assert "argument --rate-hz: must be a number in [1, 2000] Hz, got 'banana'" in \
             (tmp_path / "bad.log").read_text()
+        used_before = FORKED_CPU_S[0]
         helped = loader.start("sitl", ["--help"], tmp_path / "help.log")
         assert helped.wait(timeout=30) == 0
+        assert FORKED_CPU_S[0] > used_before  # its CPU time, said with its end
         assert "--lockstep" in (tmp_path / "help.log").read_text()
         held = loader.start("sitl", ["--hold", "--port", "0", "--zenoh-listen",
                                      "tcp/127.0.0.1:0"], tmp_path / "held.log",

@@ -164,3 +164,66 @@ def test_the_logger_says_once_when_records_stop_and_once_when_they_come_again():
     watch.update(21.0, 1)
     watch.update(21.1, 1)
     assert said[1:] == ["records again after 10.5 s of silence"]
+
+
+def _three_channel_log(tmp_path, finished: bool = True):
+    """A log of three channels over many chunks, interleaved as a flight's are."""
+    f = McapFile(tmp_path / "telemetry-000.mcap", 2048, "zstd")
+    channels = [f.channel("mavlink/1/1/HEARTBEAT", "mavlink"),
+                f.channel("ivfm/vehicle/1/sitl/status", "json"),
+                f.channel("ivfm/vehicle/1/autopilot/timing", None)]
+    rng = random.Random(7)
+    for i in range(900):
+        channel = channels[rng.randrange(3)]
+        f.add(channel, 1000 + i, 10 * i, i, rng.randbytes(rng.randrange(1, 120)))
+    if finished:
+        return f.finish()
+    f.flush()
+    f.stream.flush()
+    return f.active_path
+
+
+def _fields(messages) -> list[tuple]:
+    return [(topic, m.channel_id, m.log_time, m.publish_time, m.sequence, bytes(data))
+            for topic, m, data in messages]
+
+
+@pytest.mark.parametrize("prefixes", [("mavlink/",), ("ivfm/vehicle/1/sitl/", "mavlink/"),
+                                      ("ivfm/",), ("nothing/",)])
+def test_a_reports_records_read_through_the_index_are_the_whole_reads(tmp_path, prefixes):
+    """LogRecords reads a finished log's messages on its topics through the message
+    indexes (only those records parsed): the same messages, in the same order, with the
+    same fields as the MCAP library's own pass over every record."""
+    from ground.record.run_files import LogRecords, _indexed_messages, iter_messages
+
+    path = _three_channel_log(tmp_path)
+    whole = [m for m in iter_messages(path) if m[0].startswith(prefixes)]
+    assert _indexed_messages(path, prefixes) is not None  # the index was used
+    assert _fields(LogRecords(path, prefixes).messages) == _fields(whole)
+    assert len(whole) > 0 or prefixes == ("nothing/",)
+
+
+def test_a_log_whose_index_cannot_be_used_is_read_whole(tmp_path):
+    """Unfinished (no summary) or with a message index that does not match its chunk:
+    read whole, to the same messages."""
+    from ground.record.run_files import LogRecords, _indexed_messages, iter_messages
+
+    prefixes = ("mavlink/",)
+    finished = _three_channel_log(tmp_path)
+    whole = _fields(m for m in iter_messages(finished) if m[0].startswith(prefixes))
+    (tmp_path / "killed").mkdir()
+    unfinished = _three_channel_log(tmp_path / "killed", finished=False)
+    assert _indexed_messages(unfinished, prefixes) is None
+    salvaged = salvage(unfinished, log=lambda _text: None)
+    assert _fields(LogRecords(salvaged, prefixes).messages) == whole
+    with open(finished, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    heartbeat = next(cid for cid, channel in summary.channels.items()
+                     if channel.topic.startswith("mavlink/"))
+    index_at = summary.chunk_indexes[0].message_index_offsets[heartbeat]
+    data = bytearray(finished.read_bytes())
+    data[index_at + 9] ^= 0xFF  # the index's channel id
+    broken = tmp_path / "broken.mcap"
+    broken.write_bytes(bytes(data))
+    assert _indexed_messages(broken, prefixes) is None
+    assert _fields(LogRecords(broken, prefixes).messages) == whole

@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 import tomli_w
 
+from tests.once import once
+
 pytestmark = pytest.mark.process
 
 ROOT = Path(__file__).parents[2]
@@ -30,8 +32,14 @@ def ivfm(*argv: str, cwd: Path) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="module")
-def x500_rehearsal(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("rehearse")
+def x500_rehearsal(tmp_path_factory, worker_id):
+    """The rehearsal both tests below read, flown once in the test run (tests/once.py)."""
+    folder, done = once(tmp_path_factory, worker_id, "x500-rehearsal", _rehearse_x500)
+    return folder / "x500", subprocess.CompletedProcess(done["args"], done["returncode"],
+                                                        done["stdout"], done["stderr"])
+
+
+def _rehearse_x500(folder: Path) -> dict:
     shipped = ROOT / "ground/rehearsal/profiles/default.toml"
     profile = tomllib.loads(shipped.read_text())
     # The lockstep flights, and of the real-time ones the setpoint loss: its ground station
@@ -44,7 +52,8 @@ def x500_rehearsal(tmp_path_factory):
     out = folder / "x500"
     done = ivfm("rehearse", "--airframe", "quad-x-500", "--profile",
                 str(folder / "pinned.toml"), "--out", str(out), cwd=ROOT)
-    return out, done
+    return {"args": done.args, "returncode": done.returncode, "stdout": done.stdout,
+            "stderr": done.stderr}
 
 
 def test_the_x500_rehearsal_is_a_go(x500_rehearsal):

@@ -227,3 +227,23 @@ def test_a_log_whose_index_cannot_be_used_is_read_whole(tmp_path):
     broken.write_bytes(bytes(data))
     assert _indexed_messages(broken, prefixes) is None
     assert _fields(LogRecords(broken, prefixes).messages) == whole
+
+
+def test_a_chunk_that_does_not_decompress_is_refused_as_damaged(tmp_path):
+    """Found by the log fuzz target: a zeroed byte in a chunk's compressed data failed in
+    the decompressor, inside the indexed read, with the decompressor's own error. Now the
+    log is read whole and refused as damaged, as before the index was used."""
+    from ground.record.run_files import LogRecords
+
+    finished = _three_channel_log(tmp_path)
+    with open(finished, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+    chunk = summary.chunk_indexes[0]
+    data = bytearray(finished.read_bytes())
+    frame = chunk.chunk_start_offset + 1 + 8 + 8 + 8 + 8 + 4 + 4 + len("zstd") + 8
+    assert data[frame:frame + 4] == b"\x28\xb5\x2f\xfd"  # zstd's magic: the frame
+    data[frame + 5] = 0  # its content size, 0: it does not decompress in full
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match="damaged"):
+        LogRecords(damaged, ("mavlink/",))

@@ -74,19 +74,25 @@ def log_digests(run_dir: Path) -> dict[str, str]:
 
 
 def fingerprint(names: tuple[str, ...] = SCENARIOS) -> dict[str, dict[str, str]]:
-    """Fly each scenario through the processes in lockstep; {scenario: {topic: digest}}."""
+    """Fly each scenario through the processes in lockstep, forked by one process loader
+    as ``ivfm run`` and ``ivfm check`` fly them; {scenario: {topic: digest}}."""
+    from ground.run.loader import ProcessLoader
     from ground.run.processes import RunSettings, run_processes
     from ground.scenario.scenario_file import scenario_by_name
 
     out: dict[str, dict[str, str]] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        for name in names:
-            scenario = scenario_by_name(name)
-            settings = RunSettings("ivfc", scenario.plant, scenario.airframe.argument)
-            run_dir = Path(tmp) / name
-            run_processes(scenario, settings, run_dir)
-            out[name] = log_digests(run_dir)
-            print(f"{name}: {len(out[name])} channels", file=sys.stderr, flush=True)
+    loader = ProcessLoader()
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            for name in names:
+                scenario = scenario_by_name(name)
+                settings = RunSettings("ivfc", scenario.plant, scenario.airframe.argument)
+                run_dir = Path(tmp) / name
+                run_processes(scenario, settings, run_dir, quiet=True, loader=loader)
+                out[name] = log_digests(run_dir)
+                print(f"{name}: {len(out[name])} channels", file=sys.stderr, flush=True)
+    finally:
+        loader.close()
     return out
 
 

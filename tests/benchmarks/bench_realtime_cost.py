@@ -1,0 +1,93 @@
+"""What a real-time period costs each process against a lockstep one, for the same flight.
+
+    python tests/benchmarks/bench_realtime_cost.py              # 20 s of attitude-sine
+    python tests/benchmarks/bench_realtime_cost.py --duration 30
+
+The scenario (on the rigid body) flies twice through fresh processes, in lockstep and
+in real time. While they run, /proc is read every 0.2 s for each child of this process:
+its CPU (user and system, every thread) and its main thread's context switches; the
+last reading before it exits is the figure, start-up included (about the same in
+both). Prints figures; asserts nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from ground.run.processes import RunSettings, run_processes  # noqa: E402
+from ground.scenario.scenario_file import scenario_by_name  # noqa: E402
+
+NAMES = {"ground.cli": "logger", "sitl": "simulator", "autopilot": "autopilot"}
+
+
+def _reading(pid: str) -> tuple[str, float, int, int] | None:
+    """(process, CPU s, voluntary, involuntary switches) of a child of ours, else None."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        if int(fields[1]) != os.getpid():
+            return None
+        with open(f"/proc/{pid}/cmdline") as f:
+            argv = f.read().split("\0")
+        with open(f"/proc/{pid}/status") as f:
+            status = dict(line.split(":\t", 1) for line in f.read().splitlines()
+                          if ":\t" in line)
+    except (OSError, ValueError, IndexError):
+        return None
+    name = NAMES.get(argv[2] if len(argv) > 2 else "", "?")
+    cpu_s = (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return (name, cpu_s, int(status["voluntary_ctxt_switches"]),
+            int(status["nonvoluntary_ctxt_switches"]))
+
+
+def fly(realtime: bool, duration_s: float) -> dict[str, tuple[float, int, int]]:
+    scenario = dataclasses.replace(scenario_by_name("attitude-sine"), duration_s=duration_s)
+    settings = RunSettings("ivfc", "rigid-body", scenario.airframe.argument,
+                           realtime=realtime)
+    last: dict[str, tuple[str, float, int, int]] = {}
+    done = threading.Event()
+
+    def watch() -> None:
+        while not done.is_set():
+            for pid in os.listdir("/proc"):
+                if pid.isdigit() and (reading := _reading(pid)) is not None:
+                    last[pid] = reading
+            time.sleep(0.2)
+
+    watcher = threading.Thread(target=watch, daemon=True)
+    watcher.start()
+    with tempfile.TemporaryDirectory() as tmp:
+        run_processes(scenario, settings, Path(tmp) / "run", quiet=True)
+    done.set()
+    watcher.join()
+    return {name: (cpu_s, vol, invol) for name, cpu_s, vol, invol in last.values()}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=20.0, help="sim seconds")
+    args = parser.parse_args()
+    periods = round(args.duration * 100)
+    runs = {"lockstep": fly(False, args.duration), "real time": fly(True, args.duration)}
+    print(f"attitude-sine on the rigid body, {args.duration:g} s ({periods} periods at "
+          f"100 Hz); CPU-s (start-up included), main thread's voluntary / involuntary "
+          f"switches")
+    for mode, run in runs.items():
+        print(f"  {mode:9s} " + "; ".join(f"{name} {cpu:.2f} s, {vol} / {invol}"
+                                          for name, (cpu, vol, invol) in sorted(run.items())))
+    for name in sorted(runs["lockstep"]):
+        extra_ms = 1e3 * (runs["real time"][name][0] - runs["lockstep"][name][0]) / periods
+        print(f"  {name}: {extra_ms:.2f} ms more CPU per real-time period")
+
+
+if __name__ == "__main__":
+    main()

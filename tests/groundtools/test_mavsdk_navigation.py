@@ -117,6 +117,12 @@ async def _mission_session(port: int) -> dict:
         await mission.start_mission()  # resume
         await until(mission.is_mission_finished, 60.0, "the mission to finish")
         out["finished_at"] = watch.ned.copy()
+        # is_mission_finished is answered from MAVSDK's state at once; the progress that
+        # came with the last MISSION_ITEM_REACHED reaches us later, through its user
+        # callback queue and the gRPC stream. Under load (CI, six at a time) it came after
+        # the answer: the progress read right away ended at 3 of 4.
+        await until(lambda: watch.progress[-1][0] == watch.progress[-1][1], 10.0,
+                    "the progress stream to say the last item")
         out["progress"] = list(watch.progress)
         await action.return_to_launch()
         await until(lambda: not watch.armed, 90.0, "landed and disarmed at home")

@@ -151,7 +151,8 @@ def _answer_request(line: str, loaded: dict[str, bool], children: dict[int, int]
         rid = _id_of(line)
         answers.write(json.dumps({"id": rid, "rc": 2, "error": str(exc)}) + "\n")
         return
-    answers.flush()
+    for stream in (answers, sys.stdout, sys.stderr):  # nothing buffered is written twice
+        stream.flush()
     pid = os.fork()
     if pid == 0:
         _become(request, log, loaded[request["module"]], answers.fileno(), wake)

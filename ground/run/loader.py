@@ -124,9 +124,10 @@ class ProcessLoader:
 
     def __init__(self, modules: tuple[str, ...] = RUN_MODULES) -> None:
         self.modules = modules
+        self._env = dict(os.environ)  # the loader's, and its children's unless a start says
         self._proc = subprocess.Popen([sys.executable, "-m", "contracts.zygote", *modules],
                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                      stderr=subprocess.DEVNULL)
+                                      stderr=subprocess.DEVNULL, env=self._env)
         self._next_id = 0
         self._lock = threading.Lock()  # a check's jobs start and poll from their threads
         self._pending = b""
@@ -145,10 +146,10 @@ class ProcessLoader:
     def start(self, module: str, argv: list[str], log_path: Path,
               env: dict[str, str] | None = None, idle_s: float = 60.0,
               say: Callable[[str], None] | None = None) -> ForkedProcess:
-        """Fork ``python -m module argv`` with its output in ``log_path`` and ``env`` (only
-        what differs from this process's environment is sent). The first start waits
-        for the loader to load; ``idle_s`` without it using CPU ends the wait."""
-        changed = {k: v for k, v in (env or {}).items() if os.environ.get(k) != v}
+        """Fork ``python -m module argv`` with its output in ``log_path`` and ``env`` (what
+        differs from the environment the loader started with is sent). The first start
+        waits for the loader to load; ``idle_s`` without it using CPU ends the wait."""
+        changed = {k: v for k, v in (env or {}).items() if self._env.get(k) != v}
         with self._lock:
             self._next_id += 1
             rid = self._next_id

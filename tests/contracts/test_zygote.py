@@ -105,3 +105,21 @@ def test_a_module_the_loader_cannot_import_runs_fresh_and_fails_in_its_log(tmp_p
         assert "No module named no_such_module_here" in (tmp_path / "log").read_text()
     finally:
         loader.close()
+
+
+@pytest.mark.process
+def test_a_variable_set_after_the_loader_started_reaches_the_process(tmp_path, monkeypatch):
+    """A start sends what differs from the environment the loader started with: a
+    variable the command set since (in its own environment, then passed whole) counts."""
+    import json
+
+    loader = ProcessLoader(("sitl",))
+    try:
+        marks = tmp_path / "timeline.raw"
+        monkeypatch.setenv("IVFM_TIMELINE", str(marks))
+        helped = loader.start("sitl", ["--help"], tmp_path / "help.log", env=dict(os.environ))
+        assert helped.wait(timeout=30) == 0
+        assert [json.loads(line)["event"] for line in marks.read_text().splitlines()] == \
+            ["main"]
+    finally:
+        loader.close()

@@ -169,8 +169,8 @@ def pin_this_thread(cpu: int) -> str:
 
 
 def any_cpu() -> None:
-    """Every thread of this process back on every CPU (a warm process's next run starts
-    as a fresh one would)."""
+    """Every thread of this process back on every CPU, once its loop is done: a caller
+    that goes on (a test running the loop in process) is placed as before."""
     with contextlib.suppress(OSError):
         pin_to_cpus(frozenset(range(os.cpu_count() or 1)))
 

@@ -348,9 +348,9 @@ class Simulator(PacedProcess):
 
 
 def preload_compiled_code() -> None:
-    """Load the plant's compiled code (both fidelities) on a scratch plant: a warm process
-    started ahead of its run does it before the run (a first call loads from numba's
-    cache, about 0.2 s). Nothing outside the scratch plant changes."""
+    """Load the plant's compiled code (both fidelities) on a scratch plant: the process
+    loader (contracts/zygote.py) does it once for every simulator it forks (a first call
+    loads from numba's cache, about 0.2 s). Nothing outside the scratch plant changes."""
     from sitl.dynamics import FIDELITIES
 
     for fidelity in FIDELITIES:

@@ -106,8 +106,8 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
                   view: tuple[str, int] | None = None,
                   log_sensors: bool = False) -> dict[str, Any]:
     """Fly through the processes into ``out_dir`` (run.json, scenario copy, log, process
-    logs); returns metrics.json's content. ``quiet``: no progress on stderr; ``warm``:
-    runs of these warm processes (ground/run/processes.py) instead of new processes;
+    logs); returns metrics.json's content. ``quiet``: no progress on stderr; ``loader``:
+    the processes forked by this process loader (ground/run/loader.py), not started anew;
     ``started_s``: when the command started (time.monotonic), for the run's timeline;
     ``view``: (host, port) of a live view the logger serves; ``log_sensors``: the log
     keeps the simulator's sensor readings too (a ULog's sensor topics)."""

@@ -90,7 +90,7 @@ print(json.dumps({"said": said, **placed}))
 def test_lockstep_loops_take_the_handover_cpu_and_their_other_threads_keep_off_it():
     """--handover-cpu: the process's threads (Zenoh's, started later too) keep off the CPU,
     the loop's thread alone takes it; after the run every thread is back on every CPU
-    (a warm process's next run starts as a fresh one)."""
+    (a caller that goes on is placed as before)."""
     import json
 
     out = subprocess.run([sys.executable, "-c", HANDOVER], capture_output=True, text=True,

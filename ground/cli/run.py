@@ -88,8 +88,8 @@ def handle(args: argparse.Namespace) -> int:
     if args.inprocess:
         metrics = fly_inprocess(plan, args.out, figures=not args.no_figures)
     else:
-        # Started as soon as the input is checked: it loads the processes' imports and
-        # compiled code, once for all three, while the run folder is prepared.
+        # The loader the command line started first (ground/cli/main.py), loading the
+        # processes' imports and compiled code while this process loaded its own.
         loader = take_loader()
         try:
             if args.view is not None:

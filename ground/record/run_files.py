@@ -181,7 +181,7 @@ def _indexed_messages(file: Path, topic_prefixes: tuple[str, ...]
         return None
 
 
-def _message_offsets(f: BinaryIO, at: int, channel_id: int) -> np.ndarray:
+def _message_offsets(f: BinaryIO, at: int, channel_id: int) -> list[int]:
     """The offsets in its chunk of one channel's messages, from its Message Index record
     at ``at`` in the file; ValueError if the record is not that."""
     f.seek(at)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import signal
+import time
 
 import pytest
 
@@ -86,8 +87,10 @@ def test_a_forked_process_has_its_environment_and_the_terminals_ctrl_c(tmp_path)
         assert events == ["main"]  # --help exits in argparse, before the exit mark
         held = loader.start("sitl", ["--hold", "--port", "0", "--zenoh-listen",
                                      "tcp/127.0.0.1:0"], tmp_path / "held.log")
+        deadline = time.monotonic() + 60.0
         while "listening on tcp" not in (tmp_path / "held.log").read_text():
             assert held.poll(timeout_s=0.05) is None, (tmp_path / "held.log").read_text()
+            assert time.monotonic() < deadline, "the held simulator never listened"
         os.kill(loader.pid, signal.SIGINT)
         held.send_signal(signal.SIGINT)
         assert held.wait(timeout=30) in (0, 130)

@@ -14,7 +14,6 @@ from typing import Any
 import numpy as np
 
 from contracts.atomic_file import write_atomic
-from contracts.frames import wrap_pi_array
 from contracts.mavlink import AUTOPILOT_COMPID
 from contracts.telemetry import AUTOPILOT, SITL, mavlink_key, vehicle_key
 from contracts.vectors import MEAS_Z
@@ -37,13 +36,6 @@ from ground.scenario.expectations import COMPLETED, evaluate
 from ground.scenario.scenario_file import Scenario, load_scenario
 
 PAGE_FILE = "report.html"
-
-
-def warm_up() -> None:
-    """Load, while a run flies, what its report would load after the flight: the first
-    call into compiled code in a process loads numba's type registries as well (0.3-0.5
-    s, most of a lockstep report's cold start). ``ivfm run`` calls it in a thread."""
-    wrap_pi_array(np.zeros(2))  # the angle errors' wrap (metrics.axis_error)
 
 
 def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunRecord]:

@@ -242,10 +242,9 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
             ground_station = GroundStation(scenario.ground_station, gcs_port, v,
                                            (0.0, 0.0, -ref.altitude_m), ref.yaw_rad)
             ground_station.start()
-        # The report's imports (matplotlib, the metrics) and its compiled code load while
-        # the vehicle flies.
-        threading.Thread(target=lambda: importlib.import_module(
-            "ground.report.run_report").warm_up(), daemon=True).start()
+        # The report's imports (matplotlib, the metrics) load while the vehicle flies.
+        threading.Thread(target=importlib.import_module, args=("ground.report.run_report",),
+                         daemon=True).start()
         _follow(session, procs, v, scenario.duration_s, timeout_s, logs, quiet)
         if ground_station is not None and ground_station.error is not None:
             raise ProcessRunError(f"the ground station failed: {ground_station.error}")

@@ -67,6 +67,21 @@ def test_wrap_pi_leaves_angles_in_range_untouched_bit_for_bit() -> None:
         np.sin(wrapped), np.sin(outside))
 
 
+def test_wrap_pi_array_is_wrap_pi_bit_for_bit() -> None:
+    """The array wrap (numpy, for the reports) against the compiled scalar one the
+    controller uses: every finite angle, the edges and their neighbours, several turns."""
+    rng = np.random.default_rng(1)
+    edges = np.array([math.pi, -math.pi, 2 * math.pi, -2 * math.pi, 3 * math.pi, 0.0, -0.0])
+    angles = np.concatenate([
+        rng.uniform(-1e3, 1e3, 20_000), rng.uniform(-1e12, 1e12, 1000), edges,
+        np.nextafter(edges, np.inf), np.nextafter(edges, -np.inf), [np.nan]]).reshape(-1, 2)
+    wrapped = wrap_pi_array(angles)
+    assert wrapped.shape == angles.shape
+    expected = np.array([wrap_pi(a) for a in angles.ravel()]).reshape(angles.shape)
+    assert expected.tobytes() == wrapped.tobytes()
+    assert np.isnan(wrap_pi_array(np.array([np.inf, -np.inf]))).all()
+
+
 # -- the sqrt controller ---------------------------------------------------------------
 def test_sqrt_controller_is_linear_near_zero_and_a_braking_speed_beyond() -> None:
     gain, accel = 1.5, 2.0

@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -73,17 +74,18 @@ def test_the_page_renders_in_headless_chromium(tmp_path):
     assert (image[800:].std(axis=(0, 1)) > 0.05).all()  # figures below, not a blank page
 
 
-def test_the_reports_warm_up_loads_the_compiled_code_its_metrics_call():
-    """``ivfm run`` warms the report while the vehicle flies: the angle errors' wrap is
-    then loaded for the very array type the metrics give it, so the report after the
-    flight does not load it (nor numba's registries with it)."""
-    from contracts.frames import wrap_pi_array
-    from ground.report.metrics import axis_error
-    from ground.report.run_report import warm_up
-
-    warm_up()
-    loaded = set(wrap_pi_array.signatures)
-    record = type("Record", (), {"reference": np.zeros((5, 20)), "kick": np.zeros((5, 2)),
-                                 "true_state": np.zeros((5, 20))})()
-    axis_error(record, "phi")
-    assert loaded and set(wrap_pi_array.signatures) == loaded
+@pytest.mark.process
+def test_a_report_without_figures_loads_no_compiled_code(tmp_path):
+    """The report after every ``ivfm run`` and ``ivfm check`` run: numba's first call in a
+    process loads its registries (0.3-0.5 s, most of what the report cost), so its numbers
+    come from numpy alone. A fresh interpreter, as the command is after a flight."""
+    folder = tmp_path / "short-run"
+    shutil.copytree(SHORT_RUN, folder)
+    code = ("import sys; from pathlib import Path; "
+            "from ground.report.run_report import report; "
+            f"report(Path({str(folder)!r}), figures=False); "
+            "print('numba.np.arraymath' in sys.modules)")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          check=True, cwd=Path(__file__).parents[2])
+    assert (folder / "metrics.json").exists()
+    assert done.stdout.strip() == "False"  # loaded with numba's registries

@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 from contracts import AUTOPILOT, timeline
 
 if TYPE_CHECKING:
+    from autopilot.commander.commander import Commander
     from autopilot.trajectories import Reference
     from contracts.airframe_file import AirframeSpec
 
@@ -174,38 +175,32 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 
 def preload() -> None:
-    """What a run imports, loaded once by the process loader (contracts/zygote.py)."""
-    import autopilot.commander.commander  # noqa: F401
-    import autopilot.control.factory  # noqa: F401
+    """What a run imports, and the compiled code of the default vehicle's steps (the
+    controller, the shaper, the sample's conversions, the estimator), loaded once by the
+    process loader (contracts/zygote.py): in each process of a run that code took about
+    0.1 s of its start, on the critical path. Another controller's code loads in its own
+    process, as before."""
     import autopilot.mavlink.server  # noqa: F401
     import autopilot.process.loop  # noqa: F401
-    import autopilot.trajectories  # noqa: F401
+    from autopilot.process.sim_link import SimLink
+    from autopilot.process.warm_up import load_compiled_code
+    from contracts.mavlink import STATE_SOURCES
+
+    args = build_parser().parse_args([])
+    vehicle = make_vehicle(args)
+    for source in STATE_SOURCES:  # each decodes its own messages
+        load_compiled_code(vehicle, 1.0 / args.rate_hz, SimLink("127.0.0.1", 0, source))
 
 
-def run(args: argparse.Namespace) -> int:
+def make_vehicle(args: argparse.Namespace) -> Commander:
+    """The vehicle of the command line: airframe, parameters, controller, reference,
+    schedule and mission."""
     from autopilot.commander.commander import Commander
     from autopilot.control.factory import load_models, make_controller
-    from autopilot.mavlink.link import open_link
-    from autopilot.mavlink.server import MavlinkServer
-    from autopilot.mavlink.signing import SigningState, default_state_path
     from autopilot.parameters import airframe_parameters, validate_parameters
-    from autopilot.process.loop import Autopilot, AutopilotConfig
     from contracts.airframe import airframe_from_spec
     from contracts.perturbations import load_schedule
-    from contracts.telemetry import check_vehicle_id
 
-    timeline.mark(AUTOPILOT, "imports done")
-    if args.rt_cpus is not None:  # before Zenoh's threads start: they inherit it
-        pin_cpus(AUTOPILOT, args.rt_cpus)
-    elif args.handover_cpu is not None and args.lockstep:
-        place_for_handover(AUTOPILOT, args.handover_cpu)
-    config = AutopilotConfig(sim_host=args.sim[0], sim_port=args.sim[1], lockstep=args.lockstep,
-                             rate_hz=args.rate_hz, state_source=args.state_source,
-                             duration_s=args.duration, sysid=check_vehicle_id(args.sysid),
-                             rt_priority=args.rt_priority,
-                             zenoh=zenoh_options_from_args(args), home=args.home,
-                             perturbations=args.perturbations, airframe=args.airframe,
-                             handover_cpu=args.handover_cpu, spin_s=args.spin_us / 1e6)
     spec = args.airframe  # the airframe file, read once by the command line (spec_argument)
     airframe = airframe_from_spec(spec)
     # The airframe file's own defaults, then the command line's.
@@ -223,6 +218,37 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--start-mission needs --mission")
     if args.start_mission and args.arm_in_reference:
         raise ValueError("--start-mission and --arm-in-reference exclude each other")
+    vehicle = Commander(lambda p: make_controller(args.controller, airframe, period_s, models, p),
+                        period_s, parameters, reference,
+                        load_schedule(args.schedule) if args.schedule else (), args.flavour)
+    if args.mission is not None:
+        from autopilot.navigator.plan_file import read_plan
+
+        for mission_type, items in read_plan(args.mission).items():
+            vehicle.mission.replace(mission_type, items)
+    return vehicle
+
+
+def run(args: argparse.Namespace) -> int:
+    from autopilot.mavlink.link import open_link
+    from autopilot.mavlink.server import MavlinkServer
+    from autopilot.mavlink.signing import SigningState, default_state_path
+    from autopilot.process.loop import Autopilot, AutopilotConfig
+    from contracts.telemetry import check_vehicle_id
+
+    timeline.mark(AUTOPILOT, "imports done")
+    if args.rt_cpus is not None:  # before Zenoh's threads start: they inherit it
+        pin_cpus(AUTOPILOT, args.rt_cpus)
+    elif args.handover_cpu is not None and args.lockstep:
+        place_for_handover(AUTOPILOT, args.handover_cpu)
+    config = AutopilotConfig(sim_host=args.sim[0], sim_port=args.sim[1], lockstep=args.lockstep,
+                             rate_hz=args.rate_hz, state_source=args.state_source,
+                             duration_s=args.duration, sysid=check_vehicle_id(args.sysid),
+                             rt_priority=args.rt_priority,
+                             zenoh=zenoh_options_from_args(args), home=args.home,
+                             perturbations=args.perturbations, airframe=args.airframe,
+                             handover_cpu=args.handover_cpu, spin_s=args.spin_us / 1e6)
+    vehicle = make_vehicle(args)
     key = None
     if args.signing_key is not None:
         try:
@@ -231,14 +257,6 @@ def run(args: argparse.Namespace) -> int:
             key = b""
         if len(key) != 32:
             raise ValueError("--signing-key must be 64 hex digits (32 bytes)")
-    vehicle = Commander(lambda p: make_controller(args.controller, airframe, period_s, models, p),
-                      period_s, parameters, reference,
-                      load_schedule(args.schedule) if args.schedule else (), args.flavour)
-    if args.mission is not None:
-        from autopilot.navigator.plan_file import read_plan
-
-        for mission_type, items in read_plan(args.mission).items():
-            vehicle.mission.replace(mission_type, items)
     links = [open_link("gcs", ("0.0.0.0", args.gcs_bind), args.gcs, key, 0, config.sysid,
                        args.flavour)]
     if args.api is not None or args.api_bind:

@@ -274,11 +274,19 @@ def test_ardupilot_attitude_thrust_half_holds_the_altitude():
 def test_paper_scenarios_are_unchanged(plant, scenario, expected):
     """Golden RMSEs (with the shipped model identified on the envelope-covering
     excitation): the paper's scenarios feed the reference directly, through no setpoint
-    shaping or angle wrapping, and must not move (docs/reproducing.md)."""
+    shaping or angle wrapping, and must not move (docs/reproducing.md).
+
+    To within what the machine's own arithmetic moves them: glibc picks its sin, cos and
+    exp by the CPU's features, and a last-bit difference there grows over a closed-loop
+    flight. The same code gave the rigid body's RMSEs 6e-8 to 6.3e-7 apart, relative, on
+    an AVX-512 Xeon and on the machine they were recorded on; on that Xeon, with glibc's
+    AVX2, FMA and AVX-512 routines turned off (GLIBC_TUNABLES=glibc.cpu.hwcaps=...), x
+    moved again, by 2e-7. Hence 1e-5: 16 times the widest spread seen; within one machine
+    the lockstep fingerprint (tests/lockstep_fingerprint.py) pins flights bit for bit."""
     record = run_inprocess(shipped_scenarios()[scenario], "ivfc", plant, PAPER, shipped_models())
     axes = compute_metrics(record, shipped_scenarios()[scenario], "paper")["axes"]
     for axis, rmse in expected.items():
-        assert axes[axis]["rmse"] == pytest.approx(rmse, rel=1e-9), axis
+        assert axes[axis]["rmse"] == pytest.approx(rmse, rel=1e-5), axis
 
 
 # -- bad setpoints ---------------------------------------------------------------------

@@ -26,9 +26,12 @@ loader answers on standard output, one JSON line each::
                                             it; cpu_s: its CPU time, user and system)
     {"id": 1, "rc": 2, "error": "..."}      a bad request: no child, nothing changed
 
-End of input: no more children; the loader exits once its children have. It ignores
-SIGINT (a Ctrl-C in the terminal is for the run's processes and the command); its
-children do not.
+End of input: no more children; the loader exits once its children have. The command
+whose input it was has ended by then: a child still running is a run left behind by a
+command that was killed or crashed, and is ended (SIGTERM, which each process takes as a
+stop: the logger closes its file; SIGKILL after ``STOP_GRACE_S``), so that nothing of a run
+outlives its command. The loader ignores SIGINT (a Ctrl-C in the terminal is for the
+run's processes and the command); its children do not.
 
 Forking is safe here because the loader runs no thread of its own: the idle worker
 threads of the BLAS libraries numpy and scipy load are stopped and restarted across a
@@ -46,11 +49,15 @@ import runpy
 import selectors
 import signal
 import sys
+import time
 import traceback
 from typing import Any, NoReturn
 
 # The modules a run's processes are started from, in the order a run starts them.
 RUN_MODULES = ("ground.cli", "sitl", "autopilot")
+# After the end of input, how long the children still running have to end on SIGTERM
+# before they are killed (within the 10 s the client waits for the loader to exit).
+STOP_GRACE_S = 5.0
 
 
 def parse_request(line: str, modules: frozenset[str]) -> dict[str, Any]:
@@ -121,8 +128,10 @@ def serve(modules: list[str]) -> int:
     selector.register(wake_r, selectors.EVENT_READ, "children")
     pending = b""
     reading = True
+    kill_at: float | None = None  # after the end of input: when what is left is killed
     while reading or children:
-        for key, _ in selector.select():
+        timeout = None if kill_at is None else max(0.0, kill_at - time.monotonic())
+        for key, _ in selector.select(timeout):
             if key.data == "children":
                 with contextlib.suppress(BlockingIOError):
                     os.read(wake_r, 4096)
@@ -132,6 +141,10 @@ def serve(modules: list[str]) -> int:
             if not chunk:
                 reading = False
                 selector.unregister(0)
+                _reap(children, answers)
+                if children:  # the command is gone (killed, crashed): so is its run
+                    _signal_all(children, signal.SIGTERM)
+                    kill_at = time.monotonic() + STOP_GRACE_S
                 continue
             *lines, pending = (pending + chunk).split(b"\n")
             for line in lines:
@@ -139,7 +152,16 @@ def serve(modules: list[str]) -> int:
                     _answer_request(line.decode(errors="replace"), loaded, children,
                                     answers, (wake_r, wake_w))
         _reap(children, answers)
+        if kill_at is not None and children and time.monotonic() >= kill_at:
+            _signal_all(children, signal.SIGKILL)
+            kill_at = None
     return 0
+
+
+def _signal_all(children: dict[int, int], sig: int) -> None:
+    for pid in children:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, sig)
 
 
 def _answer_request(line: str, loaded: dict[str, bool], children: dict[int, int],

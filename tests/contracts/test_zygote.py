@@ -126,3 +126,30 @@ def test_a_variable_set_after_the_loader_started_reaches_the_process(tmp_path, m
             ["main"]
     finally:
         loader.close()
+
+
+@pytest.mark.process
+def test_the_end_of_input_ends_what_is_still_running(tmp_path):
+    """The command is gone (killed, crashed) while a process of its run still runs: the
+    loader stops it (SIGTERM, a clean stop) and exits, instead of leaving it behind."""
+    loader = ProcessLoader(("sitl",))
+    held = loader.start("sitl", ["--hold", "--port", "0", "--zenoh-listen",
+                                 "tcp/127.0.0.1:0"], tmp_path / "held.log")
+    deadline = time.monotonic() + 60.0
+    while "listening on tcp" not in (tmp_path / "held.log").read_text():
+        assert held.poll(timeout_s=0.05) is None, (tmp_path / "held.log").read_text()
+        assert time.monotonic() < deadline, "the held simulator never listened"
+    start = time.monotonic()
+    loader.close()  # the end of its input, as when the command ends
+    assert time.monotonic() - start < 5.0  # not the client's 10 s wait and kill
+    assert loader.alive is False
+    assert not _exists(held.pid)
+    assert "stopped at t=" in (tmp_path / "held.log").read_text()  # its own clean stop
+
+
+def _exists(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True

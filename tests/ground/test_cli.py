@@ -37,6 +37,63 @@ def test_run_writes_metrics_and_figures(tmp_path: Path) -> None:
 
 
 @pytest.mark.process
+def test_a_run_whose_command_is_killed_leaves_no_process_behind(tmp_path: Path) -> None:
+    """SIGTERM to ``ivfm run`` (a CI job's timeout, a user's kill) mid-flight: its
+    logger, simulator and autopilot end too, the logger with its file finished, instead
+    of flying on and logging for good (they did, up to this test)."""
+    import os
+    import signal
+    import time
+
+    scenario = tmp_path / "long.toml"
+    shipped = Path(__file__).parents[2] / "ground" / "scenario" / "shipped"
+    scenario.write_text((shipped / "attitude-sine.toml").read_text().replace(
+        "duration_s = 20.0", "duration_s = 600.0"))
+    out = tmp_path / "run"
+    command = subprocess.Popen([sys.executable, "-m", "ground.cli", "run", str(scenario),
+                                "--out", str(out), "--no-figures"],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60.0
+        while "autopilot connected" not in _text(out / "sitl.log"):
+            assert command.poll() is None and time.monotonic() < deadline
+            time.sleep(0.05)
+        assert len(_writing_into(out)) == 3  # the logger, the simulator, the autopilot
+        command.send_signal(signal.SIGTERM)
+        command.wait(timeout=30)
+    finally:
+        if command.poll() is None:
+            command.kill()
+    deadline = time.monotonic() + 10.0
+    while _writing_into(out) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    left = _writing_into(out)
+    for pid in left:
+        os.kill(pid, signal.SIGKILL)
+    assert not left
+    assert list(out.glob("telemetry-*.mcap")) and not list(out.glob("*.active"))
+
+
+def _text(path: Path) -> str:
+    return path.read_text(errors="replace") if path.exists() else ""
+
+
+def _writing_into(folder: Path) -> list[int]:
+    """Processes whose standard output is a file in ``folder`` (a run's logs)."""
+    import os
+
+    pids = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                if os.readlink(f"/proc/{entry}/fd/1").startswith(f"{folder}/"):
+                    pids.append(int(entry))
+            except OSError:
+                continue
+    return pids
+
+
+@pytest.mark.process
 @pytest.mark.parametrize(
     ("args", "message"),
     [

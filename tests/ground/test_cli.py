@@ -47,8 +47,9 @@ def test_a_run_whose_command_is_killed_leaves_no_process_behind(tmp_path: Path) 
 
     scenario = tmp_path / "long.toml"
     shipped = Path(__file__).parents[2] / "ground" / "scenario" / "shipped"
-    scenario.write_text((shipped / "attitude-sine.toml").read_text().replace(
-        "duration_s = 20.0", "duration_s = 600.0"))
+    text = (shipped / "attitude-sine.toml").read_text()
+    assert "duration_s = 20.0" in text
+    scenario.write_text(text.replace("duration_s = 20.0", "duration_s = 600.0"))
     out = tmp_path / "run"
     command = subprocess.Popen([sys.executable, "-m", "ground.cli", "run", str(scenario),
                                 "--out", str(out), "--no-figures"],

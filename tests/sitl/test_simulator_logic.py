@@ -248,3 +248,53 @@ def test_lockstep_waits_for_the_answer_to_each_sample():
     assert waited_alone == [True]
     assert (sim.stats.samples_sent, sim.stats.commands_received) == (20, 20)
     assert sim.time_us == 200_000
+
+
+FIRST_SAMPLES = """
+import sys
+from numba.core.dispatcher import Dispatcher
+from contracts.airframe import PAPER, hover_rotor_speeds
+from contracts.frames import DEFAULT_HOME
+from contracts.mavlink import SIMULATOR_COMPID, SIMULATOR_SYSID, new_mavlink
+from contracts.perturbations import NO_SENSOR_EFFECTS
+from sitl.plant import Plant
+from sitl.samples import SampleSource
+from sitl.sensors import read_profile
+from sitl.server import preload_compiled_code
+
+
+def loaded():
+    return {(m, n): len(d.overloads) for m in list(sys.modules)
+            if m.split(".")[0] in ("sitl", "contracts")
+            for n, d in vars(sys.modules[m]).items() if isinstance(d, Dispatcher)}
+
+
+preload_compiled_code()
+before = loaded()
+plant = Plant(PAPER, "rigid-body", position_ned_m=(0.0, 0.0, -1.0),
+              rotor_rad_s=hover_rotor_speeds(PAPER), ground_contact=True)
+samples = SampleSource(read_profile("typical"), 250.0, 7, DEFAULT_HOME, plant.state())
+for k in range(3):
+    state = plant.state()
+    samples.frames(k * 4000, state, NO_SENSOR_EFFECTS,
+                   new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID))
+    plant.advance(0.004)
+    samples.observe(state, plant.state(), 0.004)
+after = loaded()
+print(sorted({name for key, name in after if after[(key, name)] != before.get((key, name), 0)}))
+"""
+
+
+@pytest.mark.process
+def test_the_preload_leaves_no_compiled_code_to_the_first_samples():
+    """What the process loader and each simulator load before the loop: a run's first
+    samples then load nothing from numba's cache. The sensors' code did load there,
+    20-45 ms of the first sample, which the autopilot's first step waited for. A fresh
+    interpreter: in this one, other tests may have loaded it all."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    done = subprocess.run([sys.executable, "-c", FIRST_SAMPLES], capture_output=True,
+                          text=True, check=True, cwd=Path(__file__).parents[2])
+    assert done.stdout.strip() == "[]"

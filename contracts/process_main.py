@@ -21,6 +21,30 @@ from typing import NoReturn
 from contracts import timeline
 
 PROFILE_ENV = "IVFM_PROFILE"  # a folder: the process runs under cProfile
+END_WITH_ENV = "IVFM_END_WITH"  # the pid of the command that started this process itself
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def end_with_command() -> None:
+    """A run's process that its command started itself (``Popen``: ``--cold``, campaigns)
+    rather than through the process loader: stopped (SIGTERM, its clean stop) when that
+    command ends, killed or not, as the loader stops the ones it forked. Linux's
+    parent-death signal; elsewhere, or without ``IVFM_END_WITH``, nothing."""
+    command = os.environ.get(END_WITH_ENV)
+    if not command or not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
+    if str(os.getppid()) != command:  # the command ended before the call
+        os.kill(os.getpid(), signal.SIGTERM)
+
+
+def ended_with_this_command(env: dict[str, str]) -> dict[str, str]:
+    """``env`` for a run's process this command starts itself (``end_with_command``)."""
+    return {**env, END_WITH_ENV: str(os.getpid())}
 
 
 def exit_process(code: int) -> NoReturn:
@@ -49,6 +73,7 @@ def run_main(process: str, build_parser: Callable[[], argparse.ArgumentParser],
 def start_process(process: str, main: Callable[..., int]) -> NoReturn:
     """``python -m <process>``: one run of ``main`` (under cProfile if asked); then the
     exit is marked and the process ends (``exit_process``)."""
+    end_with_command()
     profile_dir = os.environ.get(PROFILE_ENV)
     code = profiled(process, main, Path(profile_dir)) if profile_dir else main()
     timeline.mark(process, "exit")

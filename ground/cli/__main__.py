@@ -5,7 +5,7 @@ import os
 import sys
 from pathlib import Path
 
-from contracts.process_main import PROFILE_ENV, exit_process, profiled
+from contracts.process_main import PROFILE_ENV, end_with_command, exit_process, profiled
 from ground.cli.main import main
 
 
@@ -18,6 +18,8 @@ def preload() -> None:
 
 
 if __name__ == "__main__":
+    if sys.argv[1:3] == ["ground", "log"]:  # a run's logger, started by its command itself
+        end_with_command()
     if os.environ.get(PROFILE_ENV) and sys.argv[1:3] == ["ground", "log"]:  # a run's logger
         exit_process(profiled("logger", main, Path(os.environ[PROFILE_ENV])))
     exit_process(main(start_loader_first=True))

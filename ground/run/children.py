@@ -20,6 +20,7 @@ from typing import Any
 
 import zenoh
 
+from contracts.process_main import ended_with_this_command
 from contracts.telemetry import logger_key
 from ground.run.loader import ForkedProcess, ProcessLoader, ProcessRunError, StartingDeadline
 
@@ -121,7 +122,8 @@ class LoggerProcess:
         else:
             self._out = open(log_path, "w")  # noqa: SIM115 (closed in stop)
             self.proc = subprocess.Popen([sys.executable, "-m", "ground.cli", *argv],
-                                         stdout=self._out, stderr=subprocess.STDOUT, env=env)
+                                         stdout=self._out, stderr=subprocess.STDOUT,
+                                         env=ended_with_this_command(env or dict(os.environ)))
 
     def status(self, session: zenoh.Session) -> dict[str, Any] | None:
         for reply in session.get(logger_key(self.name, "status"), timeout=2.0):

@@ -32,6 +32,7 @@ import zenoh
 from autopilot.trajectories import REFERENCE_OPTIONS
 from contracts import timeline
 from contracts.frames import DEFAULT_HOME, Home
+from contracts.process_main import ended_with_this_command
 from contracts.telemetry import AUTOPILOT, SITL, vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.record import timeline as run_timeline
@@ -221,7 +222,8 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
                 continue
             out = open(logs[name], "w")  # noqa: SIM115 (closed below)
             outs.append(out)
-            procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, env=env)
+            procs[name] = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT,
+                                           env=ended_with_this_command(env))
             run_timeline.mark(out_dir, f"{name} started")
         status_keys = [vehicle_key(v, p, "status") for p in (SITL, AUTOPILOT)]
         logger.wait_until(session, status_keys, final=False, timeout_s=60.0,

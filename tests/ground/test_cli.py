@@ -37,10 +37,15 @@ def test_run_writes_metrics_and_figures(tmp_path: Path) -> None:
 
 
 @pytest.mark.process
-def test_a_run_whose_command_is_killed_leaves_no_process_behind(tmp_path: Path) -> None:
-    """SIGTERM to ``ivfm run`` (a CI job's timeout, a user's kill) mid-flight: its
-    logger, simulator and autopilot end too, the logger with its file finished, instead
-    of flying on and logging for good (they did, up to this test)."""
+@pytest.mark.parametrize("command", [["run"], ["check", "--cold"]],
+                         ids=["forked by the loader", "started by the command"])
+def test_a_run_whose_command_is_killed_leaves_no_process_behind(tmp_path: Path,
+                                                                 command: list[str]) -> None:
+    """SIGTERM to ``ivfm run`` or ``ivfm check`` (a CI job's timeout, a user's kill)
+    mid-flight: the run's logger, simulator and autopilot end too, the logger with its
+    file finished, instead of flying on and logging for good (they did, up to this
+    test). Forked processes are stopped by the process loader; those the command starts
+    itself (``--cold``) by the parent-death signal."""
     import os
     import signal
     import time
@@ -50,21 +55,21 @@ def test_a_run_whose_command_is_killed_leaves_no_process_behind(tmp_path: Path) 
     text = (shipped / "attitude-sine.toml").read_text()
     assert "duration_s = 20.0" in text
     scenario.write_text(text.replace("duration_s = 20.0", "duration_s = 600.0"))
-    out = tmp_path / "run"
-    command = subprocess.Popen([sys.executable, "-m", "ground.cli", "run", str(scenario),
-                                "--out", str(out), "--no-figures"],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    out = tmp_path / "out"
+    ivfm_run = subprocess.Popen([sys.executable, "-m", "ground.cli", *command, str(scenario),
+                                 "--out", str(out)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
         deadline = time.monotonic() + 60.0
-        while "autopilot connected" not in _text(out / "sitl.log"):
-            assert command.poll() is None and time.monotonic() < deadline
+        while not any("autopilot connected" in _text(log) for log in out.glob("**/sitl.log")):
+            assert ivfm_run.poll() is None and time.monotonic() < deadline
             time.sleep(0.05)
         assert len(_writing_into(out)) == 3  # the logger, the simulator, the autopilot
-        command.send_signal(signal.SIGTERM)
-        command.wait(timeout=30)
+        ivfm_run.send_signal(signal.SIGTERM)
+        ivfm_run.wait(timeout=30)
     finally:
-        if command.poll() is None:
-            command.kill()
+        if ivfm_run.poll() is None:
+            ivfm_run.kill()
     deadline = time.monotonic() + 10.0
     while _writing_into(out) and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -72,7 +77,7 @@ def test_a_run_whose_command_is_killed_leaves_no_process_behind(tmp_path: Path) 
     for pid in left:
         os.kill(pid, signal.SIGKILL)
     assert not left
-    assert list(out.glob("telemetry-*.mcap")) and not list(out.glob("*.active"))
+    assert list(out.glob("**/telemetry-*.mcap")) and not list(out.glob("**/*.active"))
 
 
 def _text(path: Path) -> str:

@@ -40,7 +40,7 @@ from contracts.mavlink import (  # noqa: E402
 )
 from contracts.modes import FLAVOURS  # noqa: E402
 from contracts.paced_loop import MAX_SPIN_S, SPIN_S  # noqa: E402
-from contracts.process_main import pin_cpus, place_for_handover, run_main, start_process  # noqa: E402
+from contracts.process_main import place_process, run_main, start_process  # noqa: E402
 from contracts.zenoh_link import (  # noqa: E402
     VEHICLE_CONNECT,
     VEHICLE_LISTEN,
@@ -237,10 +237,7 @@ def run(args: argparse.Namespace) -> int:
     from contracts.telemetry import check_vehicle_id
 
     timeline.mark(AUTOPILOT, "imports done")
-    if args.rt_cpus is not None:  # before Zenoh's threads start: they inherit it
-        pin_cpus(AUTOPILOT, args.rt_cpus)
-    elif args.handover_cpu is not None and args.lockstep:
-        place_for_handover(AUTOPILOT, args.handover_cpu)
+    place_process(AUTOPILOT, args)
     config = AutopilotConfig(sim_host=args.sim[0], sim_port=args.sim[1], lockstep=args.lockstep,
                              rate_hz=args.rate_hz, state_source=args.state_source,
                              duration_s=args.duration, sysid=check_vehicle_id(args.sysid),

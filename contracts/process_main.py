@@ -93,17 +93,13 @@ def profiled(process: str, main: Callable[..., int], folder: Path) -> int:
         profiler.dump_stats(folder / f"{process}.prof")
 
 
-def place_for_handover(process: str, cpu: int) -> None:
-    """``--handover-cpu`` in lockstep: the process's threads (Zenoh's) off the CPU its loop
-    will take, said on standard error."""
-    from contracts.realtime import keep_off_cpu
+def place_process(process: str, args: argparse.Namespace) -> None:
+    """Where a vehicle process's threads may run, set before Zenoh's threads start (they
+    inherit it) and said on standard error: ``--rt-cpus`` pins the process; ``--handover-cpu``
+    in lockstep keeps its threads off the CPU its loop will take; else nothing."""
+    from contracts.realtime import keep_off_cpu, pin_to_cpus
 
-    print(f"{process}: {keep_off_cpu(cpu)}", file=sys.stderr, flush=True)
-
-
-def pin_cpus(process: str, cpus: frozenset[int]) -> None:
-    """``--rt-cpus``: pin the process (before Zenoh's threads start: they inherit it) and
-    say so on standard error."""
-    from contracts.realtime import pin_to_cpus
-
-    print(f"{process}: {pin_to_cpus(cpus)}", file=sys.stderr, flush=True)
+    if args.rt_cpus is not None:
+        print(f"{process}: {pin_to_cpus(args.rt_cpus)}", file=sys.stderr, flush=True)
+    elif args.handover_cpu is not None and args.lockstep:
+        print(f"{process}: {keep_off_cpu(args.handover_cpu)}", file=sys.stderr, flush=True)

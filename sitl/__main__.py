@@ -27,7 +27,7 @@ from contracts.arguments import (  # noqa: E402
 from contracts.frames import DEFAULT_HOME, home_argument  # noqa: E402
 from contracts.mavlink import SIM_TCP_PORT  # noqa: E402
 from contracts.perturbations import load_schedule  # noqa: E402
-from contracts.process_main import pin_cpus, place_for_handover, run_main, start_process  # noqa: E402
+from contracts.process_main import place_process, run_main, start_process  # noqa: E402
 from contracts.zenoh_link import (  # noqa: E402
     VEHICLE_CONNECT,
     VEHICLE_LISTEN,
@@ -91,10 +91,7 @@ def run(args: argparse.Namespace) -> int:
     from sitl.server import Simulator, SimulatorConfig
 
     timeline.mark(SITL, "imports done")
-    if args.rt_cpus is not None:  # before Zenoh's threads start: they inherit it
-        pin_cpus(SITL, args.rt_cpus)
-    elif args.handover_cpu is not None and args.lockstep:
-        place_for_handover(SITL, args.handover_cpu)
+    place_process(SITL, args)
     config = SimulatorConfig(
         airframe=args.airframe, fidelity=args.plant, host=args.host,
         port=args.port, lockstep=args.lockstep, rate_hz=args.rate_hz,

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import signal
 import time
+from pathlib import Path
 
 import pytest
 
@@ -85,12 +86,7 @@ def test_a_forked_process_has_its_environment_and_the_terminals_ctrl_c(tmp_path)
         assert helped.wait(timeout=30) == 0
         events = [json.loads(line)["event"] for line in marks.read_text().splitlines()]
         assert events == ["main"]  # --help exits in argparse, before the exit mark
-        held = loader.start("sitl", ["--hold", "--port", "0", "--zenoh-listen",
-                                     "tcp/127.0.0.1:0"], tmp_path / "held.log")
-        deadline = time.monotonic() + 60.0
-        while "listening on tcp" not in (tmp_path / "held.log").read_text():
-            assert held.poll(timeout_s=0.05) is None, (tmp_path / "held.log").read_text()
-            assert time.monotonic() < deadline, "the held simulator never listened"
+        held = _held_simulator(loader, tmp_path / "held.log")
         os.kill(loader.pid, signal.SIGINT)
         held.send_signal(signal.SIGINT)
         assert held.wait(timeout=30) in (0, 130)
@@ -133,12 +129,7 @@ def test_the_end_of_input_ends_what_is_still_running(tmp_path):
     """The command is gone (killed, crashed) while a process of its run still runs: the
     loader stops it (SIGTERM, a clean stop) and exits, instead of leaving it behind."""
     loader = ProcessLoader(("sitl",))
-    held = loader.start("sitl", ["--hold", "--port", "0", "--zenoh-listen",
-                                 "tcp/127.0.0.1:0"], tmp_path / "held.log")
-    deadline = time.monotonic() + 60.0
-    while "listening on tcp" not in (tmp_path / "held.log").read_text():
-        assert held.poll(timeout_s=0.05) is None, (tmp_path / "held.log").read_text()
-        assert time.monotonic() < deadline, "the held simulator never listened"
+    held = _held_simulator(loader, tmp_path / "held.log")
     start = time.monotonic()
     loader.close()  # the end of its input, as when the command ends
     assert time.monotonic() - start < 5.0  # not the client's 10 s wait and kill
@@ -153,3 +144,14 @@ def _exists(pid: int) -> bool:
     except ProcessLookupError:
         return False
     return True
+
+
+def _held_simulator(loader: ProcessLoader, log: Path):
+    """A simulator forked by ``loader`` that waits to be released, once it listens."""
+    held = loader.start("sitl", ["--hold", "--port", "0", "--zenoh-listen",
+                                 "tcp/127.0.0.1:0"], log)
+    deadline = time.monotonic() + 60.0
+    while "listening on tcp" not in log.read_text():
+        assert held.poll(timeout_s=0.05) is None, log.read_text()
+        assert time.monotonic() < deadline, "the held simulator never listened"
+    return held

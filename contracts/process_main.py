@@ -33,6 +33,10 @@ def end_with_command() -> None:
     command = os.environ.get(END_WITH_ENV)
     if not command or not sys.platform.startswith("linux"):
         return
+    if not (command.isascii() and command.isdecimal()) or int(command) < 1:
+        print(f"{END_WITH_ENV}={command!r} is not a process id: ignored", file=sys.stderr,
+              flush=True)
+        return
     import ctypes
     import signal
 

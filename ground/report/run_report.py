@@ -29,9 +29,7 @@ from ground.record.run_files import (
     write_json,
 )
 from ground.record.timeline import figures as timeline_figures
-from ground.report.figures import Marks, plot_run
 from ground.report.metrics import compute_metrics, planned_legs
-from ground.report.run_page import marks_of, path_figure, run_page
 from ground.scenario.expectations import COMPLETED, evaluate
 from ground.scenario.scenario_file import Scenario, load_scenario
 
@@ -74,15 +72,20 @@ def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunReco
     metrics.update(timeline_figures(run_dir))  # the loop's speed, the command's wall time
     write_json(run_dir / METRICS_FILE, metrics)
     if figures:
-        marks = marks_of(metrics, record.sim_time_us, record.time_s)
-        plot_run(record, scenario, run_dir, marks)
-        write_page(run_dir, metrics, run, record, scenario, marks)
+        write_figures(run_dir, metrics, run, record, scenario)
     return metrics, record
 
 
-def write_page(run_dir: Path, metrics: dict[str, Any], run: dict[str, Any], record: RunRecord,
-               scenario: Scenario, marks: Marks) -> Path:
-    """report.html: the run on one self-contained page (ground/report/run_page.py)."""
+def write_figures(run_dir: Path, metrics: dict[str, Any], run: dict[str, Any],
+                  record: RunRecord, scenario: Scenario) -> Path:
+    """The figures and report.html: the run on one self-contained page
+    (ground/report/run_page.py). Imported here, not with the metrics: matplotlib takes
+    0.4 s of CPU, which a run without figures (``ivfm check``'s, unless asked) never needs."""
+    from ground.report.figures import plot_run
+    from ground.report.run_page import marks_of, path_figure, run_page
+
+    marks = marks_of(metrics, record.sim_time_us, record.time_s)
+    plot_run(record, scenario, run_dir, marks)
     planned = None
     if metrics.get("path"):
         planned = np.array(planned_legs(scenario)[0])

@@ -21,7 +21,7 @@ from ground.record.run_files import RUN_FILE, SCENARIO_FILE, write_json
 from ground.report.metrics import compute_metrics
 from ground.run.inprocess import run_inprocess
 from ground.run.loader import ProcessLoader
-from ground.run.processes import RunSettings, run_processes
+from ground.run.processes import FIGURE_MODULES, REPORT_MODULES, RunSettings, run_processes
 from ground.run.progress import ProgressLine
 from ground.scenario.scenario_file import Scenario
 from sitl.sensors import read_profile
@@ -118,8 +118,9 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
                            state_source=plan.state_source, sensors=plan.sensors,
                            seed=plan.seed, any_airframe_model=plan.any_airframe_model,
                            home=plan.home, rt_cpus=plan.rt_cpus, log_sensors=log_sensors)
-    accounting = run_processes(scenario, settings, out_dir, quiet=quiet, loader=loader,
-                               started_s=started_s, view=view)
+    accounting = run_processes(
+        scenario, settings, out_dir, quiet=quiet, loader=loader, started_s=started_s, view=view,
+        report_modules=REPORT_MODULES + (FIGURE_MODULES if figures else ()))
     timing = accounting.pop("timing")
     shutil.copyfile(scenario.source, out_dir / SCENARIO_FILE)
     if scenario.plan is not None and scenario.plan.is_relative_to(scenario.source.parent):

@@ -104,6 +104,9 @@ class HandoverCpus:
 
 
 HANDOVER_CPUS = HandoverCpus()
+# What a run's report imports: the metrics; with figures, matplotlib too (FIGURE_MODULES).
+REPORT_MODULES = ("ground.report.run_report",)
+FIGURE_MODULES = ("ground.report.figures", "ground.report.run_page")
 
 
 def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
@@ -169,11 +172,13 @@ def clear_run_folder(out_dir: Path) -> None:
 def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
                   quiet: bool = False, loader: ProcessLoader | None = None,
                   started_s: float | None = None,
-                  view: tuple[str, int] | None = None) -> dict[str, Any]:
+                  view: tuple[str, int] | None = None,
+                  report_modules: tuple[str, ...] = REPORT_MODULES) -> dict[str, Any]:
     """Fly ``scenario`` through the processes; returns the telemetry accounting (records
     published and logged per key) and the autopilot's timing summary. ``quiet``: no
     progress on stderr; ``loader``: the processes forked by it, not started anew; ``view``:
-    (host, port) where the logger serves the flight live to Foxglove. Every
+    (host, port) where the logger serves the flight live to Foxglove; ``report_modules``:
+    what the command's report after the flight imports, imported while it flies. Every
     process marks its phases into the run folder's ``timeline.json``, from ``started_s``
     (when the command started, on time.monotonic; default: now)."""
     clear_run_folder(out_dir)
@@ -245,9 +250,8 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
             ground_station = GroundStation(scenario.ground_station, gcs_port, v,
                                            (0.0, 0.0, -ref.altitude_m), ref.yaw_rad)
             ground_station.start()
-        # The report's imports (matplotlib, the metrics) load while the vehicle flies.
-        threading.Thread(target=importlib.import_module, args=("ground.report.run_report",),
-                         daemon=True).start()
+        # The report's imports (the metrics; matplotlib for figures) load while it flies.
+        threading.Thread(target=_import_all, args=(report_modules,), daemon=True).start()
         _follow(session, procs, v, scenario.duration_s, timeout_s, logs, quiet)
         if ground_station is not None and ground_station.error is not None:
             raise ProcessRunError(f"the ground station failed: {ground_station.error}")
@@ -300,6 +304,11 @@ def telemetry_accounting(logger_status: dict[str, Any]) -> dict[str, Any]:
     return {"published": published, "logged": {k: logged.get(k, 0) for k in published},
             "lost": lost, "refused_by_logger": logger_status["rejected"], "timing": timing,
             "usage": usage}
+
+
+def _import_all(modules: tuple[str, ...]) -> None:
+    for module in modules:
+        importlib.import_module(module)
 
 
 def _say(text: str) -> None:

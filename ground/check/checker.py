@@ -167,7 +167,8 @@ class CheckOptions:
     tolerance: float = DEFAULT_TOLERANCE
     keep_passed: bool = False
     forked: bool = True  # every run's processes forked by one process loader
-    figures: bool = False  # each run folder's figures (ivfm report's)
+    figures: bool | str = False  # each run folder's figures (run_report.report's figures=)
+    figures_on_failure: bool = False  # a failed run's every figure and its page
     rt_cpus: frozenset[int] | None = None  # the vehicle processes' CPUs (None: any)
 
 
@@ -196,6 +197,10 @@ def check_one(scenario: Scenario, options: CheckOptions,
         if options.baseline is not None:
             result.outcomes.append(compare_baseline(
                 result.metrics, options.baseline.get(scenario.name), options.tolerance))
+        if options.figures_on_failure and options.figures is not True and not result.passed:
+            from ground.report.run_report import report  # loaded during the flight
+
+            report(run_dir, figures=True)  # from the log again: only for a failure
     if result.passed and not options.keep_passed:
         shutil.rmtree(run_dir, ignore_errors=True)
     return result

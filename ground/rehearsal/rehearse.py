@@ -36,6 +36,7 @@ from ground.record.timeline import TIMELINE_FILE
 from ground.rehearsal.outputs import PARAMS_FILE, write_outputs
 from ground.rehearsal.readiness import Flight, Profile, airframe_checks, parameter_checks
 from ground.rehearsal.results import FlightResult, Rehearsal
+from ground.report.run_report import TRACKING_ONLY
 from ground.run.flights import Overrides
 from ground.run.loader import ProcessLoader, take_loader
 from ground.run.reference import CHOICES, CYCLICTEST, ReferenceSleeper, tally
@@ -95,7 +96,10 @@ def rehearse(airframe: str, profile: Profile, out_dir: Path, model: Path | None 
     else:
         check_controllable(spec, spec.source)  # it hovers: the flights fly it
         model_path, rehearsal.model = resolve_model(spec, model, out_dir, say)
-        options = CheckOptions(out_dir / "flights", keep_passed=True, figures=True)
+        # Each flight's tracking figure (the page shows it); a failed flight's every figure
+        # and its page, for the diagnosis; the others' on request (ivfm report).
+        options = CheckOptions(out_dir / "flights", keep_passed=True, figures=TRACKING_ONLY,
+                               figures_on_failure=True)
         options.out_dir.mkdir(parents=True, exist_ok=True)
         loader = take_loader()
         try:

@@ -34,10 +34,14 @@ from ground.scenario.expectations import COMPLETED, evaluate
 from ground.scenario.scenario_file import Scenario, load_scenario
 
 PAGE_FILE = "report.html"
+# report(figures=TRACKING_ONLY): the tracking figure alone, no page (a rehearsal's page
+# shows each flight's tracking; the rest is ivfm report's, on request).
+TRACKING_ONLY = "tracking"
 
 
-def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunRecord]:
-    """metrics.json (and figures) of a run folder, from its log."""
+def report(run_dir: Path, figures: bool | str = True) -> tuple[dict[str, Any], RunRecord]:
+    """metrics.json (and figures: all with the page, none, or ``TRACKING_ONLY``) of a run
+    folder, from its log."""
     run_dir = Path(run_dir)
     try:
         run = json.loads((run_dir / RUN_FILE).read_text())
@@ -71,7 +75,13 @@ def report(run_dir: Path, figures: bool = True) -> tuple[dict[str, Any], RunReco
             metrics[extra] = run[extra]
     metrics.update(timeline_figures(run_dir))  # the loop's speed, the command's wall time
     write_json(run_dir / METRICS_FILE, metrics)
-    if figures:
+    if figures == TRACKING_ONLY:
+        from ground.report.figures import plot_tracking
+        from ground.report.run_page import marks_of
+
+        plot_tracking(record, scenario, run_dir, marks_of(metrics, record.sim_time_us,
+                                                          record.time_s))
+    elif figures:
         write_figures(run_dir, metrics, run, record, scenario)
     return metrics, record
 

@@ -100,7 +100,7 @@ def plan_flight(scenario: Scenario, overrides: Overrides | None = None) -> Fligh
                       o.home or scenario.home, o.rt_cpus)
 
 
-def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool = True,
+def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool | str = True,
                   quiet: bool = False, loader: ProcessLoader | None = None,
                   started_s: float | None = None,
                   view: tuple[str, int] | None = None,

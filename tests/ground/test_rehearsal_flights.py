@@ -73,7 +73,10 @@ def test_the_x500_rehearsal_is_a_go(x500_rehearsal):
     for name in flights:
         assert f"] {name} (" in done.stderr
     for f in flights.values():  # each run folder kept, to open with ivfm report
-        assert (Path(f["run_dir"]) / "metrics.json").is_file()
+        kept = {p.name for p in Path(f["run_dir"]).iterdir()}
+        # a passed flight's tracking figure (the page shows it), the rest on request
+        assert {"metrics.json", "tracking.png"} <= kept and "report.html" not in kept
+        assert not kept & {"sliding.png", "motors.png", "estimation.png"}
     # Beside the real-time flight, the reference sleeper over the autopilot's loop (12 s of
     # flight, 100 Hz): its figures next to the autopilot's misses, in every output. What it
     # counted depends on the machine's load, so only its shape is pinned.
@@ -145,3 +148,7 @@ def test_slow_motors_are_a_no_go_on_the_right_checks(tmp_path):
     assert flight["name"] == "weak-motor" and not flight["passed"]
     failed = {o["name"] for o in flight["outcomes"] if not o["passed"]}
     assert {"axes.x.max_abs <= 0.5", "axes.y.max_abs <= 0.5"} <= failed
+    # A failed flight's folder holds every figure and its page, for the diagnosis.
+    run_dir = Path(flight["run_dir"])
+    assert {"tracking.png", "sliding.png", "motors.png", "adaptive.png",
+            "report.html"} <= {p.name for p in run_dir.iterdir()}

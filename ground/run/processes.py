@@ -17,12 +17,14 @@ import fcntl
 import importlib
 import json
 import os
+import select
 import shutil
 import subprocess
 import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -70,18 +72,28 @@ class HandoverCpus:
     flight (``ivfm check -j N``, a campaign's workers, several ``ivfm run``): a run takes
     a CPU by locking its file in ``lock_dir`` (the last CPU first: CPU 0 serves most
     interrupts), and none when every CPU is taken (it runs unplaced, as before) or the
-    machine has one CPU. A lock goes with its process, however that ends."""
+    machine has one CPU. A lock goes with its process, however that ends.
 
-    def __init__(self, lock_dir: Path | None = None) -> None:
+    While it holds CPUs, this process (the command: its waits, its Zenoh session) keeps
+    its own threads off them, through ``keep_off`` (CPUs it may use), and goes back to
+    the CPUs it had once it holds none: its wake-ups on a hand-over CPU preempted the
+    loops there (docs/mavlink.md, "The lockstep cycle through the processes")."""
+
+    def __init__(self, lock_dir: Path | None = None,
+                 keep_off: Callable[[frozenset[int]], object] | None = None) -> None:
         self.lock_dir = Path(lock_dir or tempfile.gettempdir())
         self._held: dict[int, int] = {}  # cpu -> the locked file's descriptor
         self._lock = threading.Lock()
+        self._place = keep_off or _place_this_process
+        self._own: frozenset[int] = frozenset()  # this process's CPUs before it held any
 
     def take(self) -> int | None:
-        cpus = sorted(os.sched_getaffinity(0), reverse=True)
-        if len(cpus) < 2:
-            return None
         with self._lock:
+            if not self._held:
+                self._own = frozenset(os.sched_getaffinity(0))
+            cpus = sorted(self._own, reverse=True)
+            if len(cpus) < 2:
+                return None
             for cpu in cpus:
                 if cpu in self._held:
                     continue
@@ -93,17 +105,34 @@ class HandoverCpus:
                     os.close(fd)
                     continue
                 self._held[cpu] = fd
+                self._keep_off_held()
                 return cpu
         return None
 
     def give(self, cpu: int | None) -> None:
         with self._lock:
             fd = self._held.pop(cpu, None) if cpu is not None else None
-        if fd is not None:
-            os.close(fd)  # and its lock
+            if fd is not None:
+                os.close(fd)  # and its lock
+                self._keep_off_held()
+
+    def _keep_off_held(self) -> None:
+        """This process on its own CPUs but those it holds (all of them when it holds
+        every one: the command then waits beside its runs, as before)."""
+        with contextlib.suppress(OSError):
+            self._place(self._own - set(self._held) or self._own)
+
+
+def _place_this_process(cpus: frozenset[int]) -> None:
+    from contracts.realtime import pin_to_cpus
+
+    pin_to_cpus(cpus)
 
 
 HANDOVER_CPUS = HandoverCpus()
+# How long the wait for a run's processes sleeps at most between its checks (its deadline,
+# a failed autopilot); a process's end wakes it at once.
+FOLLOW_WAIT_S = 0.25
 # What a run's report imports: the metrics; with figures, matplotlib too (FIGURE_MODULES).
 REPORT_MODULES = ("ground.report.run_report",)
 FIGURE_MODULES = ("ground.report.figures", "ground.report.run_page")
@@ -340,13 +369,32 @@ def _follow(session: zenoh.Session, procs: dict[str, subprocess.Popen | ForkedPr
                                       f"log:\n{tail(logs['autopilot'])}")
             if procs[AUTOPILOT].poll() not in (None, 0):
                 return
-            # Up to 10 ms for one of them: a forked process's end wakes this at once.
-            with contextlib.suppress(subprocess.TimeoutExpired):
-                running[0].wait(timeout=0.01)
+            _wait_for_end(running[0], FOLLOW_WAIT_S)
     finally:
         if sub is not None:
             sub.undeclare()
         line.done()
+
+
+def _wait_for_end(proc: subprocess.Popen | ForkedProcess, timeout_s: float) -> None:
+    """Up to ``timeout_s`` for ``proc`` to end, woken by its end at once: a forked process's
+    by the loader's answer, a started one's by its pidfd (``Popen.wait`` with a timeout
+    polls, waking up to 500 times a second)."""
+    if isinstance(proc, ForkedProcess):
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=timeout_s)
+        return
+    try:
+        fd = os.pidfd_open(proc.pid)
+    except (OSError, AttributeError):  # gone already, or no pidfd here: a short wait
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            proc.wait(timeout=min(timeout_s, 0.01))
+        return
+    try:
+        select.select([fd], [], [], timeout_s)
+    finally:
+        os.close(fd)
+    proc.poll()
 
 
 def fly(scenario: Scenario, settings: RunSettings, out_dir: Path,

@@ -4,6 +4,10 @@ Zenoh, metrics from the MCAP log (lockstep and real time)."""
 from __future__ import annotations
 
 import dataclasses
+import os
+import re
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -66,6 +70,36 @@ def test_hil_state_source_flies_the_scenario(tmp_path):
     assert metrics["axes"]["x"]["rmse"] < 0.05 and metrics["axes"]["y"]["rmse"] < 0.05
 
 
+def test_the_command_keeps_its_threads_off_its_lockstep_runs_handover_cpu(tmp_path):
+    """The command's own threads (here this test's, one of them sampling) leave the CPU
+    its run's two loops hand over on while the run flies, and come back after: a wake-up
+    of the command there preempted a loop. A run left unplaced (every CPU taken by other
+    runs) moves nothing."""
+    every = frozenset(os.sched_getaffinity(0))
+    seen: set[frozenset[int]] = set()
+    done = threading.Event()
+
+    def sample() -> None:  # there before the run: placed with the command's other threads
+        while not done.is_set():
+            seen.add(frozenset(os.sched_getaffinity(0)))
+            time.sleep(0.002)
+
+    sampler = threading.Thread(target=sample)
+    sampler.start()
+    try:
+        fly(dataclasses.replace(scenario_by_name("attitude-hold"), duration_s=3.0), IVFC,
+            tmp_path)
+    finally:
+        done.set()
+        sampler.join()
+    assert frozenset(os.sched_getaffinity(0)) == every  # back where it was
+    said = re.search(r"threads kept off CPU (\d+)", (tmp_path / "sitl.log").read_text())
+    if said is None:  # unplaced
+        assert seen == {every}
+    else:
+        assert seen == {every, every - {int(said[1])}}
+
+
 @pytest.mark.alone  # the loop's period, and nothing lost
 def test_real_time_run_reports_loop_timing(tmp_path):
     scenario = dataclasses.replace(scenario_by_name("attitude-sine"), duration_s=4.0)
@@ -98,14 +132,26 @@ def test_lockstep_runs_in_flight_share_out_the_cpus_for_their_hand_overs(monkeyp
     from ground.run.processes import HandoverCpus
 
     monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1})
-    here, other = HandoverCpus(tmp_path), HandoverCpus(tmp_path)
+    placed_here, placed_other = [], []  # where each process keeps its own threads
+    here = HandoverCpus(tmp_path, keep_off=placed_here.append)
+    other = HandoverCpus(tmp_path, keep_off=placed_other.append)
     first, second = here.take(), other.take()
     assert (first, second) == (1, 0)
+    assert (placed_here, placed_other) == ([{0}], [{1}])  # each off its runs' CPU
     assert here.take() is None  # both taken: unplaced
+    assert placed_here == [{0}]
     here.give(first)
+    assert placed_here == [{0}, {0, 1}]  # back on every CPU it had
     assert here.take() == 1  # the one given back
     here.give(1)
     other.give(0)
+    assert placed_other == [{1}, {0, 1}]
+    both = HandoverCpus(tmp_path, keep_off=placed_here.append)
+    assert (both.take(), both.take()) == (1, 0)  # ivfm check -j 2: one process, two runs
+    assert placed_here[-2:] == [{0}, {0, 1}]  # off neither when it holds every CPU
+    both.give(1)
+    assert placed_here[-1] == {1}
+    both.give(0)
     holder = subprocess.Popen(  # another process holds CPU 1's lock
         [sys.executable, "-c", "import fcntl, os, sys, time; "
          f"fd = os.open({str(tmp_path / 'ivfm-handover-cpu1.lock')!r}, "

@@ -26,6 +26,9 @@ from contracts.telemetry import DEFAULT_GROUND_ENDPOINT
 
 MODES = ("peer", "client", "router")
 DEFAULT_BATCH_S = 0.02  # the live view's lag in real time, at most (and one step)
+# In lockstep nothing waits on a record but the logger, and each put costs both sides
+# (docs/telemetry.md, Batches): five times fewer puts, and at 20x a batch a 5 ms lag.
+LOCKSTEP_BATCH_S = 0.1
 MAX_BATCH_S = 1.0
 _ENDPOINT = re.compile(r"^(tcp|udp|tls|quic|ws)/(\[[0-9a-fA-F:]+\]|[A-Za-z0-9.\-]+):\d{1,5}$")
 
@@ -136,11 +139,11 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, listen: list[str],
     add_security_arguments(g, identity)
     if vehicle:
         g.add_argument("--telemetry-batch-ms", type=number(0.0, 1e3 * MAX_BATCH_S, "ms"),
-                       default=1e3 * DEFAULT_BATCH_S,
                        metavar="MS",
                        help="send the records of this much sim time in one put (default "
-                            f"{1e3 * DEFAULT_BATCH_S:g}; 0: each record on its own; in "
-                            "real time, the most a live view lags)")
+                            f"{1e3 * DEFAULT_BATCH_S:g} in real time, "
+                            f"{1e3 * LOCKSTEP_BATCH_S:g} in lockstep; 0: each record on its "
+                            "own; in real time, the most a live view lags)")
         g.add_argument("--zenoh-commander", action="append", metavar="NAME",
                        help="with --zenoh-tls: a certificate name that may send requests "
                             "(perturbations, start); repeatable; default "
@@ -179,7 +182,10 @@ def zenoh_options_from_args(args: argparse.Namespace) -> ZenohOptions:
     commanders = None
     if hasattr(args, "zenoh_commander"):
         commanders = tuple(args.zenoh_commander or DEFAULT_COMMANDERS)
-    batch_ms = getattr(args, "telemetry_batch_ms", 1e3 * DEFAULT_BATCH_S)
+    batch_ms = getattr(args, "telemetry_batch_ms", None)
+    if batch_ms is None:
+        batch_ms = 1e3 * (LOCKSTEP_BATCH_S if getattr(args, "lockstep", False)
+                          else DEFAULT_BATCH_S)
     return ZenohOptions(args.zenoh_mode, listen,
                         pick(args.zenoh_connect, args._zenoh_connect_default),
                         enabled=not args.no_zenoh, tls=tls, commanders=commanders,

@@ -209,3 +209,22 @@ def test_close_sends_what_waits_and_a_zero_span_sends_each_record_alone():
         finally:
             ear.close()
             node.close()
+
+
+def test_a_vehicle_batches_a_span_of_20_ms_in_real_time_and_100_ms_in_lockstep():
+    """In lockstep nothing waits on a record but the logger, and each put costs both
+    sides: five times fewer of them. A span given on the command line holds in both."""
+    import autopilot.__main__ as autopilot_main
+    import sitl.__main__ as sitl_main
+    from contracts.zenoh_link import zenoh_options_from_args
+
+    for module in (sitl_main, autopilot_main):
+        parse = module.build_parser().parse_args
+        assert zenoh_options_from_args(parse([])).batch_s == 0.1  # lockstep by default
+        assert zenoh_options_from_args(parse(["--lockstep"])).batch_s == 0.1
+        assert zenoh_options_from_args(parse(["--realtime"])).batch_s == 0.02
+        for mode in ("--lockstep", "--realtime"):
+            given = parse([mode, "--telemetry-batch-ms", "40"])
+            assert zenoh_options_from_args(given).batch_s == 0.04
+            assert zenoh_options_from_args(
+                parse([mode, "--telemetry-batch-ms", "0"])).batch_s == 0.0

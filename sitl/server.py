@@ -91,6 +91,7 @@ class SimulatorConfig:
 
 
 CATCH_UP_PERIODS = 2  # real time: behind by more, re-anchor instead of catching up
+HOLD_WAIT_S = 0.1  # held: the longest wait for a request (a stop is noticed within it)
 
 
 class Simulator(PacedProcess):
@@ -177,8 +178,10 @@ class Simulator(PacedProcess):
         return msg.time_usec
 
     # -- requests over Zenoh -------------------------------------------------------------
-    def _service_requests(self) -> None:
-        while (request := self.telemetry.next_request()) is not None:
+    def _service_requests(self, wait_s: float = 0.0) -> None:
+        """Answer the requests waiting; ``wait_s``: up to this long for a first one."""
+        while (request := self.telemetry.next_request(wait_s)) is not None:
+            wait_s = 0.0
             try:
                 self._answer_request(request)
             except Exception as exc:  # noqa: BLE001 (bad input, or a defect: refused)
@@ -218,9 +221,12 @@ class Simulator(PacedProcess):
         self.telemetry.status(self.time_us, self.stats, self.started)
 
     def _wait_for_start(self) -> None:
+        """Held until the start request, woken by it (or by any request) at once: a held
+        simulator beside another run's flight (ivfm check prepares the next run while one
+        flies) wakes ten times a second, not two hundred."""
         while not self.started and not self._stop:
             self._idle()
-            time.sleep(0.005)
+            self._service_requests(HOLD_WAIT_S)
 
     def _finished(self) -> bool:
         return self._stop or self.time_us / 1e6 >= self.config.duration_s

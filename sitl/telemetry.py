@@ -48,14 +48,14 @@ class SimulatorTelemetry:
         self._of_state = operator.attrgetter(*STATE_FROM_PLANT)
         self._effects_of: Perturbations | None = None
 
-    def next_request(self) -> Request | None:
+    def next_request(self, wait_s: float = 0.0) -> Request | None:
         """The oldest request not yet taken, or None (asked each sample: no exception
-        raised when there is none)."""
+        raised when there is none); ``wait_s``: up to this long for one to come."""
         requests = self.node.requests
-        if requests.empty():
+        if wait_s <= 0.0 and requests.empty():
             return None
         try:
-            return requests.get_nowait()
+            return requests.get(timeout=wait_s) if wait_s > 0.0 else requests.get_nowait()
         except queue.Empty:
             return None
 

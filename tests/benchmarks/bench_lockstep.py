@@ -3,6 +3,11 @@ run (the machine's speed moves up to 3x between days: the ratio is the figure).
 
     python tests/benchmarks/bench_lockstep.py             # 3 rounds of 60 s attitude-sine
     python tests/benchmarks/bench_lockstep.py --rounds 5 --duration 30
+    python tests/benchmarks/bench_lockstep.py --before /path/to/older/checkout
+
+``--before``: each round flies this checkout, then the older one (its own processes,
+from a Python that imports it), so that every pair shares the machine's minutes: this
+machine's speed swings by 2x within an hour, and only pairs tell a change from it.
 
 Each round flies the scenario in process, then through the logger, simulator and
 autopilot (lockstep, every record logged). The processes' loop is the autopilot's
@@ -18,13 +23,16 @@ import dataclasses
 import json
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import threading
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+# The checkout flown: this one, or (IVFM_BENCH_ROOT, set by --before) an older one.
+ROOT = Path(os.environ.get("IVFM_BENCH_ROOT") or Path(__file__).resolve().parents[2])
+sys.path.insert(0, str(ROOT))
 
 from autopilot.control.factory import load_models  # noqa: E402
 from contracts.airframe import PAPER  # noqa: E402
@@ -100,15 +108,50 @@ def round_trip(scenario, settings: RunSettings, models) -> dict:
             "lost": sum(accounting["lost"].values())}
 
 
+def round_before(checkout: Path, duration_s: float) -> dict:
+    """One round of the older checkout, flown by a Python that imports it."""
+    env = {**os.environ, "IVFM_BENCH_ROOT": str(checkout), "PYTHONPATH": str(checkout)}
+    done = subprocess.run([sys.executable, __file__, "--rounds", "1", "--duration",
+                           str(duration_s), "--json"], env=env, cwd=checkout,
+                          capture_output=True, text=True, check=True)
+    return json.loads(done.stdout.splitlines()[-1])
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--duration", type=float, default=60.0, help="sim seconds")
+    parser.add_argument("--before", type=Path, metavar="CHECKOUT",
+                        help="an older checkout, flown after this one in every round")
+    parser.add_argument("--json", action="store_true", help="one round's figures as JSON")
     args = parser.parse_args()
     scenario = dataclasses.replace(scenario_by_name("attitude-sine"),
                                    duration_s=args.duration)
     settings = RunSettings("ivfc", "paper", "paper")
     models = load_models(None)
+    if args.json:
+        print(json.dumps(round_trip(scenario, settings, models)))
+        return
+    if args.before is not None:
+        round_before(args.before, 2.0)  # its numba cache loaded (or compiled) first
+        round_trip(dataclasses.replace(scenario, duration_s=2.0), settings, models)
+        pairs = []
+        for k in range(args.rounds):
+            new, old = round_trip(scenario, settings, models), round_before(args.before,
+                                                                          args.duration)
+            pairs.append(new["processes_rtf"] / old["processes_rtf"])
+            cpu = " / ".join(
+                f"{1e6 * o['usage'][n]['cpu_s'] / o['steps']:.0f} -> "
+                f"{1e6 * w['usage'][n]['cpu_s'] / w['steps']:.0f}"
+                for n in PROCESSES for o, w in [(old, new)] if n in o["usage"]
+                and n in w["usage"])
+            print(f"round {k + 1}: before {old['processes_rtf']:.1f}x (in process "
+                  f"{old['inprocess_rtf']:.0f}x), now {new['processes_rtf']:.1f}x (in process "
+                  f"{new['inprocess_rtf']:.0f}x): {pairs[-1]:.2f}x; CPU per cycle "
+                  f"{'/'.join(PROCESSES)} {cpu} us", flush=True)
+        print(f"now against before, median of {len(pairs)} pairs: "
+              f"{statistics.median(pairs):.2f}x the lockstep speed")
+        return
     rows = []
     for k in range(args.rounds):
         row = round_trip(scenario, settings, models)

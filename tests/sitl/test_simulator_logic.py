@@ -298,3 +298,45 @@ def test_the_preload_leaves_no_compiled_code_to_the_first_samples():
     done = subprocess.run([sys.executable, "-c", FIRST_SAMPLES], capture_output=True,
                           text=True, check=True, cwd=Path(__file__).parents[2])
     assert done.stdout.strip() == "[]"
+
+
+def test_a_held_simulator_is_woken_by_its_start_request():
+    """Held (``--hold``), the simulator waits for its start request woken by the request
+    itself, a few idle turns in all; it polled every 5 ms, and a held simulator beside
+    another run's flight woke 200 times a second. Real Zenoh on loopback, the ground's
+    own client."""
+    import time
+
+    from contracts.zenoh_link import ZenohOptions
+    from ground.run.children import free_tcp_port
+    from ground.uplink.perturb import PerturbationClient
+
+    endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
+    sim, _lines = make_simulator(hold=True, zenoh=ZenohOptions(listen=[endpoint]))
+    turns: list[float] = []
+    idle = sim._idle
+
+    def counted_idle() -> None:
+        turns.append(time.monotonic())
+        idle()
+
+    sim._idle = counted_idle
+    answers: list[dict] = []
+
+    def release() -> None:
+        with PerturbationClient(ZenohOptions(connect=[endpoint], listen=[]),
+                                timeout_s=10.0) as client:
+            time.sleep(0.3)
+            answers.append(client.start(1))
+
+    releaser = threading.Thread(target=release)
+    releaser.start()
+    try:
+        sim._wait_for_start()
+    finally:
+        releaser.join()
+        sim.telemetry.node.close()
+    assert sim.started and answers and answers[0]["ok"]
+    waited_s = turns[-1] - turns[0]
+    assert waited_s > 0.2  # it did wait for the request
+    assert len(turns) <= 2 + waited_s / 0.1  # an idle turn per 0.1 s at most (was 5 ms)

@@ -221,9 +221,9 @@ class Simulator(PacedProcess):
         self.telemetry.status(self.time_us, self.stats, self.started)
 
     def _wait_for_start(self) -> None:
-        """Held until the start request, woken by it (or by any request) at once: a held
-        simulator beside another run's flight (ivfm check prepares the next run while one
-        flies) wakes ten times a second, not two hundred."""
+        """Held until the start request, woken by it (or by any request) at once, and
+        otherwise ten times a second for its status (it polled every 5 ms: 200 wake-ups
+        a second on a machine where other runs may be flying)."""
         while not self.started and not self._stop:
             self._idle()
             self._service_requests(HOLD_WAIT_S)

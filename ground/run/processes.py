@@ -35,6 +35,7 @@ from autopilot.trajectories import REFERENCE_OPTIONS
 from contracts import timeline
 from contracts.frames import DEFAULT_HOME, Home
 from contracts.process_main import ended_with_this_command
+from contracts.realtime import pin_to_cpus
 from contracts.telemetry import AUTOPILOT, SITL, vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.record import timeline as run_timeline
@@ -84,7 +85,7 @@ class HandoverCpus:
         self.lock_dir = Path(lock_dir or tempfile.gettempdir())
         self._held: dict[int, int] = {}  # cpu -> the locked file's descriptor
         self._lock = threading.Lock()
-        self._place = keep_off or _place_this_process
+        self._place = keep_off or pin_to_cpus
         self._own: frozenset[int] = frozenset()  # this process's CPUs before it held any
 
     def take(self) -> int | None:
@@ -121,12 +122,6 @@ class HandoverCpus:
         every one: the command then waits beside its runs, as before)."""
         with contextlib.suppress(OSError):
             self._place(self._own - set(self._held) or self._own)
-
-
-def _place_this_process(cpus: frozenset[int]) -> None:
-    from contracts.realtime import pin_to_cpus
-
-    pin_to_cpus(cpus)
 
 
 HANDOVER_CPUS = HandoverCpus()

@@ -141,10 +141,9 @@ def main() -> None:
                                                                           args.duration)
             pairs.append(new["processes_rtf"] / old["processes_rtf"])
             cpu = " / ".join(
-                f"{1e6 * o['usage'][n]['cpu_s'] / o['steps']:.0f} -> "
-                f"{1e6 * w['usage'][n]['cpu_s'] / w['steps']:.0f}"
-                for n in PROCESSES for o, w in [(old, new)] if n in o["usage"]
-                and n in w["usage"])
+                f"{1e6 * old['usage'][n]['cpu_s'] / old['steps']:.0f} -> "
+                f"{1e6 * new['usage'][n]['cpu_s'] / new['steps']:.0f}"
+                for n in PROCESSES if n in old["usage"] and n in new["usage"])
             print(f"round {k + 1}: before {old['processes_rtf']:.1f}x (in process "
                   f"{old['inprocess_rtf']:.0f}x), now {new['processes_rtf']:.1f}x (in process "
                   f"{new['inprocess_rtf']:.0f}x): {pairs[-1]:.2f}x; CPU per cycle "

@@ -9,7 +9,9 @@ from autopilot.control.factory import load_models
 from autopilot.models.ts_model import FuzzyModelSet
 from tests.mavlink_station import Station
 
-pytest_plugins = ["pytester"]  # for the tests of the ivfm pytest plugin (test_check.py)
+# pytester for the tests of the ivfm pytest plugin (test_check.py); the process tier's
+# scheduler (longest tests first, tests/scheduling.py)
+pytest_plugins = ["pytester", "tests.scheduling"]
 
 
 @pytest.fixture(scope="session")

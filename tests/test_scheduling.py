@@ -1,0 +1,45 @@
+"""The process tier's scheduler (tests/scheduling.py): longest tests first, one per worker."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from tests.scheduling import UNKNOWN_S, longest_first
+
+
+def test_longest_first_orders_by_expected_duration_and_keeps_ties_in_collection_order():
+    ids = ["a", "b", "c", "d"]
+    durations = {"a": 1.0, "b": 30.0, "d": 30.0}  # c is unknown: UNKNOWN_S
+    assert UNKNOWN_S < 30.0
+    assert longest_first(ids, durations) == [1, 3, 2, 0]
+
+
+@pytest.mark.process
+def test_each_worker_starts_on_one_of_the_longest_and_the_run_records_durations(pytester):
+    """Six tests collected shortest first; two workers. Stock xdist hands each a
+    contiguous slice, so a worker would start on t1 (the shortest). Longest first, the
+    workers start on t6 and t5."""
+    expected = {f"test_scheduled.py::test_t{k}": float(k) for k in range(1, 7)}
+    durations = pytester.path / "durations.json"
+    durations.write_text(json.dumps(expected))
+    pytester.makepyfile(test_scheduled="\n".join([
+        "import os, time",
+        "def _note(name):",
+        "    with open('starts.txt', 'a') as f:",
+        "        f.write(os.environ['PYTEST_XDIST_WORKER'] + ' ' + name + '\\n')",
+        "    time.sleep(0.1)",
+        *(f"def test_t{k}():\n    _note('t{k}')" for k in range(1, 7))]))
+    result = pytester.runpytest_subprocess(
+        "-p", "tests.scheduling", "-n", "2", "--longest-first", "--record-durations",
+        f"--durations-file={durations}")
+    result.assert_outcomes(passed=6)
+    first_by_worker: dict[str, str] = {}
+    for line in (pytester.path / "starts.txt").read_text().splitlines():
+        worker, name = line.split()
+        first_by_worker.setdefault(worker, name)
+    assert sorted(first_by_worker.values()) == ["t5", "t6"]
+    recorded = json.loads(durations.read_text())
+    assert set(recorded) == set(expected)
+    assert all(0.1 <= seconds < 1.0 for seconds in recorded.values()), recorded

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -17,10 +18,12 @@ def test_longest_first_orders_by_expected_duration_and_keeps_ties_in_collection_
 
 
 @pytest.mark.process
-def test_each_worker_starts_on_one_of_the_longest_and_the_run_records_durations(pytester):
+def test_each_worker_starts_on_one_of_the_longest_and_the_run_records_durations(
+        pytester, monkeypatch):
     """Six tests collected shortest first; two workers. Stock xdist hands each a
     contiguous slice, so a worker would start on t1 (the shortest). Longest first, the
     workers start on t6 and t5."""
+    monkeypatch.setenv("PYTHONPATH", str(Path(__file__).resolve().parents[1]))  # tests.*
     expected = {f"test_scheduled.py::test_t{k}": float(k) for k in range(1, 7)}
     durations = pytester.path / "durations.json"
     durations.write_text(json.dumps(expected))

@@ -43,10 +43,11 @@ from ground.scenario.scenario_file import scenario_by_name  # noqa: E402
 PROCESSES = ("sitl", "autopilot", "logger")
 
 
-def _thread_switches() -> dict[tuple[str, str], tuple[int, int]]:
-    """(process, thread name) -> (voluntary, involuntary) switches of this process's
-    children's threads (a process's threads of one name summed)."""
-    out: dict[tuple[str, str], tuple[int, int]] = {}
+def _thread_counters() -> dict[tuple[str, str], tuple[int, ...]]:
+    """(process, thread name) -> (voluntary switches, involuntary switches, ns on a CPU,
+    ns waiting for one) of this process's children's threads (the last two from
+    /proc's schedstat; a process's threads of one name summed)."""
+    out: dict[tuple[str, str], tuple[int, ...]] = {}
     me = os.getpid()
     children = Path(f"/proc/{me}/task/{me}/children").read_text().split()
     for pid in children:
@@ -57,18 +58,21 @@ def _thread_switches() -> dict[tuple[str, str], tuple[int, int]]:
             for task in Path(f"/proc/{pid}/task").iterdir():
                 status = dict(line.split(":\t", 1) for line in
                               (task / "status").read_text().splitlines() if ":\t" in line)
+                on_cpu_ns, waiting_ns, _ = (task / "schedstat").read_text().split()
                 key = (name, status["Name"].strip())
-                v, n = out.get(key, (0, 0))
-                out[key] = (v + int(status["voluntary_ctxt_switches"]),
-                            n + int(status["nonvoluntary_ctxt_switches"]))
-        except (OSError, KeyError, IndexError):
+                counts = (int(status["voluntary_ctxt_switches"]),
+                          int(status["nonvoluntary_ctxt_switches"]), int(on_cpu_ns),
+                          int(waiting_ns))
+                out[key] = tuple(a + b for a, b in zip(out.get(key, (0,) * 4), counts,
+                                                       strict=True))
+        except (OSError, KeyError, IndexError, ValueError):
             continue  # a process or thread that has just ended
     return out
 
 
 class SwitchWindow:
-    """Context switches per thread over a window of the flight (from 1.5 s to 3.5 s after
-    the start, inside the loop of a 30-60 s flight at up to ~50x)."""
+    """Context switches and CPU per thread over a window of the flight (from 1.5 s to
+    3.5 s after the start, inside the loop of a 30-60 s flight at up to ~50x)."""
 
     def __init__(self) -> None:
         self.before: dict = {}
@@ -78,18 +82,22 @@ class SwitchWindow:
 
     def _sample(self) -> None:
         time.sleep(1.5)
-        self.before, t0 = _thread_switches(), time.monotonic()
+        self.before, t0 = _thread_counters(), time.monotonic()
         time.sleep(2.0)
-        self.after, self.window_s = _thread_switches(), time.monotonic() - t0
+        self.after, self.window_s = _thread_counters(), time.monotonic() - t0
 
-    def per_cycle(self, rtf: float) -> list[tuple[str, str, float, float]]:
+    def per_cycle(self, rtf: float) -> list[tuple]:
+        """(process, thread, voluntary and involuntary switches, us on a CPU, us waiting
+        for one) per cycle, of the threads that switched or ran at all."""
         self.thread.join()
         cycles = self.window_s * rtf * 100
         rows = []
-        for key, (v1, n1) in self.after.items():
-            v0, n0 = self.before.get(key, (v1, n1))
-            if v1 - v0 + n1 - n0 > 0.05 * cycles:
-                rows.append((*key, (v1 - v0) / cycles, (n1 - n0) / cycles))
+        for key, after in self.after.items():
+            before = self.before.get(key, after)
+            v, n, on_ns, wait_ns = (a - b for a, b in zip(after, before, strict=True))
+            if v + n > 0.05 * cycles or on_ns > 1000 * cycles:
+                rows.append((*key, v / cycles, n / cycles, on_ns / cycles / 1e3,
+                             wait_ns / cycles / 1e3))
         return sorted(rows)
 
 
@@ -176,10 +184,12 @@ def main() -> None:
               f"{1e6 * u['user_s'] / best['steps']:5.0f}); switches per cycle "
               f"{u['voluntary_switches'] / best['steps']:.2f} voluntary, "
               f"{u['involuntary_switches'] / best['steps']:.2f} involuntary")
-    print("per thread, switches per cycle over 2 s of the median round's loop (voluntary, "
-          "involuntary; threads with more than 0.05):")
-    for process, thread, voluntary, involuntary in best["threads"]:
-        print(f"  {process:9s} {thread:16s} {voluntary:5.2f} {involuntary:5.2f}")
+    print("per thread over 2 s of the median round's loop, per cycle: switches (voluntary, "
+          "involuntary), us on a CPU, us runnable waiting for one (threads with more than "
+          "0.05 switches or 1 us):")
+    for process, thread, voluntary, involuntary, on_us, waiting_us in best["threads"]:
+        print(f"  {process:9s} {thread:16s} {voluntary:5.2f} {involuntary:5.2f} "
+              f"{on_us:6.1f} {waiting_us:6.1f}")
 
 
 if __name__ == "__main__":

@@ -59,7 +59,7 @@ def perturbed_model(model: Airframe, mass_scale: float, inertia_scale: float,
         rotor_inertia_kgm2=model.rotor_inertia_kgm2 * rotor_inertia_scale)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rotor_wrench(
     rotor_rad_s: np.ndarray, efficiency: np.ndarray, model: Airframe
 ) -> tuple[float, float, float, float, float]:
@@ -78,7 +78,7 @@ def rotor_wrench(
     return u_z, tau_x, tau_y, tau_z, h_r
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _rotor_derivative(
     rotor_rad_s: np.ndarray, command_rad_s: np.ndarray, model: Airframe, out: np.ndarray
 ) -> None:
@@ -100,7 +100,7 @@ def paper_derivative(
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _paper_derivative_into(
     state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray,
     out: np.ndarray,
@@ -151,7 +151,7 @@ def rigid_body_derivative(
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _rigid_body_derivative_into(
     state: np.ndarray, command_rad_s: np.ndarray, af: Airframe, dist: np.ndarray,
     out: np.ndarray,
@@ -190,7 +190,7 @@ def _rigid_body_derivative_into(
     _rotor_derivative(rotor, command_rad_s, af, out[RIGID_ROTOR:])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def derivative_into(
     fidelity: int, state: np.ndarray, command_rad_s: np.ndarray, af: Airframe,
     dist: np.ndarray, out: np.ndarray,
@@ -249,7 +249,7 @@ def rk4_integrate(
     return x
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rest_on_ground(fidelity: int, x: np.ndarray) -> None:
     """A vehicle pushed below z = 0 sits level on the ground, at rest, keeping its yaw.
 

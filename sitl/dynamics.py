@@ -15,6 +15,13 @@ Disturbance vector (both): external force NED [N] (0:3), external torque FRD [N 
 Both integrate a ``contracts.airframe.Airframe``: any quadrotor's geometry as its
 effectiveness matrix (docs/airframes.md), so the simulator flies whatever airframe file it
 is given.
+
+The derivative's helpers are inlined into the integrator (``inline="always"``): a call
+between compiled functions takes and releases a reference to every array it is given,
+the airframe's ten included, each an atomic operation (numba's NRT_incref and
+NRT_decref were 8 % of the simulator's CPU in a lockstep run). Inlined, the compiler
+drops those pairs: a 10 ms plant step (ten RK4 steps) went from 20 to 12 us, with the
+same numbers bit for bit.
 """
 
 from __future__ import annotations

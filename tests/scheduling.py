@@ -8,6 +8,11 @@ is the classic longest-processing-time-first rule: tests go out longest first, o
 time, to whichever worker has room, by the durations recorded in
 ``tests/process_durations.json`` (a test it does not know counts as ``UNKNOWN_S``).
 
+Tests that share a fixed resource (``ONE_AT_A_TIME``: MAVSDK's own examples, on UDP port
+14540) wait for each other on a lock wherever they run; sent out together they would
+hold two workers while one waits (23 s in one run). The scheduler sends one of them only
+when no other is queued or running, and the next longest test meanwhile.
+
 ``--record-durations`` writes what a run measured (setup, call and teardown of each test)
 into that file, keeping the entries of tests it did not run. Re-record after adding long
 tests: ``python -m pytest -m "process and not alone" -n 6 --longest-first
@@ -25,6 +30,14 @@ import pytest
 DURATIONS_FILE = Path(__file__).with_name("process_durations.json")
 UNKNOWN_S = 8.0  # about the median process test
 QUEUED_PER_WORKER = 2  # the running test and the next: a worker needs both to run the first
+# Test files whose tests take turns on one resource (the api_port_14540 fixture's lock,
+# tests/groundtools/conftest.py, which checks that its users are listed here).
+ONE_AT_A_TIME = ("tests/groundtools/test_mavsdk_examples.py::",
+                 "tests/groundtools/test_mavsdk_geofence_example.py::")
+
+
+def takes_turns(nodeid: str) -> bool:
+    return nodeid.startswith(ONE_AT_A_TIME)
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:
@@ -65,14 +78,28 @@ def _scheduler_class():
             up = [node for node in self.node2pending if not node.shutting_down]
             while self.pending:
                 short = [n for n in up if len(self.node2pending[n]) < QUEUED_PER_WORKER]
-                if not short:
-                    return
+                sent = False
                 for node in short:
-                    if self.pending:
+                    at = self._next_sendable()
+                    if at is not None:
+                        self.pending.insert(0, self.pending.pop(at))
                         self._send_tests(node, 1)
+                        sent = True
+                if not sent:
+                    return  # workers full, or what is left waits for its turn
             for node in up:
                 if len(self.node2pending[node]) < QUEUED_PER_WORKER:
                     node.shutdown()  # nothing left to send: run the last test now
+
+        def _next_sendable(self) -> int | None:
+            """Where in ``pending`` the longest test that may go now is: not one that
+            takes turns while another of them is queued or running."""
+            busy = any(takes_turns(self.collection[i])
+                       for queued in self.node2pending.values() for i in queued)
+            for at, i in enumerate(self.pending):
+                if not (busy and takes_turns(self.collection[i])):
+                    return at
+            return None
 
     return LongestFirstScheduling
 

@@ -46,3 +46,39 @@ def test_each_worker_starts_on_one_of_the_longest_and_the_run_records_durations(
     recorded = json.loads(durations.read_text())
     assert set(recorded) == set(expected)
     assert all(0.1 <= seconds < 1.0 for seconds in recorded.values()), recorded
+
+
+@pytest.mark.process
+def test_tests_that_take_turns_never_run_together_and_others_fill_in(pytester, monkeypatch):
+    """Two tests of a file in ONE_AT_A_TIME, the two longest, and four others; two
+    workers. Longest first alone would start the two together (one waiting on the
+    other's lock in a real run); here the second waits its turn while the others run."""
+    monkeypatch.setenv("PYTHONPATH", str(Path(__file__).resolve().parents[1]))
+    note = "\n".join([
+        "import os, time",
+        "def _note(name, seconds):",
+        "    start = time.monotonic()",
+        "    time.sleep(seconds)",
+        "    with open(os.path.join(os.environ['NOTES'], 'runs.txt'), 'a') as f:",
+        "        f.write(f'{name} {start} {time.monotonic()}\\n')"])
+    turns = pytester.mkdir("tests").joinpath("groundtools")
+    turns.mkdir()
+    (turns / "test_mavsdk_examples.py").write_text(note + "\n" + "\n".join(
+        f"def test_g{k}():\n    _note('g{k}', 0.6)" for k in (1, 2)) + "\n")
+    pytester.makepyfile(test_other=note + "\n" + "\n".join(
+        f"def test_o{k}():\n    _note('o{k}', 0.2)" for k in range(1, 5)) + "\n")
+    durations = pytester.path / "durations.json"
+    durations.write_text(json.dumps({
+        "tests/groundtools/test_mavsdk_examples.py::test_g1": 20.0,
+        "tests/groundtools/test_mavsdk_examples.py::test_g2": 19.0}))
+    monkeypatch.setenv("NOTES", str(pytester.path))
+    result = pytester.runpytest_subprocess(
+        "-p", "tests.scheduling", "-n", "2", "--longest-first",
+        f"--durations-file={durations}")
+    result.assert_outcomes(passed=6)
+    runs = {name: (float(start), float(end)) for name, start, end in (
+        line.split() for line in (pytester.path / "runs.txt").read_text().splitlines())}
+    (g1_start, g1_end), (g2_start, g2_end) = runs["g1"], runs["g2"]
+    assert g2_start >= g1_end or g1_start >= g2_end, runs
+    assert any(g1_start < start < g1_end for name, (start, _) in runs.items()
+               if name.startswith("o")), runs  # the other worker was not idle meanwhile

@@ -12,6 +12,7 @@ import pytest
 
 from contracts.mavlink import API_UDP_PORT
 from tests import dronekit_helpers
+from tests.scheduling import takes_turns
 
 
 @pytest.fixture
@@ -22,6 +23,16 @@ def ardupilot_dialect() -> Iterator[None]:
 
 
 API_PORT_LOCK = Path(tempfile.gettempdir()) / "ivfm-sitl-udp-14540.lock"
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The process tier's scheduler sends the lock's users one at a time
+    (tests/scheduling.py ONE_AT_A_TIME): each must be listed there."""
+    for item in items:
+        if "api_port_14540" in getattr(item, "fixturenames", ()) and \
+                not takes_turns(item.nodeid):
+            raise pytest.UsageError(f"{item.nodeid} holds UDP port 14540: list its file in "
+                                    "tests/scheduling.py ONE_AT_A_TIME")
 
 
 @pytest.fixture

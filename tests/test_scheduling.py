@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
@@ -80,5 +81,50 @@ def test_tests_that_take_turns_never_run_together_and_others_fill_in(pytester, m
         line.split() for line in (pytester.path / "runs.txt").read_text().splitlines())}
     (g1_start, g1_end), (g2_start, g2_end) = runs["g1"], runs["g2"]
     assert g2_start >= g1_end or g1_start >= g2_end, runs
-    assert any(g1_start < start < g1_end for name, (start, _) in runs.items()
-               if name.startswith("o")), runs  # the other worker was not idle meanwhile
+
+
+class _Worker:
+    """What the scheduler asks of an xdist worker: take tests, shut down."""
+
+    def __init__(self, name: str) -> None:
+        self.gateway = SimpleNamespace(id=name)
+        self.shutting_down, self.sent = False, []
+
+    def send_runtest_some(self, indices: list[int]) -> None:
+        self.sent += indices
+
+    def shutdown(self) -> None:
+        self.shutting_down = True
+
+
+def test_a_test_that_takes_turns_waits_while_the_next_longest_ones_go_out(tmp_path):
+    """The hand-out itself, on the scheduler with two stand-in workers: g1 and g2 (one
+    file of ONE_AT_A_TIME) are the longest; g2 goes out only once g1 is done, the others
+    in the meantime, longest first; the workers are shut down when nothing is left."""
+    from tests.scheduling import _scheduler_class
+
+    turns = "tests/groundtools/test_mavsdk_examples.py::"
+    collection = ["test_o.py::o1", "test_o.py::o2", "test_o.py::o3", f"{turns}g1",
+                  f"{turns}g2"]
+    durations = tmp_path / "durations.json"
+    durations.write_text(json.dumps({f"{turns}g1": 30.0, f"{turns}g2": 20.0,
+                                     "test_o.py::o3": 10.0}))
+    options = {"tx": ["2*popen"], "durations_file": durations}
+    config = SimpleNamespace(getvalue=options.get, getoption=options.get)  # xdist reads these
+    scheduler = _scheduler_class()(config)
+    a, b = _Worker("a"), _Worker("b")
+    for worker in (a, b):
+        scheduler.add_node(worker)
+        scheduler.add_node_collection(worker, collection)
+    scheduler.schedule()
+    names = {i: name.split("::")[1] for i, name in enumerate(collection)}
+    assert [names[i] for i in a.sent] == ["g1", "o1"]  # o1 and o2 tie at 8 s: in order
+    assert [names[i] for i in b.sent] == ["o3", "o2"]
+    scheduler.mark_test_complete(b, b.sent[0])  # o3 done: g1 still runs, nothing may go
+    assert len(b.sent) == 2 and not b.shutting_down
+    scheduler.mark_test_complete(a, a.sent[0])  # g1 done: g2's turn
+    assert [names[i] for i in a.sent + b.sent].count("g2") == 1
+    for worker in (a, b):
+        for index in list(scheduler.node2pending[worker]):
+            scheduler.mark_test_complete(worker, index)
+    assert a.shutting_down and b.shutting_down and scheduler.tests_finished

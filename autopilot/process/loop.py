@@ -138,7 +138,7 @@ class Autopilot(PacedProcess):
         self.period_us = round(1e6 / config.rate_hz)
         self.navigation = Navigation.for_source(vehicle, config.state_source)
         self.sim = SimLink(config.sim_host, config.sim_port, config.state_source, config.sysid,
-                           config.home)
+                           config.home, SERVICE_PERIOD_S if config.lockstep else 0.0)
         if config.home is not None:
             self._set_home(config.home, "given")
         self.timing = LoopTiming(self.period_us / 1e6)
@@ -355,10 +355,16 @@ class Autopilot(PacedProcess):
                     busy.remove(link)  # read empty
 
     def run_lockstep(self) -> None:
+        """Connected, the link's read waits for the next sample itself (up to a service
+        period: the ground links are served every 5 to 10 ms while the simulator is
+        silent, at once after a sample when they are due)."""
         while not self._stop:
             now = time.monotonic()
             self._connect(now)
-            self._poll(max(0.0, min(0.02, self._next_service - now)))
+            if self.sim.sock is not None:
+                self._on_sim_readable()
+            else:
+                self._poll(max(0.0, min(0.02, self._next_service - now)))
             if time.monotonic() >= self._next_service:
                 self._ground_work(LOCKSTEP_GROUND_BUDGET_S)
 

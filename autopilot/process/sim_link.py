@@ -76,11 +76,17 @@ LinkReading = TruthReading | ImuReading | GpsReading
 
 
 class SimLink:
-    """TCP client of the simulator; reconnects while the simulator is away."""
+    """TCP client of the simulator; reconnects while the simulator is away.
+
+    ``wait_s``: 0 (real time) reads without waiting, the loop's selector says when there
+    is data; above 0 (lockstep) ``read`` itself waits up to that long for the next
+    sample, with no selector round trip (5 us a cycle in Python)."""
 
     def __init__(self, host: str, port: int, source: str,
-                 sysid: int = AUTOPILOT_SYSID, home: Home | None = None) -> None:
+                 sysid: int = AUTOPILOT_SYSID, home: Home | None = None,
+                 wait_s: float = 0.0) -> None:
         self.address = (host, port)
+        self.wait_s = wait_s
         # The local frame's origin: given, or the simulator's first position (as PX4's
         # simulator_mavlink takes its reference); None until then.
         self.home = home
@@ -117,7 +123,7 @@ class SimLink:
         self._retry_s = RECONNECT_FIRST_S  # after this one is lost: quickly again
         self.next_attempt_s = now + RECONNECT_FIRST_S
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.setblocking(False)
+        sock.settimeout(self.wait_s or 0.0)  # 0: non-blocking
         self.sock = sock
         self.mav = new_mavlink(self.sysid, AUTOPILOT_COMPID)
         self._pending = b""
@@ -183,11 +189,12 @@ class SimLink:
             self.sock = None
 
     def read(self) -> list[LinkReading] | None:
-        """The samples now available, in the order sent (a refused message is counted in
-        ``bad_messages`` and left out); None when the link closed."""
+        """The samples now available (with ``wait_s``, the next within it), in the order
+        sent (a refused message is counted in ``bad_messages`` and left out); None when
+        the link closed."""
         try:
             data = self.sock.recv(262144)
-        except (BlockingIOError, InterruptedError):
+        except (BlockingIOError, InterruptedError, TimeoutError):
             return []
         except OSError:
             return None

@@ -546,3 +546,32 @@ def test_the_autopilot_tries_the_simulator_every_20_ms_at_first_then_backs_off()
     finally:
         link.close()
         server.close()
+
+
+def test_a_lockstep_link_waits_for_the_next_sample_and_a_silent_simulator_is_not_a_loss():
+    """Lockstep reads without a selector: ``read`` waits up to ``wait_s`` for the
+    simulator. A simulator that says nothing for that long gives no samples, not a lost
+    link (the socket's timeout is an OSError too); what it then sends is read whole; its
+    end is the link's end."""
+    from autopilot.process.sim_link import SimLink
+
+    server = socket.create_server(("127.0.0.1", 0))
+    link = SimLink("127.0.0.1", server.getsockname()[1], "auto", home=DEFAULT_HOME,
+                   wait_s=0.05)
+    try:
+        assert link.connect(0.0)
+        simulator, _ = server.accept()
+        t0 = time.monotonic()
+        assert link.read() == []
+        assert 0.04 <= time.monotonic() - t0 < 1.0
+        mav = mavlink.MAVLink(None, 1, 51)
+        simulator.sendall(b"".join(m.pack(mav) for m in sample_messages(
+            *ideal_readings(10_000, _flying_plant("paper").state(), np.zeros(3)),
+            DEFAULT_HOME)))
+        readings = link.read()
+        assert readings and {r.time_us for r in readings} == {10_000}
+        simulator.close()
+        assert link.read() is None
+    finally:
+        link.close()
+        server.close()

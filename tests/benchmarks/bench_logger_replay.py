@@ -7,8 +7,8 @@ batches) against batches, in the same run.
 A 60 s lockstep attitude-sine is flown once through the processes; its records (the
 simulator's state, the autopilot's control and timing, the MAVLink mirror) are then
 played again to a real ``ivfm ground log`` process, paced at --speed times real time as
-a lockstep run sends them: once with one put per record, once in batches per 20 ms of
-sim time (contracts/telemetry.py pack_batch). ``--before`` also plays the records one
+a lockstep run sends them: once with one put per record, once in batches of lockstep's
+span of sim time (100 ms, contracts/telemetry.py pack_batch). ``--before`` also plays the records one
 by one to the logger of another checkout (one that predates batches). The logger's CPU
 (every thread) comes from /proc between the first record and its last. Prints
 figures; asserts nothing.
@@ -35,12 +35,11 @@ from contracts.telemetry import (  # noqa: E402
     parse_key,
     vehicle_key,
 )
-from contracts.zenoh_link import ZenohOptions, open_session  # noqa: E402
+from contracts.zenoh_link import LOCKSTEP_BATCH_S, ZenohOptions, open_session  # noqa: E402
 from ground.record.run_files import iter_messages  # noqa: E402
 from ground.run.processes import RunSettings, run_processes  # noqa: E402
 from ground.scenario.scenario_file import scenario_by_name  # noqa: E402
 
-SPAN_US = 20_000
 Record = tuple[int, str, bytes, bytes | None]  # sim time, key, payload, attachment
 
 
@@ -81,8 +80,10 @@ def start_logger(root: Path, out: str, name: str, endpoint: str) -> subprocess.P
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
-def play(records: list[Record], root: Path, batched: bool, speed: float) -> float:
-    """The logger's CPU seconds for ``records`` played at ``speed`` x real time."""
+def play(records: list[Record], root: Path, batched: bool, speed: float,
+         span_us: int = round(1e6 * LOCKSTEP_BATCH_S)) -> float:
+    """The logger's CPU seconds for ``records`` played at ``speed`` x real time, in
+    batches of ``span_us`` of sim time when ``batched``."""
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     with tempfile.TemporaryDirectory() as tmp:
         logger = start_logger(root, tmp, "b", endpoint)
@@ -95,7 +96,7 @@ def play(records: list[Record], root: Path, batched: bool, speed: float) -> floa
             cpu0 = cpu_seconds(logger.pid)
             start = time.perf_counter()
             pending: dict[str, list] = {}
-            due_us = SPAN_US
+            due_us = span_us
             for t_us, key, payload, attachment in records:
                 while time.perf_counter() < start + t_us / 1e6 / speed:
                     pass
@@ -104,7 +105,7 @@ def play(records: list[Record], root: Path, batched: bool, speed: float) -> floa
                     continue
                 if t_us >= due_us:
                     _send_batches(session, pending)
-                    due_us = t_us - t_us % SPAN_US + SPAN_US
+                    due_us = t_us - t_us % span_us + span_us
                 process = "sitl" if key.endswith("/state") else "autopilot"
                 pending.setdefault(process, []).append((key, payload, attachment))
             _send_batches(session, pending)
@@ -140,7 +141,8 @@ def main() -> None:
     print(f"{len(records)} records of a {args.duration:g} s flight, played at "
           f"{args.speed:g}x real time")
     plays = [("this logger, one put per record", here, False),
-             ("this logger, batches of 20 ms", here, True)]
+             (f"this logger, batches of {1e3 * LOCKSTEP_BATCH_S:g} ms (lockstep's)", here,
+              True)]
     if args.before is not None:
         plays.insert(0, (f"{args.before}'s logger, one put per record", args.before, False))
     for name, root, batched in plays:

@@ -8,10 +8,10 @@ A 60 s lockstep attitude-sine is flown once through the processes; its records (
 simulator's state, the autopilot's control and timing, the MAVLink mirror) are then
 played again to a real ``ivfm ground log`` process, paced at --speed times real time as
 a lockstep run sends them: once with one put per record, once in batches of lockstep's
-span of sim time (100 ms, contracts/telemetry.py pack_batch). ``--before`` also plays the records one
-by one to the logger of another checkout (one that predates batches). The logger's CPU
-(every thread) comes from /proc between the first record and its last. Prints
-figures; asserts nothing.
+span of sim time (100 ms, contracts/telemetry.py pack_batch). ``--before`` also plays
+the records one by one to the logger of another checkout (one that predates batches).
+The logger's CPU (every thread) comes from /proc between the first record and its last.
+Prints figures; asserts nothing.
 """
 
 from __future__ import annotations

@@ -355,9 +355,7 @@ class Autopilot(PacedProcess):
                     busy.remove(link)  # read empty
 
     def run_lockstep(self) -> None:
-        """Connected, the link's read waits for the next sample itself (up to a service
-        period: the ground links are served every 5 to 10 ms while the simulator is
-        silent, at once after a sample when they are due)."""
+        """Connected, the link's read waits for the next sample (SimLink ``wait_s``)."""
         while not self._stop:
             now = time.monotonic()
             self._connect(now)

@@ -80,7 +80,9 @@ class SimLink:
 
     ``wait_s``: 0 (real time) reads without waiting, the loop's selector says when there
     is data; above 0 (lockstep) ``read`` itself waits up to that long for the next
-    sample, with no selector round trip (5 us a cycle in Python)."""
+    sample, with no selector round trip (5 us a cycle in Python). The lockstep loop
+    serves its ground links after a read when they are due: every 5 to 10 ms while the
+    simulator is silent."""
 
     def __init__(self, host: str, port: int, source: str,
                  sysid: int = AUTOPILOT_SYSID, home: Home | None = None,

@@ -355,11 +355,9 @@ class Autopilot(PacedProcess):
                     busy.remove(link)  # read empty
 
     def run_lockstep(self) -> None:
-        """Connected, the link's read waits for the next sample (SimLink ``wait_s``)."""
         while not self._stop:
-            now = time.monotonic()
-            self._connect(now)
-            if self.sim.sock is not None:
+            self._connect(now := time.monotonic())
+            if self.sim.sock is not None:  # its read waits for the next sample (wait_s)
                 self._on_sim_readable()
             else:
                 self._poll(max(0.0, min(0.02, self._next_service - now)))

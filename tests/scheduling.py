@@ -67,10 +67,14 @@ def _scheduler_class():
         longest first, and each worker topped up one test at a time, round robin, so the
         longest flights start together on different workers. Nothing is ever stolen."""
 
+        def __init__(self, config: pytest.Config, log=None) -> None:
+            super().__init__(config, log)
+            self._sorted = False
+
         def check_schedule(self) -> None:
             if self.collection is None:
                 return
-            if not getattr(self, "_sorted", False):  # once, when the collection is in
+            if not self._sorted:  # once, when the collection is in
                 durations = expected_durations(self.config.getoption("durations_file"))
                 self.pending[:] = [self.pending[i] for i in longest_first(
                     [self.collection[j] for j in self.pending], durations)]

@@ -176,10 +176,11 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 def preload() -> None:
     """What a run imports, and the compiled code of the default vehicle's steps (the
-    controller, the shaper, the sample's conversions, the estimator), loaded once by the
-    process loader (contracts/zygote.py): in each process of a run that code took about
-    0.1 s of its start, on the critical path. Another controller's code loads in its own
-    process, as before."""
+    controller, the shaper, the sample's conversions), loaded once by the process loader
+    (contracts/zygote.py): in each process of a run that code took about 0.1 s of its
+    start, on the critical path. Another controller's code, and the estimator's filter
+    steps (0.1 s that every run would pay here), load in the autopilots that use them,
+    before their loops."""
     import autopilot.mavlink.server  # noqa: F401
     import autopilot.process.loop  # noqa: F401
     from autopilot.process.sim_link import SimLink
@@ -189,7 +190,8 @@ def preload() -> None:
     args = build_parser().parse_args([])
     vehicle = make_vehicle(args)
     for source in STATE_SOURCES:  # each decodes its own messages
-        load_compiled_code(vehicle, 1.0 / args.rate_hz, SimLink("127.0.0.1", 0, source))
+        load_compiled_code(vehicle, 1.0 / args.rate_hz, SimLink("127.0.0.1", 0, source),
+                           filter_steps=False)
 
 
 def make_vehicle(args: argparse.Namespace) -> Commander:

@@ -208,3 +208,55 @@ def test_a_gyro_bias_step_is_learned():
                 mag if k % 2 == 0 else None)
     assert est.x[eskf.X_GYRO_BIAS + 2] == pytest.approx(0.0169, rel=0.03)
     assert est.measurement()[8] == pytest.approx(tilt[2], abs=0.01)
+
+
+FIRST_ESTIMATES = """
+import numpy as np
+from numba.core.dispatcher import Dispatcher
+from autopilot.__main__ import build_parser, make_vehicle, preload
+from autopilot.estimation import eskf
+from autopilot.estimation.estimator import Estimator, GpsFix
+from autopilot.process.sim_link import SimLink
+from autopilot.process.warm_up import load_compiled_code
+from contracts.frames import DEFAULT_HOME, GRAVITY_MPS2
+
+
+def loaded():  # the overloads of the filter's own compiled functions (not its imports)
+    return {n: len(d.overloads) for n, d in vars(eskf).items()
+            if isinstance(d, Dispatcher) and d.py_func.__module__ == eskf.__name__}
+
+
+preload()  # the process loader's
+in_the_loader = sum(loaded().values())
+vehicle = make_vehicle(build_parser().parse_args(["--state-source", "estimator"]))
+load_compiled_code(vehicle, 0.01, SimLink("127.0.0.1", 0, "estimator"))  # its warm-up
+before = loaded()
+est = Estimator()
+est.set_home(DEFAULT_HOME)
+fix = GpsFix(np.zeros(3), np.zeros(3), 3, 12)
+est.gps(0, fix)
+for k in range(30):
+    est.imu(k * 10_000, np.zeros(3), np.array([0.0, 0.0, -GRAVITY_MPS2]), 0.0,
+            np.array([0.2, 0.0, 0.4]))
+    est.gps(k * 10_000 + est.gps_delay_us, fix)
+    est.measurement()
+after = loaded()
+print(in_the_loader, sorted(name for name in after if after[name] != before.get(name, 0)))
+"""
+
+
+@pytest.mark.process
+def test_an_estimator_runs_warm_up_leaves_no_compiled_code_to_its_first_estimates():
+    """An autopilot on the estimator loads its filter's steps in its warm-up
+    (autopilot/process/warm_up.py), before the loop: an aligned estimator's first steps
+    and fixes then load nothing from numba's cache. They did load there, at alignment,
+    inside the loop: the warm-up's own estimator never aligned. The process loader
+    leaves them out (0.1 s every run would pay). A fresh interpreter: in this one, other
+    tests may have loaded it all."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    done = subprocess.run([sys.executable, "-c", FIRST_ESTIMATES], capture_output=True,
+                          text=True, check=True, cwd=Path(__file__).parents[2])
+    assert done.stdout.strip() == "0 []"

@@ -11,7 +11,7 @@ from importlib.metadata import version
 
 import pytest
 from mcap.reader import make_reader
-from mcap.writer import Writer
+from mcap.writer import CompressionType, Writer
 
 from contracts.zenoh_link import ZenohOptions
 from ground.telemetry.logger import LoggerConfig, SilenceWatch
@@ -26,7 +26,39 @@ def test_the_private_mcap_calls_the_flush_relies_on_are_there():
     writer = Writer(open("/dev/null", "wb"))  # noqa: SIM115
     writer.start()
     assert isinstance(writer._Writer__chunk_indices, list)  # noqa: SLF001
+    for name in ("_Writer__chunk_builder", "_Writer__statistics"):  # McapFile.add's
+        assert getattr(writer, name, None) is not None, name
     writer.finish()
+
+
+@pytest.mark.parametrize("compression", ["zstd", "none"])
+def test_the_loggers_own_message_path_writes_the_bytes_of_the_writers_add_message(
+        tmp_path, compression):
+    """McapFile.add writes into the writer's chunk itself: the file must be the one the
+    writer's public add_message makes of the same calls, byte for byte (chunks closing on
+    size, log times out of order, sequences past 32 bits, channels first seen mid-chunk)."""
+    rng = random.Random(7)
+    ours = McapFile(tmp_path / "ours.mcap", 4096, compression)
+    theirs_path = tmp_path / "theirs.mcap"
+    with open(theirs_path, "wb") as stream:
+        theirs = Writer(stream, chunk_size=4096, compression={
+            "zstd": CompressionType.ZSTD, "none": CompressionType.NONE}[compression])
+        theirs.start(profile="", library="ivfm-sitl ground logger")
+        channels = []
+        for i in range(2000):
+            if i % 400 == 0:  # a new channel, registered in the middle of a chunk
+                key = f"mavlink/1/1/M{i}"
+                channels.append((ours.channel(key, "mavlink"),
+                                 theirs.register_channel(key, "mavlink", 0)))
+            ours_id, theirs_id = rng.choice(channels)
+            log_time = 10**18 + rng.randrange(-10**6, 10**9)  # wall time, not monotonic
+            sim_time, seq = rng.randrange(10**12), rng.randrange(2**40)
+            data = rng.randbytes(rng.randrange(0, 300))
+            ours.add(ours_id, log_time, sim_time, seq, data)
+            theirs.add_message(theirs_id, log_time, data, sim_time, seq & 0xFFFFFFFF)
+        theirs.finish()
+    ours.finish()
+    assert (tmp_path / "ours.mcap").read_bytes() == theirs_path.read_bytes()
 
 
 def _file_with(tmp_path, flushed: int, open_after: int):

@@ -128,24 +128,36 @@ class RecordSchema:
 
     def decode(self, payload: bytes) -> dict[str, Any]:
         """Fields by name; raises ValueError on a payload that does not fit the schema."""
-        if len(payload) < self.fixed_size or payload[:4] != CDR_HEADER:
-            raise ValueError(f"{self.name}: payload of {len(payload)} bytes is not a "
-                             f"{self.fixed_size}+ byte CDR record")
+        sequences = self.sequence_arrays(payload)
         row = np.frombuffer(payload, dtype=self.dtype, count=1, offset=4)[0]
         out: dict[str, Any] = {n: row[n] for n, _t, _c in self.fields}
-        at = self.fixed_size
+        out.update(zip(self.sequences, sequences, strict=True))
+        return out
+
+    def sequence_arrays(self, payload: bytes) -> list[np.ndarray]:
+        """The float64 sequences after the fixed fields, in schema order, as views of the
+        payload; raises ValueError on a payload that does not fit the schema."""
+        at, size, out = self.fixed_size, len(payload), []
+        if size < at or payload[:4] != CDR_HEADER:
+            raise ValueError(f"{self.name}: payload of {size} bytes is not a "
+                             f"{at}+ byte CDR record")
         for name in self.sequences:
-            if at + 8 > len(payload):
+            if at + 8 > size:
                 raise ValueError(f"{self.name}: payload ends before sequence {name}")
             (count,) = struct.unpack_from("<I", payload, at)
             at += 8
-            if at + 8 * count > len(payload):
+            if at + 8 * count > size:
                 raise ValueError(f"{self.name}: sequence {name} of {count} runs past the end")
-            out[name] = np.frombuffer(payload, dtype="<f8", count=count, offset=at)
+            out.append(np.frombuffer(payload, dtype="<f8", count=count, offset=at))
             at += 8 * count
-        if at != len(payload):
-            raise ValueError(f"{self.name}: {len(payload) - at} bytes left over")
+        if at != size:
+            raise ValueError(f"{self.name}: {size - at} bytes left over")
         return out
+
+    def offset(self, name: str, index: int = 0) -> int:
+        """Where fixed field ``name`` (its ``index``-th value) starts in a payload: for a
+        ``struct`` read of the few fields a reader needs, not the whole record."""
+        return len(CDR_HEADER) + self.dtype.fields[name][1] + 8 * index
 
     def decode_many(self, payloads: list[bytes]) -> tuple[np.ndarray, list[list[np.ndarray]]]:
         """Many records at once (a log read back): their fixed fields as one structured

@@ -69,6 +69,7 @@ MAX_INBOX_BYTES = 128 * 1024 * 1024  # their payloads: ~4 min of one vehicle at 
 MAX_QUERIES = 64  # status queries waiting for the loop
 SILENCE_S = 1.0  # records had been coming (250 Hz and more) and none for this long: say so
 _NAME = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+_NEW_KEY = object()  # a key not heard before
 
 
 @dataclass
@@ -148,6 +149,8 @@ class Logger:
                                 self.counters, self.log)
                         if config.foxglove or live is not None else None)
         self._warned: dict[str, float] = {}
+        # Each key heard (at most MAX_KEYS: past it a new key is refused) and its schema.
+        self._schemas: dict[str, RecordSchema | str | None] = {}
         self.usage = ProcessUsage()
 
     def stop(self, *_args: Any) -> None:
@@ -165,16 +168,17 @@ class Logger:
 
     def _write(self, key: str, payload: bytes, attachment: bytes | None,
                log_time_ns: int) -> None:
-        c = self.counters
-        if key not in c.per_key and key not in c.rejected_per_key and (
-                len(c.per_key) + len(c.rejected_per_key) >= MAX_KEYS
-                or len(key) > MAX_KEY_CHARS):
-            c.rejected += 1
-            c.keys_over_limit += 1
-            c.last_error = (f"a record on a new key past the {MAX_KEYS}-key limit, or a key "
-                            f"over {MAX_KEY_CHARS} characters ({c.keys_over_limit} so far)")
-            return
-        schema = schema_for_key(key)
+        schema = self._schemas.get(key, _NEW_KEY)
+        if schema is _NEW_KEY:
+            c = self.counters
+            if len(self._schemas) >= MAX_KEYS or len(key) > MAX_KEY_CHARS:
+                c.rejected += 1
+                c.keys_over_limit += 1
+                c.last_error = (f"a record on a new key past the {MAX_KEYS}-key limit, or a "
+                                f"key over {MAX_KEY_CHARS} characters ({c.keys_over_limit} "
+                                "so far)")
+                return
+            schema = self._schemas[key] = schema_for_key(key)
         if schema == "batch":  # a span of a process's records: each written as it came
             try:
                 entries = unpack_batch(key, payload)

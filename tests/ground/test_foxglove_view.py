@@ -213,6 +213,31 @@ def test_records_too_short_to_hold_their_time_are_refused():
         FoxgloveView().feed(STATE_KEY, b"\x00\x01\x00\x00" + b"\x00" * 10)
 
 
+@pytest.mark.parametrize("key", [STATE_KEY, CONTROL_KEY])
+def test_a_malformed_record_that_is_due_is_refused_and_leaves_the_next_draw_due(key):
+    """The view reads the few fields it draws where they sit: a record of the right length
+    but the wrong header, or sequences that do not fit, is refused, not drawn."""
+    view = FoxgloveView()
+    good = state_payload(0) if key == STATE_KEY else CONTROL.buffer().encode(((), (), ()))
+    bad = [b"\x00\x00\x00\x00" + good[4:], good + bytes(8)]
+    for payload in bad:
+        with pytest.raises(ValueError):
+            view.feed(key, payload)
+    assert view.feed(key, good)  # still due: the refusals moved no decimation clock
+
+
+def test_routes_to_the_drawing_are_remembered_for_a_bounded_number_of_keys():
+    from ground.telemetry.foxglove_view import MAX_ROUTES
+
+    view = FoxgloveView()
+    for i in range(MAX_ROUTES + 100):
+        assert view.feed(f"ivfm/vehicle/1/junk/k{i}", b"x") == []
+    assert len(view._routes) == MAX_ROUTES  # noqa: SLF001
+    assert transforms(view.feed(STATE_KEY, state_payload(0)))  # a new key still draws
+    assert view.feed("mavlink/1/1/HEARTBEAT", b"\xfd") == []
+    assert view.feed("ivfm/vehicle/0/sitl/state", state_payload(0)) == []  # vehicle 0
+
+
 def test_every_plot_of_the_shipped_layout_names_a_field_the_view_writes():
     """The Foxglove layout (ground/telemetry/layouts) plots fields by path: each must exist."""
     import re

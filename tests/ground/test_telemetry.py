@@ -428,6 +428,29 @@ def test_records_are_filled_by_name_and_decode_to_the_same_values():
         STATE.buffer()["no_such_field"] = 1.0
 
 
+def test_a_field_read_at_its_offset_is_the_decoded_field():
+    """Readers that need a few fields (the Foxglove view) read them at ``offset``."""
+    import struct
+
+    from contracts.telemetry import STATE
+
+    rng = np.random.default_rng(5)
+    for schema in (STATE, CONTROL):
+        record = schema.buffer()
+        for name, kind, count in schema.fields:
+            record[name] = rng.normal(size=count or None) if kind == "f8" else \
+                rng.integers(0, 1000, size=count or None)
+        payload = record.encode(tuple(rng.normal(size=2) for _ in schema.sequences))
+        decoded = schema.decode(payload)
+        for name, kind, count in schema.fields:
+            for i in range(count or 1):
+                (value,) = struct.unpack_from("<" + {"f8": "d", "i8": "q", "u8": "Q"}[kind],
+                                              payload, schema.offset(name, i))
+                assert value == (decoded[name][i] if count else decoded[name]), name
+        assert [a.tobytes() for a in schema.sequence_arrays(payload)] == \
+            [decoded[name].tobytes() for name in schema.sequences]
+
+
 def test_records_decoded_many_at_once_are_those_decoded_one_by_one():
     """A log read back decodes its control records at once (``decode_many``): the same
     numbers, bit for bit, as ``decode`` gives each; a payload that does not fit is refused

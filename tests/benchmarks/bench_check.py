@@ -3,7 +3,7 @@ of the paper's seven scenarios, beside the in-process path measured in the same 
 machine's speed moves up to 3x between days: compare the ratios).
 
     python tests/benchmarks/bench_check.py             # best of 3 single runs, one check
-    python tests/benchmarks/bench_check.py --runs 5 --jobs 2
+    python tests/benchmarks/bench_check.py --runs 5 --jobs 1   # not the default -j
 
 Prints figures; asserts nothing.
 """
@@ -56,7 +56,8 @@ def loop_wall_s(metrics: dict) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3)
-    parser.add_argument("--jobs", type=int, default=1, help="ivfm check -j")
+    parser.add_argument("--jobs", type=int, default=None,
+                        help="ivfm check -j (default: the command's own)")
     args = parser.parse_args()
     tmp = Path(tempfile.mkdtemp(prefix="bench-check-"))
     ivfm("run", "position-kick", "--out", str(tmp / "warm"), "--no-figures")  # caches warm
@@ -83,20 +84,29 @@ def main() -> None:
     print("  phases of that run [s]: " + ", ".join(
         f"{name} {t:.3f}" for name, t in phases["phases_s"].items()))
 
-    out = tmp / "check"
-    wall = ivfm("check", *PAPER, "--out", str(out), "--junit", str(tmp / "junit.xml"),
-                "--keep", "-j", str(args.jobs))
-    results = json.loads((out / "check.json").read_text())["scenarios"]
-    loops = sum(loop_wall_s(r["metrics"]) for r in results.values())
+    def check(jobs: list[str], name: str) -> tuple[float, float]:
+        """Wall time of ``ivfm check`` of the seven and the sum of their loop times."""
+        out = tmp / name
+        wall = ivfm("check", *PAPER, "--out", str(out), "--junit", str(tmp / "junit.xml"),
+                    "--keep", *jobs)
+        results = json.loads((out / "check.json").read_text())["scenarios"]
+        return wall, sum(loop_wall_s(r["metrics"]) for r in results.values())
+
+    # One at a time first: its loops are the flights' own time (runs side by side slow
+    # each other's loops, so their sum is no measure of the flights).
+    wall_1, loops_1 = check(["-j", "1"], "check-1")
+    wall, loops = (wall_1, loops_1) if args.jobs == 1 else check(
+        [] if args.jobs is None else ["-j", str(args.jobs)], "check")
     start = time.perf_counter()
     subprocess.run([sys.executable, "-c", IN_PROCESS_SEVEN, str(tmp / "inprocess"), *PAPER],
                    check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     in_process_s = time.perf_counter() - start
-    print(f"ivfm check of the paper's seven scenarios (-j {args.jobs}, JUnit written): "
-          f"{wall:.2f} s wall; sum of their loop times {loops:.2f} s; ratio "
-          f"{wall / loops:.2f}; the same seven flown in process by one fresh Python "
-          f"{in_process_s:.2f} s: ratio {wall / in_process_s:.2f}")
-
+    print(f"ivfm check of the paper's seven scenarios, JUnit written; the seven one at a "
+          f"time: {wall_1:.2f} s wall, sum of their loop times {loops_1:.2f} s")
+    print(f"  -j {args.jobs or 'default'}: {wall:.2f} s wall (its runs' loops sum to "
+          f"{loops:.2f} s): {wall / loops_1:.2f}x the loops one at a time; the same seven "
+          f"flown in process by one fresh Python {in_process_s:.2f} s: "
+          f"{wall / in_process_s:.2f}x")
 
 if __name__ == "__main__":
     main()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import re
 from pathlib import Path
 
@@ -193,3 +194,14 @@ def test_help_reads_as_plain_text(base):
     for parser in (build_parser(base), _subparser(base)):
         text = parser.format_help()
         assert "`" not in text, [line for line in text.splitlines() if "`" in line]
+
+
+def test_check_flies_one_scenario_per_usable_cpu_in_lockstep_and_one_in_real_time():
+    from ground.cli.check import default_jobs
+
+    cpus = len(os.sched_getaffinity(0))
+    assert default_jobs(False, 7) == min(cpus, 7)
+    assert default_jobs(False, 1) == 1  # never more jobs than scenarios
+    assert default_jobs(True, 7) == 1
+    args = build_parser(["check"]).parse_args(["check"])
+    assert args.jobs is None  # resolved once the scenarios and the mode are known

@@ -14,12 +14,14 @@ writer's private state, which pyproject.toml pins to the 1.6 series."""
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import os
 import struct
 from collections.abc import Callable
 from pathlib import Path
 
+from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import Channel, Message, MessageIndex, Schema
 from mcap.stream_reader import StreamReader
@@ -34,6 +36,18 @@ ACTIVE_SUFFIX = ".mcap.active"
 # publish time; the length counts the 22 bytes after it and the data.
 _MESSAGE_HEAD = struct.Struct("<BQHIQQ")
 _MESSAGE_FIXED = 22
+
+
+class _MessageIndex(MessageIndex):
+    """One channel's index in a chunk, written as the writer writes it (opcode, length,
+    channel id, byte count, then log time and offset per message) in one ``struct`` call:
+    the writer's own loop made two calls a message, 1 ms of CPU a simulated second."""
+
+    def write(self, stream: RecordBuilder) -> None:
+        n = len(self.records)
+        stream.write(struct.pack(f"<BQHI{2 * n}Q", Opcode.MESSAGE_INDEX, 6 + 16 * n,
+                                 self.channel_id, 16 * n,
+                                 *itertools.chain.from_iterable(self.records)))
 
 
 class McapFile:
@@ -106,7 +120,7 @@ class McapFile:
         buffer = chunk.record_writer._buffer  # noqa: SLF001 (a new one after each chunk)
         index = chunk.message_indices.get(channel_id)
         if index is None:
-            index = chunk.message_indices[channel_id] = MessageIndex(channel_id, [])
+            index = chunk.message_indices[channel_id] = _MessageIndex(channel_id, [])
         index.records.append((log_time_ns, buffer.tell()))
         buffer.write(_MESSAGE_HEAD.pack(Opcode.MESSAGE, _MESSAGE_FIXED + len(data),
                                         channel_id, seq & 0xFFFFFFFF, log_time_ns,

@@ -256,9 +256,10 @@ class FoxgloveView:
             out.append(Output(vehicle_topic(vehicle, "reference_path"), t_us * 1000,
                               fg.PosesInFrame(timestamp=stamp, frame_id=FRAME_NED,
                                               poses=list(v.reference_path))))
-        norms = [np.sqrt(w @ w) if len(w) else np.nan for w in theta_f]
         velocity = np.frombuffer(payload, "<f8", 3, _MEASURED_VELOCITY_AT)
-        speed = np.sqrt(velocity @ velocity)
+        with np.errstate(over="ignore", invalid="ignore"):  # huge values: inf, drawn null
+            norms = [float(np.sqrt(w @ w)) if len(w) else math.nan for w in theta_f]
+            speed = float(np.sqrt(velocity @ velocity))
         text = CONTROLLER_TEXT.encode(payload, t_us, mode, flags, speed, norms)
         out.append(Output(vehicle_topic(vehicle, "controller"), t_us * 1000, text))
         return out

@@ -90,21 +90,30 @@ def parse_request(line: str, modules: frozenset[str]) -> dict[str, Any]:
 
 def load(modules: list[str]) -> dict[str, bool]:
     """Import each module's ``__main__`` and call its ``preload()``: module -> whether it
-    imported (a failed preload is left for the run to meet, as a fresh process would)."""
+    imported (a failed preload is left for the run to meet, as a fresh process would).
+
+    The garbage collector is off meanwhile, and what is loaded is frozen without a last
+    collection (the children's collections skip it): some 140,000 objects come in, and
+    the collections their allocations set off, with the last one, were 0.13 s of the
+    load's 0.79 s (median of eight alternated loads, 0.66 s without; the run waits for
+    the loader). What that leaves frozen is about 1,300 unreachable objects."""
     loaded = {}
-    for module in modules:
-        try:
-            entry = importlib.import_module(f"{module}.__main__")
-        except Exception:  # noqa: BLE001 (the child runs it fresh and meets the error)
-            loaded[module] = False
-            continue
-        loaded[module] = True
-        with contextlib.suppress(Exception):
-            preload = getattr(entry, "preload", None)
-            if preload is not None:
-                preload()
-    gc.collect()
-    gc.freeze()  # what is loaded stays put: the children's collections skip it
+    gc.disable()
+    try:
+        for module in modules:
+            try:
+                entry = importlib.import_module(f"{module}.__main__")
+            except Exception:  # noqa: BLE001 (the child runs it fresh and meets the error)
+                loaded[module] = False
+                continue
+            loaded[module] = True
+            with contextlib.suppress(Exception):
+                preload = getattr(entry, "preload", None)
+                if preload is not None:
+                    preload()
+        gc.freeze()  # what is loaded stays put: the children's collections skip it
+    finally:
+        gc.enable()
     return loaded
 
 

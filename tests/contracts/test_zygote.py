@@ -155,3 +155,19 @@ def _held_simulator(loader: ProcessLoader, log: Path):
         assert held.poll(timeout_s=0.05) is None, log.read_text()
         assert time.monotonic() < deadline, "the held simulator never listened"
     return held
+
+
+@pytest.mark.process
+def test_a_load_freezes_what_it_loaded_and_leaves_the_collector_on(tmp_path):
+    """The load runs with the collector off (its collections were a sixth of it); what
+    it loaded ends frozen and the collector on again, also when a module fails."""
+    import subprocess
+    import sys
+
+    probe = ("import gc\nfrom contracts.zygote import load\n"
+             "print(load(['sitl', 'no_such_module_here']), gc.isenabled(), "
+             "gc.get_freeze_count() > 10_000)")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True,
+                          timeout=120, cwd=Path(__file__).resolve().parents[2])
+    assert done.stdout.split() == ["{'sitl':", "True,", "'no_such_module_here':", "False}",
+                                   "True", "True"], done.stderr

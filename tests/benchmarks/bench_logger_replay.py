@@ -3,6 +3,7 @@ batches) against batches, in the same run.
 
     python tests/benchmarks/bench_logger_replay.py                 # this checkout's logger
     python tests/benchmarks/bench_logger_replay.py --before /path/to/older/checkout
+    python tests/benchmarks/bench_logger_replay.py --rounds 5
 
 A 60 s lockstep attitude-sine is flown once through the processes; its records (the
 simulator's state, the autopilot's control and timing, the MAVLink mirror) are then
@@ -11,6 +12,8 @@ a lockstep run sends them: once with one put per record, once in batches of lock
 span of sim time (100 ms, contracts/telemetry.py pack_batch). ``--before`` also plays
 the records one by one to the logger of another checkout (one that predates batches).
 The logger's CPU (every thread) comes from /proc between the first record and its last.
+The plays go in turn, --rounds times, and the ratio of batches to the first play is
+given per round: the machine's speed drifts between runs (docs/developing.md).
 Prints figures; asserts nothing.
 """
 
@@ -20,6 +23,7 @@ import argparse
 import dataclasses
 import os
 import socket
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -134,6 +138,9 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=60.0, help="sim seconds")
     parser.add_argument("--speed", type=float, default=20.0, help="x real time")
     parser.add_argument("--before", type=Path, help="another checkout's root")
+    parser.add_argument("--rounds", type=int, default=3,
+                        help="rounds, each playing every variant once, in turn (the "
+                             "machine's speed drifts: compare within a round)")
     args = parser.parse_args()
     here = Path(__file__).resolve().parents[2]
     with tempfile.TemporaryDirectory() as tmp:
@@ -145,11 +152,19 @@ def main() -> None:
               True)]
     if args.before is not None:
         plays.insert(0, (f"{args.before}'s logger, one put per record", args.before, False))
-    for name, root, batched in plays:
-        cpu_s = play(records, root, batched, args.speed)
-        print(f"  {name}: {1e3 * cpu_s / args.duration:.1f} ms of CPU per sim second "
-              f"({1e6 * cpu_s / (args.duration * 100):.0f} us per 10 ms cycle)", flush=True)
-
+    ratios = []
+    for k in range(args.rounds):
+        print(f"round {k + 1}:")
+        figures = []
+        for name, root, batched in plays:
+            cpu_s = play(records, root, batched, args.speed)
+            figures.append(cpu_s)
+            print(f"  {name}: {1e3 * cpu_s / args.duration:.1f} ms of CPU per sim second "
+                  f"({1e6 * cpu_s / (args.duration * 100):.0f} us per 10 ms cycle)",
+                  flush=True)
+        ratios.append(figures[-1] / figures[0])
+    print(f"batches against {plays[0][0]}: " + ", ".join(f"{r:.2f}" for r in ratios)
+          + f" (median {statistics.median(ratios):.2f})")
 
 if __name__ == "__main__":
     main()

@@ -161,7 +161,7 @@ def compute_metrics(record: RunRecord, scenario: Scenario, airframe_name: str) -
     # How hard roll and pitch swing: an attitude limit cycle shows here whatever the
     # position does (RMS of the truth's |(phi_dot, theta_dot)|).
     rates = record.true_state[window][:, MEAS_EULER_RATE:MEAS_EULER_RATE + 2]
-    with np.errstate(over="ignore"):  # a damaged log's absurd rates: inf, said as such
+    with np.errstate(over="ignore"):  # a damaged log's absurd rates: inf, not a warning
         tilt_rate = float(np.sqrt(np.mean(np.sum(rates**2, axis=1)))) if len(rates) else None
     sim_time = float(len(record.time_s)) * record.period_s
     return {

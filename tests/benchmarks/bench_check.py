@@ -2,7 +2,8 @@
 of the paper's seven scenarios, beside the in-process path measured in the same run (the
 machine's speed moves up to 3x between days: compare the ratios).
 
-    python tests/benchmarks/bench_check.py             # best of 3 single runs, one check
+    python tests/benchmarks/bench_check.py             # best of 3 single runs; the check
+                                                       # one at a time and at its default -j
     python tests/benchmarks/bench_check.py --runs 5 --jobs 1   # not the default -j
 
 Prints figures; asserts nothing.

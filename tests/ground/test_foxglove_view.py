@@ -189,18 +189,27 @@ def _controller_as_a_dict(payload: bytes) -> dict:
 # dict built here from huge values, as the view's own (which overflow quietly) to null
 def test_the_controllers_json_is_json_dumps_of_its_record_byte_for_byte():
     """The template gives json.dumps's own bytes for any record: NaN and infinities as
-    null, -0.0, the shortest float text with and without exponents, every mode."""
+    null, -0.0, the shortest float text with and without exponents, every mode. Half the
+    records hold no number below 1e-4 (where orjson's text is Python's as it is), half
+    hold them anywhere down to the smallest (where it is written again)."""
     rng = np.random.default_rng(7)
-    special = np.array([np.nan, np.inf, -np.inf, -0.0, 0.0, 5e-324, 1e-5, 1e16, 1e300,
-                        123456789.125, 0.1])
+    special = np.array([np.nan, np.inf, -np.inf, -0.0, 0.0, 1e-4, -1e16, 1e300, 10.00001,
+                        123456789.125, 0.1, 9999999999999998.0])
+    tiny = np.array([5e-324, 1e-5, -9.999999999999999e-05, 2.2250738585072014e-308])
     record = CONTROL.buffer()
     view = FoxgloveView()
-    for k in range(400):
+    for k in range(800):
+        low, chosen = ((-4, 30), special) if k % 2 else ((-330, 30), np.r_[special, tiny])
         for name, kind, count in CONTROL.fields:
             if kind == "f8":
-                values = rng.normal(size=count or None) * 10.0 ** rng.integers(-9, 10)
+                values = rng.normal(size=count or None) * 10.0 ** rng.integers(
+                    *low, size=count or None)
+                if k % 2:
+                    values = np.where(np.abs(values) < 1e-4, 1.0, values)
                 pick = rng.random(count or ()) < 0.25
-                record[name] = np.where(pick, rng.choice(special, size=count or None), values)
+                record[name] = np.where(pick, rng.choice(chosen, size=count or None), values)
+        if k % 4 == 3:  # one number that orjson writes 0.0000..., with no exponent about
+            record["motor_commands"][k % 4] = rng.choice([-1, 1]) * rng.uniform(1e-5, 1e-4)
         record["seq"], record["sim_time_us"] = k, 20_000 * (k + 1)
         record["mode"], record["flags"] = int(rng.integers(-2, 20)), int(rng.integers(0, 8))
         payload = record.encode(tuple(tuple(rng.choice(special, size=rng.integers(0, 4)))

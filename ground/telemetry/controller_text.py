@@ -86,8 +86,12 @@ class ControllerText:
                    theta_f_norms[2], *r[4 + 3 * n:])
         text = orjson.dumps(numbers)  # b"[n,n,...]", NaN and infinities null
         texts = text[1:-1].split(b",")
-        if b"e-" in text or b"0.0000" in text:  # some number below 1e-4 (or one like 10.00001)
-            texts = [_python_text(t) for t in texts]
+        for marker in _BELOW_1E_4:  # the numbers below 1e-4, written again as Python does
+            at = text.find(marker)
+            while at >= 0:
+                i = text.count(b",", 0, at)
+                texts[i] = repr(float(texts[i])).encode()
+                at = text.find(marker, at + 1)
         mode = self._modes[mode_index] if 0 <= mode_index < len(self._modes) else b'""'
         armed = b"true" if flags & FLAG_ARMED else b"false"
         failsafe = b"true" if flags & FLAG_FAILSAFE else b"false"
@@ -95,12 +99,9 @@ class ControllerText:
                         self.schema)
 
 
-def _python_text(number_text: bytes) -> bytes:
-    """orjson's text of a number as Python's ``repr`` writes it (the same shortest
-    digits, so the float read back is the number written); null stays null."""
-    if number_text == b"null" or not (b"e-" in number_text or b"0.0000" in number_text):
-        return number_text
-    return repr(float(number_text)).encode()
+# What orjson writes for any number below 1e-4 in magnitude (and only for a few others,
+# such as 10.00001, which repr writes the same): an exponent, or four zeros after the point.
+_BELOW_1E_4 = (b"e-", b"0.0000")
 
 
 CONTROLLER_TEXT = ControllerText()

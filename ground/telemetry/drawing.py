@@ -26,6 +26,9 @@ class Drawing:
         self.log = log
         self._warned: dict[str, float] = {}
 
+    def draws(self, key: str) -> bool:
+        return self.view.draws(key)
+
     def draw(self, key: str, payload: bytes, attachment: bytes | None,
              log_time_ns: int) -> None:
         """What Foxglove draws of this record, into the file and to the live view."""

@@ -171,6 +171,11 @@ class FoxgloveView:
                 self._routes[key] = draw
         return draw(payload, attachment)
 
+    def draws(self, key: str) -> bool:
+        """Whether any record on ``key`` can give an output (a caller that knows its keys
+        skips ``feed`` for the others: the timing records, most of the MAVLink mirror)."""
+        return self._route(key) is not _nothing
+
     def _route(self, key: str) -> Callable[[bytes, bytes | None], list[Output]]:
         """What draws the records of ``key``: worked out once per key, not per record."""
         if key.startswith("mavlink/"):

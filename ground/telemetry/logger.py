@@ -151,6 +151,7 @@ class Logger:
         self._warned: dict[str, float] = {}
         # Each key heard (at most MAX_KEYS: past it a new key is refused) and its schema.
         self._schemas: dict[str, RecordSchema | str | None] = {}
+        self._drawn: set[str] = set()  # the keys of those whose records Foxglove draws
         self.usage = ProcessUsage()
 
     def stop(self, *_args: Any) -> None:
@@ -179,14 +180,17 @@ class Logger:
                                 "so far)")
                 return
             schema = self._schemas[key] = schema_for_key(key)
+            if self.drawing is not None and self.drawing.draws(key):
+                self._drawn.add(key)
         if schema == "batch":  # a span of a process's records: each written as it came
             try:
                 entries = unpack_batch(key, payload)
             except ValueError as exc:
                 self._refuse(key, str(exc))
                 return
-            for entry in entries:
-                self._write(*entry, log_time_ns)
+            write = self._write
+            for entry_key, entry_payload, entry_attachment in entries:
+                write(entry_key, entry_payload, entry_attachment, log_time_ns)
             return
         try:
             seq, sim_time_us = self._check(key, schema, payload, attachment)
@@ -208,7 +212,7 @@ class Logger:
         if c.records == 1:  # the flight's cost from its first record, not the start-up's
             self.usage.restart()
         c.per_key[key] += 1
-        if self.drawing is not None:
+        if key in self._drawn:
             self.drawing.draw(key, payload, attachment, log_time_ns)
 
     def _check(self, key: str, schema: RecordSchema | str | None, payload: bytes,

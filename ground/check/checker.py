@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 import threading
 import time
@@ -24,6 +25,7 @@ from typing import Any
 from ground.record.run_files import write_json
 from ground.run.flights import Overrides, fly_processes, plan_flight
 from ground.run.loader import ProcessLoader, ProcessRunError, take_loader
+from ground.run.placement import FlightSlot, FlightSlots
 from ground.run.progress import LiveLine
 from ground.scenario.expectations import Outcome, evaluate
 from ground.scenario.scenario_file import Scenario, load_scenario, scenario_by_name, shipped_names
@@ -175,11 +177,13 @@ class CheckOptions:
 def check_one(scenario: Scenario, options: CheckOptions,
               loader: ProcessLoader | None = None,
               overrides: Overrides | None = None,
-              started_s: float | None = None) -> ScenarioResult:
+              started_s: float | None = None,
+              flight_slot: FlightSlot | None = None) -> ScenarioResult:
     """Fly one scenario (its processes forked by ``loader``, if given; with ``overrides`` of
     its choices, else only ``options.realtime``) and judge it; a failed flight is a
     result, not an exception. ``started_s`` (time.monotonic): the origin of the run's
-    timeline (default: when the processes start), so a caller can place its marks."""
+    timeline (default: when the processes start), so a caller can place its marks;
+    ``flight_slot``: held while it flies."""
 
     run_dir = options.out_dir / scenario.name
     result = ScenarioResult(scenario, run_dir)
@@ -188,7 +192,8 @@ def check_one(scenario: Scenario, options: CheckOptions,
         plan = plan_flight(scenario, overrides or Overrides(realtime=options.realtime,
                                                             rt_cpus=options.rt_cpus))
         result.metrics = fly_processes(plan, run_dir, figures=options.figures, quiet=True,
-                                       loader=loader, started_s=started_s)
+                                       loader=loader, started_s=started_s,
+                                       flight_slot=flight_slot)
     except (ProcessRunError, ValueError, OSError) as exc:
         result.error = str(exc)
     result.wall_time_s = time.perf_counter() - start
@@ -206,6 +211,14 @@ def check_one(scenario: Scenario, options: CheckOptions,
     return result
 
 
+def flights_at_once(jobs: int) -> int:
+    """How many of a lockstep check's ``jobs`` runs in progress fly at once; the others
+    start their processes or write their reports meanwhile. A flight keeps about a CPU
+    and a half busy (its two loops take turns on one, its logger has half of another):
+    one per two usable CPUs."""
+    return max(1, min(jobs, len(os.sched_getaffinity(0)) // 2))
+
+
 def run_check(scenarios: list[Scenario], options: CheckOptions,
               progress: Callable[[ScenarioResult, int, list[str]], None] | None = None
               ) -> list[ScenarioResult]:
@@ -217,12 +230,17 @@ def run_check(scenarios: list[Scenario], options: CheckOptions,
     lock = threading.Lock()
     done: dict[str, ScenarioResult] = {}
     loader = take_loader() if options.forked else None
+    # Real time: each run paced on the machine to itself (-j 1), no slots.
+    slots = FlightSlots(flights_at_once(options.jobs)) if not options.realtime else None
 
     def job(scenario: Scenario) -> ScenarioResult:
         with lock:
             flying.append(scenario.name)
         try:
-            return check_one(scenario, options, loader)
+            if slots is None:
+                return check_one(scenario, options, loader)
+            with slots.assign() as slot:
+                return check_one(scenario, options, loader, flight_slot=slot)
         finally:
             with lock:
                 flying.remove(scenario.name)
@@ -237,6 +255,8 @@ def run_check(scenarios: list[Scenario], options: CheckOptions,
                     with lock:
                         progress(result, len(done), list(flying))
     finally:
+        if slots is not None:
+            slots.close()
         if loader is not None:
             loader.close()
     results = [done[s.name] for s in scenarios]

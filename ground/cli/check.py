@@ -10,7 +10,14 @@ from pathlib import Path
 
 from contracts.arguments import number
 from contracts.atomic_file import write_atomic
-from ground.check.checker import CheckOptions, Progress, collect, read_baseline, run_check
+from ground.check.checker import (
+    CheckOptions,
+    Progress,
+    collect,
+    flights_at_once,
+    read_baseline,
+    run_check,
+)
 from ground.check.results import junit_xml, markdown_summary, results_table
 from ground.cli.common import add_rt_cpus, fresh_folder
 
@@ -35,8 +42,10 @@ def add_arguments(check: argparse.ArgumentParser) -> None:
     check.add_argument("--tolerance", type=number(0.0, 10.0), default=0.05,
                        help="relative change a baseline allows (default 0.05)")
     check.add_argument("-j", "--jobs", type=number(1, 64, integer=True), default=None,
-                       help="scenarios at a time, 1-64 (default: in lockstep one per CPU "
-                            "this process may use, in real time 1)")
+                       help="scenarios in progress at once, 1-64; in lockstep one flies "
+                            "per two CPUs this process may use while the others start "
+                            "or report (default: in lockstep three per flight, in real "
+                            "time 1)")
     check.add_argument("--realtime", action="store_true",
                        help="pace to the wall clock (default: lockstep)")
     add_rt_cpus(check)
@@ -48,14 +57,15 @@ def add_arguments(check: argparse.ArgumentParser) -> None:
 
 
 def default_jobs(realtime: bool, scenarios: int) -> int:
-    """Lockstep: one scenario per usable CPU. A lockstep run keeps about one CPU busy
-    (its two loops take turns on one, the logger has the rest of the other), and while
-    one run starts its processes or writes its report the other flies: the paper's seven
-    took 6.6-6.9 s two at a time against 8.0 s one at a time on 2 CPUs, their logs the
-    same. Real time: one, so that a run's pacing has the machine to itself."""
-    if realtime:
+    """Lockstep: three runs in progress per place to fly (``flights_at_once``: one per two
+    usable CPUs), one flying, the next with its processes started and waiting, the last
+    finishing its log and report; the flights themselves go one per place, so a loop
+    has its CPU and the others' start-up and reports keep off it. The paper's seven took
+    5.0-5.6 s so, on 2 CPUs, against 5.7-8.0 s one at a time (docs/checks.md). Real
+    time: one, so that a run's pacing has the machine to itself."""
+    if realtime or len(os.sched_getaffinity(0)) < 2:
         return 1
-    return max(1, min(len(os.sched_getaffinity(0)), scenarios, 64))
+    return max(1, min(3 * flights_at_once(scenarios), scenarios, 64))
 
 
 def handle(args: argparse.Namespace) -> int:
@@ -66,8 +76,9 @@ def handle(args: argparse.Namespace) -> int:
                                if os.environ.get("GITHUB_STEP_SUMMARY") else None)
     mode = "real time" if args.realtime else "lockstep"
     args.jobs = args.jobs or default_jobs(args.realtime, len(scenarios))
-    print(f"ivfm check: {len(scenarios)} scenario(s), {mode}, {args.jobs} at a time; run "
-          f"folders in {out}", file=sys.stderr)
+    flying = "" if args.realtime else f", {flights_at_once(args.jobs)} flying"
+    print(f"ivfm check: {len(scenarios)} scenario(s), {mode}, {args.jobs} at a time"
+          f"{flying}; run folders in {out}", file=sys.stderr)
     start = time.perf_counter()
     results = run_check(scenarios, CheckOptions(out, realtime=args.realtime, jobs=args.jobs,
                                                 baseline=baseline, tolerance=args.tolerance,

@@ -24,7 +24,8 @@ REPORT_DONE = (GROUND, "report done")
 # (name, from mark, to mark): the phases of a run, in order.
 PHASES = (
     ("command start-up", COMMAND_START, (GROUND, "run start")),
-    ("processes start-up", (GROUND, "run start"), ("sitl", "released")),
+    ("processes start-up", (GROUND, "run start"), (GROUND, "ready to fly")),
+    ("waiting to fly", (GROUND, "ready to fly"), ("sitl", "released")),
     ("released to first step", ("sitl", "released"), LOOP[0]),
     ("loop", *LOOP),
     ("teardown", LOOP[1], (GROUND, "run end")),
@@ -72,7 +73,9 @@ def summarize(marks: list[dict[str, Any]], sim_loop_s: float) -> dict[str, Any]:
         events.append(event)
     phases = {name: round(first[end] - first[start], 6) for name, start, end in PHASES
               if start in first and end in first}
-    out: dict[str, Any] = {"events": events, "phases_s": phases}
+    # The origin on time.monotonic (one clock for every process of the machine): lines up
+    # the runs of one command, such as a check's flights one after the other.
+    out: dict[str, Any] = {"origin_monotonic_s": origin, "events": events, "phases_s": phases}
     if "loop" in phases:
         out["loop_real_time_factor"] = (sim_loop_s / phases["loop"] if phases["loop"] > 0
                                         else math.inf)

@@ -21,6 +21,7 @@ from ground.record.run_files import RUN_FILE, SCENARIO_FILE, write_json
 from ground.report.metrics import compute_metrics
 from ground.run.inprocess import run_inprocess
 from ground.run.loader import ProcessLoader
+from ground.run.placement import FlightSlot
 from ground.run.processes import FIGURE_MODULES, REPORT_MODULES, RunSettings, run_processes
 from ground.run.progress import ProgressLine
 from ground.scenario.scenario_file import Scenario
@@ -104,13 +105,15 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool | str = True,
                   quiet: bool = False, loader: ProcessLoader | None = None,
                   started_s: float | None = None,
                   view: tuple[str, int] | None = None,
-                  log_sensors: bool = False) -> dict[str, Any]:
+                  log_sensors: bool = False,
+                  flight_slot: FlightSlot | None = None) -> dict[str, Any]:
     """Fly through the processes into ``out_dir`` (run.json, scenario copy, log, process
     logs); returns metrics.json's content. ``quiet``: no progress on stderr; ``loader``:
     the processes forked by this process loader (ground/run/loader.py), not started anew;
     ``started_s``: when the command started (time.monotonic), for the run's timeline;
     ``view``: (host, port) of a live view the logger serves; ``log_sensors``: the log
-    keeps the simulator's sensor readings too (a ULog's sensor topics)."""
+    keeps the simulator's sensor readings too (a ULog's sensor topics); ``flight_slot``:
+    what the flight holds while it flies (``run_processes``)."""
     scenario = plan.scenario
     settings = RunSettings(plan.controller, plan.plant, plan.airframe.argument, plan.model_path,
                            {k: v for k, v in plan.parameters.items() if k in plan.given},
@@ -120,7 +123,8 @@ def fly_processes(plan: FlightPlan, out_dir: Path, figures: bool | str = True,
                            home=plan.home, rt_cpus=plan.rt_cpus, log_sensors=log_sensors)
     accounting = run_processes(
         scenario, settings, out_dir, quiet=quiet, loader=loader, started_s=started_s, view=view,
-        report_modules=REPORT_MODULES + (FIGURE_MODULES if figures else ()))
+        report_modules=REPORT_MODULES + (FIGURE_MODULES if figures else ()),
+        flight_slot=flight_slot)
     timing = accounting.pop("timing")
     shutil.copyfile(scenario.source, out_dir / SCENARIO_FILE)
     if scenario.plan is not None and scenario.plan.is_relative_to(scenario.source.parent):

@@ -13,7 +13,6 @@ everything else from the log.
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import importlib
 import json
 import os
@@ -21,10 +20,8 @@ import select
 import shutil
 import subprocess
 import sys
-import tempfile
 import threading
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,12 +32,12 @@ from autopilot.trajectories import REFERENCE_OPTIONS
 from contracts import timeline
 from contracts.frames import DEFAULT_HOME, Home
 from contracts.process_main import ended_with_this_command
-from contracts.realtime import pin_to_cpus
 from contracts.telemetry import AUTOPILOT, SITL, vehicle_key
 from contracts.zenoh_link import ZenohOptions, open_session
 from ground.record import timeline as run_timeline
 from ground.run.children import LOG_PREFIX, LoggerProcess, free_tcp_port, free_udp_port, tail
 from ground.run.loader import ForkedProcess, ProcessLoader, ProcessRunError
+from ground.run.placement import HANDOVER_CPUS, FlightSlot
 from ground.run.progress import ProgressLine
 from ground.scenario.ground_station import GroundStation
 from ground.scenario.scenario_file import Scenario
@@ -68,63 +65,6 @@ class RunSettings:
     log_sensors: bool = False  # the simulator logs its HIL_SENSOR and HIL_GPS frames too
 
 
-class HandoverCpus:
-    """The CPU each lockstep run's two loops share, over every run on this machine in
-    flight (``ivfm check -j N``, a campaign's workers, several ``ivfm run``): a run takes
-    a CPU by locking its file in ``lock_dir`` (the last CPU first: CPU 0 serves most
-    interrupts), and none when every CPU is taken (it runs unplaced, as before) or the
-    machine has one CPU. A lock goes with its process, however that ends.
-
-    While it holds CPUs, this process (the command: its waits, its Zenoh session) keeps
-    its own threads off them, through ``keep_off`` (CPUs it may use), and goes back to
-    the CPUs it had once it holds none: its wake-ups on a hand-over CPU preempted the
-    loops there (docs/mavlink.md, "The lockstep cycle through the processes")."""
-
-    def __init__(self, lock_dir: Path | None = None,
-                 keep_off: Callable[[frozenset[int]], object] | None = None) -> None:
-        self.lock_dir = Path(lock_dir or tempfile.gettempdir())
-        self._held: dict[int, int] = {}  # cpu -> the locked file's descriptor
-        self._lock = threading.Lock()
-        self._place = keep_off or pin_to_cpus
-        self._own: frozenset[int] = frozenset()  # this process's CPUs before it held any
-
-    def take(self) -> int | None:
-        with self._lock:
-            if not self._held:
-                self._own = frozenset(os.sched_getaffinity(0))
-            cpus = sorted(self._own, reverse=True)
-            if len(cpus) < 2:
-                return None
-            for cpu in cpus:
-                if cpu in self._held:
-                    continue
-                fd = os.open(self.lock_dir / f"ivfm-handover-cpu{cpu}.lock",
-                             os.O_CREAT | os.O_RDWR, 0o666)
-                try:
-                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                except OSError:  # another run's
-                    os.close(fd)
-                    continue
-                self._held[cpu] = fd
-                self._keep_off_held()
-                return cpu
-        return None
-
-    def give(self, cpu: int | None) -> None:
-        with self._lock:
-            fd = self._held.pop(cpu, None) if cpu is not None else None
-            if fd is not None:
-                os.close(fd)  # and its lock
-                self._keep_off_held()
-
-    def _keep_off_held(self) -> None:
-        """This process on its own CPUs but those it holds (all of them when it holds
-        every one: the command then waits beside its runs, as before)."""
-        with contextlib.suppress(OSError):
-            self._place(self._own - set(self._held) or self._own)
-
-
-HANDOVER_CPUS = HandoverCpus()
 # How long the wait for a run's processes sleeps at most between its checks (its deadline,
 # a failed autopilot); a process's end wakes it at once.
 FOLLOW_WAIT_S = 0.25
@@ -197,14 +137,17 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
                   quiet: bool = False, loader: ProcessLoader | None = None,
                   started_s: float | None = None,
                   view: tuple[str, int] | None = None,
-                  report_modules: tuple[str, ...] = REPORT_MODULES) -> dict[str, Any]:
+                  report_modules: tuple[str, ...] = REPORT_MODULES,
+                  flight_slot: FlightSlot | None = None) -> dict[str, Any]:
     """Fly ``scenario`` through the processes; returns the telemetry accounting (records
     published and logged per key) and the autopilot's timing summary. ``quiet``: no
     progress on stderr; ``loader``: the processes forked by it, not started anew; ``view``:
     (host, port) where the logger serves the flight live to Foxglove; ``report_modules``:
     what the command's report after the flight imports, imported while it flies. Every
     process marks its phases into the run folder's ``timeline.json``, from ``started_s``
-    (when the command started, on time.monotonic; default: now)."""
+    (when the command started, on time.monotonic; default: now). ``flight_slot``: the
+    run's place in a batch's ``FlightSlots`` (its CPU, and the lock it flies under), for
+    a CPU of its own otherwise."""
     clear_run_folder(out_dir)
     run_timeline.mark(out_dir, "command start", started_s)
     run_timeline.mark(out_dir, "run start")
@@ -215,8 +158,10 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
     logs = {name: out_dir / f"{name}.log" for name in ("logger", SITL, AUTOPILOT)}
     gcs_port = free_udp_port() if scenario.ground_station is not None else 0
     # Lockstep: both loops on one CPU, so a hand-over does not wake a thread elsewhere.
-    handover_cpu = (HANDOVER_CPUS.take() if not settings.realtime and settings.rt_cpus is None
-                    else None)
+    placed = not settings.realtime and settings.rt_cpus is None
+    own_cpu = placed and flight_slot is None  # taken here, given back at the run's end
+    handover_cpu = (HANDOVER_CPUS.take() if own_cpu else
+                    flight_slot.cpu if placed else None)
     # The run's own session listens where the vehicles connect at once: found through
     # the logger (gossip), its requests waited ~0.2 s for a route to a new vehicle.
     ground_endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
@@ -229,12 +174,14 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
                                       *(["--off-cpu", str(handover_cpu)]
                                         if handover_cpu is not None else [])])
     except BaseException:
-        HANDOVER_CPUS.give(handover_cpu)  # the run ends here: its CPU is free again
+        if own_cpu:
+            HANDOVER_CPUS.give(handover_cpu)  # the run ends here: its CPU is free again
         raise
     run_timeline.mark(out_dir, "logger started")
     procs: dict[str, subprocess.Popen | ForkedProcess] = {}
     outs = []
     session = None
+    holding_slot = False
     timeout_s = 120.0 + scenario.duration_s * (1.5 if settings.realtime else 1.0)
     try:
         # The vehicles start once the logger listens: a vehicle's session opened before
@@ -266,7 +213,10 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
                 print(f"  perturbation {answer.get('id')}: {entry.kind} "
                   f"[{entry.start_s:g}, {entry.end_s:g}) s acknowledged by the "
                       f"{entry.target}", file=sys.stderr, flush=True)
-        run_timeline.mark(out_dir, "schedule delivered")
+        run_timeline.mark(out_dir, "ready to fly")
+        if flight_slot is not None:
+            flight_slot.lock.acquire()
+            holding_slot = True
         client.start(v)
         run_timeline.mark(out_dir, "simulator released")
         if scenario.ground_station is not None:
@@ -277,6 +227,9 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
         # The report's imports (the metrics; matplotlib for figures) load while it flies.
         threading.Thread(target=_import_all, args=(report_modules,), daemon=True).start()
         _follow(session, procs, v, scenario.duration_s, timeout_s, logs, quiet)
+        if holding_slot:
+            flight_slot.lock.release()
+            holding_slot = False
         if ground_station is not None and ground_station.error is not None:
             raise ProcessRunError(f"the ground station failed: {ground_station.error}")
         run_timeline.mark(out_dir, "processes exited")
@@ -285,6 +238,8 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
     except PerturbationError as exc:
         raise ProcessRunError(f"{exc}\n{tail(logs[SITL])}") from None
     finally:
+        if holding_slot:
+            flight_slot.lock.release()
         if ground_station is not None:
             ground_station.stop()
         for proc in procs.values():
@@ -298,7 +253,8 @@ def run_processes(scenario: Scenario, settings: RunSettings, out_dir: Path,
             run_timeline.mark(out_dir, "zenoh session closed")
         logger_rc = logger.stop()
         run_timeline.mark(out_dir, "logger stopped")
-        HANDOVER_CPUS.give(handover_cpu)
+        if own_cpu:
+            HANDOVER_CPUS.give(handover_cpu)
     if procs[AUTOPILOT].returncode != 0:
         raise ProcessRunError(f"the autopilot failed (exit {procs['autopilot'].returncode}):\n"
                               f"{tail(logs['autopilot'])}\nsimulator log:\n"

@@ -13,6 +13,8 @@ from pathlib import Path
 import junitparser
 import pytest
 
+from tests.lockstep_fingerprint import log_digests
+
 pytestmark = pytest.mark.process
 
 SCENARIO = """name = "{name}"
@@ -134,6 +136,32 @@ def test_pytest_collects_scenario_files_and_the_fixture_flies(pytester):
     xml = junitparser.JUnitXml.fromfile(str(pytester.path / "junit.xml"))
     names = sorted(case.name for suite in xml for case in suite)
     assert "axes.x.rmse <= 0.0001" in names and "test_a_dict_flies" in names
+
+
+def test_runs_in_progress_together_fly_one_per_place(tmp_path):
+    """Three at a time: the others' processes start and their reports are written while
+    one flies, but no more loops run at once than there are places to fly (one on two
+    CPUs), and every run flies as it would alone."""
+    from ground.check.checker import flights_at_once
+
+    for name in ("one", "two", "three"):
+        (tmp_path / f"{name}.toml").write_text(SCENARIO.format(name=name, x_rmse_max=0.5))
+    done = ivfm("check", *(str(tmp_path / f"{n}.toml") for n in ("one", "two", "three")),
+                "--out", str(tmp_path / "out"), "--keep", "-j", "3", cwd=tmp_path)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert f"3 at a time, {flights_at_once(3)} flying" in done.stderr
+    loops, digests = [], set()
+    for name in ("one", "two", "three"):
+        timeline = json.loads((tmp_path / "out" / name / "timeline.json").read_text())
+        at = {(e["process"], e["event"]): e["t_s"] for e in timeline["events"]}
+        origin = timeline["origin_monotonic_s"]
+        loops.append((origin + at["autopilot", "first control step"],
+                      origin + at["autopilot", "last control step"]))
+        assert timeline["phases_s"]["waiting to fly"] >= 0.0
+        digests.add(json.dumps(log_digests(tmp_path / "out" / name)))
+    most = max(sum(start <= t < end for start, end in loops) for t, _ in loops)
+    assert 1 <= most <= flights_at_once(3), loops
+    assert len(digests) == 1  # the same scenario: the same records, however it waited
 
 
 def test_forked_runs_are_bit_identical_to_a_fresh_process_run(tmp_path):

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import os
 import re
 from pathlib import Path
 
@@ -196,12 +195,7 @@ def test_help_reads_as_plain_text(base):
         assert "`" not in text, [line for line in text.splitlines() if "`" in line]
 
 
-def test_check_flies_one_scenario_per_usable_cpu_in_lockstep_and_one_in_real_time():
-    from ground.cli.check import default_jobs
-
-    cpus = len(os.sched_getaffinity(0))
-    assert default_jobs(False, 7) == min(cpus, 7)
-    assert default_jobs(False, 1) == 1  # never more jobs than scenarios
-    assert default_jobs(True, 7) == 1
+def test_check_jobs_are_resolved_once_the_scenarios_and_the_mode_are_known():
+    """(``default_jobs`` itself: tests/ground/test_flight_slots.py.)"""
     args = build_parser(["check"]).parse_args(["check"])
-    assert args.jobs is None  # resolved once the scenarios and the mode are known
+    assert args.jobs is None

@@ -129,7 +129,7 @@ def test_lockstep_runs_in_flight_share_out_the_cpus_for_their_hand_overs(monkeyp
     import subprocess
     import sys
 
-    from ground.run.processes import HandoverCpus
+    from ground.run.placement import HandoverCpus
 
     monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1})
     placed_here, placed_other = [], []  # where each process keeps its own threads

@@ -212,11 +212,11 @@ def check_one(scenario: Scenario, options: CheckOptions,
 
 
 def flights_at_once(jobs: int) -> int:
-    """How many of a lockstep check's ``jobs`` runs in progress fly at once; the others
-    start their processes or write their reports meanwhile. A flight keeps about a CPU
-    and a half busy (its two loops take turns on one, its logger has half of another):
-    one per two usable CPUs."""
-    return max(1, min(jobs, len(os.sched_getaffinity(0)) // 2))
+    """How many of a lockstep check's ``jobs`` runs in progress fly at once: one per usable
+    CPU (each flight's two loops take turns on a CPU of its own, its logger and the
+    others' start-up share the rest). The runs past that start their processes and wait,
+    or write their reports, meanwhile."""
+    return max(1, min(jobs, len(os.sched_getaffinity(0))))
 
 
 def run_check(scenarios: list[Scenario], options: CheckOptions,

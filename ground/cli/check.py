@@ -43,9 +43,8 @@ def add_arguments(check: argparse.ArgumentParser) -> None:
                        help="relative change a baseline allows (default 0.05)")
     check.add_argument("-j", "--jobs", type=number(1, 64, integer=True), default=None,
                        help="scenarios in progress at once, 1-64; in lockstep one flies "
-                            "per two CPUs this process may use while the others start "
-                            "or report (default: in lockstep three per flight, in real "
-                            "time 1)")
+                            "per CPU this process may use while the others start or "
+                            "report (default: in lockstep two per CPU, in real time 1)")
     check.add_argument("--realtime", action="store_true",
                        help="pace to the wall clock (default: lockstep)")
     add_rt_cpus(check)
@@ -57,15 +56,14 @@ def add_arguments(check: argparse.ArgumentParser) -> None:
 
 
 def default_jobs(realtime: bool, scenarios: int) -> int:
-    """Lockstep: three runs in progress per place to fly (``flights_at_once``: one per two
-    usable CPUs), one flying, the next with its processes started and waiting, the last
-    finishing its log and report; the flights themselves go one per place, so a loop
-    has its CPU and the others' start-up and reports keep off it. The paper's seven took
-    5.0-5.6 s so, on 2 CPUs, against 5.7-8.0 s one at a time (docs/checks.md). Real
+    """Lockstep: two runs in progress per flight (``flights_at_once``: one flight per
+    usable CPU), so that while one flies the next starts its processes, and waits, or the
+    last writes its report. The paper's seven took 3.4-3.7 s so on 2 CPUs, against
+    4.0-4.4 s with two flying and nothing waiting (docs/checks.md). One CPU, or real
     time: one, so that a run's pacing has the machine to itself."""
     if realtime or len(os.sched_getaffinity(0)) < 2:
         return 1
-    return max(1, min(3 * flights_at_once(scenarios), scenarios, 64))
+    return max(1, min(2 * flights_at_once(scenarios), scenarios, 64))
 
 
 def handle(args: argparse.Namespace) -> int:

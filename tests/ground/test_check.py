@@ -139,9 +139,9 @@ def test_pytest_collects_scenario_files_and_the_fixture_flies(pytester):
 
 
 def test_runs_in_progress_together_fly_one_per_place(tmp_path):
-    """Three at a time: the others' processes start and their reports are written while
-    one flies, but no more loops run at once than there are places to fly (one on two
-    CPUs), and every run flies as it would alone."""
+    """Three at a time: a run's processes start and reports are written while others
+    fly, but no more loops run at once than there are places to fly (one per CPU), and
+    every run flies as it would alone."""
     from ground.check.checker import flights_at_once
 
     for name in ("one", "two", "three"):

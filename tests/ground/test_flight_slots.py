@@ -70,13 +70,13 @@ def test_on_one_cpu_a_place_has_no_cpu(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize(("cpus", "jobs", "flying", "default"), [
     ({0}, 7, 1, 1),
-    ({0, 1}, 7, 1, 3),  # one flying, one ready, one finishing
-    ({0, 1, 2}, 7, 1, 3),
-    ({0, 1, 2, 3}, 7, 2, 6),
-    (set(range(8)), 7, 4, 7),  # never more jobs than scenarios
+    ({0, 1}, 7, 2, 4),  # two flying, and the next two starting or finishing
+    ({0, 1, 2}, 7, 3, 6),
+    ({0, 1, 2, 3}, 7, 4, 7),  # never more jobs than scenarios
+    ({0, 1, 2, 3}, 1, 1, 7),
     (set(range(8)), 2, 2, 7),
 ])
-def test_one_flight_per_two_cpus_and_three_runs_in_progress_per_flight(
+def test_one_flight_per_cpu_and_two_runs_in_progress_per_flight(
         monkeypatch, cpus, jobs, flying, default):
     monkeypatch.setattr("os.sched_getaffinity", lambda pid: cpus)
     assert flights_at_once(jobs) == flying

@@ -230,7 +230,7 @@ def run_check(scenarios: list[Scenario], options: CheckOptions,
     lock = threading.Lock()
     done: dict[str, ScenarioResult] = {}
     loader = take_loader() if options.forked else None
-    # Real time: each run paced on the machine to itself (-j 1), no slots.
+    # Real time: no places (a paced run keeps its own isolation: --rt-cpus, ivfm shield).
     slots = FlightSlots(flights_at_once(options.jobs)) if not options.realtime else None
 
     def job(scenario: Scenario) -> ScenarioResult:

@@ -80,8 +80,8 @@ class FlightSlots:
     """Where the runs of one batch (``ivfm check``) fly: ``count`` places, each a hand-over
     CPU taken for the whole batch (None when none is free) and a lock that one run holds
     from its processes being ready until they exit. The other runs meanwhile start their
-    processes, placed for their slot's CPU so that their start-up keeps off the loops
-    flying there, or write their reports. ``close`` gives the CPUs back."""
+    processes (placed for their place's CPU, so they are ready to fly the moment it is
+    free) or write their reports. ``close`` gives the CPUs back."""
 
     def __init__(self, count: int, cpus: HandoverCpus = HANDOVER_CPUS) -> None:
         self._cpus = cpus

@@ -58,8 +58,8 @@ def add_arguments(check: argparse.ArgumentParser) -> None:
 def default_jobs(realtime: bool, scenarios: int) -> int:
     """Lockstep: two runs in progress per flight (``flights_at_once``: one flight per
     usable CPU), so that while one flies the next starts its processes, and waits, or the
-    last writes its report. The paper's seven took 3.4-3.7 s so on 2 CPUs, against
-    4.0-4.4 s with two flying and nothing waiting (docs/checks.md). One CPU, or real
+    last writes its report. The paper's seven took 3.4-4.3 s so on 2 CPUs, against
+    4.0-5.2 s with two flying and nothing waiting (alternated; docs/checks.md). One CPU, or real
     time: one, so that a run's pacing has the machine to itself."""
     if realtime or len(os.sched_getaffinity(0)) < 2:
         return 1

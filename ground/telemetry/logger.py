@@ -151,7 +151,7 @@ class Logger:
         self._warned: dict[str, float] = {}
         # Each key heard (at most MAX_KEYS: past it a new key is refused) and its schema.
         self._schemas: dict[str, RecordSchema | str | None] = {}
-        self._drawn: set[str] = set()  # the keys of those whose records Foxglove draws
+        self._drawn: set[str] = set()  # of those, the keys whose records Foxglove draws
         self.usage = ProcessUsage()
 
     def stop(self, *_args: Any) -> None:

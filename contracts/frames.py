@@ -183,6 +183,27 @@ HOME_MAX_ABS_LAT_DEG = 89.0  # north and east lose their meaning at the poles
 HOME_ALT_RANGE_M = (-500.0, 9000.0)  # the standard atmosphere of ``pressure_hpa`` holds
 
 
+def geodetic_from_ned(lat0_deg: float, lon0_deg: float, alt0_amsl_m: float,
+                      north_m: float, east_m: float, down_m: float
+                      ) -> tuple[float, float, float]:
+    """(latitude deg, longitude deg in [-180, 180), altitude AMSL m) of a local NED
+    position around the origin (lat0, lon0, alt0): ``Home.geodetic_from_ned``, and in
+    compiled code ``geodetic_from_ned_compiled`` (the same source, the same bits)."""
+    lat0 = math.radians(lat0_deg)
+    x, y = north_m / EARTH_RADIUS_M, east_m / EARTH_RADIUS_M
+    c = math.sqrt(x * x + y * y)
+    if c == 0.0:
+        return lat0_deg, lon0_deg, alt0_amsl_m - down_m
+    sin_c, cos_c = math.sin(c), math.cos(c)
+    lat = math.asin(cos_c * math.sin(lat0) + x * sin_c * math.cos(lat0) / c)
+    dlon = math.atan2(y * sin_c, c * math.cos(lat0) * cos_c - x * math.sin(lat0) * sin_c)
+    lon = (lon0_deg + math.degrees(dlon) + 180.0) % 360.0 - 180.0
+    return math.degrees(lat), lon, alt0_amsl_m - down_m
+
+
+geodetic_from_ned_compiled = njit(cache=True)(geodetic_from_ned)
+
+
 class Home(NamedTuple):
     """The origin of the local NED frame on Earth, reported to ground tools as the
     vehicle's home.
@@ -225,16 +246,8 @@ class Home(NamedTuple):
                           ) -> tuple[float, float, float]:
         """(latitude deg, longitude deg in [-180, 180), altitude AMSL m) of a local NED
         position."""
-        lat0 = math.radians(self.lat_deg)
-        x, y = north_m / EARTH_RADIUS_M, east_m / EARTH_RADIUS_M
-        c = math.hypot(x, y)
-        if c == 0.0:
-            return self.lat_deg, self.lon_deg, self.alt_amsl_m - down_m
-        sin_c, cos_c = math.sin(c), math.cos(c)
-        lat = math.asin(cos_c * math.sin(lat0) + x * sin_c * math.cos(lat0) / c)
-        dlon = math.atan2(y * sin_c, c * math.cos(lat0) * cos_c - x * math.sin(lat0) * sin_c)
-        lon = (self.lon_deg + math.degrees(dlon) + 180.0) % 360.0 - 180.0
-        return math.degrees(lat), lon, self.alt_amsl_m - down_m
+        return geodetic_from_ned(self.lat_deg, self.lon_deg, self.alt_amsl_m, north_m,
+                                 east_m, down_m)
 
     def ned_from_geodetic(self, lat_deg: float, lon_deg: float, alt_amsl_m: float
                           ) -> tuple[float, float, float]:
@@ -319,6 +332,9 @@ SEA_LEVEL_PRESSURE_HPA = 1013.25
 def pressure_hpa(alt_amsl_m: float) -> float:
     """International standard atmosphere below 11 km: what a barometer reads."""
     return SEA_LEVEL_PRESSURE_HPA * (1.0 - 2.25577e-5 * alt_amsl_m) ** 5.25588
+
+
+pressure_hpa_compiled = njit(cache=True)(pressure_hpa)  # the same source, the same bits
 
 
 def altitude_from_pressure_m(pressure_hpa_: float) -> float:

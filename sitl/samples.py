@@ -16,7 +16,7 @@ import numpy as np
 from contracts.frames import Home
 from contracts.mavlink import mavlink
 from contracts.perturbations import NO_SENSOR_EFFECTS, SensorEffects
-from contracts.sim_samples import sample_frames
+from contracts.sim_samples import FIX_SIZE, SAMPLE_BYTES, gps_fix, pack_sample, sample_frames
 from sitl.plant import VehicleState
 from sitl.sensors import (
     SensorProfile,
@@ -44,6 +44,9 @@ class SampleSource:
             maxlen=HISTORY_SAMPLES)
         self._previous_velocity = state.velocity_ned_mps
         self._acceleration = np.zeros(3)
+        self._home = np.array(home, dtype=np.float64)
+        self._fix = np.zeros(FIX_SIZE)  # the last fix out of the receiver (FIX_*)
+        self._out = np.empty(SAMPLE_BYTES, dtype=np.uint8)  # one sample's frames
 
     def observe(self, before: VehicleState, after: VehicleState, period_s: float) -> None:
         """The plant went from ``before`` to ``after`` over one sample period."""
@@ -59,16 +62,28 @@ class SampleSource:
                ) -> bytes | None:
         """The sample at ``time_us`` (``state``: the plant's then) under ``effects``,
         packed on ``mav``; None when the link loses it. ``on_readings`` gets the HIL_SENSOR
-        and HIL_GPS frames of a sample sent (``sample_frames``)."""
-        readings, fix = self.sensors.sample(time_us, self._imu_state, self._acceleration,
-                                            effects)
-        if effects is NO_SENSOR_EFFECTS:
-            truth = truth_sample(time_us, state, self._acceleration)
-        else:
+        and HIL_GPS frames of a sample sent."""
+        fix = self.sensors.read(time_us, self._imu_state, self._acceleration, effects)
+        position, velocity = state.position_ned_m, state.velocity_ned_mps
+        quaternion, body_rate = state.quaternion, state.body_rate_rad_s
+        if effects is not NO_SENSOR_EFFECTS:
             if effects.loss_fraction > 0.0 and self.rng.random() < effects.loss_fraction:
                 return None
             position, velocity, quaternion, body_rate = sensed_state(
                 state, self._history, effects, self.rng)
+        if mav.signing.sign_outgoing:  # pymavlink signs
+            sensor = self.sensors.sensor_sample(time_us)
             truth = truth_sample(time_us, state, self._acceleration, position, velocity,
                                  quaternion, body_rate)
-        return sample_frames(truth, readings, fix, self.home, mav, on_readings)
+            return sample_frames(truth, sensor, fix, self.home, mav, on_readings)
+        if fix is not None:
+            self._fix[:] = gps_fix(fix)
+        out = self._out
+        end, sensor_end, gps_end = pack_sample(
+            out, mav.seq, mav.srcSystem, mav.srcComponent, self._home, time_us, position,
+            velocity, quaternion, body_rate, self._acceleration, self.sensors.reading,
+            self._fix, -1 if fix is None else fix.time_us)
+        if on_readings is not None:
+            on_readings(out[gps_end:sensor_end].tobytes(),
+                        out[:gps_end].tobytes() if gps_end else None)
+        return out[:end].tobytes()

@@ -23,12 +23,26 @@ from contracts.frames import (
     SEA_LEVEL_PRESSURE_HPA,
     Home,
     pressure_hpa,
+    pressure_hpa_compiled,
     quat_from_euler,
     rotation_from_quat,
 )
 from contracts.mavlink import HIL_SENSOR_BARO, HIL_SENSOR_IMU, HIL_SENSOR_MAG
 from contracts.perturbations import NO_SENSOR_EFFECTS, SensorEffects
-from contracts.sim_samples import GpsSample, SensorSample, TruthSample
+from contracts.sim_samples import (
+    READING_ACCEL,
+    READING_ALT,
+    READING_FIELDS,
+    READING_GYRO,
+    READING_MAG,
+    READING_PRESSURE,
+    READING_SIZE,
+    READING_TEMPERATURE,
+    GpsSample,
+    SensorSample,
+    TruthSample,
+    specific_force,
+)
 from contracts.toml_files import read_named_toml, shipped_names
 from contracts.toml_tables import check_fields, number
 from sitl.plant import VehicleState
@@ -43,7 +57,7 @@ def truth_sample(time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
     """The true state of one sample (or the given replacements, e.g. perturbed); the
     specific force is R^T (a - g) of the kinematic acceleration."""
     q = np.asarray(state.quaternion if quaternion is None else quaternion, dtype=float)
-    specific = rotation_from_quat(q).T @ (np.asarray(accel_ned_mps2) - _GRAVITY_NED)
+    specific = specific_force(q, np.asarray(accel_ned_mps2, dtype=float))
     return TruthSample(
         time_us, _tuple(state.position_ned_m if position is None else position),
         _tuple(state.velocity_ned_mps if velocity is None else velocity), _tuple(q),
@@ -203,30 +217,65 @@ class _Every:
 
 _DRAWS = 17
 _BARO_WALK, _BARO_NOISE = 15, 16
+# The suite's float state, one array the compiled read takes: biases, offsets, the field
+# at home, the sensor effects' offsets, ranges, the barometer's offset and drift, the
+# readings held between the slower sensors' updates.
+_GYRO_BIAS, _ACCEL_BIAS, _MAG_OFFSET, _FIELD_NED = 0, 3, 6, 9
+_EXTRA_GYRO, _EXTRA_ACCEL, _EXTRA_MAG = 12, 15, 18
+_GYRO_RANGE, _ACCEL_RANGE, _BARO_OFFSET, _BARO_DRIFT, _HOME_ALT = 21, 22, 23, 24, 25
+_STATE_SIZE = 26
+# Its integer state: each slower sensor's period and next due time [us].
+_MAG_PERIOD, _MAG_NEXT, _BARO_PERIOD, _BARO_NEXT = 0, 1, 2, 3
 
 
 @njit(cache=True)
-def _read_imu_and_mag(q: np.ndarray, body_rate: np.ndarray, accel_ned: np.ndarray,
-                      z: np.ndarray, gyro_bias: np.ndarray, accel_bias: np.ndarray,
-                      mag_offset: np.ndarray, field_ned: np.ndarray, extra_gyro: np.ndarray,
-                      extra_accel: np.ndarray, extra_mag: np.ndarray, gyro_range: float,
-                      accel_range: float, out: np.ndarray) -> None:
-    """Gyro, accelerometer (specific force R^T (a - g)) and magnetometer (R^T B) readings
-    into out[0:3], out[3:6], out[6:9]; the biases walk by z[0:6] (in place); z[6:15] is
+def _due(timers: np.ndarray, period: int, at: int, time_us: int) -> bool:
+    """A sensor at its own rate on sample time: due at 0, 1/rate, 2/rate, ..."""
+    next_us = timers[at]
+    if time_us < next_us:
+        return False
+    timers[at] = next_us + timers[period] * max(1, (time_us - next_us) // timers[period] + 1)
+    return True
+
+
+@njit(cache=True)
+def _read_sensors(time_us: int, q: np.ndarray, body_rate: np.ndarray,
+                  accel_ned: np.ndarray, down_m: float, z: np.ndarray, state: np.ndarray,
+                  timers: np.ndarray, reading: np.ndarray) -> None:
+    """One sample's HIL_SENSOR reading (contracts/sim_samples.py READING_*) into
+    ``reading``: gyro and accelerometer (specific force R^T (a - g)) each sample, the
+    magnetometer (R^T B) and barometer when due, else their last; the biases and the
+    barometer's offset walk by z[0:6] and z[15] (in ``state``); z[6:15] and z[16] are
     this sample's noise."""
     rot = rotation_from_quat(q)
     for i in range(3):
-        gyro_bias[i] += z[i]
-        accel_bias[i] += z[3 + i]
+        state[_GYRO_BIAS + i] += z[i]
+        state[_ACCEL_BIAS + i] += z[3 + i]
+    fields = HIL_SENSOR_IMU
+    mag_due = _due(timers, _MAG_PERIOD, _MAG_NEXT, time_us)
     for i in range(3):
         specific = rot[0, i] * accel_ned[0] + rot[1, i] * accel_ned[1] + \
             rot[2, i] * (accel_ned[2] - GRAVITY_MPS2)
-        field = rot[0, i] * field_ned[0] + rot[1, i] * field_ned[1] + rot[2, i] * field_ned[2]
-        gyro = body_rate[i] + gyro_bias[i] + z[6 + i] + extra_gyro[i]
-        accel = specific + accel_bias[i] + z[9 + i] + extra_accel[i]
-        out[i] = min(max(gyro, -gyro_range), gyro_range)
-        out[3 + i] = min(max(accel, -accel_range), accel_range)
-        out[6 + i] = field + mag_offset[i] + z[12 + i] + extra_mag[i]
+        gyro = body_rate[i] + state[_GYRO_BIAS + i] + z[6 + i] + state[_EXTRA_GYRO + i]
+        accel = specific + state[_ACCEL_BIAS + i] + z[9 + i] + state[_EXTRA_ACCEL + i]
+        gyro_range, accel_range = state[_GYRO_RANGE], state[_ACCEL_RANGE]
+        reading[READING_GYRO + i] = min(max(gyro, -gyro_range), gyro_range)
+        reading[READING_ACCEL + i] = min(max(accel, -accel_range), accel_range)
+        if mag_due:
+            field = rot[0, i] * state[_FIELD_NED] + rot[1, i] * state[_FIELD_NED + 1] + \
+                rot[2, i] * state[_FIELD_NED + 2]
+            reading[READING_MAG + i] = field + state[_MAG_OFFSET + i] + z[12 + i] + \
+                state[_EXTRA_MAG + i]
+    if mag_due:
+        fields |= HIL_SENSOR_MAG
+    state[_BARO_OFFSET] += z[_BARO_WALK] + state[_BARO_DRIFT]
+    if _due(timers, _BARO_PERIOD, _BARO_NEXT, time_us):
+        baro_alt = state[_HOME_ALT] - down_m + state[_BARO_OFFSET] + z[_BARO_NOISE]
+        reading[READING_PRESSURE] = pressure_hpa_compiled(baro_alt)
+        reading[READING_ALT] = baro_alt
+        fields |= HIL_SENSOR_BARO
+    reading[READING_TEMPERATURE] = TEMPERATURE_C
+    reading[READING_FIELDS] = fields
 
 
 class SensorSuite:
@@ -242,15 +291,19 @@ class SensorSuite:
         self.dt = 1.0 / sample_rate_hz
         self.rng = np.random.default_rng([seed, 0x5E2502])
         p = profile
-        self.gyro_bias = self.rng.normal(size=3) * p.gyro_turn_on_bias_rad_s
-        self.accel_bias = self.rng.normal(size=3) * p.accel_turn_on_bias_mps2
-        self.mag_offset = self.rng.normal(size=3) * p.mag_offset_gauss
-        self.baro_offset_m = 0.0
+        state = self._state = np.zeros(_STATE_SIZE)
+        state[_GYRO_BIAS:_GYRO_BIAS + 3] = self.rng.normal(size=3) * p.gyro_turn_on_bias_rad_s
+        state[_ACCEL_BIAS:_ACCEL_BIAS + 3] = self.rng.normal(size=3) * \
+            p.accel_turn_on_bias_mps2
+        state[_MAG_OFFSET:_MAG_OFFSET + 3] = self.rng.normal(size=3) * p.mag_offset_gauss
         self.gps_error = self.rng.normal(size=3) * (p.gps_horizontal_m, p.gps_horizontal_m,
                                                      p.gps_vertical_m)
-        self._mag, self._baro, self._gps = (_Every(p.mag_rate_hz), _Every(p.baro_rate_hz),
-                                            _Every(p.gps_rate_hz))
-        self._field_ned = np.array(home.mag_field_ned_gauss())
+        state[_FIELD_NED:_FIELD_NED + 3] = home.mag_field_ned_gauss()
+        state[_GYRO_RANGE], state[_ACCEL_RANGE] = p.gyro_range_rad_s, p.accel_range_mps2
+        state[_HOME_ALT] = home.alt_amsl_m
+        self._timers = np.array([round(1e6 / p.mag_rate_hz), 0, round(1e6 / p.baro_rate_hz), 0],
+                                dtype=np.int64)
+        self._gps = _Every(p.gps_rate_hz)
         root_dt = math.sqrt(self.dt)
         # The standard deviation, over one sample, of each of the numbers drawn each sample.
         self._scales = np.array(
@@ -258,50 +311,61 @@ class SensorSuite:
             + [p.accel_bias_walk_mps3_rthz * root_dt] * 3
             + [p.gyro_noise_rad_s_rthz / root_dt] * 3 + [p.accel_noise_mps2_rthz / root_dt] * 3
             + [p.mag_noise_gauss] * 3 + [p.baro_drift_m_rts * root_dt, p.baro_noise_m])
-        self._out = np.empty(9)
-        # The sensor effects' gyro, accelerometer and field offsets as arrays, made when
-        # the effects change.
-        self._offsets_of: SensorEffects | None = None
-        self._offsets: tuple[np.ndarray, ...] = ()
-        self._last_mag = (0.0, 0.0, 0.0)
-        self._last_baro = (SEA_LEVEL_PRESSURE_HPA, 0.0)
+        # This sample's reading (READING_*): the magnetometer and barometer hold their
+        # last until due again.
+        self.reading = np.zeros(READING_SIZE)
+        self.reading[READING_PRESSURE] = SEA_LEVEL_PRESSURE_HPA
+        self._effects_of: SensorEffects | None = None  # the effects ``_state`` holds
         # Fixes waiting out the receiver's latency: (release time, fix).
         self._gps_queue: collections.deque[tuple[int, GpsSample]] = collections.deque()
         self._started = False
 
-    def sample(self, time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
-               effects: SensorEffects | None = None) -> tuple[SensorSample, GpsSample | None]:
-        """This sample's HIL_SENSOR and, when a fix comes out of the receiver, HIL_GPS;
-        ``effects``: the sensor perturbations in force (biases, a field, an outage)."""
-        p, dt = self.profile, self.dt
-        fx = effects if effects is not None else NO_SENSOR_EFFECTS
+    @property
+    def gyro_bias(self) -> np.ndarray:
+        return self._state[_GYRO_BIAS:_GYRO_BIAS + 3]
+
+    @property
+    def accel_bias(self) -> np.ndarray:
+        return self._state[_ACCEL_BIAS:_ACCEL_BIAS + 3]
+
+    @property
+    def baro_offset_m(self) -> float:
+        return float(self._state[_BARO_OFFSET])
+
+    def read(self, time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
+             effects: SensorEffects) -> GpsSample | None:
+        """This sample's HIL_SENSOR reading into ``reading`` (contracts/sim_samples.py
+        READING_*) and, when a fix comes out of the receiver, its HIL_GPS; ``effects``:
+        the sensor perturbations in force (biases, a field, an outage)."""
         # One draw a sample, whatever is fresh: the IMU, magnetometer and barometer streams
         # do not depend on those sensors' rates (the GPS draws at its own).
         z = self.rng.standard_normal(_DRAWS) * self._scales
-        if fx is not self._offsets_of:  # effects are replaced whole (frozen)
-            self._offsets_of = fx
-            self._offsets = tuple(np.asarray(v, dtype=np.float64) for v in (
-                fx.gyro_bias_rad_s, fx.accel_bias_mps2, fx.mag_field_gauss))
-        _read_imu_and_mag(np.asarray(state.quaternion, dtype=np.float64),
-                          np.asarray(state.body_rate_rad_s, dtype=np.float64),
-                          np.asarray(accel_ned_mps2, dtype=np.float64), z, self.gyro_bias,
-                          self.accel_bias, self.mag_offset, self._field_ned, *self._offsets,
-                          p.gyro_range_rad_s, p.accel_range_mps2, self._out)
-        readings = self._out.tolist()
-        self.baro_offset_m += z[_BARO_WALK] + fx.baro_drift_mps * dt
-        fields_updated = HIL_SENSOR_IMU
-        if self._mag.due(time_us):
-            self._last_mag = tuple(readings[6:9])
-            fields_updated |= HIL_SENSOR_MAG
-        if self._baro.due(time_us):
-            baro_alt = self.home.alt_amsl_m - float(state.position_ned_m[2]) + \
-                self.baro_offset_m + z[_BARO_NOISE]
-            self._last_baro = (pressure_hpa(baro_alt), baro_alt)
-            fields_updated |= HIL_SENSOR_BARO
-        sensor = SensorSample(time_us, tuple(readings[3:6]), tuple(readings[0:3]),
-                              self._last_mag, self._last_baro[0], self._last_baro[1],
-                              TEMPERATURE_C, fields_updated)
-        return sensor, self._gps_sample(time_us, state, fx.gps_outage > 0)
+        if effects is not self._effects_of:  # effects are replaced whole (frozen)
+            self._effects_of = effects
+            s = self._state
+            s[_EXTRA_GYRO:_EXTRA_GYRO + 3] = effects.gyro_bias_rad_s
+            s[_EXTRA_ACCEL:_EXTRA_ACCEL + 3] = effects.accel_bias_mps2
+            s[_EXTRA_MAG:_EXTRA_MAG + 3] = effects.mag_field_gauss
+            s[_BARO_DRIFT] = effects.baro_drift_mps * self.dt
+        _read_sensors(time_us, state.quaternion, state.body_rate_rad_s, accel_ned_mps2,
+                      float(state.position_ned_m[2]), z, self._state, self._timers,
+                      self.reading)
+        return self._gps_sample(time_us, state, effects.gps_outage > 0)
+
+    def sample(self, time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
+               effects: SensorEffects | None = None) -> tuple[SensorSample, GpsSample | None]:
+        """``read`` as a sensor sample and a fix (or None)."""
+        fix = self.read(time_us, state, np.asarray(accel_ned_mps2, dtype=np.float64),
+                        effects if effects is not None else NO_SENSOR_EFFECTS)
+        return self.sensor_sample(time_us), fix
+
+    def sensor_sample(self, time_us: int) -> SensorSample:
+        """The last ``read`` as a sensor sample."""
+        r = self.reading.tolist()
+        return SensorSample(time_us, tuple(r[READING_ACCEL:READING_ACCEL + 3]),
+                            tuple(r[READING_GYRO:READING_GYRO + 3]),
+                            tuple(r[READING_MAG:READING_MAG + 3]), r[READING_PRESSURE],
+                            r[READING_ALT], r[READING_TEMPERATURE], int(r[READING_FIELDS]))
 
     def _gps_sample(self, time_us: int, state: VehicleState,
                     outage: bool) -> GpsSample | None:

@@ -204,6 +204,25 @@ def geodetic_from_ned(lat0_deg: float, lon0_deg: float, alt0_amsl_m: float,
 geodetic_from_ned_compiled = njit(cache=True)(geodetic_from_ned)
 
 
+def ned_from_geodetic(lat0_deg: float, lon0_deg: float, alt0_amsl_m: float, lat_deg: float,
+                      lon_deg: float, alt_amsl_m: float) -> tuple[float, float, float]:
+    """Inverse of :func:`geodetic_from_ned` (``Home.ned_from_geodetic``; compiled:
+    ``ned_from_geodetic_compiled``)."""
+    lat0, lat = math.radians(lat0_deg), math.radians(lat_deg)
+    dlon = math.radians(lon_deg - lon0_deg)
+    cos_arc = (math.sin(lat0) * math.sin(lat)
+               + math.cos(lat0) * math.cos(lat) * math.cos(dlon))
+    c = math.acos(min(1.0, max(-1.0, cos_arc)))
+    k = 1.0 if c < 1e-12 else c / math.sin(c)
+    north = k * (math.cos(lat0) * math.sin(lat)
+                 - math.sin(lat0) * math.cos(lat) * math.cos(dlon)) * EARTH_RADIUS_M
+    east = k * math.cos(lat) * math.sin(dlon) * EARTH_RADIUS_M
+    return north, east, alt0_amsl_m - alt_amsl_m
+
+
+ned_from_geodetic_compiled = njit(cache=True)(ned_from_geodetic)
+
+
 class Home(NamedTuple):
     """The origin of the local NED frame on Earth, reported to ground tools as the
     vehicle's home.
@@ -252,16 +271,8 @@ class Home(NamedTuple):
     def ned_from_geodetic(self, lat_deg: float, lon_deg: float, alt_amsl_m: float
                           ) -> tuple[float, float, float]:
         """Inverse of :meth:`geodetic_from_ned`."""
-        lat0, lat = math.radians(self.lat_deg), math.radians(lat_deg)
-        dlon = math.radians(lon_deg - self.lon_deg)
-        cos_arc = (math.sin(lat0) * math.sin(lat)
-                   + math.cos(lat0) * math.cos(lat) * math.cos(dlon))
-        c = math.acos(min(1.0, max(-1.0, cos_arc)))
-        k = 1.0 if c < 1e-12 else c / math.sin(c)
-        north = k * (math.cos(lat0) * math.sin(lat)
-                     - math.sin(lat0) * math.cos(lat) * math.cos(dlon)) * EARTH_RADIUS_M
-        east = k * math.cos(lat) * math.sin(dlon) * EARTH_RADIUS_M
-        return north, east, self.alt_amsl_m - alt_amsl_m
+        return ned_from_geodetic(self.lat_deg, self.lon_deg, self.alt_amsl_m, lat_deg,
+                                 lon_deg, alt_amsl_m)
 
     def mag_field_ned_gauss(self) -> tuple[float, float, float]:
         """The Earth's field at home in NED [gauss] from the world magnetic model: what
@@ -340,3 +351,6 @@ pressure_hpa_compiled = njit(cache=True)(pressure_hpa)  # the same source, the s
 def altitude_from_pressure_m(pressure_hpa_: float) -> float:
     """Altitude AMSL [m] of a pressure in the standard atmosphere (pressure_hpa inverted)."""
     return (1.0 - (pressure_hpa_ / SEA_LEVEL_PRESSURE_HPA) ** (1.0 / 5.25588)) / 2.25577e-5
+
+
+altitude_from_pressure_m_compiled = njit(cache=True)(altitude_from_pressure_m)

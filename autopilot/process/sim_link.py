@@ -32,6 +32,25 @@ from contracts.mavlink import (
     split_frames,
 )
 from contracts.sim_link_codec import parse_frames
+from contracts.sim_readings import (
+    GPS_FIX_TYPE,
+    GPS_POSITION,
+    GPS_SATELLITES,
+    GPS_VELOCITY,
+    IMU,
+    IMU_ACCEL,
+    IMU_BARO_ALT,
+    IMU_GYRO,
+    IMU_HAS_MAG,
+    IMU_MAG,
+    MAX_FRAMES,
+    SKIP,
+    SLOW,
+    TRUTH,
+    VALUES,
+    read_frames,
+)
+from contracts.vectors import MEASUREMENT
 
 # The messages a home can come from, read for it whatever the vehicle flies on.
 HOME_IDS = frozenset((mavlink.MAVLINK_MSG_ID_HIL_STATE_QUATERNION, mavlink.MAVLINK_MSG_ID_HIL_GPS))
@@ -75,6 +94,20 @@ class GpsReading(NamedTuple):
 LinkReading = TruthReading | ImuReading | GpsReading
 
 
+def _reading(kind: int, time_us: int, row: np.ndarray) -> tuple[str, LinkReading]:
+    """(message type, reading) of a row ``read_frames`` decoded."""
+    if kind == TRUTH:
+        return "ODOMETRY", TruthReading(time_us, row[:MEASUREMENT.size].copy())
+    if kind == IMU:
+        mag = row[IMU_MAG:IMU_MAG + 3].copy() if row[IMU_HAS_MAG] else None
+        return "HIL_SENSOR", ImuReading(time_us, row[IMU_GYRO:IMU_GYRO + 3].copy(),
+                                        row[IMU_ACCEL:IMU_ACCEL + 3].copy(),
+                                        float(row[IMU_BARO_ALT]), mag)
+    return "HIL_GPS", GpsReading(time_us, GpsFix(
+        row[GPS_POSITION:GPS_POSITION + 3].copy(), row[GPS_VELOCITY:GPS_VELOCITY + 3].copy(),
+        int(row[GPS_FIX_TYPE]), int(row[GPS_SATELLITES])))
+
+
 class SimLink:
     """TCP client of the simulator; reconnects while the simulator is away.
 
@@ -88,6 +121,7 @@ class SimLink:
                  sysid: int = AUTOPILOT_SYSID, home: Home | None = None,
                  wait_s: float = 0.0) -> None:
         self.address = (host, port)
+        self._home_values = np.zeros(3)  # home as read_frames takes it
         self.wait_s = wait_s
         # The local frame's origin: given, or the simulator's first position (as PX4's
         # simulator_mavlink takes its reference); None until then.
@@ -110,6 +144,21 @@ class SimLink:
         self._retry_s = RECONNECT_FIRST_S
         self.bad_messages = 0
         self.last_bad: str | None = None
+        # read_frames' wanted ids (before and once ODOMETRY flows), its rows and values.
+        self._wanted = {seen: np.array(sorted(ids - {-1}), dtype=np.int64) for seen, ids in (
+            (False, self.source_ids), (True, self._ids_with_odometry))}
+        self._table = np.zeros((MAX_FRAMES, 4), dtype=np.int64)
+        self._values = np.zeros((MAX_FRAMES, VALUES))
+
+    @property
+    def home(self) -> Home | None:
+        return self._home
+
+    @home.setter
+    def home(self, home: Home | None) -> None:
+        self._home = home
+        if home is not None:
+            self._home_values[:] = home
 
     def connect(self, now: float) -> bool:
         """Try to connect (every RECONNECT_FIRST_S at first, backing off to RECONNECT_S);
@@ -202,22 +251,52 @@ class SimLink:
             return None
         if not data:
             return None
-        frames, self._pending = split_frames(self._pending + data)
-        if self.home is None:
-            ids = self.source_ids | HOME_IDS
-        else:  # HIL_STATE_QUATERNION once ODOMETRY flows: it would be skipped below
-            ids = self._ids_with_odometry if self.odometry_seen else self.source_ids
-        parsed = parse_frames([f for f in frames if f[0] in ids], self.mav)
-        if self.home is None:
+        data = self._pending + data
+        if self.home is None:  # until home is known: every frame through pymavlink
+            frames, self._pending = split_frames(data)
+            parsed = parse_frames([f for f in frames if f[0] in self.source_ids | HOME_IDS],
+                                  self.mav)
             self._take_home(parsed)
+            return self._samples([(m.get_type(), m) for m in parsed])
+        # The frames in one compiled pass (contracts/sim_readings.py): decoded where they
+        # are plain, to pymavlink and the decoders below where not.
+        buf = np.frombuffer(data, dtype=np.uint8)
+        table, values = self._table, self._values
+        rows, used = read_frames(buf, self._wanted[self.odometry_seen], self._home_values,
+                                 table, values)
+        self._pending = data[used:]
+        entries: list[tuple[str, object]] = []
+        slow: list[bytes] = []
+        for r, (kind, start, end, time_us) in enumerate(table[:rows].tolist()):
+            if kind == SKIP:
+                continue
+            if kind == SLOW:
+                slow.append(data[start:end])
+                continue
+            if slow:
+                entries += [(m.get_type(), m) for m in self.mav.parse_buffer(b"".join(slow))
+                            or []]
+                slow.clear()
+            entries.append(_reading(kind, time_us, values[r]))
+        if slow:
+            entries += [(m.get_type(), m) for m in self.mav.parse_buffer(b"".join(slow)) or []]
+        return self._samples(entries)
+
+    def _samples(self, entries: list[tuple[str, object]]) -> list[LinkReading]:
+        """The readings of (type, message or decoded reading) in order: the state source's
+        messages decoded (a refusal counted), HIL_STATE_QUATERNION skipped once ODOMETRY
+        flows."""
         types = self.source_types
-        msgs = [(kind, m) for m in parsed if (kind := m.get_type()) in types]
+        msgs = [(kind, m) for kind, m in entries if kind in types]
         if not self.odometry_seen and any(kind == "ODOMETRY" for kind, _ in msgs):
             self.odometry_seen = True
         samples = []
         for kind, msg in msgs:
             if self.odometry_seen and kind == "HIL_STATE_QUATERNION":
                 continue  # the same sample, from the message the controller prefers
+            if isinstance(msg, (TruthReading, ImuReading, GpsReading)):
+                samples.append(msg)
+                continue
             try:
                 sample = self.decode(msg, kind)
             except LinkDataError as exc:

@@ -1,17 +1,20 @@
-"""The simulator's frames read into the autopilot's readings in one compiled call.
+"""The simulator link's frames read in one compiled call: the simulator's samples into the
+autopilot's readings, the autopilot's answers into the simulator's motor commands.
 
 Why: each lockstep cycle the autopilot reads three or four frames from the simulator
 (HIL_GPS, HIL_SENSOR, HIL_STATE_QUATERNION, ODOMETRY); cut, checked, parsed and decoded
 one by one in Python they cost a fifth of the cycle. ``read_frames`` walks a buffer
 once and, for each frame, says what it is:
 
-* ``TRUTH``, ``IMU``, ``GPS``: a plain MAVLink 2 ODOMETRY (position and velocity in
-  LOCAL_NED), HIL_SENSOR or HIL_GPS frame with a good checksum whose values pass the
-  decoders' checks, decoded into its row of ``values``: exactly what
-  ``contracts/mavlink.py``'s ``measurement_from_odometry``, ``imu_from_hil_sensor`` and
-  ``fix_from_hil_gps`` give of it (tests/contracts/test_sim_readings.py, bit for bit);
+* ``TRUTH``, ``IMU``, ``GPS``, ``ACTUATORS``: a plain MAVLink 2 ODOMETRY (position and
+  velocity in LOCAL_NED), HIL_SENSOR, HIL_GPS or (the simulator's side)
+  HIL_ACTUATOR_CONTROLS frame with a good checksum whose values pass the decoders'
+  checks, decoded into its row of ``values``: exactly what ``contracts/mavlink.py``'s
+  ``measurement_from_odometry``, ``imu_from_hil_sensor``, ``fix_from_hil_gps`` and
+  ``commands_from_actuator`` give of it (tests/contracts/test_sim_readings.py, bit for
+  bit);
 * ``SKIP``: a frame of a message not wanted (``wanted``: by message id), dropped unread,
-  as the link drops it;
+  as the autopilot's link drops it;
 * ``SLOW``: everything else wanted (garbage, a damaged or signed frame, MAVLink 1, a
   message or a frame not decoded here, values a decoder refuses): for pymavlink and
   those decoders to judge, in order, so that bad input is refused and reported exactly
@@ -30,6 +33,8 @@ from numba import njit
 
 from contracts.frames import altitude_from_pressure_m_compiled, ned_from_geodetic_compiled
 from contracts.mavlink import (
+    HIL_MODE_ARMED,
+    HIL_MOTORS,
     HIL_SENSOR_ABS_PRESSURE,
     HIL_SENSOR_IMU,
     HIL_SENSOR_MAG,
@@ -47,7 +52,7 @@ from contracts.mavlink_codec import (
 )
 from contracts.vectors import MEASUREMENT
 
-SKIP, SLOW, TRUTH, IMU, GPS = range(5)
+SKIP, SLOW, TRUTH, IMU, GPS, ACTUATORS = range(6)
 MAX_FRAMES = 64  # per read; the rest is read the next time
 VALUES = max(MEASUREMENT.size, 11)
 # An IMU row: gyro, specific force (FRD), baro altitude AMSL [m] (NaN: not fresh),
@@ -55,10 +60,15 @@ VALUES = max(MEASUREMENT.size, 11)
 IMU_GYRO, IMU_ACCEL, IMU_BARO_ALT, IMU_MAG, IMU_HAS_MAG = 0, 3, 6, 7, 10
 # A GPS row: position and velocity NED, fix type, satellites.
 GPS_POSITION, GPS_VELOCITY, GPS_FIX_TYPE, GPS_SATELLITES = 0, 3, 6, 7
+# An ACTUATORS row: the motor commands (HIL_MOTORS) as the simulator applies them.
 
 _OD = FrameLayout(mavlink.MAVLink_odometry_message)
 _SE = FrameLayout(mavlink.MAVLink_hil_sensor_message)
 _GP = FrameLayout(mavlink.MAVLink_hil_gps_message)
+_AC = FrameLayout(mavlink.MAVLink_hil_actuator_controls_message)
+_AC_ID, _AC_CRC, _AC_SIZE, _AC_CODES, _AC_OFFSETS = (
+    _AC.msgid, _AC.crc_extra, _AC.payload_bytes, _AC.codes, _AC.offsets)
+_AC_CONTROLS, _AC_MODE = _AC.index("controls"), _AC.index("mode")
 _OD_ID, _OD_CRC, _OD_SIZE, _OD_CODES, _OD_OFFSETS = (
     _OD.msgid, _OD.crc_extra, _OD.payload_bytes, _OD.codes, _OD.offsets)
 _SE_ID, _SE_CRC, _SE_SIZE, _SE_CODES, _SE_OFFSETS = (
@@ -67,7 +77,7 @@ _GP_ID, _GP_CRC, _GP_SIZE, _GP_CODES, _GP_OFFSETS = (
     _GP.msgid, _GP.crc_extra, _GP.payload_bytes, _GP.codes, _GP.offsets)
 _OD_FRAME = _OD.index("frame_id")
 _LOCAL_NED = mavlink.MAV_FRAME_LOCAL_NED
-_N = max(len(_OD.codes), len(_SE.codes), len(_GP.codes))
+_N = max(len(_OD.codes), len(_SE.codes), len(_GP.codes), len(_AC.codes))
 
 
 @njit(cache=True)
@@ -136,6 +146,20 @@ def _gps(ints: np.ndarray, home: np.ndarray, out: np.ndarray) -> bool:
 
 
 @njit(cache=True)
+def _actuators(floats: np.ndarray, ints: np.ndarray, out: np.ndarray) -> bool:
+    """``commands_from_actuator``; False: refused (judged again by it)."""
+    for i in range(HIL_MOTORS):
+        v = floats[_AC_CONTROLS + i]
+        if not math.isfinite(v) or v < -1e-6 or v > 1.0 + 1e-6:
+            return False
+    armed = ints[_AC_MODE] & HIL_MODE_ARMED
+    for i in range(HIL_MOTORS):
+        v = floats[_AC_CONTROLS + i]
+        out[i] = ((1.0 if v >= 1.0 else v) if v > 0.0 else 0.0) if armed else 0.0
+    return True
+
+
+@njit(cache=True)
 def _decoded(buf: np.ndarray, at: int, msgid: int, home: np.ndarray, out: np.ndarray,
              ints: np.ndarray, floats: np.ndarray) -> int:
     """The kind of a whole frame of a wanted message, its row decoded (SLOW: not)."""
@@ -157,6 +181,12 @@ def _decoded(buf: np.ndarray, at: int, msgid: int, home: np.ndarray, out: np.nda
         unpack_payload(buf, at + HEADER_BYTES, buf[at + 1], _GP_CODES, _GP_OFFSETS, ints,
                        floats)
         return GPS if _gps(ints, home, out) else SLOW
+    if msgid == _AC_ID:
+        if not checked_frame(buf, at, _AC_CRC, _AC_SIZE):
+            return SLOW
+        unpack_payload(buf, at + HEADER_BYTES, buf[at + 1], _AC_CODES, _AC_OFFSETS, ints,
+                       floats)
+        return ACTUATORS if _actuators(floats, ints, out) else SLOW
     return SLOW
 
 
@@ -164,7 +194,8 @@ def _decoded(buf: np.ndarray, at: int, msgid: int, home: np.ndarray, out: np.nda
 def read_frames(buf: np.ndarray, wanted: np.ndarray, home: np.ndarray, table: np.ndarray,
                 values: np.ndarray) -> tuple[int, int]:
     """The frames of ``buf`` into ``table`` and ``values`` (module docstring); ``wanted``
-    holds the wanted message ids. Returns (rows, bytes consumed)."""
+    holds the wanted message ids (none: every message). Returns (rows, bytes
+    consumed)."""
     ints = np.zeros(_N, dtype=np.int64)
     floats = np.zeros(_N)
     n = buf.size
@@ -183,7 +214,7 @@ def read_frames(buf: np.ndarray, wanted: np.ndarray, home: np.ndarray, table: np
         if size == 0 or i + size > n:
             break  # cut off: the rest comes with the next read
         msgid = msgid_at(buf, i)
-        want = False
+        want = wanted.size == 0
         for w in wanted:
             if w == msgid:
                 want = True

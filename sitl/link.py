@@ -4,9 +4,9 @@ time, the connection to it and what the simulator measures about it.
 The MAVLink object that encodes the samples (``mav``, for ``SampleSource.frames``) also
 parses what comes back; it is made anew for each connection, so a half message from the
 last one does not linger (and the sequence numbers of a connection's samples start at
-0). The samples and the actuator
-answers go through the simulator link's layouts (contracts/sim_link_codec.py), the rest
-through pymavlink.
+0). The samples are packed in compiled code
+(``contracts/sim_samples.py``); the autopilot's motor commands are read in compiled code
+(``contracts/sim_readings.py``), everything else through pymavlink.
 """
 
 from __future__ import annotations
@@ -16,11 +16,21 @@ import selectors
 import socket
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
+
+import numpy as np
 
 from contracts import SITL, timeline
-from contracts.mavlink import SIMULATOR_COMPID, SIMULATOR_SYSID, new_mavlink, split_frames
+from contracts.mavlink import (
+    HIL_MOTORS,
+    SIMULATOR_COMPID,
+    SIMULATOR_SYSID,
+    new_mavlink,
+    split_frames,
+)
 from contracts.realtime import Histogram
 from contracts.sim_link_codec import parse_frames
+from contracts.sim_readings import ACTUATORS, MAX_FRAMES, SLOW, VALUES, read_frames
 
 
 @dataclass
@@ -32,6 +42,20 @@ class LinkStats:
     bad_messages: int = 0
     periods_without_command: int = 0
     latency: Histogram = field(default_factory=Histogram)  # sample -> its answer [s]
+
+
+class Actuators(NamedTuple):
+    """A HIL_ACTUATOR_CONTROLS decoded and checked: the motor commands it gives."""
+
+    time_usec: int
+    commands: np.ndarray
+
+    def get_type(self) -> str:
+        return "HIL_ACTUATOR_CONTROLS"
+
+
+EVERY_MESSAGE = np.zeros(0, dtype=np.int64)  # read_frames: every frame read
+_NO_HOME = np.zeros(3)
 
 
 class AutopilotLink:
@@ -46,6 +70,8 @@ class AutopilotLink:
         self.log = log
         self.mav = new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID)
         self._pending = b""  # the start of a frame whose end has not come yet
+        self._table = np.zeros((MAX_FRAMES, 4), dtype=np.int64)  # read_frames' rows
+        self._values = np.zeros((MAX_FRAMES, VALUES))
         self._server: socket.socket | None = None
 
     def listen(self) -> int:
@@ -76,7 +102,9 @@ class AutopilotLink:
         return conn
 
     def read(self, conn: socket.socket) -> list | None:
-        """Messages available now; None when the autopilot has gone."""
+        """Messages available now; None when the autopilot has gone. A plain motor
+        command comes as ``Actuators`` (decoded and checked in compiled code,
+        contracts/sim_readings.py), anything else as pymavlink parses it."""
         try:
             data = conn.recv(65536)
         except (BlockingIOError, TimeoutError):
@@ -85,9 +113,33 @@ class AutopilotLink:
             return None
         if not data:
             return None
-        frames, self._pending = split_frames(self._pending + data)
+        data = self._pending + data
+        if self.mav.signing.secret_key is not None:  # pymavlink checks signatures
+            frames, self._pending = split_frames(data)
+            return self._judged(parse_frames(frames, self.mav))
+        table, values = self._table, self._values
+        rows, used = read_frames(np.frombuffer(data, dtype=np.uint8), EVERY_MESSAGE, _NO_HOME,
+                                 table, values)
+        self._pending = data[used:]
+        parsed: list = []
+        slow: list[bytes] = []
+        for r, (kind, start, end, time_us) in enumerate(table[:rows].tolist()):
+            if kind == ACTUATORS:
+                if slow:
+                    parsed += self.mav.parse_buffer(b"".join(slow)) or []
+                    slow.clear()
+                parsed.append(Actuators(time_us, values[r, :HIL_MOTORS].copy()))
+            elif kind == SLOW:
+                slow.append(data[start:end])
+        if slow:
+            parsed += self.mav.parse_buffer(b"".join(slow)) or []
+        return self._judged(parsed)
+
+    def _judged(self, parsed: list) -> list:
+        """The messages of one read, its BAD_DATA counted and said (once), not passed
+        on."""
         msgs, bad = [], []
-        for msg in parse_frames(frames, self.mav):
+        for msg in parsed:
             (bad if msg.get_type() == "BAD_DATA" else msgs).append(msg)
         if bad:
             self.stats.bad_messages += len(bad)

@@ -34,7 +34,7 @@ from contracts.paced_loop import Deadlines, PacedProcess
 from contracts.perturbations import Perturbation
 from contracts.telemetry_node import Request
 from contracts.zenoh_link import ZenohOptions
-from sitl.link import AutopilotLink, LinkStats, RealtimeConnection
+from sitl.link import Actuators, AutopilotLink, LinkStats, RealtimeConnection
 from sitl.perturbation_service import PerturbationService
 from sitl.plant import Plant
 from sitl.samples import SampleSource
@@ -167,7 +167,8 @@ class Simulator(PacedProcess):
     def apply_actuators(self, msg) -> int | None:
         """Apply an actuator message; returns the sample time it answers, None if refused."""
         try:
-            commands = commands_from_actuator(msg)
+            commands = msg.commands if isinstance(msg, Actuators) else \
+                commands_from_actuator(msg)
         except LinkDataError as exc:
             self.stats.bad_messages += 1
             self.log(f"refused actuator message: {exc}")

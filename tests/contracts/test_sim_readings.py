@@ -1,4 +1,4 @@
-"""The simulator's frames read in one compiled pass (contracts/sim_readings.py) against
+"""The simulator link's frames read in one compiled pass (contracts/sim_readings.py) against
 pymavlink and the Python decoders of contracts/mavlink.py: the same readings, bit for
 bit, where the frame is plain and its values good; everything else left to them."""
 
@@ -13,6 +13,7 @@ import numpy as np
 from contracts.frames import DEFAULT_HOME
 from contracts.mavlink import (
     LinkDataError,
+    commands_from_actuator,
     fix_from_hil_gps,
     imu_from_hil_sensor,
     mavlink,
@@ -20,6 +21,7 @@ from contracts.mavlink import (
     new_mavlink,
 )
 from contracts.sim_readings import (
+    ACTUATORS,
     GPS,
     IMU,
     MAX_FRAMES,
@@ -33,7 +35,8 @@ from contracts.vectors import MEASUREMENT
 
 HOME = np.array(DEFAULT_HOME)
 WANTED = np.array([mavlink.MAVLINK_MSG_ID_ODOMETRY, mavlink.MAVLINK_MSG_ID_HIL_SENSOR,
-                   mavlink.MAVLINK_MSG_ID_HIL_GPS], dtype=np.int64)
+                   mavlink.MAVLINK_MSG_ID_HIL_GPS, mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS],
+                  dtype=np.int64)
 
 
 def _float(rng: random.Random) -> float:
@@ -72,10 +75,20 @@ def _gps(rng: random.Random) -> mavlink.MAVLink_hil_gps_message:
         rng.randint(0, 20))
 
 
+def _actuators(rng: random.Random) -> mavlink.MAVLink_hil_actuator_controls_message:
+    controls = [rng.choice((rng.random(), rng.uniform(-2e-6, 1 + 2e-6), 0.0, -0.0, 1.0))
+                if rng.random() < 0.97 else rng.choice((math.nan, math.inf, 1.5, -0.2))
+                for _ in range(16)]
+    return mavlink.MAVLink_hil_actuator_controls_message(
+        rng.randint(0, 2**40), controls, rng.choice((0, 128, 129, 255)), 1)
+
+
 def _python(msg) -> tuple[str, tuple] | None:
     """What the Python decoders make of a message: (kind, values), or None (refused)."""
     try:
         kind = msg.get_type()
+        if kind == "HIL_ACTUATOR_CONTROLS":
+            return "commands", tuple(commands_from_actuator(msg).tolist())
         if kind == "ODOMETRY":
             return "truth", tuple(measurement_from_odometry(msg).tolist())
         if kind == "HIL_SENSOR":
@@ -91,6 +104,8 @@ def _python(msg) -> tuple[str, tuple] | None:
 def _compiled(kind: int, row: np.ndarray) -> tuple[str, tuple]:
     if kind == TRUTH:
         return "truth", tuple(row[:MEASUREMENT.size].tolist())
+    if kind == ACTUATORS:
+        return "commands", tuple(row[:4].tolist())
     if kind == IMU:
         return "imu", tuple(row[:7].tolist()) + (tuple(row[7:10].tolist()) if row[10] else ())
     return "gps", (*row[:6].tolist(), int(row[6]), int(row[7]))
@@ -108,8 +123,8 @@ def test_decoded_as_the_python_decoders_decode_or_left_to_them():
     decoded = refused = 0
     table = np.zeros((MAX_FRAMES, 4), dtype=np.int64)
     values = np.zeros((MAX_FRAMES, VALUES))
-    for k in range(6000):
-        msg = (_odometry, _sensor, _gps)[k % 3](rng)
+    for k in range(8000):
+        msg = (_odometry, _sensor, _gps, _actuators)[k % 4](rng)
         try:
             frame = msg.pack(mav)
         except (struct.error, OverflowError):

@@ -14,19 +14,35 @@ What the two loops share, and only that:
   period instead of dropping it, since each period is a period of sim time; far behind
   (a stall) it re-anchors, as a paused world resumes (``catch_up``).
 
-The lockstep loops share nothing beyond the shell: the autopilot answers samples as they
-come, the simulator sends one and waits for its answer.
+The lockstep loops share the shell and the way their simulator link waits
+(``lockstep_waits``): the autopilot answers samples as they come, the simulator sends
+one and waits for its answer.
 """
 
 from __future__ import annotations
 
 import math
 import signal
+import socket
+import struct
 import time
 from collections.abc import Callable
 
 from contracts import timeline
 from contracts.realtime import any_cpu, pin_this_thread, set_realtime_priority
+
+
+def lockstep_waits(sock: socket.socket, timeout_s: float) -> None:
+    """A lockstep link's socket: blocking, each receive and send waiting at most
+    ``timeout_s`` (then BlockingIOError), the bound kept by the kernel (SO_RCVTIMEO,
+    SO_SNDTIMEO). Why: a Python socket timeout polls before every receive and send, two
+    system calls more a cycle on each side of a hand-over that needs one each."""
+    sock.settimeout(None)
+    whole = int(timeout_s)
+    timeval = struct.pack("ll", whole, round((timeout_s - whole) * 1e6))
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, timeval)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, timeval)
+
 
 SPIN_S = 0.0005  # the last stretch before a precise deadline is busy-waited (default)
 MAX_SPIN_S = 0.005

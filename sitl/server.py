@@ -30,7 +30,7 @@ from contracts.airframe_file import AirframeSpec
 from contracts.arguments import SIM_RATE_RANGE_HZ
 from contracts.frames import DEFAULT_HOME, Home
 from contracts.mavlink import SIM_TCP_PORT, LinkDataError, commands_from_actuator
-from contracts.paced_loop import Deadlines, PacedProcess
+from contracts.paced_loop import Deadlines, PacedProcess, lockstep_waits
 from contracts.perturbations import Perturbation
 from contracts.telemetry_node import Request
 from contracts.zenoh_link import ZenohOptions
@@ -239,7 +239,7 @@ class Simulator(PacedProcess):
             if conn is None:
                 self._idle()
                 continue
-            conn.settimeout(0.5)
+            lockstep_waits(conn, 0.5)
             connected = True
             self._wait_for_start()
             while connected and not self._finished():

@@ -31,6 +31,7 @@ from contracts.mavlink import (
     new_mavlink,
     split_frames,
 )
+from contracts.paced_loop import lockstep_waits
 from contracts.sim_link_codec import parse_frames
 from contracts.sim_readings import (
     GPS_FIX_TYPE,
@@ -174,7 +175,10 @@ class SimLink:
         self._retry_s = RECONNECT_FIRST_S  # after this one is lost: quickly again
         self.next_attempt_s = now + RECONNECT_FIRST_S
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        sock.settimeout(self.wait_s or 0.0)  # 0: non-blocking
+        if self.wait_s > 0.0:
+            lockstep_waits(sock, self.wait_s)
+        else:
+            sock.setblocking(False)
         self.sock = sock
         self.mav = new_mavlink(self.sysid, AUTOPILOT_COMPID)
         self._pending = b""

@@ -215,6 +215,16 @@ class _Every:
         return True
 
 
+# Noise: each sensor has its own random stream, spawned from the seed (SeedSequence), so
+# that a new sensor, or another rate for one, moves no other sensor's numbers. The numbers
+# each sample takes are drawn NOISE_BLOCK_SAMPLES samples at a time by numpy (a block
+# holds the numbers drawing the samples one by one gives), outside the compiled read: the
+# same numbers on every path (numba's own generators are not numpy's, bit for bit).
+SENSOR_STREAMS = ("gyro", "accel", "mag", "baro", "gps")
+NOISE_BLOCK_SAMPLES = 256
+# A sample's numbers (z), in the order the compiled read takes them: gyro and
+# accelerometer bias walks, their noise, the magnetometer's noise, the barometer's
+# offset walk and noise.
 _DRAWS = 17
 _BARO_WALK, _BARO_NOISE = 15, 16
 # The suite's float state, one array the compiled read takes: biases, offsets, the field
@@ -240,13 +250,14 @@ def _due(timers: np.ndarray, period: int, at: int, time_us: int) -> bool:
 
 @njit(cache=True)
 def _read_sensors(time_us: int, q: np.ndarray, body_rate: np.ndarray,
-                  accel_ned: np.ndarray, down_m: float, z: np.ndarray, state: np.ndarray,
-                  timers: np.ndarray, reading: np.ndarray) -> None:
+                  accel_ned: np.ndarray, down_m: float, noise: np.ndarray, row: int,
+                  state: np.ndarray, timers: np.ndarray, reading: np.ndarray) -> None:
     """One sample's HIL_SENSOR reading (contracts/sim_samples.py READING_*) into
     ``reading``: gyro and accelerometer (specific force R^T (a - g)) each sample, the
     magnetometer (R^T B) and barometer when due, else their last; the biases and the
     barometer's offset walk by z[0:6] and z[15] (in ``state``); z[6:15] and z[16] are
-    this sample's noise."""
+    this sample's noise (z: the row ``row`` of ``noise``)."""
+    z = noise[row]
     rot = rotation_from_quat(q)
     for i in range(3):
         state[_GYRO_BIAS + i] += z[i]
@@ -289,15 +300,17 @@ class SensorSuite:
         self.profile = profile
         self.home = home
         self.dt = 1.0 / sample_rate_hz
-        self.rng = np.random.default_rng([seed, 0x5E2502])
         p = profile
+        # One random stream per sensor (module docstring, "Noise").
+        self.streams = dict(zip(SENSOR_STREAMS, map(np.random.default_rng, np.random.SeedSequence(
+            [seed, 0x5E2502]).spawn(len(SENSOR_STREAMS))), strict=True))
+        gyro, accel, mag, gps = (self.streams[name] for name in ("gyro", "accel", "mag", "gps"))
         state = self._state = np.zeros(_STATE_SIZE)
-        state[_GYRO_BIAS:_GYRO_BIAS + 3] = self.rng.normal(size=3) * p.gyro_turn_on_bias_rad_s
-        state[_ACCEL_BIAS:_ACCEL_BIAS + 3] = self.rng.normal(size=3) * \
-            p.accel_turn_on_bias_mps2
-        state[_MAG_OFFSET:_MAG_OFFSET + 3] = self.rng.normal(size=3) * p.mag_offset_gauss
-        self.gps_error = self.rng.normal(size=3) * (p.gps_horizontal_m, p.gps_horizontal_m,
-                                                     p.gps_vertical_m)
+        state[_GYRO_BIAS:_GYRO_BIAS + 3] = gyro.normal(size=3) * p.gyro_turn_on_bias_rad_s
+        state[_ACCEL_BIAS:_ACCEL_BIAS + 3] = accel.normal(size=3) * p.accel_turn_on_bias_mps2
+        state[_MAG_OFFSET:_MAG_OFFSET + 3] = mag.normal(size=3) * p.mag_offset_gauss
+        self.gps_error = gps.normal(size=3) * (p.gps_horizontal_m, p.gps_horizontal_m,
+                                               p.gps_vertical_m)
         state[_FIELD_NED:_FIELD_NED + 3] = home.mag_field_ned_gauss()
         state[_GYRO_RANGE], state[_ACCEL_RANGE] = p.gyro_range_rad_s, p.accel_range_mps2
         state[_HOME_ALT] = home.alt_amsl_m
@@ -311,6 +324,8 @@ class SensorSuite:
             + [p.accel_bias_walk_mps3_rthz * root_dt] * 3
             + [p.gyro_noise_rad_s_rthz / root_dt] * 3 + [p.accel_noise_mps2_rthz / root_dt] * 3
             + [p.mag_noise_gauss] * 3 + [p.baro_drift_m_rts * root_dt, p.baro_noise_m])
+        self._noise = np.empty((NOISE_BLOCK_SAMPLES, _DRAWS))  # this block's, scaled
+        self._row = NOISE_BLOCK_SAMPLES  # the next sample's row in it: none left
         # This sample's reading (READING_*): the magnetometer and barometer hold their
         # last until due again.
         self.reading = np.zeros(READING_SIZE)
@@ -337,9 +352,10 @@ class SensorSuite:
         """This sample's HIL_SENSOR reading into ``reading`` (contracts/sim_samples.py
         READING_*) and, when a fix comes out of the receiver, its HIL_GPS; ``effects``:
         the sensor perturbations in force (biases, a field, an outage)."""
-        # One draw a sample, whatever is fresh: the IMU, magnetometer and barometer streams
-        # do not depend on those sensors' rates (the GPS draws at its own).
-        z = self.rng.standard_normal(_DRAWS) * self._scales
+        if self._row == NOISE_BLOCK_SAMPLES:
+            self._draw_block()
+        row = self._row
+        self._row += 1
         if effects is not self._effects_of:  # effects are replaced whole (frozen)
             self._effects_of = effects
             s = self._state
@@ -348,9 +364,22 @@ class SensorSuite:
             s[_EXTRA_MAG:_EXTRA_MAG + 3] = effects.mag_field_gauss
             s[_BARO_DRIFT] = effects.baro_drift_mps * self.dt
         _read_sensors(time_us, state.quaternion, state.body_rate_rad_s, accel_ned_mps2,
-                      float(state.position_ned_m[2]), z, self._state, self._timers,
-                      self.reading)
+                      float(state.position_ned_m[2]), self._noise, row, self._state,
+                      self._timers, self.reading)
         return self._gps_sample(time_us, state, effects.gps_outage > 0)
+
+    def _draw_block(self) -> None:
+        """The next NOISE_BLOCK_SAMPLES samples' numbers, each sensor's from its own
+        stream, scaled (the IMU, magnetometer and barometer draw each sample, whatever is
+        fresh: their streams do not depend on those sensors' rates)."""
+        n, noise, st = NOISE_BLOCK_SAMPLES, self._noise, self.streams
+        gyro, accel = st["gyro"].standard_normal((n, 6)), st["accel"].standard_normal((n, 6))
+        noise[:, 0:3], noise[:, 6:9] = gyro[:, 0:3], gyro[:, 3:6]  # walk, noise
+        noise[:, 3:6], noise[:, 9:12] = accel[:, 0:3], accel[:, 3:6]
+        noise[:, 12:15] = st["mag"].standard_normal((n, 3))
+        noise[:, 15:17] = st["baro"].standard_normal((n, 2))  # walk, noise
+        noise *= self._scales
+        self._row = 0
 
     def sample(self, time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
                effects: SensorEffects | None = None) -> tuple[SensorSample, GpsSample | None]:
@@ -378,7 +407,7 @@ class SensorSuite:
         if self._gps.due(time_us):
             decay = math.exp(-self._gps.period_us / 1e6 / p.gps_error_time_constant_s)
             sigma = np.array([p.gps_horizontal_m, p.gps_horizontal_m, p.gps_vertical_m])
-            self.gps_error = self.gps_error * decay + self.rng.normal(size=3) * sigma * \
+            self.gps_error = self.gps_error * decay + self.streams["gps"].normal(size=3) * sigma * \
                 math.sqrt(1.0 - decay * decay)
             fix = self._fix(time_us, state)
             if outage:
@@ -393,7 +422,8 @@ class SensorSuite:
     def _fix(self, time_us: int, state: VehicleState) -> GpsSample:
         p = self.profile
         position = state.position_ned_m + self.gps_error
-        velocity = state.velocity_ned_mps + self.rng.normal(size=3) * p.gps_velocity_noise_mps
+        velocity = state.velocity_ned_mps + self.streams["gps"].normal(size=3) * \
+            p.gps_velocity_noise_mps
         lat, lon, alt = self.home.geodetic_from_ned(*(float(v) for v in position))
         return GpsSample(time_us, lat, lon, alt, _tuple(velocity), p.gps_hdop, p.gps_vdop,
                          3, p.gps_satellites)

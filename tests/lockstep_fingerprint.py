@@ -36,7 +36,8 @@ SKIPPED_TOPICS = ("/log",)
 # Mirrored messages sent to ground tools at wall-clock moments.
 WALL_TIMED_SUFFIXES = ("/STATUSTEXT", "/COMMAND_ACK")
 SCENARIOS = ("attitude-sine", "attitude-hold", "position-sine", "attitude-jr-10",
-             "attitude-jr-15", "attitude-jr-20", "position-kick", "mission-six-waypoints")
+             "attitude-jr-15", "attitude-jr-20", "position-kick", "mission-six-waypoints",
+             "gps-outage", "x500-position-sine")
 
 
 def mavlink_payload(frame: bytes) -> bytes:
@@ -74,8 +75,11 @@ def log_digests(run_dir: Path) -> dict[str, str]:
 
 
 def fingerprint(names: tuple[str, ...] = SCENARIOS) -> dict[str, dict[str, str]]:
-    """Fly each scenario through the processes in lockstep, forked by one process loader
-    as ``ivfm run`` and ``ivfm check`` fly them; {scenario: {topic: digest}}."""
+    """Fly each scenario through the processes in lockstep as ``ivfm run`` flies it (its
+    own sensors, state source and parameters), forked by one process loader as ``ivfm
+    run`` and ``ivfm check`` fly them, the simulator's sensor frames logged too;
+    {scenario: {topic: digest}}."""
+    from ground.run.flights import plan_flight
     from ground.run.loader import ProcessLoader
     from ground.run.processes import RunSettings, run_processes
     from ground.scenario.scenario_file import scenario_by_name
@@ -85,10 +89,14 @@ def fingerprint(names: tuple[str, ...] = SCENARIOS) -> dict[str, dict[str, str]]
     try:
         with tempfile.TemporaryDirectory() as tmp:
             for name in names:
-                scenario = scenario_by_name(name)
-                settings = RunSettings("ivfc", scenario.plant, scenario.airframe.argument)
+                plan = plan_flight(scenario_by_name(name))
+                settings = RunSettings(
+                    plan.controller, plan.plant, plan.airframe.argument, plan.model_path,
+                    {k: v for k, v in plan.parameters.items() if k in plan.given},
+                    state_source=plan.state_source, sensors=plan.sensors, seed=plan.seed,
+                    home=plan.home, log_sensors=True)
                 run_dir = Path(tmp) / name
-                run_processes(scenario, settings, run_dir, quiet=True, loader=loader)
+                run_processes(plan.scenario, settings, run_dir, quiet=True, loader=loader)
                 out[name] = log_digests(run_dir)
                 print(f"{name}: {len(out[name])} channels", file=sys.stderr, flush=True)
     finally:

@@ -21,6 +21,7 @@ from numba import njit
 from contracts.frames import GRAVITY_MPS2, Home, geodetic_from_ned_compiled, rotation_from_quat
 from contracts.mavlink import MG_PER_MPS2, mavlink
 from contracts.mavlink_codec import MAX_FRAME_BYTES, FrameLayout, pack_frame
+from contracts.vectors import TRUTH_BODY_RATE, TRUTH_POS, TRUTH_QUAT, TRUTH_VEL
 
 INT32_MIN, INT32_MAX = -2**31, 2**31 - 1
 INT16_MIN, INT16_MAX = -32768, 32767
@@ -202,13 +203,13 @@ def gps_values(time_us: int, fix: np.ndarray, ints: np.ndarray) -> None:
 
 @njit(cache=True)
 def pack_sample(out: np.ndarray, seq: int, sysid: int, compid: int, home: np.ndarray,
-                time_us: int, position: np.ndarray, velocity: np.ndarray,
-                quaternion: np.ndarray, body_rate: np.ndarray, accel_ned: np.ndarray,
-                reading: np.ndarray, fix: np.ndarray, fix_time_us: int) -> tuple[int, int, int]:
+                time_us: int, truth: np.ndarray, accel_ned: np.ndarray, reading: np.ndarray,
+                fix: np.ndarray, fix_time_us: int) -> tuple[int, int, int]:
     """One sample's frames into ``out``: HIL_GPS when a fix is out (``fix_time_us`` >= 0;
     first, so a receiver has it with the sample's IMU), HIL_SENSOR, HIL_STATE_QUATERNION
-    and ODOMETRY, all with sequence ``seq``. Returns where the frames end, where the
-    HIL_SENSOR frame ends and where the HIL_GPS frame ends (0 without one)."""
+    and ODOMETRY of the true state ``truth`` (contracts/vectors.py TRUTH) and its
+    kinematic acceleration, all with sequence ``seq``. Returns where the frames end,
+    where the HIL_SENSOR frame ends and where the HIL_GPS frame ends (0 without one)."""
     at = 0
     gps_end = 0
     if fix_time_us >= 0:
@@ -222,7 +223,9 @@ def pack_sample(out: np.ndarray, seq: int, sysid: int, compid: int, home: np.nda
                                  _SE_ID, _SE_CRC, seq, sysid, compid)
     hs_ints, hs_floats = np.zeros(_HS_N, dtype=np.int64), np.zeros(_HS_N)
     od_ints, od_floats = np.zeros(_OD_N, dtype=np.int64), np.zeros(_OD_N)
-    truth_values(time_us, position, velocity, quaternion, body_rate,
+    quaternion = truth[TRUTH_QUAT:TRUTH_QUAT + 4]
+    truth_values(time_us, truth[TRUTH_POS:TRUTH_POS + 3], truth[TRUTH_VEL:TRUTH_VEL + 3],
+                 quaternion, truth[TRUTH_BODY_RATE:TRUTH_BODY_RATE + 3],
                  specific_force(quaternion, accel_ned), home, hs_ints, hs_floats, od_ints,
                  od_floats)
     at = pack_frame(out, at, hs_ints, hs_floats, _HS_CODES, _HS_OFFSETS, _HS_ID, _HS_CRC,

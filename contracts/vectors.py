@@ -3,7 +3,9 @@
 * the **measurement** the controller reads each step (the simulator link decodes it, the
   in-process plant produces it, control records carry it);
 * the **reference** the controller tracks (the reference generator and the setpoint
-  shaper write it, control records carry it).
+  shaper write it, control records carry it);
+* the simulator's **truth** state (the plant derives it, the simulator's sensors read it
+  and its samples carry it, truth records keep it in this order).
 
 Python code indexes by name (``m[MEASUREMENT.position_ned_m]``); numba-compiled code,
 which cannot take slice objects from globals, uses the integer offsets below, derived
@@ -46,6 +48,19 @@ MEAS_EULER_RATE = MEASUREMENT.start("euler_rate_rad_s")
 MEAS_Z = MEAS_POS + 2  # NED: down is positive
 MEAS_VZ = MEAS_VEL + 2
 MEAS_YAW = MEAS_EULER + 2
+
+# The plant's state as the simulator reports it: position and velocity NED, attitude
+# (quaternion body FRD -> NED, ZYX Euler angles, their rates), body rates FRD, rotor
+# speeds [rad/s]; the order of the truth record (contracts/telemetry.py STATE).
+TRUTH = Layout("truth", position_ned_m=3, velocity_ned_mps=3, quaternion=4, euler_rad=3,
+               euler_rate_rad_s=3, body_rate_rad_s=3, rotor_rad_s=4)
+TRUTH_POS = TRUTH.start("position_ned_m")
+TRUTH_VEL = TRUTH.start("velocity_ned_mps")
+TRUTH_QUAT = TRUTH.start("quaternion")
+TRUTH_EULER = TRUTH.start("euler_rad")
+TRUTH_EULER_RATE = TRUTH.start("euler_rate_rad_s")
+TRUTH_BODY_RATE = TRUTH.start("body_rate_rad_s")
+TRUTH_ROTOR = TRUTH.start("rotor_rad_s")
 
 # Position NED and its two derivatives, then Euler angles and their two derivatives (the
 # latter ignored for roll and pitch when the position loop sets them).

@@ -10,6 +10,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from contracts.airframe import Airframe, airframe_from_spec, rotor_speeds
 from contracts.airframe_file import AirframeSpec
@@ -21,8 +22,63 @@ from contracts.frames import (
     quat_from_euler,
 )
 from contracts.perturbations import Perturbations
-from contracts.vectors import MEASUREMENT
+from contracts.vectors import (
+    MEASUREMENT,
+    TRUTH,
+    TRUTH_BODY_RATE,
+    TRUTH_EULER,
+    TRUTH_EULER_RATE,
+    TRUTH_POS,
+    TRUTH_QUAT,
+    TRUTH_ROTOR,
+    TRUTH_VEL,
+)
 from sitl import dynamics
+
+# A state's numbers in one array (contracts/vectors.py TRUTH): a state the plant gives has
+# its vectors as views of it.
+STATE_POSITION, STATE_VELOCITY, STATE_QUATERNION, STATE_EULER = (
+    TRUTH_POS, TRUTH_VEL, TRUTH_QUAT, TRUTH_EULER)
+STATE_EULER_RATE, STATE_BODY_RATE, STATE_ROTOR, STATE_SIZE = (
+    TRUTH_EULER_RATE, TRUTH_BODY_RATE, TRUTH_ROTOR, TRUTH.size)
+
+
+@njit(cache=True)
+def derive_state(fidelity: int, raw: np.ndarray, rotor_at: int, out: np.ndarray) -> None:
+    """The state's numbers (STATE_*) of the integrator's ``raw`` state, into ``out``: the
+    paper's model integrates Euler rates, and reports the body rates a gyro would see (a
+    receiver that converts them back recovers the same Euler rates); the rigid body
+    integrates a quaternion and body rates."""
+    for i in range(6):
+        out[STATE_POSITION + i] = raw[i]
+    if fidelity == dynamics.FIDELITY_PAPER:
+        for i in range(6):
+            out[STATE_EULER + i] = raw[6 + i]  # Euler angles, then their rates
+        out[STATE_BODY_RATE:STATE_BODY_RATE + 3] = body_rates_from_euler_rates(
+            raw[6], raw[7], raw[9], raw[10], raw[11])
+        out[STATE_QUATERNION:STATE_QUATERNION + 4] = quat_from_euler(raw[6], raw[7], raw[8])
+    else:
+        for i in range(4):
+            out[STATE_QUATERNION + i] = raw[6 + i]
+        euler = euler_from_quat(out[STATE_QUATERNION:STATE_QUATERNION + 4])
+        out[STATE_EULER:STATE_EULER + 3] = euler
+        for i in range(3):
+            out[STATE_BODY_RATE + i] = raw[10 + i]
+        out[STATE_EULER_RATE:STATE_EULER_RATE + 3] = euler_rates_from_body_rates(
+            euler[0], euler[1], raw[10], raw[11], raw[12])
+    for i in range(4):
+        out[STATE_ROTOR + i] = raw[rotor_at + i]
+
+
+def state_of(time_s: float, values: np.ndarray) -> VehicleState:
+    """The state whose numbers (STATE_*) are ``values``, its vectors views of them."""
+    return VehicleState(time_s, values[STATE_POSITION:STATE_POSITION + 3],
+                        values[STATE_VELOCITY:STATE_VELOCITY + 3],
+                        values[STATE_EULER:STATE_EULER + 3],
+                        values[STATE_EULER_RATE:STATE_EULER_RATE + 3],
+                        values[STATE_BODY_RATE:STATE_BODY_RATE + 3],
+                        values[STATE_QUATERNION:STATE_QUATERNION + 4],
+                        values[STATE_ROTOR:STATE_ROTOR + 4], values)
 
 
 @dataclass
@@ -37,6 +93,16 @@ class VehicleState:
     body_rate_rad_s: np.ndarray
     quaternion: np.ndarray
     rotor_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(4))
+    # All of it in one array (STATE_*), when the vectors are views of one (``state_of``).
+    values: np.ndarray | None = field(default=None, repr=False, compare=False)
+
+    def numbers(self) -> np.ndarray:
+        """The state's numbers in one array (STATE_*): its own, or gathered."""
+        if self.values is not None:
+            return self.values
+        return np.concatenate([np.asarray(v, dtype=np.float64) for v in (
+            self.position_ned_m, self.velocity_ned_mps, self.quaternion, self.euler_rad,
+            self.euler_rate_rad_s, self.body_rate_rad_s, self.rotor_rad_s)])
 
 
 class Plant:
@@ -152,28 +218,7 @@ class Plant:
         return out
 
     def state(self) -> VehicleState:
-        # One copy of the state, its vectors views of it: nobody writes into it.
-        s = self._state.copy()
-        if self._fidelity_code == dynamics.FIDELITY_PAPER:
-            euler = s[6:9]
-            euler_rate = s[9:12]
-            phi, theta, psi, *rates = s[6:12].tolist()
-            # The paper's model integrates Euler rates; report the body rates a gyro would
-            # see, so a receiver that converts them back recovers the same Euler rates.
-            body_rate = body_rates_from_euler_rates(phi, theta, *rates)
-            quat = quat_from_euler(phi, theta, psi)
-        else:
-            quat = s[6:10]
-            euler = euler_from_quat(quat)
-            body_rate = s[10:13]
-            euler_rate = euler_rates_from_body_rates(euler[0], euler[1], *s[10:13].tolist())
-        return VehicleState(
-            time_s=self.time_s,
-            position_ned_m=s[0:3],
-            velocity_ned_mps=s[3:6],
-            euler_rad=euler,
-            euler_rate_rad_s=euler_rate,
-            body_rate_rad_s=body_rate,
-            quaternion=quat,
-            rotor_rad_s=s[self._rotor_at:self._rotor_at + 4],
-        )
+        """The state now, its vectors views of one new array (nobody writes into it)."""
+        values = np.empty(STATE_SIZE)
+        derive_state(self._fidelity_code, self._state, self._rotor_at, values)
+        return state_of(self.time_s, values)

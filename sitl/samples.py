@@ -12,16 +12,18 @@ import collections
 from collections.abc import Callable
 
 import numpy as np
+from numba import njit
 
 from contracts.frames import Home
 from contracts.mavlink import mavlink
 from contracts.perturbations import NO_SENSOR_EFFECTS, SensorEffects
 from contracts.sim_samples import FIX_SIZE, SAMPLE_BYTES, gps_fix, pack_sample, sample_frames
-from sitl.plant import VehicleState
+from contracts.vectors import TRUTH, TRUTH_BODY_RATE, TRUTH_VEL
+from sitl.plant import VehicleState, state_of
 from sitl.sensors import (
     SensorProfile,
     SensorSuite,
-    seen_by_the_gyro,
+    gyro_rotation_rate,
     sensed_state,
     truth_sample,
 )
@@ -39,10 +41,12 @@ class SampleSource:
         self.rng = np.random.default_rng(seed)
         self.sensors = SensorSuite(profile, rate_hz, seed, home)
         self.home = home
-        self._imu_state = state  # what the IMU reads (seen_by_the_gyro)
+        # What the IMU reads (``observe``): the state's numbers, its body rates the
+        # rotation a landing made (gyro_rotation_rate).
+        self._imu = state.numbers().copy()
         self._history: collections.deque[VehicleState] = collections.deque(
             maxlen=HISTORY_SAMPLES)
-        self._previous_velocity = state.velocity_ned_mps
+        self._previous_velocity = state.velocity_ned_mps.copy()
         self._acceleration = np.zeros(3)
         self._home = np.array(home, dtype=np.float64)
         self._fix = np.zeros(FIX_SIZE)  # the last fix out of the receiver (FIX_*)
@@ -50,11 +54,9 @@ class SampleSource:
 
     def observe(self, before: VehicleState, after: VehicleState, period_s: float) -> None:
         """The plant went from ``before`` to ``after`` over one sample period."""
-        self._imu_state = seen_by_the_gyro(before, after, period_s)
+        observe_period(before.numbers(), after.numbers(), period_s, self._previous_velocity,
+                       self._acceleration, self._imu)
         self._history.append(after)
-        velocity = after.velocity_ned_mps
-        self._acceleration = (velocity - self._previous_velocity) / period_s
-        self._previous_velocity = velocity
 
     def frames(self, time_us: int, state: VehicleState, effects: SensorEffects,
                mav: mavlink.MAVLink,
@@ -63,27 +65,47 @@ class SampleSource:
         """The sample at ``time_us`` (``state``: the plant's then) under ``effects``,
         packed on ``mav``; None when the link loses it. ``on_readings`` gets the HIL_SENSOR
         and HIL_GPS frames of a sample sent."""
-        fix = self.sensors.read(time_us, self._imu_state, self._acceleration, effects)
-        position, velocity = state.position_ned_m, state.velocity_ned_mps
-        quaternion, body_rate = state.quaternion, state.body_rate_rad_s
+        fix = self.sensors.read(time_us, self._imu, self._acceleration, effects)
+        truth = state.numbers()
         if effects is not NO_SENSOR_EFFECTS:
             if effects.loss_fraction > 0.0 and self.rng.random() < effects.loss_fraction:
                 return None
             position, velocity, quaternion, body_rate = sensed_state(
                 state, self._history, effects, self.rng)
+            truth = truth.copy()
+            truth[TRUTH.position_ned_m], truth[TRUTH.velocity_ned_mps] = position, velocity
+            truth[TRUTH.quaternion], truth[TRUTH.body_rate_rad_s] = quaternion, body_rate
         if mav.signing.sign_outgoing:  # pymavlink signs
-            sensor = self.sensors.sensor_sample(time_us)
-            truth = truth_sample(time_us, state, self._acceleration, position, velocity,
-                                 quaternion, body_rate)
-            return sample_frames(truth, sensor, fix, self.home, mav, on_readings)
+            sent = state_of(state.time_s, truth)
+            return sample_frames(
+                truth_sample(time_us, sent, self._acceleration),
+                self.sensors.sensor_sample(time_us), fix, self.home, mav, on_readings)
         if fix is not None:
             self._fix[:] = gps_fix(fix)
         out = self._out
         end, sensor_end, gps_end = pack_sample(
-            out, mav.seq, mav.srcSystem, mav.srcComponent, self._home, time_us, position,
-            velocity, quaternion, body_rate, self._acceleration, self.sensors.reading,
-            self._fix, -1 if fix is None else fix.time_us)
+            out, mav.seq, mav.srcSystem, mav.srcComponent, self._home, time_us, truth,
+            self._acceleration, self.sensors.reading, self._fix,
+            -1 if fix is None else fix.time_us)
         if on_readings is not None:
             on_readings(out[gps_end:sensor_end].tobytes(),
                         out[:gps_end].tobytes() if gps_end else None)
         return out[:end].tobytes()
+
+
+@njit(cache=True)
+def observe_period(before: np.ndarray, after: np.ndarray, period_s: float,
+                   previous_velocity: np.ndarray, acceleration: np.ndarray,
+                   imu: np.ndarray) -> None:
+    """One sample period from ``before`` to ``after`` (their numbers, TRUTH): what the
+    IMU reads of ``after`` into ``imu`` (its body rates the landing's rotation,
+    gyro_rotation_rate), the period's mean acceleration (velocity from the last period's
+    end) into ``acceleration``, and ``previous_velocity`` moved on."""
+    imu[:] = after
+    rate = np.empty(3)
+    if gyro_rotation_rate(before, after, period_s, rate):
+        imu[TRUTH_BODY_RATE:TRUTH_BODY_RATE + 3] = rate
+    for i in range(3):
+        velocity = after[TRUTH_VEL + i]
+        acceleration[i] = (velocity - previous_velocity[i]) / period_s
+        previous_velocity[i] = velocity

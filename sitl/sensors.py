@@ -8,7 +8,6 @@ messages.
 from __future__ import annotations
 
 import collections
-import dataclasses
 import math
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -45,7 +44,8 @@ from contracts.sim_samples import (
 )
 from contracts.toml_files import read_named_toml, shipped_names
 from contracts.toml_tables import check_fields, number
-from sitl.plant import VehicleState
+from contracts.vectors import TRUTH_BODY_RATE, TRUTH_POS, TRUTH_QUAT, TRUTH_VEL
+from sitl.plant import VehicleState, state_of
 
 TEMPERATURE_C = 20.0
 PROFILES_DIR = "sensor_profiles"
@@ -78,30 +78,52 @@ def ideal_readings(time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray
     return truth, sensor, fix
 
 
-def seen_by_the_gyro(before: VehicleState, after: VehicleState, period_s: float
-                     ) -> VehicleState:
-    """``after`` as the IMU reads it: when the ground contact levelled the vehicle within
-    the period (it does so in one integration step, at rest after), the gyro reads the
-    rotation it made over the period, as a real gyro integrating the impact would; else
-    ``after`` itself."""
-    landed_now = after.position_ned_m[2] == 0.0 and before.position_ned_m[2] < 0.0 and \
-        not np.any(after.velocity_ned_mps) and not np.any(after.body_rate_rad_s)
-    if not landed_now:
-        return after
-    w0, x0, y0, z0 = (float(v) for v in before.quaternion)
-    w1, x1, y1, z1 = (float(v) for v in after.quaternion)
+@njit(cache=True)
+def gyro_rotation_rate(before: np.ndarray, after: np.ndarray, period_s: float,
+                       out: np.ndarray) -> bool:
+    """When the ground contact levelled the vehicle within the period (it does so in one
+    integration step, at rest after), the rotation it made over the period as a rate
+    into ``out`` (what a real gyro integrating the impact reads), and True; else False.
+    ``before``, ``after``: the states' numbers (contracts/vectors.py TRUTH)."""
+    if not (after[TRUTH_POS + 2] == 0.0 and before[TRUTH_POS + 2] < 0.0):
+        return False
+    for i in range(3):
+        if after[TRUTH_VEL + i] != 0.0 or after[TRUTH_BODY_RATE + i] != 0.0:
+            return False
+    w0, x0, y0, z0 = (before[TRUTH_QUAT], before[TRUTH_QUAT + 1], before[TRUTH_QUAT + 2],
+                      before[TRUTH_QUAT + 3])
+    w1, x1, y1, z1 = (after[TRUTH_QUAT], after[TRUTH_QUAT + 1], after[TRUTH_QUAT + 2],
+                      after[TRUTH_QUAT + 3])
     # conj(q_before) * q_after: the rotation in the body frame of before
     w = w0 * w1 + x0 * x1 + y0 * y1 + z0 * z1
-    v = np.array([w0 * x1 - x0 * w1 - y0 * z1 + z0 * y1,
-                  w0 * y1 + x0 * z1 - y0 * w1 - z0 * x1,
-                  w0 * z1 - x0 * y1 + y0 * x1 - z0 * w1])
+    v = np.empty(3)
+    v[0] = w0 * x1 - x0 * w1 - y0 * z1 + z0 * y1
+    v[1] = w0 * y1 + x0 * z1 - y0 * w1 - z0 * x1
+    v[2] = w0 * z1 - x0 * y1 + y0 * x1 - z0 * w1
     if w < 0.0:
-        w, v = -w, -v
-    norm = float(np.linalg.norm(v))
+        w = -w
+        for i in range(3):
+            v[i] = -v[i]
+    norm = math.sqrt(np.dot(v, v))
     if norm == 0.0:
+        return False
+    angle = 2.0 * math.atan2(norm, w)
+    for i in range(3):
+        out[i] = angle * v[i] / norm / period_s
+    return True
+
+
+def seen_by_the_gyro(before: VehicleState, after: VehicleState, period_s: float
+                     ) -> VehicleState:
+    """``after`` as the IMU reads it: with the rotation the ground contact made over the
+    period as its body rates when it levelled the vehicle (``gyro_rotation_rate``), else
+    ``after`` itself."""
+    rate = np.empty(3)
+    if not gyro_rotation_rate(before.numbers(), after.numbers(), period_s, rate):
         return after
-    rotation = 2.0 * math.atan2(norm, w) * v / norm
-    return dataclasses.replace(after, body_rate_rad_s=rotation / period_s)
+    values = after.numbers().copy()
+    values[TRUTH_BODY_RATE:TRUTH_BODY_RATE + 3] = rate
+    return state_of(after.time_s, values)
 
 
 def _tuple(values) -> tuple[float, ...]:
@@ -249,16 +271,17 @@ def _due(timers: np.ndarray, period: int, at: int, time_us: int) -> bool:
 
 
 @njit(cache=True)
-def _read_sensors(time_us: int, q: np.ndarray, body_rate: np.ndarray,
-                  accel_ned: np.ndarray, down_m: float, noise: np.ndarray, row: int,
-                  state: np.ndarray, timers: np.ndarray, reading: np.ndarray) -> None:
+def _read_sensors(time_us: int, truth: np.ndarray, accel_ned: np.ndarray, noise: np.ndarray,
+                  row: int, state: np.ndarray, timers: np.ndarray, reading: np.ndarray
+                  ) -> None:
     """One sample's HIL_SENSOR reading (contracts/sim_samples.py READING_*) into
     ``reading``: gyro and accelerometer (specific force R^T (a - g)) each sample, the
     magnetometer (R^T B) and barometer when due, else their last; the biases and the
     barometer's offset walk by z[0:6] and z[15] (in ``state``); z[6:15] and z[16] are
-    this sample's noise (z: the row ``row`` of ``noise``)."""
+    this sample's noise (z: the row ``row`` of ``noise``). ``truth``: the state the IMU
+    reads (contracts/vectors.py TRUTH)."""
     z = noise[row]
-    rot = rotation_from_quat(q)
+    rot = rotation_from_quat(truth[TRUTH_QUAT:TRUTH_QUAT + 4])
     for i in range(3):
         state[_GYRO_BIAS + i] += z[i]
         state[_ACCEL_BIAS + i] += z[3 + i]
@@ -267,7 +290,8 @@ def _read_sensors(time_us: int, q: np.ndarray, body_rate: np.ndarray,
     for i in range(3):
         specific = rot[0, i] * accel_ned[0] + rot[1, i] * accel_ned[1] + \
             rot[2, i] * (accel_ned[2] - GRAVITY_MPS2)
-        gyro = body_rate[i] + state[_GYRO_BIAS + i] + z[6 + i] + state[_EXTRA_GYRO + i]
+        gyro = truth[TRUTH_BODY_RATE + i] + state[_GYRO_BIAS + i] + z[6 + i] + \
+            state[_EXTRA_GYRO + i]
         accel = specific + state[_ACCEL_BIAS + i] + z[9 + i] + state[_EXTRA_ACCEL + i]
         gyro_range, accel_range = state[_GYRO_RANGE], state[_ACCEL_RANGE]
         reading[READING_GYRO + i] = min(max(gyro, -gyro_range), gyro_range)
@@ -281,7 +305,8 @@ def _read_sensors(time_us: int, q: np.ndarray, body_rate: np.ndarray,
         fields |= HIL_SENSOR_MAG
     state[_BARO_OFFSET] += z[_BARO_WALK] + state[_BARO_DRIFT]
     if _due(timers, _BARO_PERIOD, _BARO_NEXT, time_us):
-        baro_alt = state[_HOME_ALT] - down_m + state[_BARO_OFFSET] + z[_BARO_NOISE]
+        baro_alt = state[_HOME_ALT] - truth[TRUTH_POS + 2] + state[_BARO_OFFSET] + \
+            z[_BARO_NOISE]
         reading[READING_PRESSURE] = pressure_hpa_compiled(baro_alt)
         reading[READING_ALT] = baro_alt
         fields |= HIL_SENSOR_BARO
@@ -347,11 +372,13 @@ class SensorSuite:
     def baro_offset_m(self) -> float:
         return float(self._state[_BARO_OFFSET])
 
-    def read(self, time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
+    def read(self, time_us: int, truth: np.ndarray, accel_ned_mps2: np.ndarray,
              effects: SensorEffects) -> GpsSample | None:
         """This sample's HIL_SENSOR reading into ``reading`` (contracts/sim_samples.py
-        READING_*) and, when a fix comes out of the receiver, its HIL_GPS; ``effects``:
-        the sensor perturbations in force (biases, a field, an outage)."""
+        READING_*) of the state the sensors see (``truth``: its numbers,
+        contracts/vectors.py TRUTH) and, when a fix comes out of the receiver, its
+        HIL_GPS; ``effects``: the sensor perturbations in force (biases, a field, an
+        outage)."""
         if self._row == NOISE_BLOCK_SAMPLES:
             self._draw_block()
         row = self._row
@@ -363,10 +390,9 @@ class SensorSuite:
             s[_EXTRA_ACCEL:_EXTRA_ACCEL + 3] = effects.accel_bias_mps2
             s[_EXTRA_MAG:_EXTRA_MAG + 3] = effects.mag_field_gauss
             s[_BARO_DRIFT] = effects.baro_drift_mps * self.dt
-        _read_sensors(time_us, state.quaternion, state.body_rate_rad_s, accel_ned_mps2,
-                      float(state.position_ned_m[2]), self._noise, row, self._state,
+        _read_sensors(time_us, truth, accel_ned_mps2, self._noise, row, self._state,
                       self._timers, self.reading)
-        return self._gps_sample(time_us, state, effects.gps_outage > 0)
+        return self._gps_sample(time_us, truth, effects.gps_outage > 0)
 
     def _draw_block(self) -> None:
         """The next NOISE_BLOCK_SAMPLES samples' numbers, each sensor's from its own
@@ -384,7 +410,7 @@ class SensorSuite:
     def sample(self, time_us: int, state: VehicleState, accel_ned_mps2: np.ndarray,
                effects: SensorEffects | None = None) -> tuple[SensorSample, GpsSample | None]:
         """``read`` as a sensor sample and a fix (or None)."""
-        fix = self.read(time_us, state, np.asarray(accel_ned_mps2, dtype=np.float64),
+        fix = self.read(time_us, state.numbers(), np.asarray(accel_ned_mps2, dtype=np.float64),
                         effects if effects is not None else NO_SENSOR_EFFECTS)
         return self.sensor_sample(time_us), fix
 
@@ -396,20 +422,20 @@ class SensorSuite:
                             tuple(r[READING_MAG:READING_MAG + 3]), r[READING_PRESSURE],
                             r[READING_ALT], r[READING_TEMPERATURE], int(r[READING_FIELDS]))
 
-    def _gps_sample(self, time_us: int, state: VehicleState,
+    def _gps_sample(self, time_us: int, truth: np.ndarray,
                     outage: bool) -> GpsSample | None:
         p = self.profile
         if not self._started:
             # The receiver ran before the simulation did: a fix of the same state is out.
             self._started = True
             if p.gps_latency_s > 0:
-                self._gps_queue.append((time_us, self._fix(time_us, state)))
+                self._gps_queue.append((time_us, self._fix(time_us, truth)))
         if self._gps.due(time_us):
             decay = math.exp(-self._gps.period_us / 1e6 / p.gps_error_time_constant_s)
             sigma = np.array([p.gps_horizontal_m, p.gps_horizontal_m, p.gps_vertical_m])
             self.gps_error = self.gps_error * decay + self.streams["gps"].normal(size=3) * sigma * \
                 math.sqrt(1.0 - decay * decay)
-            fix = self._fix(time_us, state)
+            fix = self._fix(time_us, truth)
             if outage:
                 fix = fix._replace(fix_type=0, satellites=0, hdop=99.99, vdop=99.99)
             self._gps_queue.append((time_us + round(p.gps_latency_s * 1e6), fix))
@@ -419,10 +445,10 @@ class SensorSuite:
             out = fix._replace(time_us=time_us)  # stamped on arrival, as PX4 stamps it
         return out
 
-    def _fix(self, time_us: int, state: VehicleState) -> GpsSample:
+    def _fix(self, time_us: int, truth: np.ndarray) -> GpsSample:
         p = self.profile
-        position = state.position_ned_m + self.gps_error
-        velocity = state.velocity_ned_mps + self.streams["gps"].normal(size=3) * \
+        position = truth[TRUTH_POS:TRUTH_POS + 3] + self.gps_error
+        velocity = truth[TRUTH_VEL:TRUTH_VEL + 3] + self.streams["gps"].normal(size=3) * \
             p.gps_velocity_noise_mps
         lat, lon, alt = self.home.geodetic_from_ned(*(float(v) for v in position))
         return GpsSample(time_us, lat, lon, alt, _tuple(velocity), p.gps_hdop, p.gps_vdop,

@@ -5,7 +5,6 @@ latency), and the requests it serves (``perturb``, ``start``), queued for the lo
 
 from __future__ import annotations
 
-import operator
 import queue
 from collections.abc import Callable
 from typing import Any
@@ -18,14 +17,14 @@ from contracts.perturbation_effects import PLANT_EFFECTS
 from contracts.perturbations import Perturbation, Perturbations
 from contracts.telemetry import STATE, json_record
 from contracts.telemetry_node import PERTURBATIONS_OFF, Request, TelemetryNode
+from contracts.vectors import TRUTH
 from contracts.zenoh_link import ZenohOptions
 from sitl.link import LinkStats
 from sitl.plant import VehicleState
 
-# STATE record fields that are VehicleState's of the same name (then the motor commands,
-# then the plant effects).
-STATE_FROM_PLANT = ("position_ned_m", "velocity_ned_mps", "quaternion", "euler_rad",
-                    "euler_rate_rad_s", "body_rate_rad_s", "rotor_rad_s")
+# STATE record fields that are the plant's truth (contracts/vectors.py TRUTH, in its
+# order; then the motor commands, then the plant effects).
+STATE_FROM_PLANT = TRUTH.fields
 
 
 class SimulatorTelemetry:
@@ -45,7 +44,6 @@ class SimulatorTelemetry:
         # assignment; the plant effects refilled when they change (replaced whole: frozen).
         self._head = self._state_record.run(("seq", "sim_time_us"))
         self._truth = self._state_record.run((*STATE_FROM_PLANT, "motor_commands"))
-        self._of_state = operator.attrgetter(*STATE_FROM_PLANT)
         self._effects_of: Perturbations | None = None
 
     def next_request(self, wait_s: float = 0.0) -> Request | None:
@@ -67,7 +65,9 @@ class SimulatorTelemetry:
             return
         record = self._state_record
         self._head[:] = (self._state_pub.count, time_us)
-        np.concatenate((*self._of_state(state), motor_commands), out=self._truth)
+        truth = self._truth
+        truth[:TRUTH.size] = state.numbers()
+        truth[TRUTH.size:] = motor_commands
         if active is not self._effects_of:
             self._effects_of = active
             for name in PLANT_EFFECTS:

@@ -170,7 +170,7 @@ def wrap_parts(pair: Pair) -> Parts:
             ("sim next_sample", sim, "next_sample"),
             ("  publish_state", sim.telemetry, "publish_state"),
             ("  samples.frames", sim.samples, "frames"),
-            ("    sensors.sample", sim.samples.sensors, "sample"),
+            ("    sensors.read", sim.samples.sensors, "read"),
             ("sim link.read", sim.link, "read"),
             ("sim apply_actuators", sim, "apply_actuators"),
             ("sim advance", sim, "advance"),

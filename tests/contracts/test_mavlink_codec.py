@@ -148,10 +148,9 @@ def test_a_sample_packs_as_pymavlink_packs_its_messages(seed):
             continue
         out = np.empty(SAMPLE_BYTES, dtype=np.uint8)
         end, sensor_end, gps_end = pack_sample(
-            out, mav.seq, 1, 51, np.array(DEFAULT_HOME), truth.time_us, state.position_ned_m,
-            state.velocity_ned_mps, state.quaternion, state.body_rate_rad_s, accel,
-            sensor_reading(sensor), gps_fix(fix) if with_fix else np.zeros(FIX_SIZE),
-            fix.time_us if with_fix else -1)
+            out, mav.seq, 1, 51, np.array(DEFAULT_HOME), truth.time_us, state.numbers(),
+            accel, sensor_reading(sensor),
+            gps_fix(fix) if with_fix else np.zeros(FIX_SIZE), fix.time_us if with_fix else -1)
         assert out[:end].tobytes() == expected, k
         assert (gps_end > 0) == with_fix
         assert out[gps_end:sensor_end].tobytes() == sample_messages(

@@ -267,7 +267,9 @@ def test_a_touchdown_that_levels_the_vehicle_shows_in_the_gyro():
                          np.zeros(3), np.zeros(3), np.array(quat_from_euler(0.0, 0.0, 0.3)))
     seen = seen_by_the_gyro(tilted, level, 0.01)
     np.testing.assert_allclose(seen.body_rate_rad_s, (0.17 / 0.01, 0.0, 0.0), atol=1e-9)
-    assert seen.quaternion is level.quaternion  # only the gyro's reading changes
+    for name in ("position_ned_m", "velocity_ned_mps", "euler_rad", "euler_rate_rad_s",
+                 "quaternion", "rotor_rad_s"):  # only the gyro's reading changes
+        np.testing.assert_array_equal(getattr(seen, name), getattr(level, name))
     flying = dataclasses.replace(level, position_ned_m=np.array([0.0, 0.0, -1.0]))
     assert seen_by_the_gyro(tilted, flying, 0.01) is flying
 

@@ -25,6 +25,8 @@ randomized fields, byte for byte.
 
 from __future__ import annotations
 
+import operator
+
 import numpy as np
 from numba import njit
 from pymavlink.dialects.v20 import common as mavlink
@@ -69,6 +71,13 @@ class FrameLayout:
         self._starts = {name: p.start if isinstance(p, slice) else p
                         for name, p in starts.items()}
         self.is_float = self.codes >= F32
+        self._float_at = np.flatnonzero(self.is_float).tolist()
+        self._int_at = np.flatnonzero(~self.is_float).tolist()
+        # The constructor's fields in wire order (arrays whole), from the constructor's
+        # arguments or from a message.
+        self._wire_from_fields = operator.itemgetter(*map(cls.fieldnames.index,
+                                                          cls.ordered_fieldnames))
+        self._wire_of_message = operator.attrgetter(*cls.ordered_fieldnames)
 
     def index(self, name: str) -> int:
         """Where a field (an array's first element) sits among the flat values."""
@@ -76,16 +85,22 @@ class FrameLayout:
 
     def values(self, fields: tuple) -> tuple[np.ndarray, np.ndarray]:
         """(ints, floats) of a message's constructor arguments."""
+        flat: list = []
+        for value in self._wire_from_fields(fields):
+            if isinstance(value, (list, tuple)):
+                flat += value
+            else:
+                flat.append(value)
+        return self._flat_values(flat)
+
+    def _flat_values(self, flat: list) -> tuple[np.ndarray, np.ndarray]:
+        if len(flat) != len(self.codes):
+            raise ValueError(f"{self.msgname}: {len(flat)} values for {len(self.codes)}")
         ints = np.zeros(len(self.codes), dtype=np.int64)
         floats = np.zeros(len(self.codes))
-        for place, value in zip(self.places, fields, strict=True):
-            flat = list(value) if isinstance(place, slice) else [value]
-            for i, v in zip(range(len(self.codes))[place] if isinstance(place, slice)
-                            else [place], flat, strict=True):
-                if self.is_float[i]:
-                    floats[i] = v
-                else:
-                    ints[i] = int(v) - (1 << 64 if int(v) >= 1 << 63 else 0)
+        floats[self._float_at] = [flat[i] for i in self._float_at]
+        ints[self._int_at] = [int(flat[i]) - (1 << 64) if int(flat[i]) >= 1 << 63
+                              else int(flat[i]) for i in self._int_at]
         return ints, floats
 
     def fields(self, ints: np.ndarray, floats: np.ndarray) -> tuple:
@@ -102,6 +117,16 @@ class FrameLayout:
         end = pack_frame(out, 0, ints, floats, self.codes, self.offsets, self.msgid,
                          self.crc_extra, seq, sysid, compid)
         return out[:end].tobytes()
+
+    def pack_message(self, msg: mavlink.MAVLink_message, mav: mavlink.MAVLink) -> bytes:
+        """``msg.pack(mav)`` (``mav`` unsigned), from the message's fields."""
+        flat: list = []
+        for value in self._wire_of_message(msg):
+            if isinstance(value, (list, tuple)):
+                flat += value
+            else:
+                flat.append(value)
+        return self.pack(*self._flat_values(flat), mav.seq, mav.srcSystem, mav.srcComponent)
 
     def pack_fields(self, fields: tuple, mav: mavlink.MAVLink) -> bytes:
         """The frame of ``cls(*fields).pack(mav)`` (``mav`` unsigned), without the
@@ -120,6 +145,23 @@ class FrameLayout:
         floats = np.zeros(len(self.codes))
         unpack_payload(buf, HEADER_BYTES, buf[1], self.codes, self.offsets, ints, floats)
         return ints, floats
+
+
+# The autopilot's log mirror of its sim-time telemetry streams, a few messages each 100
+# ms of sim time (autopilot/process/telemetry.py), packed from their fields here.
+MIRRORED = (mavlink.MAVLink_heartbeat_message, mavlink.MAVLink_attitude_message,
+            mavlink.MAVLink_local_position_ned_message,
+            mavlink.MAVLink_global_position_int_message)
+_MIRROR_LAYOUTS = {cls: FrameLayout(cls) for cls in MIRRORED}
+
+
+def pack_message(msg: mavlink.MAVLink_message, mav: mavlink.MAVLink) -> bytes:
+    """``msg.pack(mav)``: by its layout for the mirrored streams on an unsigned link, by
+    pymavlink otherwise."""
+    layout = _MIRROR_LAYOUTS.get(type(msg))
+    if layout is None or mav.signing.sign_outgoing:
+        return msg.pack(mav)
+    return layout.pack_message(msg, mav)
 
 
 @njit(cache=True)

@@ -1,12 +1,15 @@
-"""What the simulator sends each sample, and the messages that carry it: its truth
-(HIL_STATE_QUATERNION, ODOMETRY), its IMU, magnetometer and barometer (HIL_SENSOR) and
-its GPS fix (HIL_GPS), in the units and integer scalings PX4's simulator_mavlink reads.
+"""The simulator link's frames, packed in compiled code: each sample the simulator sends
+(its truth as HIL_STATE_QUATERNION and ODOMETRY, its IMU, magnetometer and barometer as
+HIL_SENSOR, its GPS fix as HIL_GPS, in the units and integer scalings PX4's
+simulator_mavlink reads) and the autopilot's answer (HIL_ACTUATOR_CONTROLS).
 
-Each message's fields are made once, by ``*_fields`` (the arguments of its pymavlink
-constructor); ``*_message`` builds the pymavlink message of them, and ``sample_frames``
-packs a whole sample straight into frames (``contracts/sim_link_codec.py``) without
-building the message objects: the simulator does that every sample. Reading them back is
-``contracts/mavlink.py``'s (measurements, IMU readings, fixes).
+Each message's wire values are computed once, by the compiled ``*_values``, which
+``pack_sample`` packs into one buffer without any message object (the simulator does
+that every sample; the autopilot's answer is ``pack_actuators``). The Python
+``*_fields`` give the same values as a pymavlink constructor's arguments, and
+``*_message`` / ``sample_messages`` the pymavlink messages (for tools, tests and signing
+links). Reading the frames back is ``contracts/sim_readings.py``'s, with
+``contracts/mavlink.py``'s decoders for everything else.
 """
 
 from __future__ import annotations
@@ -233,6 +236,30 @@ def pack_sample(out: np.ndarray, seq: int, sysid: int, compid: int, home: np.nda
     at = pack_frame(out, at, od_ints, od_floats, _OD_CODES, _OD_OFFSETS, _OD_ID, _OD_CRC,
                     seq, sysid, compid)
     return at, sensor_end, gps_end
+
+
+ACTUATORS = FrameLayout(mavlink.MAVLink_hil_actuator_controls_message)
+_AC_CODES, _AC_OFFSETS, _AC_N = ACTUATORS.codes, ACTUATORS.offsets, len(ACTUATORS.codes)
+_AC_ID, _AC_CRC = ACTUATORS.msgid, ACTUATORS.crc_extra
+_AC_FLAGS, _AC_CONTROLS = ACTUATORS.index("flags"), ACTUATORS.index("controls")
+_AC_MODE = ACTUATORS.index("mode")
+ACTUATORS_BYTES = MAX_FRAME_BYTES
+
+
+@njit(cache=True)
+def pack_actuators(out: np.ndarray, seq: int, sysid: int, compid: int, time_us: int,
+                   commands: np.ndarray, mode: int, flags: int) -> int:
+    """HIL_ACTUATOR_CONTROLS into ``out``: the motor commands on controls[0..3] (the rest
+    zero), ``time_us`` echoing the sample they answer (``actuator_fields``' message);
+    returns where the frame ends."""
+    ints, floats = np.zeros(_AC_N, dtype=np.int64), np.zeros(_AC_N)
+    ints[0] = time_us
+    ints[_AC_FLAGS] = flags
+    for i in range(commands.size):
+        floats[_AC_CONTROLS + i] = commands[i]
+    ints[_AC_MODE] = mode
+    return pack_frame(out, 0, ints, floats, _AC_CODES, _AC_OFFSETS, _AC_ID, _AC_CRC, seq,
+                      sysid, compid)
 
 
 def _array(values) -> np.ndarray:

@@ -29,7 +29,6 @@ from contracts.mavlink import (
     split_frames,
 )
 from contracts.realtime import Histogram
-from contracts.sim_link_codec import parse_frames
 from contracts.sim_readings import ACTUATORS, MAX_FRAMES, SLOW, VALUES, read_frames
 
 
@@ -116,7 +115,7 @@ class AutopilotLink:
         data = self._pending + data
         if self.mav.signing.secret_key is not None:  # pymavlink checks signatures
             frames, self._pending = split_frames(data)
-            return self._judged(parse_frames(frames, self.mav))
+            return self._judged(self.mav.parse_buffer(b"".join(f for _, f in frames)) or [])
         table, values = self._table, self._values
         rows, used = read_frames(np.frombuffer(data, dtype=np.uint8), EVERY_MESSAGE, _NO_HOME,
                                  table, values)

@@ -20,13 +20,8 @@ from contracts.perturbations import NO_SENSOR_EFFECTS, SensorEffects
 from contracts.sim_samples import FIX_SIZE, SAMPLE_BYTES, gps_fix, pack_sample, sample_frames
 from contracts.vectors import TRUTH, TRUTH_BODY_RATE, TRUTH_VEL
 from sitl.plant import VehicleState, state_of
-from sitl.sensors import (
-    SensorProfile,
-    SensorSuite,
-    gyro_rotation_rate,
-    sensed_state,
-    truth_sample,
-)
+from sitl.sensors import SensorProfile, SensorSuite
+from sitl.truth import gyro_rotation_rate, sensed_state, truth_sample
 
 HISTORY_SAMPLES = 101  # the longest link delay (100 samples) and the state at the sample
 

@@ -46,12 +46,9 @@ from contracts.mavlink import (
     SEVERITY_NAMES,
     SIM_TCP_PORT,
     STATE_SOURCES,
-    actuator_fields,
-    mavlink,
 )
 from contracts.paced_loop import MAX_SPIN_S, SPIN_S, Deadlines, PacedProcess
 from contracts.realtime import LoopTiming
-from contracts.sim_link_codec import pack_fields
 from contracts.telemetry import AUTOPILOT
 from contracts.telemetry_node import PERTURBATIONS_OFF, Request, TelemetryNode
 from contracts.zenoh_link import ZenohOptions
@@ -185,8 +182,8 @@ class Autopilot(PacedProcess):
     def _answer(self, time_us: int, commands: np.ndarray, stepped: bool) -> None:
         """The motor command goes out first; telemetry of the step after it."""
         commands = self.vehicle.failures.motor_outputs(commands)  # injected motor failures
-        frame = pack_fields(mavlink.MAVLink_hil_actuator_controls_message, actuator_fields(
-            time_us, commands, self.vehicle.armed, self.config.lockstep), self.sim.mav)
+        frame = self.sim.actuators_frame(time_us, commands, self.vehicle.armed,
+                                         self.config.lockstep)
         if not self.sim.send(frame):
             self._sim_lost()
             return

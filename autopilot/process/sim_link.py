@@ -20,8 +20,11 @@ from contracts.frames import Home
 from contracts.mavlink import (
     AUTOPILOT_COMPID,
     AUTOPILOT_SYSID,
+    HIL_FLAG_LOCKSTEP,
+    HIL_MODE_ARMED,
     STATE_SOURCES,
     LinkDataError,
+    actuator_message,
     fix_from_hil_gps,
     home_from_message,
     imu_from_hil_sensor,
@@ -32,7 +35,6 @@ from contracts.mavlink import (
     split_frames,
 )
 from contracts.paced_loop import lockstep_waits
-from contracts.sim_link_codec import parse_frames
 from contracts.sim_readings import (
     GPS_FIX_TYPE,
     GPS_POSITION,
@@ -51,6 +53,7 @@ from contracts.sim_readings import (
     VALUES,
     read_frames,
 )
+from contracts.sim_samples import ACTUATORS_BYTES, pack_actuators
 from contracts.vectors import MEASUREMENT
 
 # The messages a home can come from, read for it whatever the vehicle flies on.
@@ -150,6 +153,7 @@ class SimLink:
             (False, self.source_ids), (True, self._ids_with_odometry))}
         self._table = np.zeros((MAX_FRAMES, 4), dtype=np.int64)
         self._values = np.zeros((MAX_FRAMES, VALUES))
+        self._answer = np.empty(ACTUATORS_BYTES, dtype=np.uint8)  # the answer's frame
 
     @property
     def home(self) -> Home | None:
@@ -256,10 +260,12 @@ class SimLink:
         if not data:
             return None
         data = self._pending + data
-        if self.home is None:  # until home is known: every frame through pymavlink
+        if self.home is None or self.mav.signing.secret_key is not None:
+            # Until home is known, and on a link that checks signatures: every frame it
+            # wants through pymavlink.
             frames, self._pending = split_frames(data)
-            parsed = parse_frames([f for f in frames if f[0] in self.source_ids | HOME_IDS],
-                                  self.mav)
+            ids = self.source_ids | HOME_IDS
+            parsed = self.mav.parse_buffer(b"".join(f for i, f in frames if i in ids)) or []
             self._take_home(parsed)
             return self._samples([(m.get_type(), m) for m in parsed])
         # The frames in one compiled pass (contracts/sim_readings.py): decoded where they
@@ -310,6 +316,18 @@ class SimLink:
             if sample is not None:
                 samples.append(sample)
         return samples
+
+    def actuators_frame(self, time_us: int, commands: np.ndarray, armed: bool,
+                        lockstep: bool) -> bytes:
+        """The answer to the sample at ``time_us``: HIL_ACTUATOR_CONTROLS of ``commands``
+        (``pack_actuators``; by pymavlink on a link that signs)."""
+        mav = self.mav
+        if mav.signing.sign_outgoing:
+            return actuator_message(time_us, commands, armed, lockstep).pack(mav)
+        end = pack_actuators(self._answer, mav.seq, mav.srcSystem, mav.srcComponent, time_us,
+                             commands, HIL_MODE_ARMED if armed else 0,
+                             HIL_FLAG_LOCKSTEP if lockstep else 0)
+        return self._answer[:end].tobytes()
 
     def send(self, data: bytes) -> bool:
         """Whether ``data`` went out (False: the link is lost, or was already)."""

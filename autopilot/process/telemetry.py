@@ -23,9 +23,9 @@ from autopilot.navigator.geofence import zones_from_items
 from autopilot.navigator.mission_runner import item_position_ned
 from autopilot.navigator.mission_store import FENCE, MISSION, RALLY, WITHOUT_POSITION
 from contracts.mavlink import AUTOPILOT_COMPID, mavlink, new_mavlink
+from contracts.mavlink_codec import pack_message
 from contracts.modes import FlightMode
 from contracts.realtime import LoopTiming
-from contracts.sim_link_codec import pack_message
 from contracts.telemetry import (
     CONTROL,
     ESTIMATE,

@@ -23,6 +23,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import numpy as np  # noqa: E402
+from contracts.sim_link_codec import pack_message, pack_messages, parse_frames  # noqa: E402
 
 from autopilot.commander.commander import Commander  # noqa: E402
 from autopilot.control.factory import load_models, make_controller  # noqa: E402
@@ -36,12 +37,11 @@ from contracts.mavlink import (  # noqa: E402
     measurement_from_odometry,
     split_frames,
 )
-from contracts.sim_link_codec import pack_message, pack_messages, parse_frames  # noqa: E402
 from contracts.sim_samples import sample_messages  # noqa: E402
 from ground.run.processes import RunSettings, fly  # noqa: E402
 from ground.scenario.scenario_file import scenario_by_name  # noqa: E402
 from sitl.plant import Plant
-from sitl.sensors import ideal_readings  # noqa: E402
+from sitl.truth import ideal_readings  # noqa: E402
 
 ECHO = """
 import socket, sys

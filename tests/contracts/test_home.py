@@ -114,7 +114,7 @@ def _sample_with_an_erring_fix(time_us: int, kinds: tuple[str, ...]) -> bytes:
     from contracts.mavlink import mavlink
     from contracts.sim_samples import sample_messages
     from sitl.plant import VehicleState
-    from sitl.sensors import ideal_readings
+    from sitl.truth import ideal_readings
 
     at_rest = VehicleState(time_us * 1e-6, np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3),
                            np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0]))

@@ -28,7 +28,7 @@ from contracts.sim_samples import (
     sample_messages,
     sensor_reading,
 )
-from tests.contracts.test_sim_link_codec import CLASSES, _exact, _fields, _message, _messages
+from tests.contracts.test_sim_link_frames import CLASSES, _exact, _fields, _message, _messages
 
 LAYOUTS = {cls: FrameLayout(cls) for cls in CLASSES}
 STYLES = ("random", "extremes", "zeros", "trailing zeros")
@@ -125,7 +125,7 @@ def test_a_sample_packs_as_pymavlink_packs_its_messages(seed):
     """pack_sample's frames are sample_messages' packed by pymavlink, with and without a
     fix, for states and readings anywhere (saturating integers included)."""
     from sitl.plant import VehicleState
-    from sitl.sensors import ideal_readings
+    from sitl.truth import ideal_readings
 
     rng = np.random.default_rng(seed)
     for k in range(300):

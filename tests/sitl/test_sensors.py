@@ -256,7 +256,7 @@ def test_a_touchdown_that_levels_the_vehicle_shows_in_the_gyro():
     In the air the gyro reads the body rate as it is."""
     import dataclasses
 
-    from sitl.sensors import seen_by_the_gyro
+    from sitl.truth import seen_by_the_gyro
 
     roll = -0.17
     tilted = VehicleState(0.0, np.array([0.0, 0.0, -0.005]), np.array([0.0, 0.0, 0.7]),

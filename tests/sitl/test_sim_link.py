@@ -25,7 +25,7 @@ from contracts.mavlink import (
 from contracts.sim_samples import sample_messages
 from contracts.vectors import MEASUREMENT
 from sitl.plant import Plant
-from sitl.sensors import ideal_readings
+from sitl.truth import ideal_readings
 from tests.harness import free_port
 
 

@@ -1,6 +1,8 @@
-"""The simulator link's layouts (contracts/sim_link_codec.py) against pymavlink: the same
-bytes packed, the same fields parsed, and everything else judged by pymavlink as before,
-down to the links' readings and counters on mixed streams cut anywhere."""
+"""The simulator link's frames in compiled code (contracts/mavlink_codec.py,
+contracts/sim_samples.py, contracts/sim_readings.py) against pymavlink: the same bytes
+packed, and everything the compiled reader leaves alone judged by pymavlink as before,
+down to the links' readings and counters on mixed streams cut anywhere. The codec's own
+cross-checks over randomized fields are tests/contracts/test_mavlink_codec.py."""
 
 from __future__ import annotations
 
@@ -23,18 +25,15 @@ from contracts.mavlink import (
     new_mavlink,
     split_frames,
 )
-from contracts.sim_link_codec import (
-    LAYOUTS,
-    PACKED_ONLY,
-    LinkMessage,
-    pack_fields,
-    pack_message,
-    pack_messages,
-    parse_frames,
-)
+from contracts.mavlink_codec import MIRRORED, FrameLayout, pack_message
+from contracts.sim_readings import MAX_FRAMES, SKIP, SLOW, VALUES, read_frames
 from contracts.sim_samples import sample_frames, sample_messages
 
-CLASSES = [layout.cls for layout in LAYOUTS.values()]
+# The simulator link's messages.
+CLASSES = [mavlink.MAVLink_hil_gps_message, mavlink.MAVLink_hil_sensor_message,
+           mavlink.MAVLink_hil_state_quaternion_message, mavlink.MAVLink_odometry_message,
+           mavlink.MAVLink_hil_actuator_controls_message]
+EVERY_MESSAGE = np.zeros(0, dtype=np.int64)
 INT_RANGES = {"uint8_t": (0, 2**8 - 1), "int8_t": (-2**7, 2**7 - 1),
               "uint16_t": (0, 2**16 - 1), "int16_t": (-2**15, 2**15 - 1),
               "uint32_t": (0, 2**32 - 1), "int32_t": (-2**31, 2**31 - 1),
@@ -100,8 +99,6 @@ def _record(msg) -> tuple:
     """What a receiver reads of a message: its type and fields (BAD_DATA: reason, bytes)."""
     if msg.get_type() == "BAD_DATA":
         return "BAD_DATA", msg.reason, bytes(msg.data)
-    if isinstance(msg, LinkMessage):
-        return msg.get_type(), tuple((k, _exact(v)) for k, v in msg._asdict().items())
     fields = tuple((k, _exact(getattr(msg, k))) for k in msg.get_fieldnames())
     return msg.get_type(), fields or bytes(msg.get_msgbuf())
 
@@ -110,51 +107,15 @@ def _pymavlink(data: bytes, sysid: int = 1, compid: int = 1) -> list[tuple]:
     return [_record(m) for m in new_mavlink(sysid, compid).parse_buffer(data) or []]
 
 
-def _fast(data: bytes, mav: mavlink.MAVLink | None = None) -> list:
-    frames, rest = split_frames(data)
-    assert rest == b""
-    return parse_frames(frames, mav or new_mavlink(1, 1))
-
-
-# -- the layouts -----------------------------------------------------------------------
-def test_each_layout_is_pymavlinks_payload():
-    assert sorted(layout.msgname for layout in LAYOUTS.values()) == [
-        "HIL_ACTUATOR_CONTROLS", "HIL_GPS", "HIL_SENSOR", "HIL_STATE_QUATERNION", "ODOMETRY"]
-    for msgid, layout in LAYOUTS.items():
-        assert layout.payload.format == layout.cls.unpacker.format
-        assert msgid == layout.cls.id == getattr(mavlink, f"MAVLINK_MSG_ID_{layout.msgname}")
-
-
-# -- packing ---------------------------------------------------------------------------
-def test_packing_is_pymavlinks_byte_for_byte():
-    """Random, extreme, zero and trailing-zero values of each message, on links of any
-    ids, with the sequence number running over its wrap as pymavlink's send runs it."""
-    rng = random.Random(1)
-    mav = mavlink.MAVLink(None, 1, 51)
-    packed = 0
-    for k, msg in enumerate(_messages(2000, seed=2)):
-        mav.seq = k % 256
-        if k % 7 == 0:
-            mav.srcSystem, mav.srcComponent = rng.randint(0, 255), rng.randint(0, 255)
-        try:
-            expected = msg.pack(mav)
-        except (struct.error, OverflowError):
-            continue
-        assert pack_message(msg, mav) == expected, (msg.get_type(), k)
-        assert pack_fields(type(msg), _fields(msg), mav) == expected, (msg.get_type(), k)
-        assert mav.seq == k % 256  # packing does not advance it, as pymavlink's pack
-        packed += 1
-    assert packed > 1900
-
-
 def _fields(msg: mavlink.MAVLink_message) -> tuple:
     """The message's constructor arguments."""
     return tuple(getattr(msg, name) for name in msg.fieldnames)
 
 
-@pytest.mark.parametrize("cls", PACKED_ONLY)
+# -- packing ---------------------------------------------------------------------------
+@pytest.mark.parametrize("cls", MIRRORED)
 def test_the_mirror_streams_pack_as_pymavlink_packs_them(cls):
-    """The autopilot's mirror streams, packed by their layouts (not parsed by them)."""
+    """The autopilot's mirror streams, packed in compiled code from their fields."""
     rng = random.Random(cls.id)
     mav = mavlink.MAVLink(None, 1, 1)
     for k in range(200):
@@ -165,33 +126,21 @@ def test_the_mirror_streams_pack_as_pymavlink_packs_them(cls):
         except (struct.error, OverflowError):
             continue
         assert pack_message(msg, mav) == expected
-    assert cls.id not in LAYOUTS
-
-
-def test_fields_left_out_take_the_constructors_defaults():
-    """HIL_GPS's MAVLink 2 extensions (id, yaw) default to 0, as its constructor has them;
-    a field without a default cannot be left out."""
-    mav = mavlink.MAVLink(None, 1, 51)
-    fields = (5, 3, 473977420, 85455940, 488000, 80, 120, 100, 30, -40, 5, 12000, 14)
-    assert pack_fields(mavlink.MAVLink_hil_gps_message, fields, mav) == \
-        mavlink.MAVLink_hil_gps_message(*fields).pack(mav)
-    with pytest.raises(TypeError, match="takes 15 fields, got 12"):
-        pack_fields(mavlink.MAVLink_hil_gps_message, fields[:-1], mav)
 
 
 def test_all_zero_payloads_keep_one_byte_and_trailing_zeros_are_trimmed():
     mav = mavlink.MAVLink(None, 1, 51)
     for cls in CLASSES:
-        frame = pack_message(_message(cls, "zeros", random.Random(0)), mav)
-        assert frame[1] == 1 and len(frame) == 13
-    frame = pack_message(actuator_message(7, np.zeros(4), False, False), mav)
-    assert frame == actuator_message(7, np.zeros(4), False, False).pack(mav) and frame[1] == 1
+        msg = _message(cls, "zeros", random.Random(0))
+        frame = FrameLayout(cls).pack_fields(_fields(msg), mav)
+        assert frame == msg.pack(mav) and frame[1] == 1 and len(frame) == 13
 
 
 def test_the_simulators_samples_pack_as_pymavlink_packs_them():
     from contracts.airframe import PAPER, hover_rotor_speeds
     from sitl.plant import Plant
-    from sitl.sensors import SensorSuite, ideal_readings, read_profile, truth_sample
+    from sitl.sensors import SensorSuite, read_profile
+    from sitl.truth import ideal_readings, truth_sample
 
     plant = Plant(PAPER, "rigid-body", position_ned_m=(1.0, -2.0, -3.0),
                   euler_rad=(0.3, -0.2, 1.0), rotor_rad_s=hover_rotor_speeds(PAPER))
@@ -209,20 +158,35 @@ def test_the_simulators_samples_pack_as_pymavlink_packs_them():
         msgs = sample_messages(*sample, DEFAULT_HOME)
         assert sample_frames(*sample, DEFAULT_HOME, sim) == b"".join(m.pack(twin)
                                                                       for m in msgs)
-        msgs.append(actuator_message(t, np.array([0.5, 0.0, 1.0, 0.25]), k % 3 > 0, True))
-        assert pack_messages(msgs, sim) == b"".join(m.pack(twin) for m in msgs)
         sim.seq = twin.seq = (sim.seq + 1) % 256
 
 
+def test_the_autopilots_answer_packs_as_pymavlink_packs_it():
+    from autopilot.process.sim_link import SimLink
+
+    link = SimLink("127.0.0.1", 0, "auto")
+    rng = random.Random(8)
+    for k in range(300):
+        commands = np.array([rng.choice((0.0, -0.0, 1.0, rng.random())) for _ in range(4)])
+        armed, lockstep = k % 3 > 0, k % 5 > 0
+        link.mav.seq = k % 256
+        assert link.actuators_frame(k * 10_000, commands, armed, lockstep) == \
+            actuator_message(k * 10_000, commands, armed, lockstep).pack(link.mav)
+
+
 def test_a_signing_link_packs_by_pymavlink_byte_for_byte():
-    def signing() -> mavlink.MAVLink:
-        mav = mavlink.MAVLink(None, 1, 51)
+    from autopilot.process.sim_link import SimLink
+
+    def signing(mav: mavlink.MAVLink | None = None) -> mavlink.MAVLink:
+        mav = mav or mavlink.MAVLink(None, 1, 51)
         mav.signing.secret_key, mav.signing.sign_outgoing = KEY, True
         mav.signing.link_id, mav.signing.timestamp = 3, 123_456_789
         return mav
 
     ours, theirs = signing(), signing()
-    for msg in _messages(40, seed=5):
+    rng = random.Random(5)
+    for k in range(40):
+        msg = _message(MIRRORED[k % len(MIRRORED)], "random", rng)
         try:
             expected = msg.pack(theirs)
         except (struct.error, OverflowError):
@@ -230,36 +194,20 @@ def test_a_signing_link_packs_by_pymavlink_byte_for_byte():
         frame = pack_message(msg, ours)
         assert frame == expected and frame[2] == mavlink.MAVLINK_IFLAG_SIGNED
         assert ours.signing.timestamp == theirs.signing.timestamp
-        assert pack_fields(type(msg), _fields(msg), ours) == msg.pack(theirs)
-    msgs = [actuator_message(1, np.full(4, 0.5), True, True)] * 3
-    assert pack_messages(msgs, ours) == b"".join(m.pack(theirs) for m in msgs)
+    link = SimLink("127.0.0.1", 0, "auto")
+    signing(link.mav)
+    twin = signing(mavlink.MAVLink(None, link.mav.srcSystem, link.mav.srcComponent))
+    assert link.actuators_frame(7, np.full(4, 0.5), True, True) == \
+        actuator_message(7, np.full(4, 0.5), True, True).pack(twin)
 
 
 def test_other_messages_are_packed_by_pymavlink():
     mav = mavlink.MAVLink(None, 1, 51)
-    heartbeat = mavlink.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3)
-    assert pack_message(heartbeat, mav) == heartbeat.pack(mav)
+    text = mavlink.MAVLink_statustext_message(6, b"hello", 0, 0)
+    assert pack_message(text, mav) == text.pack(mav)
 
 
-# -- parsing ---------------------------------------------------------------------------
-def test_parsing_gives_pymavlinks_fields():
-    """Every field of every message the fast path parses (trimmed payloads zero-extended)
-    is pymavlink's, NaN and -0.0 included."""
-    mav = mavlink.MAVLink(None, 1, 51)
-    fast = 0
-    for k, msg in enumerate(_messages(2000, seed=3)):
-        mav.seq = k % 256
-        try:
-            frame = msg.pack(mav)
-        except (struct.error, OverflowError):
-            continue
-        (got,) = _fast(frame)
-        assert isinstance(got, LinkMessage) and got.get_type() == msg.get_type()
-        assert _record(got) == _pymavlink(frame)[0]
-        fast += 1
-    assert fast > 1900
-
-
+# -- reading --------------------------------------------------------------------------
 def _framed(msgid: int, payload: bytes, incompat_flags: int = 0) -> bytes:
     """A MAVLink 2 frame of ``payload`` as given (no trimming), with a good checksum."""
     body = bytes((len(payload), incompat_flags, 0, 0, 1, 1)) + \
@@ -277,7 +225,7 @@ def _frames_pymavlink_judges() -> dict[str, bytes]:
     signer.signing.secret_key, signer.signing.sign_outgoing = KEY, True
     actuator = actuator_message(10_000, np.full(4, 0.5), True, True)
     actuator_id = mavlink.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
-    payload = LAYOUTS[actuator_id].payload.pack(1, 1, *range(16), 1)
+    payload = struct.pack("<QQ16fB", 1, 1, *range(16), 1)
     return {
         "bad checksum": good[:-2] + bytes((good[-2] ^ 0x55, good[-1])),
         "damaged payload": good[:20] + bytes((good[20] ^ 1,)) + good[21:],
@@ -290,35 +238,43 @@ def _frames_pymavlink_judges() -> dict[str, bytes]:
     }
 
 
+def _rows(data: bytes) -> list[tuple[int, int, int]]:
+    """(kind, start, end) of each row read_frames gives of ``data``, every message
+    wanted."""
+    table = np.zeros((MAX_FRAMES, 4), dtype=np.int64)
+    values = np.zeros((MAX_FRAMES, VALUES))
+    rows, _used = read_frames(np.frombuffer(data, dtype=np.uint8), EVERY_MESSAGE,
+                              np.array(DEFAULT_HOME), table, values)
+    return [tuple(row[:3]) for row in table[:rows].tolist()]
+
+
 @pytest.mark.parametrize("case", list(_frames_pymavlink_judges()))
-def test_frames_the_fast_path_refuses_are_judged_by_pymavlink(case):
+def test_frames_the_compiled_reader_refuses_are_judged_by_pymavlink(case):
     frame = _frames_pymavlink_judges()[case]
-    msgid = split_frames(frame)[0][0][0]
-    assert LAYOUTS[msgid].parse(frame) is None
-    got = _fast(frame)
-    assert not any(isinstance(m, LinkMessage) for m in got)
-    assert [_record(m) for m in got] == _pymavlink(frame)
+    assert _rows(frame)[0][0] == SLOW
 
 
-def test_a_link_that_checks_signatures_parses_everything_by_pymavlink():
-    """Unsigned frames are refused there (BAD_DATA), good signed ones taken, as before."""
-    def checking() -> mavlink.MAVLink:
-        mav = new_mavlink(1, 51)
-        mav.signing.secret_key = KEY
-        return mav
+def test_a_link_that_checks_signatures_reads_everything_by_pymavlink():
+    """Unsigned frames are refused there (BAD_DATA, counted), good signed ones taken, as
+    pymavlink alone takes them."""
+    from sitl.link import AutopilotLink, LinkStats
 
     signer = mavlink.MAVLink(None, 1, 1)
     signer.signing.secret_key, signer.signing.sign_outgoing = KEY, True
     signer.signing.timestamp = 10**9
     msg = actuator_message(10_000, np.full(4, 0.5), True, True)
     data = msg.pack(mavlink.MAVLink(None, 1, 1)) + msg.pack(signer) + msg.pack(signer)
-    ours, theirs = checking(), checking()
-    got = _fast(data, ours)
-    assert not any(isinstance(m, LinkMessage) for m in got)
-    assert [_record(m) for m in got] == [_record(m) for m in theirs.parse_buffer(data)]
-    assert [m.get_type() for m in got] == ["BAD_DATA", "HIL_ACTUATOR_CONTROLS",
-                                           "HIL_ACTUATOR_CONTROLS"]
-    assert (ours.signing.goodsig_count, ours.signing.timestamp) == (
+    link = AutopilotLink("127.0.0.1", 0, LinkStats(), lambda text: None)
+    link.mav.signing.secret_key = KEY
+    theirs = new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID)
+    theirs.signing.secret_key = KEY
+    got = link.read(_Chunks([data]))
+    expected = theirs.parse_buffer(data)
+    assert [m.get_type() for m in expected] == ["BAD_DATA", "HIL_ACTUATOR_CONTROLS",
+                                                "HIL_ACTUATOR_CONTROLS"]
+    assert [_record(m) for m in got] == [_record(m) for m in expected[1:]]
+    assert link.stats.bad_messages == 1
+    assert (link.mav.signing.goodsig_count, link.mav.signing.timestamp) == (
         theirs.signing.goodsig_count, theirs.signing.timestamp)
 
 
@@ -337,13 +293,23 @@ def _mixed_stream(seed: int) -> bytes:
 
 
 @pytest.mark.parametrize("seed", range(5))
-def test_a_mixed_stream_parses_as_pymavlink_parses_it(seed):
+def test_a_mixed_stream_is_read_whole_in_order(seed):
+    """read_frames' rows cover a mixed stream end to end, in order; pymavlink reads the
+    frames it decoded as the messages they are, and the rows it left to pymavlink as
+    pymavlink reads them in the whole stream."""
     data = _mixed_stream(seed)
-    frames, rest = split_frames(data)
+    rows = _rows(data)
+    assert rows[0][1] == 0 and all(a[2] == b[1] for a, b in zip(rows, rows[1:], strict=False))
+    decoded = [data[a:b] for kind, a, b in rows if kind > SLOW]
+    assert len(decoded) >= 2  # the rest: values the decoders refuse (random fields)
+    for frame in decoded:
+        (msg,) = new_mavlink(1, 1).parse_buffer(frame)
+        assert msg.get_type() in {cls.msgname for cls in CLASSES}
+    # Parsing the rows' bytes row by row gives what parsing the whole stream gives.
     mav = new_mavlink(1, 1)
-    got = parse_frames(frames, mav) + (mav.parse_buffer(rest) or [])
-    assert [_record(m) for m in got] == _pymavlink(data)
-    assert any(isinstance(m, LinkMessage) for m in got)
+    by_rows = [m for _kind, a, b in rows for m in mav.parse_buffer(data[a:b]) or []]
+    by_rows += mav.parse_buffer(data[rows[-1][2]:]) or []
+    assert [_record(m) for m in by_rows] == _pymavlink(data)
 
 
 # -- the links: readings and counters as before, on streams cut anywhere ----------------
@@ -440,7 +406,7 @@ def _autopilot_stream(seed: int) -> bytes:
     truth, and the frames the fast path refuses among them."""
     from contracts.airframe import PAPER, hover_rotor_speeds
     from sitl.plant import Plant
-    from sitl.sensors import ideal_readings
+    from sitl.truth import ideal_readings
 
     rng = random.Random(seed)
     plant = Plant(PAPER, "paper", position_ned_m=(1.0, -2.0, -3.0), euler_rad=(0.3, -0.2, 1.0),
@@ -480,12 +446,20 @@ def _read_all(link, chunks: list[bytes]) -> list:
 @pytest.mark.parametrize("home_given", [True, False])
 def test_the_autopilot_reads_the_simulator_as_before(source, home_given, monkeypatch):
     """The autopilot's SimLink.read against itself with pymavlink parsing every frame it
-    wants, as before the layouts: the same readings, home, refusals and counters."""
+    wants, as before the compiled reader: the same readings, home, refusals and
+    counters."""
     import autopilot.process.sim_link as sim_link
 
-    def pymavlink_only(frames, mav: mavlink.MAVLink) -> list:
-        return mav.parse_buffer(b"".join(f for _, f in frames)) or []
-
+    def pymavlink_only(buf, wanted, home, table, values) -> tuple[int, int]:
+        """read_frames' rows with nothing decoded: every wanted frame is SLOW."""
+        data = buf.tobytes()
+        frames, rest = split_frames(data)
+        at = 0
+        for row, (msgid, frame) in enumerate(frames):
+            kind = SLOW if msgid == -1 or msgid in wanted.tolist() else SKIP
+            table[row, :3] = kind, at, at + len(frame)
+            at += len(frame)
+        return len(frames), len(data) - len(rest)
     rng = random.Random(f"{source} {home_given}")
     data = _autopilot_stream(3)
     home = DEFAULT_HOME if home_given else None
@@ -494,15 +468,16 @@ def test_the_autopilot_reads_the_simulator_as_before(source, home_given, monkeyp
         link = sim_link.SimLink("127.0.0.1", 0, source, home=home)
         got = _read_all(link, chunks)
         with monkeypatch.context() as patch:
-            patch.setattr(sim_link, "parse_frames", pymavlink_only)
+            patch.setattr(sim_link, "read_frames", pymavlink_only)
             assert _read_all(sim_link.SimLink("127.0.0.1", 0, source, home=home),
                              chunks) == got
         assert link.bad_messages >= 1 and link.home is not None
 
 
 def test_the_actuator_answer_converts_the_same_from_either_message():
-    """commands_from_actuator on a parsed LinkMessage and on pymavlink's message, and
-    against its former numpy checks: the same commands bit for bit, or the same refusal."""
+    """commands_from_actuator on pymavlink's message and the compiled reader against its
+    former numpy checks: the same commands bit for bit, or the same refusal (the
+    compiled reader leaves a refused one to commands_from_actuator)."""
     from contracts.mavlink import HIL_MODE_ARMED, HIL_MOTORS, LinkDataError, commands_from_actuator
 
     def numpy_checks(msg) -> np.ndarray:
@@ -530,11 +505,14 @@ def test_the_actuator_answer_converts_the_same_from_either_message():
         commands = np.array([rng.choice(edges) if rng.random() < 0.4 else rng.random()
                              for _ in range(4)])
         frame = actuator_message(k, commands, k % 3 > 0, True).pack(mav)
-        (light,) = _fast(frame)
         (heavy,) = mavlink.MAVLink(None).parse_buffer(frame)
-        assert isinstance(light, LinkMessage)
         expected = outcome(numpy_checks, heavy)
-        assert outcome(commands_from_actuator, light) == expected
         assert outcome(commands_from_actuator, heavy) == expected
+        table = np.zeros((MAX_FRAMES, 4), dtype=np.int64)
+        values = np.zeros((MAX_FRAMES, VALUES))
+        read_frames(np.frombuffer(frame, dtype=np.uint8), EVERY_MESSAGE, np.zeros(3), table,
+                    values)
+        compiled = _exact_reading(values[0, :4].copy()) if table[0, 0] > SLOW else None
+        assert compiled == (None if isinstance(expected, str) else expected)
         refused += isinstance(expected, str)
     assert 100 < refused < 500

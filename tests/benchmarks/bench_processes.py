@@ -1,6 +1,7 @@
 """Benchmarks of the SITL processes (logger + simulator + autopilot): lockstep real-time
 factor and one cycle's parts (the simulator link's codec as the processes run it: its
-layouts, contracts/sim_link_codec.py; pymavlink's codec in the same parts beside them).
+compiled code, contracts/sim_samples.py and contracts/sim_readings.py; pymavlink's codec in
+the same parts beside them).
 
     python tests/benchmarks/bench_processes.py            # lockstep figures
     python tests/benchmarks/bench_processes.py --realtime # 60 s real-time jitter, 100/250 Hz
@@ -23,7 +24,6 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 import numpy as np  # noqa: E402
-from contracts.sim_link_codec import pack_message, pack_messages, parse_frames  # noqa: E402
 
 from autopilot.commander.commander import Commander  # noqa: E402
 from autopilot.control.factory import load_models, make_controller  # noqa: E402
@@ -37,7 +37,16 @@ from contracts.mavlink import (  # noqa: E402
     measurement_from_odometry,
     split_frames,
 )
-from contracts.sim_samples import sample_messages  # noqa: E402
+from contracts.sim_readings import MAX_FRAMES, VALUES, read_frames  # noqa: E402
+from contracts.sim_samples import (  # noqa: E402
+    ACTUATORS_BYTES,
+    FIX_SIZE,
+    SAMPLE_BYTES,
+    pack_actuators,
+    pack_sample,
+    sample_messages,  # noqa: E402
+    sensor_reading,
+)
 from ground.run.processes import RunSettings, fly  # noqa: E402
 from ground.scenario.scenario_file import scenario_by_name  # noqa: E402
 from sitl.plant import Plant
@@ -80,38 +89,50 @@ def cycle_parts() -> tuple[dict[str, float], dict[str, float]]:
     ap_mav = mavlink.MAVLink(None, 1, 1)
     s = plant.state()
 
+    out = np.empty(max(SAMPLE_BYTES, ACTUATORS_BYTES), dtype=np.uint8)
+    table, values = np.zeros((MAX_FRAMES, 4), dtype=np.int64), np.zeros((MAX_FRAMES, VALUES))
+    home = np.array(DEFAULT_HOME)
+    truth, sensor, _fix = ideal_readings(0, s, np.zeros(3))
+    reading, no_fix, accel = sensor_reading(sensor), np.zeros(FIX_SIZE), np.zeros(3)
+    numbers = s.numbers()
+
     def encode_sample(pymavlink: bool = False) -> bytes:
-        msgs = sample_messages(*ideal_readings(0, s, np.zeros(3)), DEFAULT_HOME)
         if pymavlink:
+            msgs = sample_messages(*ideal_readings(0, s, np.zeros(3)), DEFAULT_HOME)
             return b"".join(m.pack(sim_mav) for m in msgs)
-        return pack_messages(msgs, sim_mav)
+        end, _, _ = pack_sample(out, sim_mav.seq, 1, 51, home, 0, numbers, accel, reading,
+                                no_fix, -1)
+        return out[:end].tobytes()
 
     sample = encode_sample()
     odometry_id = mavlink.MAVLINK_MSG_ID_ODOMETRY
+    wanted = np.array([odometry_id], dtype=np.int64)
 
     def decode_sample(pymavlink: bool = False) -> None:
-        # As the autopilot's SimLink: only the state message is parsed.
-        frames, _ = split_frames(sample)
+        # As the autopilot's SimLink: only the state message is read.
         if pymavlink:
+            frames, _ = split_frames(sample)
             msgs = ap_mav.parse_buffer(b"".join(f for i, f in frames if i == odometry_id))
+            for msg in msgs:
+                measurement_from_odometry(msg)
         else:
-            msgs = parse_frames((f for f in frames if f[0] == odometry_id), ap_mav)
-        for msg in msgs:
-            measurement_from_odometry(msg)
+            read_frames(np.frombuffer(sample, dtype=np.uint8), wanted, home, table, values)
 
     def encode_actuator(pymavlink: bool = False) -> bytes:
-        msg = actuator_message(0, np.full(4, 0.5), True, True)
-        return msg.pack(ap_mav) if pymavlink else pack_message(msg, ap_mav)
+        if pymavlink:
+            return actuator_message(0, np.full(4, 0.5), True, True).pack(ap_mav)
+        end = pack_actuators(out, 0, 1, 1, 0, np.full(4, 0.5), 128, 1)
+        return out[:end].tobytes()
 
     actuator = encode_actuator()
+    every = np.zeros(0, dtype=np.int64)
 
     def decode_actuator(pymavlink: bool = False) -> None:
         if pymavlink:
-            msgs = sim_mav.parse_buffer(actuator)
+            for msg in sim_mav.parse_buffer(actuator):
+                commands_from_actuator(msg)
         else:
-            msgs = parse_frames(split_frames(actuator)[0], sim_mav)
-        for msg in msgs:
-            commands_from_actuator(msg)
+            read_frames(np.frombuffer(actuator, dtype=np.uint8), every, home, table, values)
 
     parts = {
         "sim: state -> 4 messages (encode)": _per_call_us(encode_sample),

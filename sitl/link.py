@@ -112,7 +112,11 @@ class AutopilotLink:
             return None
         if not data:
             return None
-        data = self._pending + data
+        return self.messages_of(self._pending + data)
+
+    def messages_of(self, data: bytes) -> list:
+        """The messages in ``data`` (what came after the last frame cut off); a frame cut
+        off at its end waits for the next read."""
         if self.mav.signing.secret_key is not None:  # pymavlink checks signatures
             frames, self._pending = split_frames(data)
             return self._judged(self.mav.parse_buffer(b"".join(f for _, f in frames)) or [])

@@ -360,7 +360,7 @@ def preload_compiled_code() -> None:
     for every simulator it forks (a first call loads from numba's cache, about 0.2 s for
     the plant; the sensors' took 20-45 ms of a run's first sample, which the autopilot
     waited for). Nothing outside the scratch objects changes."""
-    from contracts.mavlink import SIMULATOR_COMPID, SIMULATOR_SYSID, new_mavlink
+    from contracts.mavlink import SIMULATOR_COMPID, SIMULATOR_SYSID, actuator_message, new_mavlink
     from contracts.perturbations import NO_SENSOR_EFFECTS
     from sitl.dynamics import FIDELITIES
 
@@ -371,4 +371,7 @@ def preload_compiled_code() -> None:
         plant.advance(0.002)
         state = plant.state()
     samples = SampleSource(SensorProfile(), 100.0, 0, DEFAULT_HOME, state)
+    samples.observe(state, state, 0.01)
     samples.frames(0, state, NO_SENSOR_EFFECTS, new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID))
+    link = AutopilotLink("127.0.0.1", 0, LinkStats(), lambda text: None)
+    link.messages_of(actuator_message(0, np.zeros(4), True, True).pack(link.mav))

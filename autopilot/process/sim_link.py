@@ -133,6 +133,7 @@ class SimLink:
         self.home_source = "given" if home is not None else None
         self._first_fix: tuple[int, Home] | None = None  # (time_usec, home) of HIL_GPS
         self.sock: socket.socket | None = None
+        self.source = source
         self.source_types = STATE_SOURCES[source]
         self.source_ids = frozenset(getattr(mavlink, f"MAVLINK_MSG_ID_{t}")
                                     for t in self.source_types) | {-1}
@@ -164,6 +165,11 @@ class SimLink:
         self._home = home
         if home is not None:
             self._home_values[:] = home
+
+    def twin_at(self, home: Home) -> SimLink:
+        """A link that reads as this one does (its state source), at ``home``, with its own
+        parser and buffers, and no socket: for warming the compiled code up."""
+        return SimLink(*self.address, self.source, self.sysid, home, self.wait_s)
 
     def connect(self, now: float) -> bool:
         """Try to connect (every RECONNECT_FIRST_S at first, backing off to RECONNECT_S);
@@ -259,7 +265,11 @@ class SimLink:
             return None
         if not data:
             return None
-        data = self._pending + data
+        return self.readings_of(self._pending + data)
+
+    def readings_of(self, data: bytes) -> list[LinkReading]:
+        """The samples in ``data`` (what came after the last frame cut off), in the order
+        sent; a frame cut off at its end waits for the next read."""
         if self.home is None or self.mav.signing.secret_key is not None:
             # Until home is known, and on a link that checks signatures: every frame it
             # wants through pymavlink.

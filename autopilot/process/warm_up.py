@@ -9,7 +9,6 @@ and on a scratch estimator, aligned, its filter steps.
 
 from __future__ import annotations
 
-import copy
 import math
 
 import numpy as np
@@ -51,8 +50,7 @@ def load_compiled_code(vehicle: Commander, period_s: float, link: SimLink,
     # scratch estimator.
     scratch_navigation = Navigation(vehicle, Estimator())
     on_the_truth = Navigation(vehicle, None)  # the gyro's rates into the truth's measurement
-    decoder = copy.copy(link)  # the link's own home is the simulator's to give
-    decoder.home = DEFAULT_HOME
+    decoder = link.twin_at(DEFAULT_HOME)  # the link's own home is the simulator's to give
     for k in range(3):
         truth = TruthSample(k * 10_000, (0.0, 0.0, -1.0), (0.0, 0.0, 0.0),
                             (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (0.0, 0.0, -GRAVITY_MPS2))
@@ -60,11 +58,15 @@ def load_compiled_code(vehicle: Commander, period_s: float, link: SimLink,
                               (0.2, 0.0, 0.4), 950.0, 500.0, 20.0, HIL_SENSOR_ALL_FIELDS)
         fix = GpsSample(k * 10_000, *DEFAULT_HOME.geodetic_from_ned(0.0, 0.0, -1.0),
                         (0.0, 0.0, 0.0), 0.8, 1.2, 3, 12)
-        for msg in sample_messages(truth, sensor, fix, DEFAULT_HOME):
+        msgs = sample_messages(truth, sensor, fix, DEFAULT_HOME)
+        for msg in msgs:
             if msg.get_type() in link.source_types:
                 reading = decoder.decode(msg)
                 scratch_navigation.measurements([reading])
                 on_the_truth.measurements([reading])
+        # The compiled reading of the frames and the compiled answer.
+        decoder.readings_of(b"".join(m.pack(decoder.mav) for m in msgs))
+        decoder.actuators_frame(k * 10_000, np.zeros(4), False, True)
     if filter_steps and link.source_types == STATE_SOURCES["estimator"]:
         _align_and_step(Estimator())
 

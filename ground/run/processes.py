@@ -63,6 +63,7 @@ class RunSettings:
     home: Home = DEFAULT_HOME  # given to both: the run's frames agree from the first sample
     rt_cpus: frozenset[int] | None = None  # both vehicle processes' CPUs (None: any)
     log_sensors: bool = False  # the simulator logs its HIL_SENSOR and HIL_GPS frames too
+    spin_us: float | None = None  # real time: the autopilot's busy-wait (None: its default)
 
 
 # How long the wait for a run's processes sleeps at most between its checks (its deadline,
@@ -117,6 +118,8 @@ def vehicle_commands(scenario: Scenario, settings: RunSettings, sim_port: int,
         autopilot += ["--model", str(settings.model_path)]
     if settings.any_airframe_model:
         autopilot.append("--any-airframe-model")
+    if settings.spin_us is not None:
+        autopilot += ["--spin-us", str(settings.spin_us)]
     for name, value in (settings.parameters or {}).items():
         autopilot += ["--param", f"{name}={value!r}"]
     return sim, autopilot

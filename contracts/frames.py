@@ -56,6 +56,17 @@ def wrap_pi_array(angles_rad: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True)
+def vector_norm(v: np.ndarray) -> float:
+    """The Euclidean norm, summed in order: the one the simulator link's compiled code
+    and its Python decoders share (numpy's and numba's ``dot`` call a BLAS, whose thread
+    pool has no place in a real-time loop)."""
+    total = 0.0
+    for i in range(v.size):
+        total += v[i] * v[i]
+    return math.sqrt(total)
+
+
+@njit(cache=True)
 def quat_from_euler(phi: float, theta: float, psi: float) -> np.ndarray:
     """Unit quaternion of the ZYX (yaw, pitch, roll) rotation body FRD -> world NED."""
     cr, sr = math.cos(0.5 * phi), math.sin(0.5 * phi)

@@ -23,6 +23,7 @@ from contracts.frames import (
     body_to_world,
     euler_from_quat,
     euler_rates_from_body_rates,
+    vector_norm,
 )
 from contracts.vectors import MEAS_EULER, MEAS_EULER_RATE, MEAS_POS, MEAS_VEL, MEASUREMENT
 
@@ -110,7 +111,7 @@ def _finite(values: tuple[float, ...], what: str) -> None:
 
 def _measurement(position, velocity, quaternion, body_rate) -> np.ndarray:
     q = np.asarray(quaternion, dtype=float)
-    norm = math.sqrt(float(q @ q))
+    norm = vector_norm(q)
     if not 0.9 < norm < 1.1:
         raise LinkDataError(f"attitude quaternion has norm {norm:.3f}, not 1")
     out = np.empty(MEASUREMENT.size)

@@ -31,7 +31,11 @@ import math
 import numpy as np
 from numba import njit
 
-from contracts.frames import altitude_from_pressure_m_compiled, ned_from_geodetic_compiled
+from contracts.frames import (
+    altitude_from_pressure_m_compiled,
+    ned_from_geodetic_compiled,
+    vector_norm,
+)
 from contracts.mavlink import (
     HIL_MODE_ARMED,
     HIL_MOTORS,
@@ -96,7 +100,7 @@ def _odometry(floats: np.ndarray, ints: np.ndarray, out: np.ndarray) -> bool:
     if not _all_finite(floats, 1, 14):  # x .. yawspeed
         return False
     q = floats[4:8].copy()
-    norm = math.sqrt(np.dot(q, q))
+    norm = vector_norm(q)
     if not 0.9 < norm < 1.1:
         return False
     _fill_measurement(out, floats[1], floats[2], floats[3], floats[8], floats[9],

@@ -18,6 +18,7 @@ from contracts.frames import (
     pressure_hpa,
     quat_from_euler,
     rotation_from_quat,
+    vector_norm,
 )
 from contracts.mavlink import HIL_SENSOR_BARO, HIL_SENSOR_IMU, HIL_SENSOR_MAG
 from contracts.perturbations import SensorEffects
@@ -80,7 +81,7 @@ def gyro_rotation_rate(before: np.ndarray, after: np.ndarray, period_s: float,
         w = -w
         for i in range(3):
             v[i] = -v[i]
-    norm = math.sqrt(np.dot(v, v))
+    norm = vector_norm(v)
     if norm == 0.0:
         return False
     angle = 2.0 * math.atan2(norm, w)

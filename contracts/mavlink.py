@@ -323,7 +323,8 @@ class StatustextAssembler:
 
 def frame_size(buffer: bytes, i: int) -> int:
     """Length of the MAVLink frame starting at ``buffer[i]`` from its header (signature
-    included); 0 if its header is incomplete, -1 if no frame starts there."""
+    included); 0 if its header is incomplete, -1 if no frame starts there. Bytes or a
+    uint8 array (compiled as ``contracts.mavlink_codec.frame_length``)."""
     magic = buffer[i]
     if magic == 0xFD:
         return 12 + buffer[i + 1] + (13 if buffer[i + 2] & 1 else 0) if i + 10 <= len(buffer) \

@@ -31,6 +31,8 @@ import numpy as np
 from numba import njit
 from pymavlink.dialects.v20 import common as mavlink
 
+from contracts.mavlink import frame_msgid, frame_size
+
 MAGIC_V2 = 0xFD
 HEADER_BYTES = 10  # magic, length, incompat, compat, seq, sysid, compid, msgid (3 bytes)
 CHECKSUM_BYTES = 2
@@ -85,15 +87,16 @@ class FrameLayout:
 
     def values(self, fields: tuple) -> tuple[np.ndarray, np.ndarray]:
         """(ints, floats) of a message's constructor arguments."""
+        return self._flat_values(self._wire_from_fields(fields))
+
+    def _flat_values(self, wire: tuple) -> tuple[np.ndarray, np.ndarray]:
+        """(ints, floats) of the fields in wire order, arrays whole."""
         flat: list = []
-        for value in self._wire_from_fields(fields):
+        for value in wire:
             if isinstance(value, (list, tuple)):
                 flat += value
             else:
                 flat.append(value)
-        return self._flat_values(flat)
-
-    def _flat_values(self, flat: list) -> tuple[np.ndarray, np.ndarray]:
         if len(flat) != len(self.codes):
             raise ValueError(f"{self.msgname}: {len(flat)} values for {len(self.codes)}")
         ints = np.zeros(len(self.codes), dtype=np.int64)
@@ -120,13 +123,8 @@ class FrameLayout:
 
     def pack_message(self, msg: mavlink.MAVLink_message, mav: mavlink.MAVLink) -> bytes:
         """``msg.pack(mav)`` (``mav`` unsigned), from the message's fields."""
-        flat: list = []
-        for value in self._wire_of_message(msg):
-            if isinstance(value, (list, tuple)):
-                flat += value
-            else:
-                flat.append(value)
-        return self.pack(*self._flat_values(flat), mav.seq, mav.srcSystem, mav.srcComponent)
+        return self.pack(*self._flat_values(self._wire_of_message(msg)), mav.seq,
+                         mav.srcSystem, mav.srcComponent)
 
     def pack_fields(self, fields: tuple, mav: mavlink.MAVLink) -> bytes:
         """The frame of ``cls(*fields).pack(mav)`` (``mav`` unsigned), without the
@@ -165,20 +163,19 @@ def pack_message(msg: mavlink.MAVLink_message, mav: mavlink.MAVLink) -> bytes:
 
 
 @njit(cache=True)
-def crc_x25(buf: np.ndarray, start: int, end: int, crc: int) -> int:
-    """MAVLink's checksum (CRC-16/MCRF4XX) of buf[start:end], continued from ``crc``."""
-    for i in range(start, end):
-        tmp = (buf[i] ^ (crc & 0xFF)) & 0xFF
-        tmp = (tmp ^ (tmp << 4)) & 0xFF
-        crc = ((crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
-    return crc
-
-
-@njit(cache=True)
 def _crc_byte(byte: int, crc: int) -> int:
+    """MAVLink's checksum (CRC-16/MCRF4XX, X.25) continued from ``crc`` by one byte."""
     tmp = (byte ^ (crc & 0xFF)) & 0xFF
     tmp = (tmp ^ (tmp << 4)) & 0xFF
     return ((crc >> 8) ^ (tmp << 8) ^ (tmp << 3) ^ (tmp >> 4)) & 0xFFFF
+
+
+@njit(cache=True)
+def crc_x25(buf: np.ndarray, start: int, end: int, crc: int) -> int:
+    """MAVLink's checksum of buf[start:end], continued from ``crc``."""
+    for i in range(start, end):
+        crc = _crc_byte(buf[i], crc)
+    return crc
 
 
 @njit(cache=True)
@@ -229,27 +226,11 @@ def pack_frame(out: np.ndarray, at: int, ints: np.ndarray, floats: np.ndarray,
     return end + CHECKSUM_BYTES
 
 
-@njit(cache=True)
-def frame_length(buf: np.ndarray, at: int) -> int:
-    """Length of the frame starting at buf[at] from its header (a signature included);
-    0 if its header is not all there yet, -1 if no frame starts there."""
-    n = buf.size
-    magic = buf[at]
-    if magic == MAGIC_V2:
-        if at + HEADER_BYTES > n:
-            return 0
-        return HEADER_BYTES + buf[at + 1] + CHECKSUM_BYTES + (13 if buf[at + 2] & 1 else 0)
-    if magic == 0xFE:
-        return 8 + buf[at + 1] if at + 6 <= n else 0
-    return -1
-
-
-@njit(cache=True)
-def msgid_at(buf: np.ndarray, at: int) -> int:
-    """Message id of the frame whose header starts at buf[at]."""
-    if buf[at] == MAGIC_V2:
-        return buf[at + 7] | buf[at + 8] << 8 | buf[at + 9] << 16
-    return buf[at + 5]
+# Where a frame ends and its message id, from its header: contracts/mavlink.py's
+# ``frame_size`` and ``frame_msgid`` (split_frames, datagram_frames), compiled from the
+# same source.
+frame_length = njit(cache=True)(frame_size)
+msgid_at = njit(cache=True)(frame_msgid)
 
 
 @njit(cache=True)

@@ -20,13 +20,16 @@ once and, for each frame, says what it is:
   those decoders to judge, in order, so that bad input is refused and reported exactly
   as it was.
 
-Rows of ``table``: (kind, start, end, time_us); a frame cut off at the end of the
-buffer is left for the next read (the returned offset).
+Rows of ``table``: (kind, start, end, time_us), at most MAX_FRAMES a pass; a frame cut
+off at the end of the buffer is left for the next read (the returned offset).
+``FrameReader`` is the links' reading with it: every pass a read needs, the rows to
+objects, the rest to pymavlink.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numba import njit
@@ -57,7 +60,7 @@ from contracts.mavlink_codec import (
 from contracts.vectors import MEASUREMENT
 
 SKIP, SLOW, TRUTH, IMU, GPS, ACTUATORS = range(6)
-MAX_FRAMES = 64  # per read; the rest is read the next time
+MAX_FRAMES = 64  # per pass of read_frames (FrameReader makes as many as a read needs)
 VALUES = max(MEASUREMENT.size, 11)
 # An IMU row: gyro, specific force (FRD), baro altitude AMSL [m] (NaN: not fresh),
 # magnetometer (FRD) [gauss], whether the magnetometer is fresh.
@@ -164,33 +167,33 @@ def _actuators(floats: np.ndarray, ints: np.ndarray, out: np.ndarray) -> bool:
 
 
 @njit(cache=True)
+def _unpacked(buf: np.ndarray, at: int, crc_extra: int, payload_bytes: int,
+              codes: np.ndarray, offsets: np.ndarray, ints: np.ndarray,
+              floats: np.ndarray) -> bool:
+    """The flat values of the plain frame at buf[at] into ``ints`` and ``floats``; False
+    when it is not one (checked_frame)."""
+    if not checked_frame(buf, at, crc_extra, payload_bytes):
+        return False
+    unpack_payload(buf, at + HEADER_BYTES, buf[at + 1], codes, offsets, ints, floats)
+    return True
+
+
+@njit(cache=True)
 def _decoded(buf: np.ndarray, at: int, msgid: int, home: np.ndarray, out: np.ndarray,
              ints: np.ndarray, floats: np.ndarray) -> int:
     """The kind of a whole frame of a wanted message, its row decoded (SLOW: not)."""
     if msgid == _OD_ID:
-        if not checked_frame(buf, at, _OD_CRC, _OD_SIZE):
-            return SLOW
-        unpack_payload(buf, at + HEADER_BYTES, buf[at + 1], _OD_CODES, _OD_OFFSETS, ints,
-                       floats)
-        return TRUTH if _odometry(floats, ints, out) else SLOW
+        ok = _unpacked(buf, at, _OD_CRC, _OD_SIZE, _OD_CODES, _OD_OFFSETS, ints, floats)
+        return TRUTH if ok and _odometry(floats, ints, out) else SLOW
     if msgid == _SE_ID:
-        if not checked_frame(buf, at, _SE_CRC, _SE_SIZE):
-            return SLOW
-        unpack_payload(buf, at + HEADER_BYTES, buf[at + 1], _SE_CODES, _SE_OFFSETS, ints,
-                       floats)
-        return IMU if _imu(floats, ints, out) else SLOW
+        ok = _unpacked(buf, at, _SE_CRC, _SE_SIZE, _SE_CODES, _SE_OFFSETS, ints, floats)
+        return IMU if ok and _imu(floats, ints, out) else SLOW
     if msgid == _GP_ID:
-        if not checked_frame(buf, at, _GP_CRC, _GP_SIZE):
-            return SLOW
-        unpack_payload(buf, at + HEADER_BYTES, buf[at + 1], _GP_CODES, _GP_OFFSETS, ints,
-                       floats)
-        return GPS if _gps(ints, home, out) else SLOW
+        ok = _unpacked(buf, at, _GP_CRC, _GP_SIZE, _GP_CODES, _GP_OFFSETS, ints, floats)
+        return GPS if ok and _gps(ints, home, out) else SLOW
     if msgid == _AC_ID:
-        if not checked_frame(buf, at, _AC_CRC, _AC_SIZE):
-            return SLOW
-        unpack_payload(buf, at + HEADER_BYTES, buf[at + 1], _AC_CODES, _AC_OFFSETS, ints,
-                       floats)
-        return ACTUATORS if _actuators(floats, ints, out) else SLOW
+        ok = _unpacked(buf, at, _AC_CRC, _AC_SIZE, _AC_CODES, _AC_OFFSETS, ints, floats)
+        return ACTUATORS if ok and _actuators(floats, ints, out) else SLOW
     return SLOW
 
 
@@ -231,3 +234,45 @@ def read_frames(buf: np.ndarray, wanted: np.ndarray, home: np.ndarray, table: np
         rows += 1
         i += size
     return rows, i
+
+
+class FrameReader:
+    """A link's reading of its received bytes: ``read_frames`` over them (as many passes
+    as its rows need), the decoded rows turned into objects by ``decoded(kind, time_us,
+    row)`` at once (the rows are reused), the rest parsed by the link's pymavlink parser
+    in the order it came, consecutive frames in one buffer. ``wanted``: the message ids
+    to read (none: every message); ``home``: latitude, longitude [deg], altitude AMSL
+    [m] for HIL_GPS."""
+
+    def __init__(self, decoded: Callable[[int, int, np.ndarray], object]) -> None:
+        self.decoded = decoded
+        self._table = np.zeros((MAX_FRAMES, 4), dtype=np.int64)
+        self._values = np.zeros((MAX_FRAMES, VALUES))
+
+    def read(self, data: bytes, wanted: np.ndarray, home: np.ndarray,
+             mav: mavlink.MAVLink) -> tuple[list, bytes]:
+        """(the messages of ``data`` in order: decoded objects and pymavlink's messages,
+        BAD_DATA included; the bytes of a frame cut off at its end)."""
+        buf = np.frombuffer(data, dtype=np.uint8)
+        table, values = self._table, self._values
+        out: list = []
+        slow: list[bytes] = []
+        at = 0
+        while True:
+            rows, used = read_frames(buf[at:], wanted, home, table, values)
+            for r, (kind, start, end, time_us) in enumerate(table[:rows].tolist()):
+                if kind == SKIP:
+                    continue
+                if kind == SLOW:
+                    slow.append(data[at + start:at + end])
+                    continue
+                if slow:
+                    out += mav.parse_buffer(b"".join(slow)) or []
+                    slow.clear()
+                out.append(self.decoded(kind, time_us, values[r]))
+            at += used
+            if rows < MAX_FRAMES:
+                break
+        if slow:
+            out += mav.parse_buffer(b"".join(slow)) or []
+        return out, data[at:]

@@ -29,7 +29,7 @@ from contracts.mavlink import (
     split_frames,
 )
 from contracts.realtime import Histogram
-from contracts.sim_readings import ACTUATORS, MAX_FRAMES, SLOW, VALUES, read_frames
+from contracts.sim_readings import FrameReader
 
 
 @dataclass
@@ -53,7 +53,7 @@ class Actuators(NamedTuple):
         return "HIL_ACTUATOR_CONTROLS"
 
 
-EVERY_MESSAGE = np.zeros(0, dtype=np.int64)  # read_frames: every frame read
+EVERY_MESSAGE = np.zeros(0, dtype=np.int64)  # the reader's wanted ids: every message
 _NO_HOME = np.zeros(3)
 
 
@@ -69,8 +69,8 @@ class AutopilotLink:
         self.log = log
         self.mav = new_mavlink(SIMULATOR_SYSID, SIMULATOR_COMPID)
         self._pending = b""  # the start of a frame whose end has not come yet
-        self._table = np.zeros((MAX_FRAMES, 4), dtype=np.int64)  # read_frames' rows
-        self._values = np.zeros((MAX_FRAMES, VALUES))
+        self._reader = FrameReader(
+            lambda kind, time_us, row: Actuators(time_us, row[:HIL_MOTORS].copy()))
         self._server: socket.socket | None = None
 
     def listen(self) -> int:
@@ -120,23 +120,8 @@ class AutopilotLink:
         if self.mav.signing.secret_key is not None:  # pymavlink checks signatures
             frames, self._pending = split_frames(data)
             return self._judged(self.mav.parse_buffer(b"".join(f for _, f in frames)) or [])
-        table, values = self._table, self._values
-        rows, used = read_frames(np.frombuffer(data, dtype=np.uint8), EVERY_MESSAGE, _NO_HOME,
-                                 table, values)
-        self._pending = data[used:]
-        parsed: list = []
-        slow: list[bytes] = []
-        for r, (kind, start, end, time_us) in enumerate(table[:rows].tolist()):
-            if kind == ACTUATORS:
-                if slow:
-                    parsed += self.mav.parse_buffer(b"".join(slow)) or []
-                    slow.clear()
-                parsed.append(Actuators(time_us, values[r, :HIL_MOTORS].copy()))
-            elif kind == SLOW:
-                slow.append(data[start:end])
-        if slow:
-            parsed += self.mav.parse_buffer(b"".join(slow)) or []
-        return self._judged(parsed)
+        msgs, self._pending = self._reader.read(data, EVERY_MESSAGE, _NO_HOME, self.mav)
+        return self._judged(msgs)
 
     def _judged(self, parsed: list) -> list:
         """The messages of one read, its BAD_DATA counted and said (once), not passed

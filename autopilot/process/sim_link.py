@@ -46,12 +46,8 @@ from contracts.sim_readings import (
     IMU_GYRO,
     IMU_HAS_MAG,
     IMU_MAG,
-    MAX_FRAMES,
-    SKIP,
-    SLOW,
     TRUTH,
-    VALUES,
-    read_frames,
+    FrameReader,
 )
 from contracts.sim_samples import ACTUATORS_BYTES, pack_actuators
 from contracts.vectors import MEASUREMENT
@@ -99,7 +95,7 @@ LinkReading = TruthReading | ImuReading | GpsReading
 
 
 def _reading(kind: int, time_us: int, row: np.ndarray) -> tuple[str, LinkReading]:
-    """(message type, reading) of a row ``read_frames`` decoded."""
+    """(message type, reading) of a row the compiled reader decoded."""
     if kind == TRUTH:
         return "ODOMETRY", TruthReading(time_us, row[:MEASUREMENT.size].copy())
     if kind == IMU:
@@ -125,7 +121,7 @@ class SimLink:
                  sysid: int = AUTOPILOT_SYSID, home: Home | None = None,
                  wait_s: float = 0.0) -> None:
         self.address = (host, port)
-        self._home_values = np.zeros(3)  # home as read_frames takes it
+        self._home_values = np.zeros(3)  # home as the compiled reader takes it
         self.wait_s = wait_s
         # The local frame's origin: given, or the simulator's first position (as PX4's
         # simulator_mavlink takes its reference); None until then.
@@ -149,11 +145,10 @@ class SimLink:
         self._retry_s = RECONNECT_FIRST_S
         self.bad_messages = 0
         self.last_bad: str | None = None
-        # read_frames' wanted ids (before and once ODOMETRY flows), its rows and values.
+        # The wanted ids (before and once ODOMETRY flows), and the reader.
         self._wanted = {seen: np.array(sorted(ids - {-1}), dtype=np.int64) for seen, ids in (
             (False, self.source_ids), (True, self._ids_with_odometry))}
-        self._table = np.zeros((MAX_FRAMES, 4), dtype=np.int64)
-        self._values = np.zeros((MAX_FRAMES, VALUES))
+        self._reader = FrameReader(_reading)
         self._answer = np.empty(ACTUATORS_BYTES, dtype=np.uint8)  # the answer's frame
 
     @property
@@ -278,29 +273,12 @@ class SimLink:
             parsed = self.mav.parse_buffer(b"".join(f for i, f in frames if i in ids)) or []
             self._take_home(parsed)
             return self._samples([(m.get_type(), m) for m in parsed])
-        # The frames in one compiled pass (contracts/sim_readings.py): decoded where they
+        # The frames read in compiled code (contracts/sim_readings.py): decoded where they
         # are plain, to pymavlink and the decoders below where not.
-        buf = np.frombuffer(data, dtype=np.uint8)
-        table, values = self._table, self._values
-        rows, used = read_frames(buf, self._wanted[self.odometry_seen], self._home_values,
-                                 table, values)
-        self._pending = data[used:]
-        entries: list[tuple[str, object]] = []
-        slow: list[bytes] = []
-        for r, (kind, start, end, time_us) in enumerate(table[:rows].tolist()):
-            if kind == SKIP:
-                continue
-            if kind == SLOW:
-                slow.append(data[start:end])
-                continue
-            if slow:
-                entries += [(m.get_type(), m) for m in self.mav.parse_buffer(b"".join(slow))
-                            or []]
-                slow.clear()
-            entries.append(_reading(kind, time_us, values[r]))
-        if slow:
-            entries += [(m.get_type(), m) for m in self.mav.parse_buffer(b"".join(slow)) or []]
-        return self._samples(entries)
+        items, self._pending = self._reader.read(data, self._wanted[self.odometry_seen],
+                                                 self._home_values, self.mav)
+        return self._samples([item if isinstance(item, tuple) else (item.get_type(), item)
+                              for item in items])
 
     def _samples(self, entries: list[tuple[str, object]]) -> list[LinkReading]:
         """The readings of (type, message or decoded reading) in order: the state source's

@@ -449,17 +449,18 @@ def test_the_autopilot_reads_the_simulator_as_before(source, home_given, monkeyp
     wants, as before the compiled reader: the same readings, home, refusals and
     counters."""
     import autopilot.process.sim_link as sim_link
+    import contracts.sim_readings as sim_readings
 
     def pymavlink_only(buf, wanted, home, table, values) -> tuple[int, int]:
         """read_frames' rows with nothing decoded: every wanted frame is SLOW."""
-        data = buf.tobytes()
-        frames, rest = split_frames(data)
+        frames, _rest = split_frames(buf.tobytes())
         at = 0
-        for row, (msgid, frame) in enumerate(frames):
+        for row, (msgid, frame) in enumerate(frames[:MAX_FRAMES]):
             kind = SLOW if msgid == -1 or msgid in wanted.tolist() else SKIP
             table[row, :3] = kind, at, at + len(frame)
             at += len(frame)
-        return len(frames), len(data) - len(rest)
+        return min(len(frames), MAX_FRAMES), at
+
     rng = random.Random(f"{source} {home_given}")
     data = _autopilot_stream(3)
     home = DEFAULT_HOME if home_given else None
@@ -468,7 +469,7 @@ def test_the_autopilot_reads_the_simulator_as_before(source, home_given, monkeyp
         link = sim_link.SimLink("127.0.0.1", 0, source, home=home)
         got = _read_all(link, chunks)
         with monkeypatch.context() as patch:
-            patch.setattr(sim_link, "read_frames", pymavlink_only)
+            patch.setattr(sim_readings, "read_frames", pymavlink_only)
             assert _read_all(sim_link.SimLink("127.0.0.1", 0, source, home=home),
                              chunks) == got
         assert link.bad_messages >= 1 and link.home is not None

@@ -9,6 +9,7 @@ import random
 import struct
 
 import numpy as np
+import pytest
 
 from contracts.frames import DEFAULT_HOME
 from contracts.mavlink import (
@@ -163,3 +164,23 @@ def test_garbage_unwanted_and_cut_frames():
     assert table[:3, :3].tolist() == [[SLOW, 0, 3], [SKIP, 3, 3 + len(heartbeat)],
                                       [IMU, 3 + len(heartbeat), used]]
     assert GPS != IMU
+
+
+def test_a_read_of_more_frames_than_one_pass_holds_reads_them_all():
+    """Garbage and other messages ahead of a sample, more rows than one pass of
+    read_frames holds: the links' reader makes the passes a read needs, so the sample is
+    read now, not left waiting for bytes that may never come (lockstep waits for it)."""
+    from autopilot.process.sim_link import SimLink
+
+    mav = mavlink.MAVLink(None, 1, 51)
+    heartbeat = mavlink.MAVLink_heartbeat_message(2, 12, 0, 0, 4, 3).pack(mav)
+    sensor = mavlink.MAVLink_hil_sensor_message(
+        10, 0.0, 0.0, -9.81, 0.1, 0.2, 0.3, 0.2, 0.0, 0.4, 1000.0, 0.0, 100.0, 20.0,
+        0x1FFF, 0).pack(mav)
+    data = (b"\x01" + heartbeat) * (3 * MAX_FRAMES) + sensor + sensor[:7]
+    link = SimLink("127.0.0.1", 0, "estimator", home=DEFAULT_HOME)
+    readings = link.readings_of(data)
+    assert [type(r).__name__ for r in readings] == ["ImuReading"]
+    assert readings[0].time_us == 10 and readings[0].gyro.tolist() == pytest.approx(
+        [0.1, 0.2, 0.3])
+    assert link._pending == sensor[:7]
